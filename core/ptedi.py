@@ -1,0 +1,386 @@
+"""P-TEDI: the peripheral trilinear event double integral, as a streaming estimator.
+
+The peripheral region R (default: the whole sensor) is collapsed to one "large pixel";
+each event changes the region's direct integral by ``±1/N_R`` (Eq. 11). For a frame with
+exposure ``T = [s, e]`` and reference time ``g = s``::
+
+    ln P(g)   = ln Pbar - ln E_p(g)                              (Eq. 14, sign per nec-method.md)
+    E_p(g)    = (1/|T|) ∫_T exp(c^T D_p(g, t)) dt                 (Eq. 13-14)
+    ln Pbar   = g(mean_R Z) - ln T - ln K                         (Eq. 15, the paper's form)
+    ln P(now) = ln P(g) + c^T D_p(g, now)                         (Eq. 12)
+
+Streaming form (O(1) per event, no per-event buffer): the source announces each exposure's
+start and end (:class:`~necviz.core.frames.ExposureMarker`) in stream order; while an
+exposure is open the integral of ``exp(c^T D_p(s, t))`` is accumulated piecewise as events
+arrive (the exponential of the uncompensated part is kept by multiplication, the compensated
+pieces in closed form). When the frame arrives (after its exposure) ``ln E_p`` is one division
+and one log. Several zones (e.g. a 4x4 metering grid) are independent large pixels.
+
+Anchor rule: a zone is re-anchored only on a frame whose valid-pixel fraction (9..250) in
+that zone is at least ``min_valid_fraction``; otherwise the zone keeps propagating from its
+last good anchor with events (the paper's work-around for frames saturated by a change
+during their exposure).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+from .crf import US_PER_S, CameraResponse, default_davis346
+from .errors import EventFormatError, FrameFormatError, NotAnchoredError, ParameterError, StreamError
+from .event_model import TediParams, segment_integral
+from .events import EVENT_DTYPE
+from .frames import ExposureMarker, Frame
+from .regions import zone_map, zone_sizes
+from .sensor import SensorGeometry
+
+IMAGE_FORMS = ("paper", "mean_log")
+_FREE, _OPEN, _CLOSED = 0, 1, 2
+
+
+@nb.njit(cache=True)
+def ptedi_update(
+    t, x, y, p, zmap, whole, last_t,
+    counts_on, counts_off, inv_n, f_on, f_off,
+    w, w_start, c0_on, c0_off, w_last, w_int, w_ebase,
+    c_on, c_off, a_on, b_on, a_off, b_off,
+):
+    """Apply an event batch to the P-TEDI state (Eq. 11 direct integral, Eq. 13 exposure integral).
+
+    Per event: find its zone (skipped when ``whole``), and if exposure window ``w`` is open,
+    add ``∫ exp(c^T D_p(s, τ)) dτ`` since the zone's last event (constant exponent, or the
+    closed-form compensated pieces of :func:`segment_integral`), then update the zone's
+    counts and the running ``exp`` by a precomputed factor ``exp(±c/N_R)``.
+    O(1) per event, O(zones) memory. Stops at the first event whose time decreases or whose
+    coordinates lie off the zone map and returns its index (``-1`` when all were applied).
+    """
+    h, wd = zmap.shape
+    prev = last_t
+    for i in range(t.shape[0]):
+        ti = t[i]
+        if ti < prev:
+            return i
+        prev = ti
+        if whole:
+            k = 0
+        else:
+            xi = x[i]
+            yi = y[i]
+            if xi >= wd or yi >= h:
+                return i
+            k = zmap[yi, xi]
+            if k < 0:
+                continue
+        on = p[i] > 0
+        if w >= 0:
+            last = w_last[w, k]
+            if ti > last:
+                m_on = (counts_on[k] - c0_on[w, k]) * inv_n[k]
+                m_off = (counts_off[k] - c0_off[w, k]) * inv_n[k]
+                u0 = float(last - w_start)
+                if a_on * m_on > b_on * u0 or a_off * m_off > b_off * u0:
+                    w_int[w, k] += segment_integral(
+                        u0, float(ti - w_start), 1.0, m_on, m_off, c_on, c_off, a_on, b_on, a_off, b_off
+                    )
+                else:
+                    w_int[w, k] += w_ebase[w, k] * (ti - last)
+                w_last[w, k] = ti
+            w_ebase[w, k] *= f_on[k] if on else f_off[k]
+        if on:
+            counts_on[k] += 1
+        else:
+            counts_off[k] += 1
+    return -1
+
+
+@nb.njit(cache=True)
+def ptedi_close(
+    t_end, counts_on, counts_off, inv_n, w, w_start, c0_on, c0_off, w_last, w_int,
+    c_on, c_off, a_on, b_on, a_off, b_off,
+):
+    """Integrate every zone of window ``w`` from its last event to the exposure end. O(zones)."""
+    for k in range(counts_on.shape[0]):
+        m_on = (counts_on[k] - c0_on[w, k]) * inv_n[k]
+        m_off = (counts_off[k] - c0_off[w, k]) * inv_n[k]
+        w_int[w, k] += segment_integral(
+            float(w_last[w, k] - w_start), float(t_end - w_start), 1.0,
+            m_on, m_off, c_on, c_off, a_on, b_on, a_off, b_off,
+        )
+        w_last[w, k] = t_end
+
+
+@dataclass(frozen=True)
+class FrameEstimate:
+    """What P-TEDI made of one frame, per zone."""
+
+    sequence: int
+    exposure_start_us: int
+    exposure_end_us: int
+    log_mean_irradiance: np.ndarray  # ln Pbar, the frame-measured (exposure-averaged) value
+    log_e: np.ndarray  # ln E_p(s)
+    log_anchor: np.ndarray  # ln P(s) = ln Pbar - ln E_p(s)
+    valid_fraction: np.ndarray
+    anchored: np.ndarray  # bool: this frame re-anchored the zone
+
+
+class PeripheralEstimator:
+    """Streaming P-TEDI estimate of the mean log irradiance of one or more peripheral zones.
+
+    Feed it, in stream order: event batches (:meth:`update`), exposure markers
+    (:meth:`begin_exposure`, :meth:`end_exposure`) and frames (:meth:`add_frame`), or
+    everything through :meth:`feed`. Then :meth:`predict` gives ``ln P(t)`` for any time after
+    the last anchor.
+
+    Parameters
+    ----------
+    sensor : the pixel array.
+    params : thresholds and TEDI compensation.
+    crf : camera response (default: :func:`default_davis346`).
+    rectangle, grid : the peripheral region (see :func:`necviz.core.regions.zone_map`).
+    image_form : ``"paper"`` (``g(mean Z)``, Eq. 15) or ``"mean_log"`` (mean over valid pixels
+        of ``g(Z)``, consistent with Eq. 8).
+    min_valid_fraction : anchor rule threshold on the fraction of pixels in 9..250.
+    max_pending : exposures that may await their frame at once.
+    """
+
+    def __init__(
+        self,
+        sensor: SensorGeometry,
+        params: TediParams = TediParams(),
+        crf: CameraResponse | None = None,
+        rectangle: tuple[int, int, int, int] | None = None,
+        grid: tuple[int, int] = (1, 1),
+        image_form: str = "paper",
+        min_valid_fraction: float = 0.5,
+        max_pending: int = 4,
+    ):
+        if image_form not in IMAGE_FORMS:
+            raise ParameterError(f"image_form must be one of {IMAGE_FORMS}, got {image_form!r}")
+        if not (isinstance(min_valid_fraction, (int, float)) and 0.0 < min_valid_fraction <= 1.0):
+            raise ParameterError(f"min_valid_fraction must lie in (0, 1], got {min_valid_fraction!r}")
+        if not isinstance(params, TediParams):
+            raise ParameterError("params must be a TediParams")
+        self.sensor = sensor
+        self.params = params
+        self.crf = crf if crf is not None else default_davis346()
+        self.image_form = image_form
+        self.min_valid_fraction = float(min_valid_fraction)
+        self.zmap = zone_map(sensor, rectangle, grid)
+        self.whole = bool(np.all(self.zmap == 0))
+        self.sizes = zone_sizes(self.zmap)
+        k = self.sizes.size
+        self.num_zones = k
+        self._zone_flat = self.zmap.ravel()
+        self._in_region = self._zone_flat >= 0
+        self._kp = params.as_tuple()
+        c_on, c_off = params.c_on, params.c_off
+        self._inv_n = 1.0 / self.sizes.astype(np.float64)
+        self._f_on = np.exp(c_on * self._inv_n)
+        self._f_off = np.exp(-c_off * self._inv_n)
+        self.counts_on = np.zeros(k, np.int64)
+        self.counts_off = np.zeros(k, np.int64)
+        self.last_event_us = np.iinfo(np.int64).min
+        # exposure windows
+        self._wstate = np.zeros(max_pending, np.int8)
+        self._wstart = np.zeros(max_pending, np.int64)
+        self._wend = np.zeros(max_pending, np.int64)
+        self._wage = np.zeros(max_pending, np.int64)
+        self._c0_on = np.zeros((max_pending, k), np.int64)
+        self._c0_off = np.zeros((max_pending, k), np.int64)
+        self._wlast = np.zeros((max_pending, k), np.int64)
+        self._wint = np.zeros((max_pending, k), np.float64)
+        self._webase = np.ones((max_pending, k), np.float64)
+        self._open = -1
+        self._age = 0
+        self.dropped_windows = 0
+        # anchors
+        self.anchor_log = np.full(k, np.nan)
+        self.anchor_t = np.zeros(k, np.int64)
+        self.anchor_on = np.zeros(k, np.int64)
+        self.anchor_off = np.zeros(k, np.int64)
+        self.frames_seen = 0
+        self.frames_skipped = 0
+
+    # -- stream input -------------------------------------------------------------------------
+    def update(self, events: np.ndarray) -> None:
+        """Apply an event batch (time-ordered, not before events already processed). O(n)."""
+        if not isinstance(events, np.ndarray) or events.dtype != EVENT_DTYPE:
+            raise EventFormatError(f"events must be a structured array of dtype {EVENT_DTYPE}")
+        if events.size == 0:
+            return
+        w = self._open
+        ws = int(self._wstart[w]) if w >= 0 else 0
+        bad = ptedi_update(
+            events["t"], events["x"], events["y"], events["p"], self.zmap, self.whole, self.last_event_us,
+            self.counts_on, self.counts_off, self._inv_n, self._f_on, self._f_off,
+            w, ws, self._c0_on, self._c0_off, self._wlast, self._wint, self._webase, *self._kp,
+        )
+        if bad >= 0:
+            ev = events[bad]
+            before = int(events["t"][bad - 1]) if bad > 0 else self.last_event_us
+            self.last_event_us = before
+            if int(ev["t"]) < before:
+                raise EventFormatError(
+                    f"event {bad} of the batch at {int(ev['t'])} µs is earlier than events already processed "
+                    f"({before} µs); the {bad} events before it were applied"
+                )
+            raise EventFormatError(
+                f"event {bad} of the batch at (x={int(ev['x'])}, y={int(ev['y'])}) lies outside the "
+                f"{self.sensor.width}x{self.sensor.height} sensor; the {bad} events before it were applied"
+            )
+        self.last_event_us = int(events["t"][-1])
+
+    def begin_exposure(self, t_us: int) -> None:
+        """An exposure starts at ``t_us`` (all events before it already applied)."""
+        t_us = int(t_us)
+        if t_us < self.last_event_us:
+            raise StreamError(
+                f"exposure start at {t_us} µs arrived after events up to {self.last_event_us} µs were processed; "
+                "markers must be in time order with the events"
+            )
+        if self._open >= 0:
+            raise StreamError(
+                f"exposure start at {t_us} µs while the exposure started at {int(self._wstart[self._open])} µs "
+                "has not ended"
+            )
+        free = np.flatnonzero(self._wstate == _FREE)
+        if free.size:
+            w = int(free[0])
+        else:  # every slot awaits a frame that never came: recycle the oldest
+            w = int(np.argmin(self._wage))
+            self.dropped_windows += 1
+        self._wstate[w] = _OPEN
+        self._wstart[w] = t_us
+        self._age += 1
+        self._wage[w] = self._age
+        self._c0_on[w] = self.counts_on
+        self._c0_off[w] = self.counts_off
+        self._wlast[w] = t_us
+        self._wint[w] = 0.0
+        self._webase[w] = 1.0
+        self._open = w
+
+    def end_exposure(self, t_us: int) -> None:
+        """The open exposure ends at ``t_us`` (all events before it already applied)."""
+        t_us = int(t_us)
+        w = self._open
+        if w < 0:
+            raise StreamError(f"exposure end at {t_us} µs without a matching start")
+        if t_us <= self._wstart[w] or t_us < self.last_event_us:
+            raise StreamError(
+                f"exposure end at {t_us} µs is not after its start ({int(self._wstart[w])} µs) and the events "
+                f"already processed ({self.last_event_us} µs)"
+            )
+        ptedi_close(
+            t_us, self.counts_on, self.counts_off, self._inv_n, w, int(self._wstart[w]),
+            self._c0_on, self._c0_off, self._wlast, self._wint, *self._kp,
+        )
+        self._wstate[w] = _CLOSED
+        self._wend[w] = t_us
+        self._open = -1
+
+    def frame_log_irradiance(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
+        """``(ln Pbar, valid fraction)`` per zone from the image alone (Eq. 15 or the mean-log form)."""
+        z = frame.image.ravel()
+        valid = (z >= self.crf.valid_min) & (z <= self.crf.valid_max)
+        log_tk = math.log(frame.exposure_us / US_PER_S) + math.log(frame.gain)
+        if self.whole:
+            nvalid = np.array([np.count_nonzero(valid)], np.float64)
+            if self.image_form == "paper":
+                num = np.array([float(z.mean())])
+            else:
+                num = np.array([float(self.crf.g[z[valid]].sum())])
+        else:
+            zf, inr = self._zone_flat, self._in_region
+            k = self.num_zones
+            nvalid = np.bincount(zf[inr & valid], minlength=k).astype(np.float64)
+            if self.image_form == "paper":
+                num = np.bincount(zf[inr], weights=z[inr].astype(np.float64), minlength=k) / self.sizes
+            else:
+                sel = inr & valid
+                num = np.bincount(zf[sel], weights=self.crf.g[z[sel]], minlength=k)
+        frac = nvalid / self.sizes
+        if self.image_form == "paper":
+            lp = np.asarray(self.crf.log_exposure(num), dtype=np.float64) - log_tk
+        else:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                lp = num / nvalid - log_tk
+        return np.atleast_1d(lp), frac
+
+    def add_frame(self, frame: Frame) -> FrameEstimate:
+        """A frame arrived (after its announced exposure); re-anchor the zones where it is usable."""
+        if frame.shape != self.sensor.shape:
+            raise FrameFormatError(
+                f"frame {frame.sequence} is {frame.shape[1]}x{frame.shape[0]}, the sensor is "
+                f"{self.sensor.width}x{self.sensor.height}"
+            )
+        s, e = int(frame.exposure_start_us), int(frame.exposure_end_us)
+        match = np.flatnonzero((self._wstate == _CLOSED) & (self._wstart == s) & (self._wend == e))
+        if match.size == 0:
+            raise StreamError(
+                f"frame {frame.sequence} with exposure [{s}, {e}] µs was not announced by exposure start/end "
+                "markers (or its end has not been seen yet); sources must send them in stream order"
+            )
+        w = int(match[0])
+        log_pbar, frac = self.frame_log_irradiance(frame)
+        log_e = np.log(self._wint[w] / (e - s))
+        log_anchor = log_pbar - log_e
+        ok = (frac >= self.min_valid_fraction) & np.isfinite(log_anchor)
+        self.anchor_log[ok] = log_anchor[ok]
+        self.anchor_t[ok] = s
+        self.anchor_on[ok] = self._c0_on[w][ok]
+        self.anchor_off[ok] = self._c0_off[w][ok]
+        self._wstate[w] = _FREE
+        self.frames_seen += 1
+        if not ok.all():
+            self.frames_skipped += 1
+        return FrameEstimate(frame.sequence, s, e, log_pbar, log_e, log_anchor, frac, ok)
+
+    def feed(self, packet) -> FrameEstimate | None:
+        """Dispatch one stream packet: an event array, an :class:`ExposureMarker` or a :class:`Frame`."""
+        if isinstance(packet, np.ndarray):
+            self.update(packet)
+        elif isinstance(packet, ExposureMarker):
+            (self.begin_exposure if packet.kind == "start" else self.end_exposure)(packet.t_us)
+        elif isinstance(packet, Frame):
+            return self.add_frame(packet)
+        else:
+            raise StreamError(f"unknown packet type {type(packet).__name__}")
+        return None
+
+    # -- output -----------------------------------------------------------------------------
+    @property
+    def ready(self) -> bool:
+        """True once at least one zone is anchored."""
+        return bool(np.isfinite(self.anchor_log).any())
+
+    def predict_zones(self, t_us: int | None = None) -> np.ndarray:
+        """``ln P(t)`` per zone (Eq. 12 with the compensation); NaN for zones never anchored.
+
+        Uses every event processed so far; ``t_us`` (default: the last event time) enters the
+        compensation term and must not precede a zone's anchor.
+        """
+        t = self.last_event_us if t_us is None else int(t_us)
+        c_on, c_off, a_on, b_on, a_off, b_off = self._kp
+        anchored = np.isfinite(self.anchor_log)
+        if np.any(anchored & (t < self.anchor_t)):
+            raise ParameterError(f"prediction time {t} µs precedes the anchor at {int(self.anchor_t[anchored].max())} µs")
+        m_on = (self.counts_on - self.anchor_on) * self._inv_n
+        m_off = (self.counts_off - self.anchor_off) * self._inv_n
+        u = (t - self.anchor_t).astype(np.float64)
+        comp_on = np.maximum(0.0, a_on * m_on - b_on * u)
+        comp_off = np.maximum(0.0, a_off * m_off - b_off * u)
+        return self.anchor_log + c_on * (m_on + comp_on) - c_off * (m_off + comp_off)
+
+    def predict(self, t_us: int | None = None) -> float:
+        """Mean log irradiance ``ln P(t)`` over the anchored zones, weighted by their pixel counts."""
+        z = self.predict_zones(t_us)
+        ok = np.isfinite(z)
+        if not ok.any():
+            raise NotAnchoredError("P-TEDI has no anchor yet: no usable frame has arrived")
+        wts = self.sizes[ok]
+        return float(np.dot(z[ok], wts) / wts.sum())

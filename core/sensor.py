@@ -1,0 +1,34 @@
+"""Sensor geometry: the pixel array events and frames refer to."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .errors import ParameterError
+
+
+@dataclass(frozen=True)
+class SensorGeometry:
+    """Width and height of the pixel array, in pixels (x in [0, width), y in [0, height))."""
+
+    width: int
+    height: int
+    name: str = "custom"
+
+    def __post_init__(self) -> None:
+        for label, v in (("width", self.width), ("height", self.height)):
+            if not isinstance(v, int) or isinstance(v, bool) or v <= 0 or v > 65535:
+                raise ParameterError(f"sensor {label} must be an integer in 1..65535, got {v!r}")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """NumPy image shape ``(height, width)``."""
+        return (self.height, self.width)
+
+    @property
+    def num_pixels(self) -> int:
+        return self.width * self.height
+
+
+DAVIS346 = SensorGeometry(346, 260, "DAVIS346")
+DAVIS240 = SensorGeometry(240, 180, "DAVIS240")
