@@ -32,7 +32,7 @@ import numpy as np
 
 from .crf import US_PER_S, CameraResponse, default_davis346
 from .errors import EventFormatError, FrameFormatError, NotAnchoredError, ParameterError, StreamError
-from .event_model import TediParams, segment_integral
+from .event_model import TediParams, direct_integral, segment_integral
 from .events import EVENT_DTYPE
 from .frames import ExposureMarker, Frame
 from .regions import zone_map, zone_sizes
@@ -97,6 +97,105 @@ def ptedi_update(
     return -1
 
 
+BLOCK = 256  # events per block in the whole-sensor kernel (size of its exp tables)
+
+
+@nb.njit(cache=True)
+def ptedi_update_whole(
+    t, p, last_t, counts, inv_n, g_tab, h_tab, w, w_start, c0, w_last, w_int,
+    c_on, c_off, a_on, b_on, a_off, b_off,
+):
+    """:func:`ptedi_update` for a single zone covering the whole sensor (the default region).
+
+    Same equations (Eq. 11 and the Eq. 13 integral), arranged so no floating-point
+    dependency chain runs through the events: within a block of ``B`` events starting with
+    ``x_b = c^T D_p``, the integrand after ``i`` events of which ``a`` are ON is exactly
+    ``exp(x_b) * G[i] * H[a]`` with ``G[i] = exp(-c- i / N)``, ``H[a] = exp((c+ + c-) a / N)``;
+    ``exp(x_b)`` is recomputed from the integer counts at each block start (no drift), and the
+    integral is split over four accumulators. Coordinates are never read.
+    ``counts = [ON, OFF]``, ``c0 = [ON, OFF]`` at the window start. O(1) per event.
+    Returns the index of the first event whose time decreases, else -1.
+    """
+    n_on = counts[0]
+    n_off = counts[1]
+    prev = last_t
+    bad = -1
+    if w < 0:
+        seen = t.shape[0]
+        ons = 0
+        for i in range(t.shape[0]):
+            ti = t[i]
+            if ti < prev:
+                bad = i
+                seen = i
+                break
+            prev = ti
+            ons += p[i] > 0
+        n_on += ons
+        n_off += seen - ons
+    else:
+        blk = g_tab.shape[0] - 1
+        last = w_last[w, 0]
+        c0_on = c0[0]
+        c0_off = c0[1]
+        has_comp = a_on > 0.0 or a_off > 0.0
+        accs = np.zeros(4)
+        row = np.empty(blk + 1)  # exp(x_b) * G[i] for the current block
+        eb = math.exp((c_on * (n_on - c0_on) - c_off * (n_off - c0_off)) * inv_n)
+        for k in range(blk + 1):
+            row[k] = eb * g_tab[k]
+        ib = 0
+        ab = 0
+        n = t.shape[0]
+        i = 0
+        while i < n and bad < 0:
+            end = min(n, i + blk - ib)
+            # The compensation is inactive on the whole block if it is inactive with every count
+            # raised by the block length and u at its smallest (counts only grow, u only grows).
+            checked = False
+            if has_comp:
+                grow = (end - i) * inv_n
+                u_lo = float(last - w_start)
+                checked = (a_on * ((n_on + ab - c0_on) * inv_n + grow) > b_on * u_lo
+                           or a_off * ((n_off + ib - ab - c0_off) * inv_n + grow) > b_off * u_lo)
+            for j in range(i, end):
+                tj = t[j]
+                if tj < prev:
+                    bad = j
+                    break
+                prev = tj
+                if checked:
+                    m_on = (n_on + ab - c0_on) * inv_n
+                    m_off = (n_off + ib - ab - c0_off) * inv_n
+                    u0 = float(last - w_start)
+                    if a_on * m_on > b_on * u0 or a_off * m_off > b_off * u0:
+                        accs[j & 3] += segment_integral(
+                            u0, float(tj - w_start), 1.0, m_on, m_off, c_on, c_off, a_on, b_on, a_off, b_off
+                        )
+                    else:
+                        accs[j & 3] += row[ib] * h_tab[ab] * float(tj - last)
+                else:  # repeated timestamps add a zero-length stretch
+                    accs[j & 3] += row[ib] * h_tab[ab] * float(tj - last)
+                last = tj
+                on = p[j] > 0
+                ab += on
+                ib += 1
+            i = end
+            if ib == blk or bad >= 0 or i >= n:  # fold the block's counts into the totals
+                n_on += ab
+                n_off += ib - ab
+                ib = 0
+                ab = 0
+                eb = math.exp((c_on * (n_on - c0_on) - c_off * (n_off - c0_off)) * inv_n)
+                for k in range(blk + 1):
+                    row[k] = eb * g_tab[k]
+        w_last[w, 0] = last
+        w_int[w, 0] += accs.sum()
+    counts[0] = n_on
+    counts[1] = n_off
+    return bad
+
+
 @nb.njit(cache=True)
 def ptedi_close(
     t_end, counts_on, counts_off, inv_n, w, w_start, c0_on, c0_off, w_last, w_int,
@@ -111,6 +210,21 @@ def ptedi_close(
             m_on, m_off, c_on, c_off, a_on, b_on, a_off, b_off,
         )
         w_last[w, k] = t_end
+
+
+@nb.njit(cache=True)
+def image_stats(z, vmin, vmax):
+    """One integer-only pass over an 8-bit image: ``(sum Z, number of pixels in vmin..vmax)``.
+
+    The image side of Eq. 15 (``mean_R Z``) and the valid fraction of the anchor rule. O(pixels).
+    """
+    total = 0
+    nvalid = 0
+    span = vmax - vmin
+    for v in z:
+        total += v
+        nvalid += (np.uint8(v - vmin) <= span)
+    return total, nvalid
 
 
 @dataclass(frozen=True)
@@ -181,14 +295,21 @@ class PeripheralEstimator:
         self._inv_n = 1.0 / self.sizes.astype(np.float64)
         self._f_on = np.exp(c_on * self._inv_n)
         self._f_off = np.exp(-c_off * self._inv_n)
+        steps = np.arange(BLOCK + 1, dtype=np.float64)
+        self._g_tab = np.exp(-c_off * self._inv_n[0] * steps)
+        self._h_tab = np.exp((c_on + c_off) * self._inv_n[0] * steps)
         self.counts_on = np.zeros(k, np.int64)
+        self._counts2 = np.zeros(2, np.int64)
+        self._c02 = np.zeros(2, np.int64)
         self.counts_off = np.zeros(k, np.int64)
         self.last_event_us = np.iinfo(np.int64).min
         # exposure windows
-        self._wstate = np.zeros(max_pending, np.int8)
-        self._wstart = np.zeros(max_pending, np.int64)
-        self._wend = np.zeros(max_pending, np.int64)
-        self._wage = np.zeros(max_pending, np.int64)
+        if not (isinstance(max_pending, int) and max_pending >= 1):
+            raise ParameterError(f"max_pending must be a positive integer, got {max_pending!r}")
+        self._wstate = [_FREE] * max_pending  # window bookkeeping stays in Python lists (a few entries)
+        self._wstart = [0] * max_pending
+        self._wend = [0] * max_pending
+        self._wage = [0] * max_pending
         self._c0_on = np.zeros((max_pending, k), np.int64)
         self._c0_off = np.zeros((max_pending, k), np.int64)
         self._wlast = np.zeros((max_pending, k), np.int64)
@@ -214,11 +335,22 @@ class PeripheralEstimator:
             return
         w = self._open
         ws = int(self._wstart[w]) if w >= 0 else 0
-        bad = ptedi_update(
-            events["t"], events["x"], events["y"], events["p"], self.zmap, self.whole, self.last_event_us,
-            self.counts_on, self.counts_off, self._inv_n, self._f_on, self._f_off,
-            w, ws, self._c0_on, self._c0_off, self._wlast, self._wint, self._webase, *self._kp,
-        )
+        if self.whole:
+            counts, c0 = self._counts2, self._c02
+            counts[0], counts[1] = self.counts_on[0], self.counts_off[0]
+            if w >= 0:
+                c0[0], c0[1] = self._c0_on[w, 0], self._c0_off[w, 0]
+            bad = ptedi_update_whole(
+                events["t"], events["p"], self.last_event_us, counts, self._inv_n[0], self._g_tab, self._h_tab,
+                w, ws, c0, self._wlast, self._wint, *self._kp,
+            )
+            self.counts_on[0], self.counts_off[0] = counts
+        else:
+            bad = ptedi_update(
+                events["t"], events["x"], events["y"], events["p"], self.zmap, self.whole, self.last_event_us,
+                self.counts_on, self.counts_off, self._inv_n, self._f_on, self._f_off,
+                w, ws, self._c0_on, self._c0_off, self._wlast, self._wint, self._webase, *self._kp,
+            )
         if bad >= 0:
             ev = events[bad]
             before = int(events["t"][bad - 1]) if bad > 0 else self.last_event_us
@@ -247,21 +379,26 @@ class PeripheralEstimator:
                 f"exposure start at {t_us} µs while the exposure started at {int(self._wstart[self._open])} µs "
                 "has not ended"
             )
-        free = np.flatnonzero(self._wstate == _FREE)
-        if free.size:
-            w = int(free[0])
+        if _FREE in self._wstate:
+            w = self._wstate.index(_FREE)
         else:  # every slot awaits a frame that never came: recycle the oldest
-            w = int(np.argmin(self._wage))
+            w = self._wage.index(min(self._wage))
             self.dropped_windows += 1
         self._wstate[w] = _OPEN
         self._wstart[w] = t_us
         self._age += 1
         self._wage[w] = self._age
-        self._c0_on[w] = self.counts_on
-        self._c0_off[w] = self.counts_off
-        self._wlast[w] = t_us
-        self._wint[w] = 0.0
-        self._webase[w] = 1.0
+        if self.whole:
+            self._c0_on[w, 0] = self.counts_on[0]
+            self._c0_off[w, 0] = self.counts_off[0]
+            self._wlast[w, 0] = t_us
+            self._wint[w, 0] = 0.0
+        else:
+            self._c0_on[w] = self.counts_on
+            self._c0_off[w] = self.counts_off
+            self._wlast[w] = t_us
+            self._wint[w] = 0.0
+            self._webase[w] = 1.0
         self._open = w
 
     def end_exposure(self, t_us: int) -> None:
@@ -286,16 +423,19 @@ class PeripheralEstimator:
     def frame_log_irradiance(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
         """``(ln Pbar, valid fraction)`` per zone from the image alone (Eq. 15 or the mean-log form)."""
         z = frame.image.ravel()
-        valid = (z >= self.crf.valid_min) & (z <= self.crf.valid_max)
         log_tk = math.log(frame.exposure_us / US_PER_S) + math.log(frame.gain)
         if self.whole:
-            nvalid = np.array([np.count_nonzero(valid)], np.float64)
             if self.image_form == "paper":
-                num = np.array([float(z.mean())])
-            else:
-                num = np.array([float(self.crf.g[z[valid]].sum())])
+                total, nv = image_stats(z, self.crf.valid_min, self.crf.valid_max)
+                num = np.array([total / z.size])
+            else:  # mean over valid pixels of g(Z), through a 256-bin histogram
+                hist = np.bincount(z, minlength=256)[self.crf.valid_min : self.crf.valid_max + 1]
+                nv = int(hist.sum())
+                num = np.array([float(np.dot(hist, self.crf.g[self.crf.valid_min : self.crf.valid_max + 1]))])
+            nvalid = np.array([float(nv)])
         else:
             zf, inr = self._zone_flat, self._in_region
+            valid = (z >= self.crf.valid_min) & (z <= self.crf.valid_max)
             k = self.num_zones
             nvalid = np.bincount(zf[inr & valid], minlength=k).astype(np.float64)
             if self.image_form == "paper":
@@ -319,26 +459,57 @@ class PeripheralEstimator:
                 f"{self.sensor.width}x{self.sensor.height}"
             )
         s, e = int(frame.exposure_start_us), int(frame.exposure_end_us)
-        match = np.flatnonzero((self._wstate == _CLOSED) & (self._wstart == s) & (self._wend == e))
-        if match.size == 0:
+        w = next((i for i, st in enumerate(self._wstate)
+                  if st == _CLOSED and self._wstart[i] == s and self._wend[i] == e), -1)
+        if w < 0:
             raise StreamError(
                 f"frame {frame.sequence} with exposure [{s}, {e}] µs was not announced by exposure start/end "
                 "markers (or its end has not been seen yet); sources must send them in stream order"
             )
-        w = int(match[0])
-        log_pbar, frac = self.frame_log_irradiance(frame)
-        log_e = np.log(self._wint[w] / (e - s))
-        log_anchor = log_pbar - log_e
-        ok = (frac >= self.min_valid_fraction) & np.isfinite(log_anchor)
-        self.anchor_log[ok] = log_anchor[ok]
-        self.anchor_t[ok] = s
-        self.anchor_on[ok] = self._c0_on[w][ok]
-        self.anchor_off[ok] = self._c0_off[w][ok]
+        if self.whole:
+            log_pbar, frac = self._whole_frame_log_irradiance(frame)
+            log_e = math.log(self._wint[w, 0] / (e - s))
+            log_anchor = log_pbar - log_e
+            good = frac >= self.min_valid_fraction and math.isfinite(log_anchor)
+            if good:
+                self.anchor_log[0] = log_anchor
+                self.anchor_t[0] = s
+                self.anchor_on[0] = self._c0_on[w, 0]
+                self.anchor_off[0] = self._c0_off[w, 0]
+            log_pbar, log_e, log_anchor = np.array([log_pbar]), np.array([log_e]), np.array([log_anchor])
+            frac, ok = np.array([frac]), np.array([good])
+        else:
+            log_pbar, frac = self.frame_log_irradiance(frame)
+            log_e = np.log(self._wint[w] / (e - s))
+            log_anchor = log_pbar - log_e
+            ok = (frac >= self.min_valid_fraction) & np.isfinite(log_anchor)
+            self.anchor_log[ok] = log_anchor[ok]
+            self.anchor_t[ok] = s
+            self.anchor_on[ok] = self._c0_on[w][ok]
+            self.anchor_off[ok] = self._c0_off[w][ok]
+            good = bool(ok.all())
         self._wstate[w] = _FREE
         self.frames_seen += 1
-        if not ok.all():
+        if not good:
             self.frames_skipped += 1
         return FrameEstimate(frame.sequence, s, e, log_pbar, log_e, log_anchor, frac, ok)
+
+    def _whole_frame_log_irradiance(self, frame: Frame) -> tuple[float, float]:
+        """Scalar :meth:`frame_log_irradiance` for the single whole-sensor zone."""
+        crf = self.crf
+        z = frame.image.ravel()
+        log_tk = math.log(frame.exposure_us / US_PER_S) + math.log(frame.gain)
+        if self.image_form == "paper":
+            total, nv = image_stats(z, crf.valid_min, crf.valid_max)
+            mean = total / z.size
+            i = min(int(mean), 254)
+            g_mean = crf.g[i] + (crf.g[i + 1] - crf.g[i]) * (mean - i)
+            return float(g_mean) - log_tk, nv / z.size
+        hist = np.bincount(z, minlength=256)[crf.valid_min : crf.valid_max + 1]
+        nv = int(hist.sum())
+        if nv == 0:
+            return math.nan, 0.0
+        return float(np.dot(hist, crf.g[crf.valid_min : crf.valid_max + 1])) / nv - log_tk, nv / z.size
 
     def feed(self, packet) -> FrameEstimate | None:
         """Dispatch one stream packet: an event array, an :class:`ExposureMarker` or a :class:`Frame`."""
@@ -378,6 +549,19 @@ class PeripheralEstimator:
 
     def predict(self, t_us: int | None = None) -> float:
         """Mean log irradiance ``ln P(t)`` over the anchored zones, weighted by their pixel counts."""
+        if self.num_zones == 1:  # scalar path: the controller calls this on every event batch
+            if not math.isfinite(self.anchor_log[0]):
+                raise NotAnchoredError("P-TEDI has no anchor yet: no usable frame has arrived")
+            t = self.last_event_us if t_us is None else int(t_us)
+            g = int(self.anchor_t[0])
+            if t < g:
+                raise ParameterError(f"prediction time {t} µs precedes the anchor at {g} µs")
+            c_on, c_off, a_on, b_on, a_off, b_off = self._kp
+            inv = float(self._inv_n[0])
+            m_on = int(self.counts_on[0] - self.anchor_on[0]) * inv
+            m_off = int(self.counts_off[0] - self.anchor_off[0]) * inv
+            u = float(t - g)
+            return float(self.anchor_log[0]) + direct_integral(1.0, u, m_on, m_off, c_on, c_off, a_on, b_on, a_off, b_off)
         z = self.predict_zones(t_us)
         ok = np.isfinite(z)
         if not ok.any():

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from .errors import ParameterError
 
@@ -13,7 +13,7 @@ class SensorGeometry:
 
     width: int
     height: int
-    name: str = "custom"
+    name: str = field(default="custom", compare=False)
 
     def __post_init__(self) -> None:
         for label, v in (("width", self.width), ("height", self.height)):

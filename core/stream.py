@@ -45,10 +45,10 @@ def interleave(
             for tb in range((t0 // batch_us + 1) * batch_us, t1 + 1, batch_us):
                 cuts.append((tb, -1, None))
     cuts.sort(key=lambda c: (c[0], c[1]))
-    t = events["t"]
+    # one search for all cut times, on a contiguous copy (searching a strided field view copies it per call)
+    ends = np.searchsorted(np.ascontiguousarray(events["t"]), np.array([c[0] for c in cuts], np.int64), side="left")
     pos = 0
-    for time, _, packet in cuts:
-        end = int(np.searchsorted(t, time, side="left"))
+    for end, (_, _, packet) in zip(ends.tolist(), cuts):
         if end > pos:
             yield events[pos:end]
             pos = end

@@ -1,0 +1,1 @@
+"""Rerun blueprints (the live, inspect and compare layouts arrive with the dashboard)."""

@@ -1,0 +1,77 @@
+"""The ``necviz`` command."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from . import __version__
+
+
+def _cmd_info(args: argparse.Namespace) -> int:
+    import platform
+
+    from .info import collect_info
+
+    info = collect_info()
+    print(f"necviz {info['necviz']}  (Python {platform.python_version()}, {info['cpu_count']} CPU cores)")
+    print("packages:")
+    for name, v in info["packages"].items():
+        print(f"  {name:24s} {v}")
+    print(f"numba threading layer:    {info['numba_threading_layer']}")
+    print(f"controllers:              {', '.join(info['controllers']) or 'none'}")
+    print(f"sources:                  {', '.join(info['sources']) or 'none yet (simulator, DAVIS and replay drivers land with later issues)'}")
+    return 0
+
+
+def _cmd_bench_estimators(args: argparse.Namespace) -> int:
+    from .bench.estimators import run
+
+    run(events=args.events, duration_s=args.duration, fps=args.fps, exposure_us=args.exposure_us,
+        repeats=args.repeats, edi_samples=args.edi_samples, seed=args.seed, json_path=args.json)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="necviz", description="Neuromorphic exposure control: estimators, controllers, dashboard.")
+    p.add_argument("--version", action="version", version=f"necviz {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+
+    info = sub.add_parser("info", help="versions, Numba threading layer, available sources and controllers")
+    info.set_defaults(func=_cmd_info)
+
+    bench = sub.add_parser("bench", help="speed benchmarks (print a table, optionally write JSON)")
+    bsub = bench.add_subparsers(dest="bench", metavar="BENCH", required=True)
+    est = bsub.add_parser("estimators", help="Table 1 of the paper: EDI, mEDI, Fast-EDI, TEDI, P-TEDI and a read-only floor")
+    est.add_argument("--json", metavar="FILE", help="write the results as JSON")
+    est.add_argument("--events", type=int, default=10_000_000, help="events in the synthetic 346x260 stream (default 10M)")
+    est.add_argument("--duration", type=float, default=2.0, help="stream length in seconds (default 2.0)")
+    est.add_argument("--fps", type=float, default=50.0, help="APS frame rate, 25-100 (default 50)")
+    est.add_argument("--exposure-us", type=int, default=5_000, help="APS exposure (default 5000 µs)")
+    est.add_argument("--repeats", type=int, default=3, help="timed runs per method after a warm-up (default 3)")
+    est.add_argument("--edi-samples", type=int, default=64, help="samples per exposure for EDI and mEDI (default 64)")
+    est.add_argument("--seed", type=int, default=0)
+    est.set_defaults(func=_cmd_bench_estimators)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 0
+    from .core.errors import NecvizError
+
+    try:
+        return int(args.func(args) or 0)
+    except NecvizError as e:
+        print(f"necviz: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("necviz: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
