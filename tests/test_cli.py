@@ -1,0 +1,53 @@
+"""The necviz command: version, info, the estimator benchmark's JSON, and one-line errors."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from necviz import __version__
+from necviz.cli import main
+
+
+def test_version_and_module_entry_point():
+    out = subprocess.run([sys.executable, "-m", "necviz", "--version"], capture_output=True, text=True)
+    assert out.returncode == 0 and out.stdout.strip() == f"necviz {__version__}"
+
+
+def test_info_lists_versions_threading_layer_and_controllers(capsys):
+    assert main(["info"]) == 0
+    out = capsys.readouterr().out
+    for needle in ("numba ", "rerun-sdk", "numba threading layer:", "controllers:", "nec"):
+        assert needle in out
+    layer = next(line for line in out.splitlines() if line.startswith("numba threading layer"))
+    assert any(name in layer for name in ("omp", "tbb", "workqueue"))
+
+
+def test_bench_estimators_writes_the_documented_json(tmp_path, capsys):
+    path = tmp_path / "est.json"
+    rc = main(["bench", "estimators", "--events", "200000", "--duration", "0.2", "--fps", "50",
+               "--repeats", "2", "--edi-samples", "8", "--json", str(path)])
+    assert rc == 0
+    data = json.loads(path.read_text())
+    names = [r["method"] for r in data["rows"]]
+    assert names == ["EDI", "mEDI", "Fast-EDI", "TEDI", "P-TEDI", "floor"]
+    for r in data["rows"]:
+        assert r["mev_per_s"] > 0 and r["realtime_factor"] > 0
+    # consistency of the two figures: rate / real-time factor = the stream's event rate
+    span = data["stream"]["events_timed"] / data["stream"]["timed_span_s"] / 1e6
+    for r in data["rows"]:
+        assert r["mev_per_s"] / r["realtime_factor"] == pytest.approx(span, rel=1e-6)
+    assert set(data["ratios"]) >= {"ptedi_over_fast_edi", "ptedi_over_floor"}
+    table = capsys.readouterr().out
+    assert "P-TEDI" in table and "floor" in table
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["bench", "estimators", "--events", "10"], "events >= 1000"),
+    (["bench", "estimators", "--exposure-us", "30000", "--fps", "50"], "shorter than the frame period"),
+])
+def test_bad_parameters_give_one_line_errors(argv, needle, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("necviz: error:") and needle in err and "\n" not in err
