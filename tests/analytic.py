@@ -35,7 +35,7 @@ class Trajectory:
         if self.kind == "flat":
             return np.zeros_like(t)
         if self.kind == "step":
-            return np.where(t >= t0, d, 0.0)
+            return np.where(t > t0, d, 0.0)  # an event at t0 has happened for t > t0
         if self.kind == "ramp":
             return d * np.clip((t - t0) / D, 0.0, 1.0)
         a = math.exp(d)
@@ -122,10 +122,10 @@ class AnalyticScene:
         return out
 
     # -- sensor data -----------------------------------------------------------------------------
-    def frame(self, crf: CameraResponse, s: int, e: int, gain: float = 1.0, seq: int = 0, quantise=True) -> Frame:
+    def frame(self, crf: CameraResponse, s: int, e: int, gain: float = 1.0, seq: int = 0) -> Frame:
+        """The exact exposure average through the camera response, rounded to 8 bits."""
         h = np.log(self.exposure_average(s, e)) + math.log((e - s) / US_PER_S) + math.log(gain)
-        z = np.asarray(crf.intensity(h))
-        z = np.clip(np.rint(z) if quantise else z, 0, 255)
+        z = np.clip(np.rint(np.asarray(crf.intensity(h))), 0, 255)
         return Frame(z.astype(np.uint8), int(s), int(e), float(gain), seq)
 
     def events(self, c_on: float, c_off: float, seed: int = 0) -> np.ndarray:

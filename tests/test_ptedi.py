@@ -56,7 +56,7 @@ def _run(scene, frames, crf, form="paper", batch_us=1_000, query_us=500, end_us=
     """
     est = PeripheralEstimator(SENSOR, PARAMS, crf, image_form=form, **kw)
     preds, fes = [], []
-    queries = list(range(0, end_us, query_us))
+    queries = list(range(query_us // 2, end_us, query_us))  # never exactly at a step instant
     qi = 0
 
     def answer(until):
