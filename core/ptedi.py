@@ -422,34 +422,23 @@ class PeripheralEstimator:
 
     def frame_log_irradiance(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
         """``(ln Pbar, valid fraction)`` per zone from the image alone (Eq. 15 or the mean-log form)."""
+        if self.whole:
+            lp, frac = self._whole_frame_log_irradiance(frame)
+            return np.array([lp]), np.array([frac])
         z = frame.image.ravel()
         log_tk = math.log(frame.exposure_us / US_PER_S) + math.log(frame.gain)
-        if self.whole:
-            if self.image_form == "paper":
-                total, nv = image_stats(z, self.crf.valid_min, self.crf.valid_max)
-                num = np.array([total / z.size])
-            else:  # mean over valid pixels of g(Z), through a 256-bin histogram
-                hist = np.bincount(z, minlength=256)[self.crf.valid_min : self.crf.valid_max + 1]
-                nv = int(hist.sum())
-                num = np.array([float(np.dot(hist, self.crf.g[self.crf.valid_min : self.crf.valid_max + 1]))])
-            nvalid = np.array([float(nv)])
-        else:
-            zf, inr = self._zone_flat, self._in_region
-            valid = (z >= self.crf.valid_min) & (z <= self.crf.valid_max)
-            k = self.num_zones
-            nvalid = np.bincount(zf[inr & valid], minlength=k).astype(np.float64)
-            if self.image_form == "paper":
-                num = np.bincount(zf[inr], weights=z[inr].astype(np.float64), minlength=k) / self.sizes
-            else:
-                sel = inr & valid
-                num = np.bincount(zf[sel], weights=self.crf.g[z[sel]], minlength=k)
+        zf, inr = self._zone_flat, self._in_region
+        valid = (z >= self.crf.valid_min) & (z <= self.crf.valid_max)
+        k = self.num_zones
+        nvalid = np.bincount(zf[inr & valid], minlength=k).astype(np.float64)
         frac = nvalid / self.sizes
         if self.image_form == "paper":
-            lp = np.asarray(self.crf.log_exposure(num), dtype=np.float64) - log_tk
-        else:
-            with np.errstate(invalid="ignore", divide="ignore"):
-                lp = num / nvalid - log_tk
-        return np.atleast_1d(lp), frac
+            mean_z = np.bincount(zf[inr], weights=z[inr].astype(np.float64), minlength=k) / self.sizes
+            return np.asarray(self.crf.log_exposure(mean_z), dtype=np.float64) - log_tk, frac
+        sel = inr & valid
+        gsum = np.bincount(zf[sel], weights=self.crf.g[z[sel]], minlength=k)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return gsum / nvalid - log_tk, frac
 
     def add_frame(self, frame: Frame) -> FrameEstimate:
         """A frame arrived (after its announced exposure); re-anchor the zones where it is usable."""
