@@ -1,7 +1,10 @@
-"""Sources of events and frames (live DAVIS driver, file replayers, closed-loop simulator).
+"""Sources of events and frames (closed-loop simulator; the DAVIS driver and replayers come later).
 
-Every source registers its name in :data:`SOURCES`; none has landed yet.
+Every source implements :class:`necviz.drivers.source.Source`; :data:`SOURCES` names them for
+``necviz info`` (values are import paths, so listing them imports nothing heavy).
 """
 
-#: name -> source factory; filled by the simulator, DAVIS and replay drivers as they land.
-SOURCES: dict[str, object] = {}
+#: name -> "module:attribute" of the source's class or factory.
+SOURCES: dict[str, str] = {
+    "sim": "necviz.drivers.sim.camera:SimulatedCamera",
+}

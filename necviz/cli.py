@@ -20,7 +20,8 @@ def _cmd_info(args: argparse.Namespace) -> int:
         print(f"  {name:24s} {v}")
     print(f"numba threading layer:    {info['numba_threading_layer']}")
     print(f"controllers:              {', '.join(info['controllers']) or 'none'}")
-    print(f"sources:                  {', '.join(info['sources']) or 'none yet (simulator, DAVIS and replay drivers land with later issues)'}")
+    print(f"sources:                  {', '.join(info['sources']) or 'none'}")
+    print(f"simulator scenarios:      {', '.join(info['scenarios'])}")
     return 0
 
 
@@ -29,6 +30,13 @@ def _cmd_bench_estimators(args: argparse.Namespace) -> int:
 
     run(events=args.events, duration_s=args.duration, fps=args.fps, exposure_us=args.exposure_us,
         repeats=args.repeats, edi_samples=args.edi_samples, seed=args.seed, json_path=args.json)
+    return 0
+
+
+def _cmd_bench_sim(args: argparse.Namespace) -> int:
+    from .bench.sim import run
+
+    run(duration_s=args.duration, cameras=args.cameras, scenario=args.scenario, seed=args.seed, json_path=args.json)
     return 0
 
 
@@ -52,6 +60,13 @@ def build_parser() -> argparse.ArgumentParser:
     est.add_argument("--edi-samples", type=int, default=64, help="samples per exposure for EDI and mEDI (default 64)")
     est.add_argument("--seed", type=int, default=0)
     est.set_defaults(func=_cmd_bench_estimators)
+    sim = bsub.add_parser("sim", help="closed-loop simulator speed: tunnel_exit with several cameras")
+    sim.add_argument("--json", metavar="FILE", help="write the results as JSON")
+    sim.add_argument("--duration", type=float, default=5.0, help="simulated seconds (default 5)")
+    sim.add_argument("--cameras", type=int, default=6, help="cameras sharing the scene (default 6)")
+    sim.add_argument("--scenario", default="tunnel_exit", help="scenario preset (default tunnel_exit)")
+    sim.add_argument("--seed", type=int, default=0)
+    sim.set_defaults(func=_cmd_bench_sim)
     return p
 
 

@@ -30,6 +30,12 @@ def threading_layer() -> str:
         return f"unavailable ({e})"
 
 
+def _scenarios() -> list[str]:
+    from necviz.drivers.sim.scenes import SCENARIOS
+
+    return sorted(SCENARIOS)
+
+
 def collect_info() -> dict:
     from necviz.core.control import CONTROLLERS
     from necviz.drivers import SOURCES
@@ -47,4 +53,5 @@ def collect_info() -> dict:
         "numba_threading_layer": threading_layer(),
         "controllers": sorted(CONTROLLERS),
         "sources": sorted(SOURCES),
+        "scenarios": _scenarios(),
     }

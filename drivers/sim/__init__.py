@@ -1,0 +1,1 @@
+"""Closed-loop camera simulator: HDR scenes, DVS events, APS frames that obey exposure commands."""

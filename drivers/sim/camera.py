@@ -1,0 +1,248 @@
+"""Simulated cameras: one scene, one event stream, any number of exposure states.
+
+:class:`SimRig` renders the scene at sample times (every ``sample_us``, refined where the light
+changes fast), turns consecutive samples into DVS events once, and runs one APS exposure schedule
+per camera. It yields ``(camera, packet)`` pairs in time order; ``camera`` is ``None`` for the
+shared event batches. :class:`SimulatedCamera` is the single-camera view implementing the
+:class:`~necviz.drivers.source.Source` interface.
+
+Closed loop: ``set_exposure(name, exposure_us, gain)`` records a command at the time of the last
+packet delivered (or ``issue_time_us``); it takes effect at the first exposure that starts at
+least ``latency_us`` after it was issued. Both the commanded values (``commands[name]``) and the
+applied ones (every :class:`Frame`) are kept.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from collections import deque
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ...core.crf import CameraResponse, default_davis346
+from ...core.errors import ParameterError
+from ...core.events import EVENT_DTYPE
+from ...core.frames import ExposureMarker, Frame
+from ..source import CommandRecord
+from .aps import ApsParams, expose, integrate_samples
+from .dvs import DvsParams, EventSimulator
+from .scene import Scene
+
+_START, _END, _FRAME = 0, 1, 2
+
+
+@dataclass
+class _CamState:
+    name: str
+    exposure_us: float
+    gain: float
+    rng: np.random.Generator
+    commands: list = field(default_factory=list)
+    seq: int = 0
+    frames: int = 0
+
+
+class SimRig:
+    """Several simulated cameras sharing one scene and one event stream.
+
+    Parameters
+    ----------
+    scene : the irradiance field.
+    cameras : camera names, or ``{name: (initial exposure µs, initial gain)}``.
+    dvs, aps : event and frame models; ``crf`` the camera response of every camera.
+    sample_us : base period of scene samples (events are interpolated in between).
+    refine_log : a sample interval whose largest per-pixel change of ln L exceeds this is halved,
+        down to ``min_sample_us`` (ESIM-style adaptive sampling).
+    batch_us : event batches are delivered at least this often.
+    first_start_us : start of every camera's first exposure.
+    """
+
+    def __init__(self, scene: Scene, cameras, dvs: DvsParams | None = None, aps: ApsParams | None = None,
+                 crf: CameraResponse | None = None, seed: int = 0, sample_us: int = 1_000,
+                 refine_log: float = 0.12, min_sample_us: int = 60, batch_us: int = 1_000,
+                 first_start_us: int = 1_000):
+        if not isinstance(scene, Scene):
+            raise ParameterError("SimRig needs a Scene (see necviz.drivers.sim.scenes)")
+        if isinstance(cameras, (list, tuple)):
+            cameras = {name: None for name in cameras}
+        if not cameras:
+            raise ParameterError("SimRig needs at least one camera")
+        for label, v in (("sample_us", sample_us), ("min_sample_us", min_sample_us), ("batch_us", batch_us)):
+            if not isinstance(v, int) or v <= 0:
+                raise ParameterError(f"{label} must be a positive integer (µs), got {v!r}")
+        if not (isinstance(refine_log, (int, float)) and refine_log > 0 and math.isfinite(refine_log)):
+            raise ParameterError(f"refine_log must be a positive number, got {refine_log!r}")
+        self.scene = scene
+        self.sensor = scene.sensor
+        self.dvs_params = dvs or DvsParams()
+        self.aps = aps or ApsParams()
+        self.crf = crf or default_davis346()
+        self.seed = int(seed)
+        self.sample_us, self.refine_log, self.min_sample_us = sample_us, float(refine_log), min_sample_us
+        self.batch_us = batch_us
+        self.first_start_us = int(first_start_us)
+        self.cams: dict[str, _CamState] = {}
+        for i, (name, init) in enumerate(cameras.items()):
+            exp_us, gain = init if init is not None else (self._default_exposure(), 1.0)
+            self._check_setting(name, exp_us, gain)
+            self.cams[name] = _CamState(name, float(exp_us), float(gain), np.random.default_rng([self.seed, 7, i]))
+        self.now_us = 0
+        self.samples_rendered = 0
+        self.events_generated = 0
+
+    def _default_exposure(self) -> float:
+        """Mid-range start: the exposure that would be right for the scene's first sample."""
+        mean_log = float(np.mean(self.scene.log_irradiance(0)))
+        t = math.exp(self.crf.goal_log_exposure - mean_log) * 1e6
+        return float(min(max(t, self.aps.exposure_min_us), self.aps.exposure_max_us))
+
+    def _check_setting(self, name, exposure_us, gain) -> None:
+        for label, v in (("exposure_us", exposure_us), ("gain", gain)):
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not math.isfinite(v) or v <= 0:
+                raise ParameterError(f"camera {name!r}: {label} must be a positive finite number, got {v!r}")
+        if gain < 1.0:
+            raise ParameterError(f"camera {name!r}: gain must be >= 1, got {gain}")
+
+    # -- commands -------------------------------------------------------------------------------
+    def set_exposure(self, name: str, exposure_us: float, gain: float = 1.0, issue_time_us: int | None = None) -> None:
+        """Command camera ``name``; applied at its first exposure starting >= issue time + latency."""
+        if name not in self.cams:
+            raise ParameterError(f"no simulated camera named {name!r} (have {', '.join(self.cams)})")
+        self._check_setting(name, exposure_us, gain)
+        t = self.now_us if issue_time_us is None else int(issue_time_us)
+        self.cams[name].commands.append(CommandRecord(t, float(exposure_us), float(gain)))
+
+    def commands(self, name: str) -> list[CommandRecord]:
+        return list(self.cams[name].commands)
+
+    def _apply_pending(self, cam: _CamState, start_us: int) -> None:
+        """The setting for an exposure starting now: the newest command old enough (latency)."""
+        chosen = None
+        for i in range(len(cam.commands) - 1, -1, -1):
+            c = cam.commands[i]
+            if c.issue_time_us + self.aps.latency_us <= start_us:
+                chosen = i
+                break
+        if chosen is None:
+            return
+        c = cam.commands[chosen]
+        if c.applied_start_us is None:
+            cam.commands[chosen] = replace(c, applied_start_us=int(start_us))
+        cam.exposure_us = float(min(max(c.exposure_us, self.aps.exposure_min_us), self.aps.exposure_max_us))
+        cam.gain = float(min(max(c.gain, 1.0), self.aps.gain_max))
+
+    # -- simulation -----------------------------------------------------------------------------
+    def _sample(self, t0: int, l0: np.ndarray, t1: int, out: list) -> np.ndarray:
+        """Render at ``t1``, halving the interval while the *lighting* changes by more than ``refine_log``.
+
+        Lighting change = the mean absolute change of ln L over the sensor. Motion alone does
+        not refine: a moving edge changes a few pixels a lot, and the event model interpolates
+        each pixel's crossing times linearly between samples anyway.
+        """
+        l1 = self.scene.log_irradiance(t1)
+        self.samples_rendered += 1
+        if t1 - t0 >= 2 * self.min_sample_us and float(np.mean(np.abs(l1 - l0))) > self.refine_log:
+            tm = (t0 + t1) // 2
+            lm = self._sample(t0, l0, tm, out)
+            return self._sample(tm, lm, t1, out)
+        out.append((t1, l1))
+        return l1
+
+    def packets(self):
+        """Yield ``(camera name or None, packet)`` in time order until the scene ends."""
+        dvs = EventSimulator(self.sensor, self.dvs_params, seed=self.seed)
+        l_prev = self.scene.log_irradiance(0)
+        self.samples_rendered += 1
+        dvs.reset(l_prev, 0)
+        t_prev = 0
+        buf_t: deque = deque([0])
+        buf_l: deque = deque([np.exp(l_prev)])
+        heap: list = []
+        for i, name in enumerate(self.cams):
+            heapq.heappush(heap, (self.first_start_us, _START, i, name, None))
+        t0 = 0
+        end = self.scene.duration_us
+        while t0 < end:
+            t1 = min(t0 + self.batch_us, end)
+            # scene samples and events for (t0, t1]
+            chunks = []
+            tk = t_prev
+            while tk < t1:
+                target = min(tk + self.sample_us, t1)
+                samples: list = []
+                l_prev = self._sample(tk, l_prev, target, samples)
+                for ts, ls in samples:
+                    ev = dvs.step(ls, ts)
+                    if ev.size:
+                        chunks.append(ev)
+                    buf_t.append(ts)
+                    buf_l.append(np.exp(ls))
+                tk = target
+            t_prev = t1
+            events = np.concatenate(chunks) if chunks else np.zeros(0, EVENT_DTYPE)
+            self.events_generated += events.size
+            times = events["t"]
+            pos = 0
+            # camera items due before t1 (an item may schedule another within the same batch)
+            while heap and heap[0][0] < t1:
+                t_item, kind, ci, name, data = heapq.heappop(heap)
+                cut = int(np.searchsorted(times, t_item, side="left"))
+                if cut > pos:
+                    self.now_us = int(times[cut - 1])
+                    yield None, events[pos:cut]
+                    pos = cut
+                cam = self.cams[name]
+                self.now_us = max(self.now_us, int(t_item))
+                if kind == _START:
+                    self._apply_pending(cam, t_item)
+                    e = t_item + max(1, int(round(cam.exposure_us)))
+                    heapq.heappush(heap, (e, _END, ci, name, (t_item, cam.exposure_us, cam.gain)))
+                    yield name, ExposureMarker(int(t_item), "start")
+                elif kind == _END:
+                    s, _, _ = data
+                    heapq.heappush(heap, (t_item + self.aps.readout_us, _FRAME, ci, name, (s, t_item) + data[1:]))
+                    heapq.heappush(heap, (s + self.aps.frame_interval_us, _START, ci, name, None))
+                    yield name, ExposureMarker(int(t_item), "end")
+                else:
+                    s, e, exp_us, gain = data
+                    lbar = integrate_samples(np.asarray(buf_t, dtype=np.float64), list(buf_l), s, e)
+                    img = expose(lbar, e - s, gain, self.crf, self.aps, cam.rng)
+                    cam.frames += 1
+                    frame = Frame(img, int(s), int(e), float(gain), cam.seq)
+                    cam.seq += 1
+                    yield name, frame
+            if pos < events.size:
+                self.now_us = int(times[-1])
+                yield None, events[pos:]
+            self.now_us = max(self.now_us, t1 - 1)
+            # keep samples back to the oldest exposure still to be integrated
+            oldest = min([h[4][0] for h in heap if h[1] in (_END, _FRAME)] + [t1])
+            while len(buf_t) > 2 and buf_t[1] <= oldest:
+                buf_t.popleft()
+                buf_l.popleft()
+            t0 = t1
+
+
+class SimulatedCamera:
+    """One simulated camera: the :class:`~necviz.drivers.source.Source` interface over a :class:`SimRig`."""
+
+    def __init__(self, scene: Scene, exposure_us: float | None = None, gain: float = 1.0, **rig_kwargs):
+        init = None if exposure_us is None else (exposure_us, gain)
+        self.rig = SimRig(scene, {"camera": init}, **rig_kwargs)
+        self.sensor = scene.sensor
+
+    def __iter__(self):
+        for _, packet in self.rig.packets():
+            yield packet
+
+    def set_exposure(self, exposure_us: float, gain: float = 1.0, issue_time_us: int | None = None) -> None:
+        self.rig.set_exposure("camera", exposure_us, gain, issue_time_us)
+
+    @property
+    def commands(self) -> list[CommandRecord]:
+        return self.rig.commands("camera")
+
+    def close(self) -> None:
+        pass

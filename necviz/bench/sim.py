@@ -1,0 +1,63 @@
+"""``necviz bench sim``: how fast the closed-loop simulator runs on this machine.
+
+Simulates ``tunnel_exit`` (default 5 s at 346x260) with several cameras sharing one scene and one
+event stream, each at its own fixed exposure, consuming every packet. Reports the real-time factor
+(simulated seconds per wall second; >= 1 is faster than real time), events generated, scene
+samples rendered and frames per camera. Prints a live progress line while it runs.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..core.errors import ParameterError
+from ..core.frames import Frame
+
+
+def run(duration_s=5.0, cameras=6, scenario="tunnel_exit", seed=0, json_path=None, out=sys.stdout) -> dict:
+    from ..drivers.sim.camera import SimRig
+    from ..drivers.sim.scenes import make_scenario
+
+    if not (0 < duration_s <= 600) or not (1 <= cameras <= 32):
+        raise ParameterError("bench sim needs 0 < duration <= 600 s and 1..32 cameras")
+    scene = make_scenario(scenario, duration_us=int(duration_s * 1e6), seed=seed)
+    exposures = np.geomspace(20, 15_000, cameras)
+    rig = SimRig(scene, {f"cam{i}": (float(e), 1.0) for i, e in enumerate(exposures)}, seed=seed)
+    frames = 0
+    events = 0
+    t_start = time.perf_counter()
+    next_report = 0.0
+    for name, p in rig.packets():
+        if name is None:
+            events += p.size
+        elif isinstance(p, Frame):
+            frames += 1
+        now = time.perf_counter()
+        if now >= next_report:
+            sim_s = rig.now_us / 1e6
+            print(f"\r  simulated {sim_s:5.2f}/{duration_s:g} s  {events:,} events  {frames} frames  "
+                  f"({sim_s / max(now - t_start, 1e-9):.2f}x real time)", end="", file=out, flush=True)
+            next_report = now + 0.5
+    wall = time.perf_counter() - t_start
+    print(file=out)
+    result = {
+        "scenario": scenario, "seed": seed, "duration_s": duration_s, "cameras": cameras,
+        "wall_s": wall, "realtime_factor": duration_s / wall, "events": int(events),
+        "mev_per_s_generated": events / wall / 1e6, "samples_rendered": rig.samples_rendered,
+        "frames": frames, "sensor": f"{scene.sensor.width}x{scene.sensor.height}",
+        "machine": {"python": platform.python_version(), "processor": platform.processor() or platform.machine()},
+    }
+    print(f"{scenario}: {duration_s:g} s with {cameras} cameras in {wall:.2f} s -> real-time factor "
+          f"{result['realtime_factor']:.2f}; {events:,} events, {rig.samples_rendered} scene samples, "
+          f"{frames} frames", file=out)
+    if json_path:
+        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
+        Path(json_path).write_text(json.dumps(result, indent=2) + "\n")
+        print(f"wrote {json_path}", file=out)
+    return result
