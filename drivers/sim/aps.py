@@ -67,41 +67,71 @@ class ApsParams:
             raise ParameterError("electrons_at_mid must be positive")
 
 
+class DigitLut:
+    """``Z = round(f(ln H))`` by table lookup: 2^16 bins over ``[g(0) - 0.5, g(255) + 0.5]``.
+
+    A pixel can only differ from the exact rounding if its ``ln H`` lies within one bin
+    (about 9e-5 ln units, 0.02 DN) of a rounding boundary; ``np.interp`` per frame cost
+    0.8 ms, the lookup about a quarter of that.
+    """
+
+    BINS = 1 << 16
+
+    def __init__(self, crf: CameraResponse):
+        self.lo = float(crf.g[0] - 0.5)
+        hi = float(crf.g[255] + 0.5)
+        self.scale = (self.BINS - 1) / (hi - self.lo)
+        centres = self.lo + (np.arange(self.BINS) + 0.5) / self.scale
+        self.table = np.clip(np.rint(crf.intensity(centres)), 0, 255).astype(np.uint8)
+
+
+_LUTS: dict = {}
+
+
 def expose(mean_irradiance: np.ndarray, exposure_us: float, gain: float, crf: CameraResponse,
            params: ApsParams, rng: np.random.Generator | None) -> np.ndarray:
     """One 8-bit frame from the exposure-averaged irradiance ``Lbar`` (float array, linear units)."""
-    t_s = exposure_us / US_PER_S
+    lut = _LUTS.get(id(crf))
+    if lut is None or lut[0] is not crf:
+        lut = _LUTS[id(crf)] = (crf, DigitLut(crf))
+    lut = lut[1]
     q = params.electrons_at_mid
-    electrons = (q * t_s) * np.asarray(mean_irradiance, dtype=np.float32)
+    electrons = np.asarray(mean_irradiance, dtype=np.float32) * np.float32(q * exposure_us / US_PER_S)
     if params.noise and rng is not None:
-        sigma = np.sqrt(np.maximum(electrons, 0.0) + params.read_noise_e**2)
-        electrons = electrons + sigma * rng.standard_normal(electrons.shape, dtype=np.float32)
-    h = np.maximum(electrons * np.float32(gain / q), np.float32(1e-30))
-    z = crf.intensity(np.log(h))
-    return np.clip(np.rint(z), 0, 255).astype(np.uint8)
+        sigma = np.sqrt(np.maximum(electrons, 0.0) + np.float32(params.read_noise_e**2))
+        electrons += sigma * rng.standard_normal(electrons.shape, dtype=np.float32)
+    np.maximum(electrons, np.float32(1e-30), out=electrons)
+    log_h = np.log(electrons, out=electrons)
+    log_h += np.float32(math.log(gain / q) - lut.lo)
+    log_h *= np.float32(lut.scale)
+    idx = np.clip(log_h, 0, lut.BINS - 1).astype(np.int32)
+    return lut.table[idx]
 
 
 def integrate_samples(times: np.ndarray, values: list[np.ndarray], s: float, e: float) -> np.ndarray:
     """``(1/(e-s)) ∫_s^e L(t) dt`` for ``L`` piecewise linear between samples ``(times[k], values[k])``.
 
-    ``times`` ascending and covering ``[s, e]``. Exact for the piecewise-linear interpolant;
-    O(samples in the window · pixels).
+    ``times`` ascending and covering ``[s, e]``. The integral of the interpolant is a weighted
+    sum of the samples; the weights come from each segment's overlap with ``[s, e]``. Exact for the
+    piecewise-linear interpolant; one multiply-add per sample in the window per pixel.
     """
     if not (times[0] <= s < e <= times[-1]):
         raise ParameterError(f"exposure [{s}, {e}] is not covered by samples [{times[0]}, {times[-1]}]")
     k0 = int(np.searchsorted(times, s, side="right")) - 1
     k1 = int(np.searchsorted(times, e, side="left"))
-    acc = np.zeros_like(values[k0], dtype=np.float32)
-
-    def at(t, k):  # interpolated sample at t in [times[k], times[k+1]]
-        t0, t1 = times[k], times[k + 1]
-        a = 0.0 if t1 == t0 else (t - t0) / (t1 - t0)
-        return values[k] * np.float32(1.0 - a) + values[k + 1] * np.float32(a)
-
+    w = np.zeros(k1 - k0 + 1)
     for k in range(k0, k1):
-        lo, hi = max(s, times[k]), min(e, times[k + 1])
-        if hi <= lo:
+        t0, t1 = times[k], times[k + 1]
+        lo, hi = max(s, t0), min(e, t1)
+        if hi <= lo or t1 <= t0:
             continue
-        # trapezoid of the linear interpolant on [lo, hi]
-        acc += (at(lo, k) + at(hi, k)) * np.float32(0.5 * (hi - lo))
-    return acc / np.float32(e - s)
+        # ∫_lo^hi a(t) dt with a = (t - t0)/(t1 - t0): the weight of the right sample; the rest is the left's
+        right = ((hi - t0) ** 2 - (lo - t0) ** 2) / (2.0 * (t1 - t0))
+        w[k - k0] += (hi - lo) - right
+        w[k - k0 + 1] += right
+    w /= e - s
+    acc = values[k0] * np.float32(w[0])
+    for j in range(1, w.size):
+        if w[j] != 0.0:
+            acc += values[k0 + j] * np.float32(w[j])
+    return acc

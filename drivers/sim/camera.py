@@ -17,6 +17,7 @@ from __future__ import annotations
 import heapq
 import math
 from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -60,7 +61,7 @@ class SimRig:
     """
 
     def __init__(self, scene: Scene, cameras, dvs: DvsParams | None = None, aps: ApsParams | None = None,
-                 crf: CameraResponse | None = None, seed: int = 0, sample_us: int = 1_000,
+                 crf: CameraResponse | None = None, seed: int = 0, sample_us: int = 2_000,
                  refine_log: float = 0.12, min_sample_us: int = 60, batch_us: int = 1_000,
                  first_start_us: int = 1_000):
         if not isinstance(scene, Scene):
@@ -150,79 +151,95 @@ class SimRig:
         out.append((t1, l1))
         return l1
 
+    def _form_frame(self, cam: _CamState, times, values, s: int, e: int, gain: float) -> Frame:
+        """Exposure ``[s, e]`` of one camera, from the scene samples covering it."""
+        lbar = integrate_samples(times, values, s, e)
+        img = expose(lbar, e - s, gain, self.crf, self.aps, cam.rng)
+        frame = Frame(img, int(s), int(e), float(gain), cam.seq)
+        cam.seq += 1
+        return frame
+
     def packets(self):
         """Yield ``(camera name or None, packet)`` in time order until the scene ends."""
         dvs = EventSimulator(self.sensor, self.dvs_params, seed=self.seed)
         l_prev = self.scene.log_irradiance(0)
         self.samples_rendered += 1
         dvs.reset(l_prev, 0)
-        t_prev = 0
         buf_t: deque = deque([0])
         buf_l: deque = deque([np.exp(l_prev)])
+        held = np.zeros(0, EVENT_DTYPE)
+        pending: deque = deque()
+        t_rendered = t_gathered = 0
+        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="necviz-dvs")
         heap: list = []
         for i, name in enumerate(self.cams):
             heapq.heappush(heap, (self.first_start_us, _START, i, name, None))
-        t0 = 0
-        end = self.scene.duration_us
-        while t0 < end:
-            t1 = min(t0 + self.batch_us, end)
-            # scene samples and events for (t0, t1]
-            chunks = []
-            tk = t_prev
-            while tk < t1:
-                target = min(tk + self.sample_us, t1)
-                samples: list = []
-                l_prev = self._sample(tk, l_prev, target, samples)
-                for ts, ls in samples:
-                    ev = dvs.step(ls, ts)
+        try:
+            t0 = 0
+            end = self.scene.duration_us
+            while t0 < end:
+                t1 = min(t0 + self.batch_us, end)
+                # Scene samples run on their own grid, rendered up to two periods ahead; each sample's DVS
+                # step runs on the worker thread (in order, so results are deterministic) while this
+                # thread renders and forms frames. Events past t1 wait for the next batch.
+                while t_rendered < t1 + 2 * self.sample_us:
+                    target = t_rendered + self.sample_us
+                    samples: list = []
+                    l_prev = self._sample(t_rendered, l_prev, target, samples)
+                    for ts, ls in samples:
+                        pending.append((ts, pool.submit(dvs.step, ls, ts)))
+                        buf_t.append(ts)
+                        buf_l.append(np.exp(ls))
+                    t_rendered = target
+                chunks = [held] if held.size else []
+                while t_gathered < t1:
+                    t_gathered, fut = pending.popleft()
+                    ev = fut.result()
                     if ev.size:
                         chunks.append(ev)
-                    buf_t.append(ts)
-                    buf_l.append(np.exp(ls))
-                tk = target
-            t_prev = t1
-            events = np.concatenate(chunks) if chunks else np.zeros(0, EVENT_DTYPE)
-            self.events_generated += events.size
-            times = events["t"]
-            pos = 0
-            # camera items due before t1 (an item may schedule another within the same batch)
-            while heap and heap[0][0] < t1:
-                t_item, kind, ci, name, data = heapq.heappop(heap)
-                cut = int(np.searchsorted(times, t_item, side="left"))
-                if cut > pos:
-                    self.now_us = int(times[cut - 1])
-                    yield None, events[pos:cut]
-                    pos = cut
-                cam = self.cams[name]
-                self.now_us = max(self.now_us, int(t_item))
-                if kind == _START:
-                    self._apply_pending(cam, t_item)
-                    e = t_item + max(1, int(round(cam.exposure_us)))
-                    heapq.heappush(heap, (e, _END, ci, name, (t_item, cam.exposure_us, cam.gain)))
-                    yield name, ExposureMarker(int(t_item), "start")
-                elif kind == _END:
-                    s, _, _ = data
-                    heapq.heappush(heap, (t_item + self.aps.readout_us, _FRAME, ci, name, (s, t_item) + data[1:]))
-                    heapq.heappush(heap, (s + self.aps.frame_interval_us, _START, ci, name, None))
-                    yield name, ExposureMarker(int(t_item), "end")
-                else:
-                    s, e, exp_us, gain = data
-                    lbar = integrate_samples(np.asarray(buf_t, dtype=np.float64), list(buf_l), s, e)
-                    img = expose(lbar, e - s, gain, self.crf, self.aps, cam.rng)
-                    cam.frames += 1
-                    frame = Frame(img, int(s), int(e), float(gain), cam.seq)
-                    cam.seq += 1
-                    yield name, frame
-            if pos < events.size:
-                self.now_us = int(times[-1])
-                yield None, events[pos:]
-            self.now_us = max(self.now_us, t1 - 1)
-            # keep samples back to the oldest exposure still to be integrated
-            oldest = min([h[4][0] for h in heap if h[1] in (_END, _FRAME)] + [t1])
-            while len(buf_t) > 2 and buf_t[1] <= oldest:
-                buf_t.popleft()
-                buf_l.popleft()
-            t0 = t1
+                events = np.concatenate(chunks) if len(chunks) > 1 else (chunks[0] if chunks else held)
+                split = int(np.searchsorted(events["t"], t1, side="left"))
+                events, held = events[:split], events[split:]
+                self.events_generated += events.size
+                times = events["t"]
+                pos = 0
+                # camera items due before t1 (an item may schedule another within the same batch)
+                while heap and heap[0][0] < t1:
+                    t_item, kind, ci, name, data = heapq.heappop(heap)
+                    cut = int(np.searchsorted(times, t_item, side="left"))
+                    if cut > pos:
+                        self.now_us = int(times[cut - 1])
+                        yield None, events[pos:cut]
+                        pos = cut
+                    cam = self.cams[name]
+                    self.now_us = max(self.now_us, int(t_item))
+                    if kind == _START:
+                        self._apply_pending(cam, t_item)
+                        e = t_item + max(1, int(round(cam.exposure_us)))
+                        heapq.heappush(heap, (e, _END, ci, name, (t_item, cam.exposure_us, cam.gain)))
+                        yield name, ExposureMarker(int(t_item), "start")
+                    elif kind == _END:
+                        s, exp_us, gain = data
+                        heapq.heappush(heap, (t_item + self.aps.readout_us, _FRAME, ci, name, (s, t_item, gain)))
+                        heapq.heappush(heap, (s + self.aps.frame_interval_us, _START, ci, name, None))
+                        yield name, ExposureMarker(int(t_item), "end")
+                    else:
+                        s, e, gain = data
+                        frame = self._form_frame(cam, np.asarray(buf_t, dtype=np.float64), list(buf_l), s, e, gain)
+                        cam.frames += 1
+                        yield name, frame
+                if pos < events.size:
+                    self.now_us = int(times[-1])
+                    yield None, events[pos:]
+                self.now_us = max(self.now_us, t1 - 1)
+                # keep samples back to the oldest exposure still to be integrated
+                oldest = min([h[4][0] for h in heap if h[1] in (_END, _FRAME)] + [t1])
+                while len(buf_t) > 2 and buf_t[1] <= oldest:
+                    buf_t.popleft()
+                    buf_l.popleft()
+                t0 = t1
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
 
 
 class SimulatedCamera:

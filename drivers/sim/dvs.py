@@ -180,7 +180,7 @@ def lowpass_table(dt_us: float, omega_per_us: float, ref_log: float):
     return np.exp(-dt_us * omega_per_us * inten01(grid, ref_log)), lo, (TAB_SIZE - 1) / TAB_SPAN
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def dvs_pixels(lnew, lp, ref, th_on, th_off, leak_k, t_last, wake,
                t0, t1, e0, e1, omega_s, a_tab, tab_lo, tab_inv_h, refractory, start,
                out_t, out_pix, out_p, n0, stats):
@@ -307,7 +307,7 @@ def dvs_pixels(lnew, lp, ref, th_on, th_off, leak_k, t_last, wake,
 
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def dvs_shot_noise(cand_pix, cand_t, cand_u, cand_on, lnew, lp, ref, leak_k, th_on, wake, e1, ref_log,
                    out_t, out_pix, out_p, n0):
     """Thin homogeneous shot-noise candidates to v2e's intensity-dependent rate and apply them.
@@ -337,7 +337,7 @@ def dvs_shot_noise(cand_pix, cand_t, cand_u, cand_on, lnew, lp, ref, leak_k, th_
     return w
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def dvs_assemble(out_t, out_pix, out_p, n, t0, width, ev):
     """Stable counting sort of ``n`` events by time in ``(t0, t0 + span]`` into the record array ``ev``.
 
