@@ -214,17 +214,20 @@ def ptedi_close(
 
 @nb.njit(cache=True)
 def image_stats(z, vmin, vmax):
-    """One integer-only pass over an 8-bit image: ``(sum Z, number of pixels in vmin..vmax)``.
+    """One integer-only pass over an 8-bit image: ``(sum Z, pixels in vmin..vmax, pixels above vmax)``.
 
-    The image side of Eq. 15 (``mean_R Z``) and the valid fraction of the anchor rule. O(pixels).
+    The image side of Eq. 15 (``mean_R Z``) and the valid/over-exposed fractions of the anchor
+    rule. O(pixels).
     """
     total = 0
     nvalid = 0
+    nover = 0
     span = vmax - vmin
     for v in z:
         total += v
         nvalid += (np.uint8(v - vmin) <= span)
-    return total, nvalid
+        nover += v > vmax
+    return total, nvalid, nover
 
 
 @dataclass(frozen=True)
@@ -239,6 +242,8 @@ class FrameEstimate:
     log_anchor: np.ndarray  # ln P(s) = ln Pbar - ln E_p(s)
     valid_fraction: np.ndarray
     anchored: np.ndarray  # bool: this frame re-anchored the zone
+    over_fraction: np.ndarray | None = None
+    bounded: np.ndarray | None = None  # bool: a saturated frame moved the zone's anchor to its bound
 
 
 class PeripheralEstimator:
@@ -325,6 +330,7 @@ class PeripheralEstimator:
         self.anchor_off = np.zeros(k, np.int64)
         self.frames_seen = 0
         self.frames_skipped = 0
+        self.frames_bounded = 0
 
     # -- stream input -------------------------------------------------------------------------
     def update(self, events: np.ndarray) -> None:
@@ -420,11 +426,12 @@ class PeripheralEstimator:
         self._wend[w] = t_us
         self._open = -1
 
-    def frame_log_irradiance(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
-        """``(ln Pbar, valid fraction)`` per zone from the image alone (Eq. 15 or the mean-log form)."""
+    def frame_log_irradiance(self, frame: Frame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(ln Pbar, valid fraction, over-exposed fraction)`` per zone from the image alone
+        (Eq. 15 or the mean-log form)."""
         if self.whole:
-            lp, frac = self._whole_frame_log_irradiance(frame)
-            return np.array([lp]), np.array([frac])
+            lp, frac, over = self._whole_frame_log_irradiance(frame)
+            return np.array([lp]), np.array([frac]), np.array([over])
         z = frame.image.ravel()
         log_tk = math.log(frame.exposure_us / US_PER_S) + math.log(frame.gain)
         zf, inr = self._zone_flat, self._in_region
@@ -432,13 +439,14 @@ class PeripheralEstimator:
         k = self.num_zones
         nvalid = np.bincount(zf[inr & valid], minlength=k).astype(np.float64)
         frac = nvalid / self.sizes
+        over = np.bincount(zf[inr & (z > self.crf.valid_max)], minlength=k) / self.sizes
         if self.image_form == "paper":
             mean_z = np.bincount(zf[inr], weights=z[inr].astype(np.float64), minlength=k) / self.sizes
-            return np.asarray(self.crf.log_exposure(mean_z), dtype=np.float64) - log_tk, frac
+            return np.asarray(self.crf.log_exposure(mean_z), dtype=np.float64) - log_tk, frac, over
         sel = inr & valid
         gsum = np.bincount(zf[sel], weights=self.crf.g[z[sel]], minlength=k)
         with np.errstate(invalid="ignore", divide="ignore"):
-            return gsum / nvalid - log_tk, frac
+            return gsum / nvalid - log_tk, frac, over
 
     def add_frame(self, frame: Frame) -> FrameEstimate:
         """A frame arrived (after its announced exposure); re-anchor the zones where it is usable."""
@@ -455,50 +463,79 @@ class PeripheralEstimator:
                 f"frame {frame.sequence} with exposure [{s}, {e}] µs was not announced by exposure start/end "
                 "markers (or its end has not been seen yet); sources must send them in stream order"
             )
+        w0 = self._c0_on[w], self._c0_off[w]
         if self.whole:
-            log_pbar, frac = self._whole_frame_log_irradiance(frame)
+            lp, fr, ov = self._whole_frame_log_irradiance(frame)
             log_e = math.log(self._wint[w, 0] / (e - s))
-            log_anchor = log_pbar - log_e
-            good = frac >= self.min_valid_fraction and math.isfinite(log_anchor)
-            if good:
-                self.anchor_log[0] = log_anchor
+            if fr >= self.min_valid_fraction and math.isfinite(lp - log_e):  # the common case, scalar
+                self.anchor_log[0] = lp - log_e
                 self.anchor_t[0] = s
-                self.anchor_on[0] = self._c0_on[w, 0]
-                self.anchor_off[0] = self._c0_off[w, 0]
-            log_pbar, log_e, log_anchor = np.array([log_pbar]), np.array([log_e]), np.array([log_anchor])
-            frac, ok = np.array([frac]), np.array([good])
+                self.anchor_on[0] = w0[0][0]
+                self.anchor_off[0] = w0[1][0]
+                self._wstate[w] = _FREE
+                self.frames_seen += 1
+                return FrameEstimate(frame.sequence, s, e, np.array([lp]), np.array([log_e]),
+                                     np.array([lp - log_e]), np.array([fr]), np.array([True]), np.array([ov]),
+                                     np.array([False]))
+            log_pbar, frac, over = np.array([lp]), np.array([fr]), np.array([ov])
+            log_e = np.array([log_e])
         else:
-            log_pbar, frac = self.frame_log_irradiance(frame)
+            log_pbar, frac, over = self.frame_log_irradiance(frame)
             log_e = np.log(self._wint[w] / (e - s))
-            log_anchor = log_pbar - log_e
-            ok = (frac >= self.min_valid_fraction) & np.isfinite(log_anchor)
-            self.anchor_log[ok] = log_anchor[ok]
-            self.anchor_t[ok] = s
-            self.anchor_on[ok] = self._c0_on[w][ok]
-            self.anchor_off[ok] = self._c0_off[w][ok]
-            good = bool(ok.all())
+        log_anchor = log_pbar - log_e
+        ok = (frac >= self.min_valid_fraction) & np.isfinite(log_anchor)
+        # Saturation bound: clipping only lowers digits, so a frame dominated by over-exposed pixels
+        # proves ln P(s) >= its estimate (and one dominated by under-exposed pixels, <=). Where the
+        # event-propagated prediction breaks that bound (events lost to the sensor's rate ceiling,
+        # say), re-anchor at the bound instead of keeping a prediction the frame disproves.
+        pred_s = self._propagate(w0[0], w0[1], s)
+        over_dom = over >= 1.0 - frac - over
+        with np.errstate(invalid="ignore"):
+            bounded = ~ok & np.isfinite(log_anchor) & (
+                ~np.isfinite(pred_s) | (over_dom & (pred_s < log_anchor)) | (~over_dom & (pred_s > log_anchor)))
+        new = ok | bounded
+        self.anchor_log[new] = log_anchor[new]
+        self.anchor_t[new] = s
+        self.anchor_on[new] = w0[0][new]
+        self.anchor_off[new] = w0[1][new]
         self._wstate[w] = _FREE
         self.frames_seen += 1
-        if not good:
+        if not ok.all():
             self.frames_skipped += 1
-        return FrameEstimate(frame.sequence, s, e, log_pbar, log_e, log_anchor, frac, ok)
+        self.frames_bounded += int(bounded.any())
+        return FrameEstimate(frame.sequence, s, e, log_pbar, log_e, log_anchor, frac, ok, over, bounded)
 
-    def _whole_frame_log_irradiance(self, frame: Frame) -> tuple[float, float]:
+    def _propagate(self, counts_on: np.ndarray, counts_off: np.ndarray, t: int) -> np.ndarray:
+        """Eq. 12 from each zone's anchor to time ``t`` with the given cumulative counts (NaN if unanchored)."""
+        c_on, c_off, a_on, b_on, a_off, b_off = self._kp
+        m_on = (counts_on - self.anchor_on) * self._inv_n
+        m_off = (counts_off - self.anchor_off) * self._inv_n
+        u = (t - self.anchor_t).astype(np.float64)
+        comp_on = np.maximum(0.0, a_on * m_on - b_on * u)
+        comp_off = np.maximum(0.0, a_off * m_off - b_off * u)
+        return self.anchor_log + c_on * (m_on + comp_on) - c_off * (m_off + comp_off)
+
+    def _whole_frame_log_irradiance(self, frame: Frame) -> tuple[float, float, float]:
         """Scalar :meth:`frame_log_irradiance` for the single whole-sensor zone."""
         crf = self.crf
         z = frame.image.ravel()
         log_tk = math.log(frame.exposure_us / US_PER_S) + math.log(frame.gain)
         if self.image_form == "paper":
-            total, nv = image_stats(z, crf.valid_min, crf.valid_max)
+            total, nv, no = image_stats(z, crf.valid_min, crf.valid_max)
             mean = total / z.size
             i = min(int(mean), 254)
             g_mean = crf.g[i] + (crf.g[i + 1] - crf.g[i]) * (mean - i)
-            return float(g_mean) - log_tk, nv / z.size
-        hist = np.bincount(z, minlength=256)[crf.valid_min : crf.valid_max + 1]
+            return float(g_mean) - log_tk, nv / z.size, no / z.size
+        full = np.bincount(z, minlength=256)
+        hist = full[crf.valid_min : crf.valid_max + 1]
         nv = int(hist.sum())
+        over = int(full[crf.valid_max + 1 :].sum()) / z.size
         if nv == 0:
-            return math.nan, 0.0
-        return float(np.dot(hist, crf.g[crf.valid_min : crf.valid_max + 1])) / nv - log_tk, nv / z.size
+            # no valid pixel: the clipped mean still bounds the irradiance (see add_frame)
+            mean = float(z.mean())
+            i = min(int(mean), 254)
+            return float(crf.g[i] + (crf.g[i + 1] - crf.g[i]) * (mean - i)) - log_tk, 0.0, over
+        return float(np.dot(hist, crf.g[crf.valid_min : crf.valid_max + 1])) / nv - log_tk, nv / z.size, over
 
     def feed(self, packet) -> FrameEstimate | None:
         """Dispatch one stream packet: an event array, an :class:`ExposureMarker` or a :class:`Frame`."""
@@ -525,16 +562,10 @@ class PeripheralEstimator:
         compensation term and must not precede a zone's anchor.
         """
         t = self.last_event_us if t_us is None else int(t_us)
-        c_on, c_off, a_on, b_on, a_off, b_off = self._kp
         anchored = np.isfinite(self.anchor_log)
         if np.any(anchored & (t < self.anchor_t)):
             raise ParameterError(f"prediction time {t} µs precedes the anchor at {int(self.anchor_t[anchored].max())} µs")
-        m_on = (self.counts_on - self.anchor_on) * self._inv_n
-        m_off = (self.counts_off - self.anchor_off) * self._inv_n
-        u = (t - self.anchor_t).astype(np.float64)
-        comp_on = np.maximum(0.0, a_on * m_on - b_on * u)
-        comp_off = np.maximum(0.0, a_off * m_off - b_off * u)
-        return self.anchor_log + c_on * (m_on + comp_on) - c_off * (m_off + comp_off)
+        return self._propagate(self.counts_on, self.counts_off, t)
 
     def predict(self, t_us: int | None = None) -> float:
         """Mean log irradiance ``ln P(t)`` over the anchored zones, weighted by their pixel counts."""

@@ -40,6 +40,14 @@ def _cmd_bench_sim(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_compare(args: argparse.Namespace) -> int:
+    from .compare import run
+
+    run(scenario=args.scenario, controllers=args.controllers, seed=args.seed, seeds=args.seeds,
+        duration_s=args.duration, sift=not args.no_sift, json_path=args.json, save=args.save)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="necviz", description="Neuromorphic exposure control: estimators, controllers, dashboard.")
     p.add_argument("--version", action="version", version=f"necviz {__version__}")
@@ -47,6 +55,18 @@ def build_parser() -> argparse.ArgumentParser:
 
     info = sub.add_parser("info", help="versions, Numba threading layer, available sources and controllers")
     info.set_defaults(func=_cmd_info)
+
+    cmp_ = sub.add_parser("compare", help="NEC versus the baselines in closed loop on one simulated scene")
+    cmp_.add_argument("--scenario", default="tunnel_exit", help="simulator scenario (default tunnel_exit)")
+    cmp_.add_argument("--controllers", default="nec,navid,shim,begin,builtin,fixed",
+                      help="comma-separated controllers (default: all six)")
+    cmp_.add_argument("--duration", type=float, default=None, help="simulated seconds (default: the scenario's)")
+    cmp_.add_argument("--seed", type=int, default=0)
+    cmp_.add_argument("--seeds", type=int, default=1, help="repeat over this many seeds and report mean ± std")
+    cmp_.add_argument("--json", metavar="FILE", help="write the results as JSON")
+    cmp_.add_argument("--save", metavar="FILE.rrd", help="write a Rerun recording (per-controller entity paths)")
+    cmp_.add_argument("--no-sift", action="store_true", help="skip the SIFT inlier metric (the slowest part)")
+    cmp_.set_defaults(func=_cmd_compare)
 
     bench = sub.add_parser("bench", help="speed benchmarks (print a table, optionally write JSON)")
     bsub = bench.add_subparsers(dest="bench", metavar="BENCH", required=True)

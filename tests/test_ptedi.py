@@ -295,3 +295,21 @@ def test_image_side_zone_path_agrees_with_whole_sensor_path(form, crf):
     general = est.frame_log_irradiance(frame)
     assert np.allclose(whole[0], general[0], atol=1e-12) and np.allclose(whole[1], general[1])
     assert abs(whole[0][0] - _truth(scene, 0, form)) < 0.02
+
+
+def test_saturated_frame_bounds_the_estimate_when_events_were_lost(crf):
+    """Events lost (here: 80 % dropped, as at the sensor's rate ceiling) make the propagated estimate
+    too low; an over-exposed frame proves a lower bound, and P-TEDI re-anchors there."""
+    scene = AnalyticScene(64, 48, [Trajectory("step", 31_000, 4.0)], log_level=5.0)
+    ev = scene.events(C_ON, C_OFF)
+    kept = ev[np.random.default_rng(0).random(ev.size) < 0.2]
+    frames = _frames(scene, crf, range(0, 100_000, 20_000), exposure_us=4_000)
+    est = PeripheralEstimator(SENSOR, PARAMS, crf)
+    fes = [r for pk in interleave(kept, frames) if (r := est.feed(pk)) is not None]
+    assert [bool(f.anchored[0]) for f in fes] == [True, True, False, False, False]
+    assert bool(fes[2].bounded[0]) and fes[2].over_fraction[0] > 0.5
+    truth = scene.log_mean_irradiance(99_000)
+    # the frame-only bound is below the truth (clipping) but far above the event-only estimate
+    event_only = fes[1].log_anchor[0] + 0.2 * 4.0
+    assert event_only < est.predict(99_000) <= truth + TOL
+    assert est.frames_bounded >= 1

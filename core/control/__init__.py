@@ -1,9 +1,57 @@
-"""Exposure controllers behind one interface (:class:`Controller`)."""
+"""Exposure controllers behind one interface (:class:`Controller`): NEC and the baselines."""
 
+from __future__ import annotations
+
+import inspect
+
+from ..crf import CameraResponse, default_davis346
+from ..errors import ParameterError
+from ..event_model import TediParams
+from ..sensor import SensorGeometry
 from .base import CameraLimits, Controller, ExposureCommand
+from .begin import BeginController
+from .builtin import BuiltinController
+from .fixed import FixedController
+from .navid import NavidController
 from .nec import NECController, error_weight
+from .shim import ShimController
 
-#: name -> controller class; the baselines register here as they are added.
-CONTROLLERS: dict[str, type[Controller]] = {"nec": NECController}
+#: name -> controller class
+CONTROLLERS: dict[str, type[Controller]] = {
+    "nec": NECController,
+    "navid": NavidController,
+    "shim": ShimController,
+    "begin": BeginController,
+    "builtin": BuiltinController,
+    "fixed": FixedController,
+}
 
-__all__ = ["CONTROLLERS", "CameraLimits", "Controller", "ExposureCommand", "NECController", "error_weight"]
+
+def make_controller(name: str, *, sensor: SensorGeometry, limits: CameraLimits, exposure_us: float = 5_000.0,
+                    gain: float = 1.0, crf: CameraResponse | None = None, tedi: TediParams | None = None,
+                    **params) -> Controller:
+    """Build controller ``name`` with its documented defaults (``params`` override them).
+
+    NEC gets a whole-sensor P-TEDI estimator with ``tedi`` thresholds; controllers that use the
+    camera response (Bégin) get ``crf``.
+    """
+    if name not in CONTROLLERS:
+        raise ParameterError(f"unknown controller {name!r}; available: {', '.join(sorted(CONTROLLERS))}")
+    crf = crf or default_davis346()
+    if name == "nec":
+        from ..ptedi import PeripheralEstimator
+
+        est = PeripheralEstimator(sensor, tedi or TediParams(), crf)
+        return NECController(est, limits, exposure_us, gain, **params)
+    cls = CONTROLLERS[name]
+    if "crf" in inspect.signature(cls).parameters:
+        params.setdefault("crf", crf)
+    try:
+        return cls(limits, exposure_us, gain, **params)
+    except TypeError as e:
+        raise ParameterError(f"controller {name!r}: {e}") from None
+
+
+__all__ = ["CONTROLLERS", "CameraLimits", "Controller", "ExposureCommand", "NECController", "error_weight",
+           "make_controller", "NavidController", "ShimController", "BeginController", "BuiltinController",
+           "FixedController"]

@@ -20,7 +20,7 @@ from ..core.errors import ParameterError
 from ..core.frames import Frame
 
 
-def run(duration_s=5.0, cameras=6, scenario="tunnel_exit", seed=0, json_path=None, out=sys.stdout) -> dict:
+def run(duration_s=5.0, cameras=6, scenario="tunnel_exit", seed=0, json_path=None, out=...) -> dict:
     from ..drivers.sim.camera import SimRig
     from ..drivers.sim.scenes import make_scenario
 
