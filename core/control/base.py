@@ -23,6 +23,18 @@ def _finite_positive(name: str, v) -> float:
     return float(v)
 
 
+def check_number(name: str, v, lo: float | None = None, hi: float | None = None, lo_open: bool = False) -> float:
+    """A controller parameter: a finite number within ``[lo, hi]`` (``(lo, hi]`` with ``lo_open``)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v):
+        raise ParameterError(f"{name} must be a finite number, got {v!r}")
+    v = float(v)
+    if lo is not None and (v < lo or (lo_open and v == lo)):
+        raise ParameterError(f"{name} must be {'>' if lo_open else '>='} {lo}, got {v}")
+    if hi is not None and v > hi:
+        raise ParameterError(f"{name} must be <= {hi}, got {v}")
+    return v
+
+
 @dataclass(frozen=True)
 class CameraLimits:
     """What the camera accepts: exposure in µs and linear gain (``gain_max = 1`` means no gain)."""

@@ -59,7 +59,7 @@ import numpy as np
 from ..crf import CameraResponse, default_davis346
 from ..errors import ParameterError
 from ..frames import Frame
-from .base import CameraLimits, Controller, ExposureCommand
+from .base import CameraLimits, Controller, ExposureCommand, check_number as _num
 
 #: The published ΔEV corrections (larger EV = darker).
 DELTA_EVS = np.array([-2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 2.0])
@@ -67,17 +67,6 @@ EV_RANGE = 2.0
 #: Farneback parameters of the original (pyr_scale, levels, winsize, iterations, poly_n, poly_sigma).
 FARNEBACK = (0.5, 1, 5, 3, 5, 1.1)
 FLOW_DOWNSAMPLE = 4
-
-
-def _num(name: str, v, lo: float | None = None, lo_open: bool = False, hi: float | None = None) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v):
-        raise ParameterError(f"{name} must be a finite number, got {v!r}")
-    v = float(v)
-    if lo is not None and (v < lo or (lo_open and v == lo)):
-        raise ParameterError(f"{name} must be {'>' if lo_open else '>='} {lo}, got {v}")
-    if hi is not None and v > hi:
-        raise ParameterError(f"{name} must be <= {hi}, got {v}")
-    return v
 
 
 def ev_luts(crf: CameraResponse, delta_evs=DELTA_EVS) -> np.ndarray:

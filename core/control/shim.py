@@ -51,7 +51,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..frames import Frame
-from .base import CameraLimits, Controller, ExposureCommand
+from .base import CameraLimits, Controller, ExposureCommand, check_number as _num
 
 #: The published gamma set (Shim 2014/2018), convention I_γ = I^γ (γ < 1 brightens).
 GAMMAS = np.array([1 / 1.9, 1 / 1.5, 1 / 1.2, 1.0, 1.2, 1.5, 1.9])
@@ -60,17 +60,6 @@ GAMMA_MAX = 1.9
 DB_PER_EV = 6.0  # Mehta et al. 2020 gain extension
 DEFAULT_KP = {"2018": 1.6, "2014": 0.2}
 DARK_MEAN, BRIGHT_MEAN = 10.0, 245.0  # no-information fallback thresholds (Bégin's)
-
-
-def _num(name: str, v, lo: float | None = None, hi: float | None = None, lo_open=False) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v):
-        raise ParameterError(f"{name} must be a finite number, got {v!r}")
-    v = float(v)
-    if lo is not None and (v < lo or (lo_open and v == lo)):
-        raise ParameterError(f"{name} must be {'>' if lo_open else '>='} {lo}, got {v}")
-    if hi is not None and v > hi:
-        raise ParameterError(f"{name} must be <= {hi}, got {v}")
-    return v
 
 
 def nonlinear_ratio(gamma_hat: float, d: float = 0.1) -> float:
