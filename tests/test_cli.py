@@ -51,3 +51,15 @@ def test_bad_parameters_give_one_line_errors(argv, needle, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("necviz: error:") and needle in err and "\n" not in err
+
+
+def test_bench_sim_reports_speed_and_writes_json(tmp_path, capsys):
+    path = tmp_path / "sim.json"
+    assert main(["bench", "sim", "--duration", "0.1", "--cameras", "2", "--json", str(path)]) == 0
+    data = json.loads(path.read_text())
+    assert data["scenario"] == "tunnel_exit" and data["cameras"] == 2 and data["duration_s"] == 0.1
+    assert data["realtime_factor"] > 0 and data["events"] > 0 and data["frames"] >= 8
+    assert data["realtime_factor"] == pytest.approx(data["duration_s"] / data["wall_s"])
+    out = capsys.readouterr().out
+    assert "real-time factor" in out and "simulated" in out
+    assert main(["bench", "sim", "--cameras", "0"]) == 2

@@ -21,6 +21,8 @@ from ..core.frames import Frame
 
 
 def run(duration_s=5.0, cameras=6, scenario="tunnel_exit", seed=0, json_path=None, out=...) -> dict:
+    """Run the simulator benchmark, print progress and a summary, optionally write JSON."""
+    out = sys.stdout if out is ... else out
     from ..drivers.sim.camera import SimRig
     from ..drivers.sim.scenes import make_scenario
 
