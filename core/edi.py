@@ -247,6 +247,19 @@ def log_mean_irradiance(frame: Frame, crf: CameraResponse) -> np.ndarray:
     return np.asarray(crf.log_irradiance(frame.image, frame.exposure_us, frame.gain), dtype=np.float64)
 
 
+def exposure_inputs(events, frame, g_us, params, crf):
+    """Check the inputs every single-frame reconstruction shares; return ``(g, s, e, events in the window)``.
+
+    The window is ``[min(g, s), max(g, e))``: the events between the reference and the exposure.
+    """
+    check_frame(frame)
+    check_params(params)
+    check_crf(crf)
+    g = check_time(g_us)
+    s, e = int(frame.exposure_start_us), int(frame.exposure_end_us)
+    return g, s, e, event_window(events, min(g, s), max(g, e), frame.shape)
+
+
 def valid_mask(frame: Frame, crf: CameraResponse) -> np.ndarray:
     """Pixels whose digital value lies in ``crf.valid_min..crf.valid_max`` (bool, H x W)."""
     check_frame(frame)
@@ -296,13 +309,8 @@ def fast_edi_reconstruct(events: np.ndarray, frame: Frame, g_us: int, params: Te
 
     Uses only ``params.c_on``/``c_off``; returns ``ln L(g,x)`` float64 (H, W).
     """
-    check_frame(frame)
-    check_params(params)
-    check_crf(crf)
-    g = check_time(g_us)
-    s, e = int(frame.exposure_start_us), int(frame.exposure_end_us)
+    g, s, e, ev = exposure_inputs(events, frame, g_us, params, crf)
     h, w = frame.shape
-    ev = event_window(events, min(g, s), max(g, e), frame.shape)
     integral = fast_edi_exposure_integral(ev["t"], ev["x"], ev["y"], ev["p"], w, h, s, e, g,
                                           params.c_on, params.c_off)
     return log_mean_irradiance(frame, crf) - np.log(integral / (e - s)).reshape(h, w)

@@ -38,11 +38,10 @@ from .edi import (
     check_crf,
     check_event_array,
     check_events_fit,
-    check_frame,
     check_frames,
     check_params,
-    check_time,
     event_window,
+    exposure_inputs,
     log_mean_irradiance,
     signed_counts_at,
     valid_mask,
@@ -120,13 +119,8 @@ def tedi_reconstruct(events: np.ndarray, frame: Frame, g_us: int, params: TediPa
     ``events`` (sorted) may extend beyond ``[min(g,s), max(g,e)]``. With ``a = b = 0`` this is
     Fast-EDI. Returns float64 (H, W) for every pixel (see :func:`valid_mask`).
     """
-    check_frame(frame)
-    check_params(params)
-    check_crf(crf)
-    g = check_time(g_us)
-    s, e = int(frame.exposure_start_us), int(frame.exposure_end_us)
+    g, s, e, ev = exposure_inputs(events, frame, g_us, params, crf)
     h, w = frame.shape
-    ev = event_window(events, min(g, s), max(g, e), frame.shape)
     npix = h * w
     integral = tedi_exposure_integral(ev["t"], ev["x"], ev["y"], ev["p"], np.arange(npix, dtype=np.int64),
                                       w, npix, s, e, g, *params.as_tuple())

@@ -198,7 +198,6 @@ def test_batch_boundaries_do_not_change_the_result(cuts):
     results = []
     for extra in ([], sorted(cuts)):
         est = PeripheralEstimator(sensor, params, crf)
-        pos = 0
         for pk in interleave(ev, frames):
             if isinstance(pk, np.ndarray):  # split further at the drawn times
                 bounds = np.searchsorted(pk["t"], [c for c in extra if pk["t"][0] <= c <= pk["t"][-1]])

@@ -1,6 +1,5 @@
 """Scenario presets of the simulator (drivers/sim/scenes.py)."""
 
-import math
 
 import cv2
 import numpy as np

@@ -8,7 +8,7 @@ A scene is deterministic: the same parameters and seed give the same field at ev
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
