@@ -1,8 +1,9 @@
 """The source interface shared by the simulator, the live DAVIS driver and the file replayers.
 
 A source is iterated for packets in stream order — event batches (``EVENT_DTYPE`` arrays),
-:class:`~necviz.core.frames.ExposureMarker` and :class:`~necviz.core.frames.Frame` — and may
-accept exposure commands with :meth:`set_exposure`. The pipeline never needs to know whether a
+:class:`~necviz.core.frames.ExposureMarker` and :class:`~necviz.core.frames.Frame`, plus optional
+:class:`~necviz.core.imu.ImuBatch` and :class:`~necviz.core.imu.TriggerBatch` — and may accept
+exposure commands with :meth:`set_exposure`. The pipeline never needs to know whether a
 source is simulated, live or recorded.
 """
 
@@ -15,9 +16,11 @@ from typing import Protocol, Union, runtime_checkable
 import numpy as np
 
 from ..core.frames import ExposureMarker, Frame
+from ..core.imu import ImuBatch, TriggerBatch
 from ..core.sensor import SensorGeometry
 
-Packet = Union[np.ndarray, ExposureMarker, Frame]
+#: What a source yields. Consumers that do not use IMU samples or triggers skip them.
+Packet = Union[np.ndarray, ExposureMarker, Frame, ImuBatch, TriggerBatch]
 
 
 @dataclass(frozen=True)
