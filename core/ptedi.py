@@ -35,6 +35,7 @@ from .errors import EventFormatError, FrameFormatError, NotAnchoredError, Parame
 from .event_model import TediParams, direct_integral, segment_integral
 from .events import EVENT_DTYPE
 from .frames import ExposureMarker, Frame
+from .imu import ImuBatch, TriggerBatch
 from .regions import zone_map, zone_sizes
 from .sensor import SensorGeometry
 
@@ -295,14 +296,8 @@ class PeripheralEstimator:
         self.num_zones = k
         self._zone_flat = self.zmap.ravel()
         self._in_region = self._zone_flat >= 0
-        self._kp = params.as_tuple()
-        c_on, c_off = params.c_on, params.c_off
         self._inv_n = 1.0 / self.sizes.astype(np.float64)
-        self._f_on = np.exp(c_on * self._inv_n)
-        self._f_off = np.exp(-c_off * self._inv_n)
-        steps = np.arange(BLOCK + 1, dtype=np.float64)
-        self._g_tab = np.exp(-c_off * self._inv_n[0] * steps)
-        self._h_tab = np.exp((c_on + c_off) * self._inv_n[0] * steps)
+        self._derive(params)
         self.counts_on = np.zeros(k, np.int64)
         self._counts2 = np.zeros(2, np.int64)
         self._c02 = np.zeros(2, np.int64)
@@ -331,6 +326,27 @@ class PeripheralEstimator:
         self.frames_seen = 0
         self.frames_skipped = 0
         self.frames_bounded = 0
+
+    def _derive(self, params: TediParams) -> None:
+        """Per-event factors that depend on the thresholds (``exp(±c/N)`` and their tables)."""
+        self.params = params
+        self._kp = params.as_tuple()
+        c_on, c_off = params.c_on, params.c_off
+        self._f_on = np.exp(c_on * self._inv_n)
+        self._f_off = np.exp(-c_off * self._inv_n)
+        steps = np.arange(BLOCK + 1, dtype=np.float64)
+        self._g_tab = np.exp(-c_off * self._inv_n[0] * steps)
+        self._h_tab = np.exp((c_on + c_off) * self._inv_n[0] * steps)
+
+    def set_params(self, params: TediParams) -> None:
+        """Change thresholds / compensation while streaming (live tuning).
+
+        Takes effect at once: predictions propagate the counts since the last anchor with the
+        new values, and an exposure already open mixes old and new factors in its integral.
+        """
+        if not isinstance(params, TediParams):
+            raise ParameterError("params must be a TediParams")
+        self._derive(params)
 
     # -- stream input -------------------------------------------------------------------------
     def update(self, events: np.ndarray) -> None:
@@ -545,7 +561,7 @@ class PeripheralEstimator:
             (self.begin_exposure if packet.kind == "start" else self.end_exposure)(packet.t_us)
         elif isinstance(packet, Frame):
             return self.add_frame(packet)
-        else:
+        elif not isinstance(packet, (ImuBatch, TriggerBatch)):  # IMU and triggers carry nothing P-TEDI uses
             raise StreamError(f"unknown packet type {type(packet).__name__}")
         return None
 

@@ -48,6 +48,22 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     return 0
 
 
+LAYOUT_NAMES = ("live", "inspect", "compare")  # necviz.layouts.LAYOUTS, without importing Rerun for --help
+
+
+def _run_args(parser: argparse.ArgumentParser, tuning: bool = True) -> None:
+    from .dashboard import add_run_args
+
+    add_run_args(parser, LAYOUT_NAMES, tuning=tuning)
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from .demo import run
+
+    run(args)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="necviz", description="Neuromorphic exposure control: estimators, controllers, dashboard.")
     p.add_argument("--version", action="version", version=f"necviz {__version__}")
@@ -67,6 +83,19 @@ def build_parser() -> argparse.ArgumentParser:
     cmp_.add_argument("--save", metavar="FILE.rrd", help="write a Rerun recording (per-controller entity paths)")
     cmp_.add_argument("--no-sift", action="store_true", help="skip the SIFT inlier metric (the slowest part)")
     cmp_.set_defaults(func=_cmd_compare)
+
+    demo = sub.add_parser("demo", help="the dashboard on the simulator: tunnel_exit, NEC versus the baselines side by side",
+                          description="Simulated tunnel_exit (or another scenario), every controller driving its own "
+                                      "camera, shown in the compare layout. No hardware or files needed.")
+    demo.add_argument("--scenario", default="tunnel_exit", help="simulator scenario (default tunnel_exit)")
+    demo.add_argument("--controllers", default="nec,navid,shim,begin,builtin,fixed",
+                      help="comma-separated controllers (default: all six)")
+    demo.add_argument("--duration", type=float, default=None, help="simulated seconds (default: the scenario's)")
+    demo.add_argument("--seed", type=int, default=0)
+    demo.add_argument("--record", metavar="FILE", help="also record the first controller's camera (events, frames, "
+                                                      "commands) to a crash-safe native file for necviz replay")
+    _run_args(demo)
+    demo.set_defaults(func=_cmd_demo)
 
     bench = sub.add_parser("bench", help="speed benchmarks (print a table, optionally write JSON)")
     bsub = bench.add_subparsers(dest="bench", metavar="BENCH", required=True)
@@ -98,6 +127,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     from .core.errors import NecvizError
 
+    _terminate_as_interrupt()
     try:
         return int(args.func(args) or 0)
     except NecvizError as e:
@@ -106,6 +136,23 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("necviz: interrupted", file=sys.stderr)
         return 130
+
+
+def _terminate_as_interrupt() -> None:
+    """SIGTERM stops a run like Ctrl-C does, so recordings are flushed (an .rrd killed mid-write has no footer)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return
+
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+
+    try:
+        signal.signal(signal.SIGTERM, handler)
+    except (ValueError, OSError):  # pragma: no cover - not in the main thread of the main interpreter
+        pass
 
 
 if __name__ == "__main__":

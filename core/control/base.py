@@ -15,6 +15,7 @@ import numpy as np
 
 from ..errors import ParameterError, StreamError
 from ..frames import ExposureMarker, Frame
+from ..imu import ImuBatch, TriggerBatch
 
 
 def _finite_positive(name: str, v) -> float:
@@ -130,6 +131,8 @@ class Controller:
             cmd = self.on_exposure_start(packet.t_us) if packet.kind == "start" else self.on_exposure_end(packet.t_us)
         elif isinstance(packet, Frame):
             cmd = self.on_frame(packet)
+        elif isinstance(packet, (ImuBatch, TriggerBatch)):
+            cmd = None  # no controller uses IMU samples or triggers
         else:
             raise StreamError(f"unknown packet type {type(packet).__name__}")
         if cmd is not None:

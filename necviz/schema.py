@@ -1,0 +1,68 @@
+"""The Rerun entity schema: every path necviz logs, in one place.
+
+Each camera/controller lane ``NAME`` (``nec``, ``navid``, …; ``camera`` for ``live`` and
+``replay``) owns a subtree:
+
+================================  =============================  ================================
+path                              archetype                      meaning
+================================  =============================  ================================
+``NAME/frame``                    Image (JPEG, grey)             the APS frame, at exposure start
+``NAME/events``                   Image (JPEG, RGB)              events of the last window, ON blue,
+                                                                 OFF red
+``NAME/events/points``            Points2D (optional, capped)    raw events of the window
+``NAME/irradiance/predicted``     Scalars                        P-TEDI ln P(t), high rate
+``NAME/irradiance/frame``         Scalars                        frame-measured ln Pbar, per frame
+``NAME/exposure/commanded``       Scalars                        commanded exposure, µs
+``NAME/exposure/applied``         Scalars                        exposure of each frame, µs
+``NAME/gain/commanded``           Scalars                        commanded gain (linear)
+``NAME/gain/applied``             Scalars                        gain of each frame (linear)
+``NAME/over_exposed_rate``        Scalars                        fraction of pixels > 250 DN
+``NAME/under_exposed_rate``       Scalars                        fraction of pixels < 9 DN
+``NAME/saturated``                Scalars (points)               marker at each frame > 50 %
+                                                                 saturated (value: that fraction)
+``NAME/event_rate``               Scalars                        events/s over the event window
+``NAME/latency_us``               Scalars                        processing latency of each
+                                                                 command (packet in -> command out)
+``NAME/prediction_error``         Scalars                        replay: predicted − measured ln Pbar
+``NAME/log``                      TextLog                        saturated frames, controller switches
+``tuning``                        TextLog                        every live parameter change
+================================  =============================  ================================
+
+Timelines: ``t`` (sensor time, seconds, as a duration) on everything; ``frame`` (the lane's
+frame number) additionally on per-frame data. Run settings (scenario or file, controller
+settings, camera profile) are recording properties (``rr.send_property``).
+"""
+
+from __future__ import annotations
+
+#: Sensor-time timeline (duration, seconds) and frame-number timeline (sequence).
+TIME = "t"
+FRAME = "frame"
+
+FRAME_IMAGE = "frame"
+EVENTS = "events"
+EVENT_POINTS = "events/points"
+IRRADIANCE_PREDICTED = "irradiance/predicted"
+IRRADIANCE_FRAME = "irradiance/frame"
+EXPOSURE_COMMANDED = "exposure/commanded"
+EXPOSURE_APPLIED = "exposure/applied"
+GAIN_COMMANDED = "gain/commanded"
+GAIN_APPLIED = "gain/applied"
+OVER_EXPOSED = "over_exposed_rate"
+UNDER_EXPOSED = "under_exposed_rate"
+SATURATED = "saturated"
+EVENT_RATE = "event_rate"
+LATENCY = "latency_us"
+PREDICTION_ERROR = "prediction_error"
+LOG = "log"
+TUNING = "tuning"
+
+#: Entities every lane has once it has seen a frame and an event window (tests check them).
+LANE_ENTITIES = (FRAME_IMAGE, EVENTS, IRRADIANCE_PREDICTED, IRRADIANCE_FRAME, EXPOSURE_COMMANDED,
+                 EXPOSURE_APPLIED, GAIN_COMMANDED, GAIN_APPLIED, OVER_EXPOSED, UNDER_EXPOSED, EVENT_RATE,
+                 LATENCY)
+
+
+def path(lane: str, leaf: str) -> str:
+    """The entity path of ``leaf`` in lane ``lane`` (e.g. ``path("nec", EXPOSURE_COMMANDED)``)."""
+    return f"{lane}/{leaf}"
