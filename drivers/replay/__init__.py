@@ -1,1 +1,66 @@
-"""Recorded files: readers for AEDAT 4/3.1/2.0, ROS bags, text and HDF5, and the crash-safe native recorder (issue 7)."""
+"""Recorded files: readers for AEDAT 4/3.1/2.0, ROS bags, text and HDF5, and the crash-safe native recorder (issue 7).
+
+``open_recording(path)`` detects the format by content and returns a :class:`Recording` (a
+:class:`~necviz.drivers.source.Source`); ``describe(path)`` summarises a file for ``necviz info``;
+:class:`Recorder` writes the native format.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ...core.sensor import SensorGeometry
+from .base import Recording, RecordingError, StreamAssembler
+from .detect import FORMATS, SUPPORTED, detect_format
+from .native import NativeRecording, Recorder
+from .summary import RecordingInfo, describe
+
+__all__ = ["FORMATS", "SUPPORTED", "Recorder", "Recording", "RecordingError", "RecordingInfo", "StreamAssembler",
+           "describe", "detect_format", "open_recording"]
+
+
+def _reader(fmt: str):
+    if fmt == "necviz":
+        return NativeRecording
+    if fmt == "aedat4":
+        from .aedat4 import Aedat4Recording
+        return Aedat4Recording
+    if fmt == "aedat3":
+        from .aedat3 import Aedat3Recording
+        return Aedat3Recording
+    if fmt == "aedat2":
+        from .aedat2 import Aedat2Recording
+        return Aedat2Recording
+    if fmt in ("rosbag1", "rosbag2"):
+        from .rosbag import RosbagRecording
+        return RosbagRecording
+    if fmt == "hdf5":
+        from .hdf5 import open_hdf5
+        return open_hdf5
+    if fmt == "rpg-text":
+        from .text import RpgTextRecording
+        return RpgTextRecording
+    raise RecordingError(f"unknown format name {fmt!r}; choose one of {', '.join(FORMATS)}")
+
+
+def open_recording(path, *, exposure_us: float | None = None, start_us: int | None = None,
+                   end_us: int | None = None, format: str | None = None,
+                   sensor: SensorGeometry | None = None) -> Recording:
+    """Open a recording for replay.
+
+    ``exposure_us``: exposure (µs) for formats that do not store it (AEDAT 2.0, RPG text, HDF5, bags
+    without an exposure topic); ignored where exposure is stored. ``start_us``/``end_us``: replay
+    only that time range (sensor clock, µs). ``format``: skip detection (one of :data:`FORMATS`).
+    ``sensor``: geometry hint for files that store none. Raises :class:`RecordingError`.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise RecordingError(f"{p}: no such file or directory")
+    if p.is_file() and p.stat().st_size == 0:
+        raise RecordingError(f"{p}: empty file (0 bytes)")
+    fmt = format or detect_format(p)
+    cls = _reader(fmt)
+    try:
+        return cls(p, exposure_us=exposure_us, start_us=start_us, end_us=end_us, sensor=sensor)
+    except OSError as exc:
+        raise RecordingError(f"{p}: cannot read ({exc.strerror or exc})") from None
