@@ -1,1 +1,21 @@
-"""DAVIS cameras over USB (pyusb): driver, stream decoder and a device emulator (issue 6)."""
+"""DAVIS cameras over USB (pyusb): driver, stream decoder and a device emulator (issue 6).
+
+* :func:`open_camera` → :class:`DavisCamera`, the live :class:`~necviz.drivers.source.Source`
+  (``device="usb"`` for hardware, ``"emulated"`` for the virtual DAVIS346).
+* :class:`DavisDecoder` / :func:`decode_words`: the 16-bit word stream → packets (Numba).
+* :class:`StreamEncoder`: packets → words (tests, emulator, benchmark).
+* :class:`EmulatedDavis346` / :class:`Faults`: a pyusb backend with a virtual DAVIS346.
+* :class:`DavisDevice`, :func:`find_devices`, :func:`describe`: low-level device access.
+"""
+
+from .camera import DIGITAL_GAIN_MAX, DavisCamera, open_camera
+from .decoder import DavisDecoder, decode_words
+from .device import BulkReader, DavisDevice, DeviceInfo, describe, find_devices, open_device, usb_backend
+from .emulator import ControlRecord, EmulatedDavis346, Faults
+from .encoder import StreamEncoder, cds_pair
+from .errors import DeviceDisconnectedError, DeviceError, DeviceNotFoundError
+
+__all__ = ["BulkReader", "ControlRecord", "DIGITAL_GAIN_MAX", "DavisCamera", "DavisDecoder", "DavisDevice",
+           "DeviceDisconnectedError", "DeviceError", "DeviceInfo", "DeviceNotFoundError", "EmulatedDavis346",
+           "Faults", "StreamEncoder", "cds_pair", "decode_words", "describe", "find_devices", "open_camera",
+           "open_device", "usb_backend"]

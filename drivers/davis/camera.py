@@ -1,0 +1,337 @@
+"""The live DAVIS camera as a :class:`~necviz.drivers.source.Source`: ``open_camera`` and :class:`DavisCamera`.
+
+Iterating a :class:`DavisCamera` runs the start sequence, reads the bulk endpoint on a thread
+(:class:`~.device.BulkReader`), decodes each transfer (:class:`~.decoder.DavisDecoder`) and yields
+packets in stream order: event batches (at most 1 ms and 65,536 events each, so a controller can act
+between frames), ``ExposureMarker('start')``, ``ExposureMarker('end')``, then the :class:`Frame`,
+plus ``ImuBatch``/``TriggerBatch``.
+
+Exposure and gain: :meth:`DavisCamera.set_exposure` clamps to :attr:`DavisCamera.limits` and writes
+APS EXPOSURE = ``round(exposure_us x ADC clock MHz)`` (the device's actual clock). The DAVIS has no
+analog gain, so ``gain`` is applied digitally: ``Frame.image = clip(round(Z8 x gain), 0, 255)`` with
+``Z8 = CDS10 >> 2`` and ``Frame.gain = gain``. A command applies from the first frame that starts
+after it was issued and was exposed with its register value (each frame reports its exposure in
+ADC cycles); that frame's start is the command's ``applied_start_us``.
+
+Unplugging: every packet already decoded is yielded, then iteration raises
+:class:`~.errors.DeviceDisconnectedError` — unless ``reconnect=True``: then ``state`` becomes
+``"waiting"``, discovery is polled every 0.5 s for the same serial, the start sequence runs again
+(with the last commanded exposure) and packets continue with timestamps offset to keep increasing.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+import numpy as np
+
+from ...core.control.base import CameraLimits
+from ...core.errors import ParameterError
+from ...core.frames import Frame
+from ...core.sensor import SensorGeometry
+from ..source import CommandRecord
+from . import protocol as P
+from .decoder import DavisDecoder
+from .device import BulkReader, DavisDevice, open_device, usb_backend
+from .errors import DeviceDisconnectedError, DeviceError, DeviceNotFoundError
+
+#: digital gain limit of the live camera (linear)
+DIGITAL_GAIN_MAX = 8.0
+#: readout time kept free in each frame interval when limiting the exposure (µs)
+READOUT_ALLOWANCE_US = 1000
+RECONNECT_POLL_S = 0.5
+
+
+class DavisCamera:
+    """A DAVIS camera (real or emulated) as a closed-loop source. Build it with :func:`open_camera`.
+
+    Attributes: ``sensor`` (from the device's DVS size registers), ``info`` (serial, firmware, logic
+    version, chip, clocks in MHz, ...), ``limits`` (:class:`CameraLimits`), ``state`` ("ready",
+    "streaming", "waiting" for a reconnect, "finished", "disconnected", "closed"), ``stats``.
+    """
+
+    def __init__(self, device: DavisDevice, backend, *, reconnect: bool = False, exposure_us: float = 5000.0,
+                 frame_interval_us: float = 20_000.0, batch_us: int = 1000, transfer_size: int = 256 * 1024):
+        if not (isinstance(frame_interval_us, (int, float)) and 2 * READOUT_ALLOWANCE_US <= frame_interval_us
+                <= P.FRAME_INTERVAL_MAX_US):
+            raise ParameterError(f"frame interval must be {2 * READOUT_ALLOWANCE_US}..{P.FRAME_INTERVAL_MAX_US} µs, "
+                                 f"got {frame_interval_us!r}")
+        self.device = device
+        self.backend = backend
+        self.reconnect = bool(reconnect)
+        self.frame_interval_us = float(frame_interval_us)
+        self.batch_us = int(batch_us)
+        self.transfer_size = int(transfer_size)
+        w, h = device.dvs_size
+        self.sensor = SensorGeometry(int(w), int(h), device.kind)
+        self.limits = CameraLimits(exposure_min_us=10.0,
+                                   exposure_max_us=float(min(P.EXPOSURE_MAX_US,
+                                                             self.frame_interval_us - READOUT_ALLOWANCE_US)),
+                                   gain_max=DIGITAL_GAIN_MAX)
+        self.state = "ready"
+        self._lock = threading.RLock()
+        self._commands: list[CommandRecord] = []
+        self._cycles: list[int] = []  # register value of each command
+        self._pending: list[int] = []  # indices of commands not yet applied
+        self._gain = 1.0
+        self._exposure_us = float(self.limits.clamp(exposure_us, 1.0)[0])
+        self._last_t = 0
+        self._reader: BulkReader | None = None
+        self._decoder: DavisDecoder | None = None
+        self._iterating = False
+        self._closed = False
+        self._totals = {"transfers": 0, "bytes": 0, "stalls": 0, "timeouts": 0, "host_dropped_bytes": 0}
+        self._decoded = {}
+        self._device_stats: dict = {}
+        self.reconnects = 0
+        self.info = device.info
+        device.send_default_config(self._exposure_us, self.frame_interval_us)
+
+    # -- source interface -------------------------------------------------------------------------
+    def __iter__(self):
+        if self._iterating or self._closed:
+            raise ParameterError("a DavisCamera can be iterated once (open a new one to read again)")
+        self._iterating = True
+        try:
+            self._start_stream(time_offset_us=0)
+            while True:
+                item = self._reader.get(0.2)
+                if item is None:
+                    if self._closed:
+                        return
+                    continue
+                kind, payload = item
+                if kind == "data":
+                    for pk in self._decoder.decode(payload):
+                        yield from self._deliver(pk)
+                elif kind == "finished":
+                    for pk in self._decoder.finish():
+                        yield from self._deliver(pk)
+                    self.state = "finished"
+                    return
+                elif kind == "disconnected":
+                    for pk in self._decoder.finish():  # an exposure cut short still gets its end marker
+                        yield from self._deliver(pk)
+                    t_s = self._last_t / 1e6
+                    self._end_stream(stop_device=False)
+                    if not self.reconnect:
+                        self.state = "disconnected"
+                        raise DeviceDisconnectedError(f"{self.device.kind} {self.device.serial} was unplugged at "
+                                                      f"t={t_s:.3f} s")
+                    if not self._wait_for_device():
+                        return
+                    self._start_stream(time_offset_us=self._last_t + 1)
+                else:
+                    self._end_stream(stop_device=True)
+                    raise DeviceError(f"{self.device.kind} {self.device.serial}: USB read failed: {payload}")
+        finally:
+            self.close()
+
+    def set_exposure(self, exposure_us: float, gain: float = 1.0, issue_time_us: int | None = None) -> None:
+        """Command exposure (µs, clamped to ``limits``) and digital gain (linear, 1..``limits.gain_max``).
+
+        Writes APS EXPOSURE = round(exposure_us x ADC MHz) now; ``issue_time_us`` (default: the time of
+        the last packet delivered) is the sensor time recorded with the command.
+        """
+        for label, v in (("exposure_us", exposure_us), ("gain", gain)):
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v) \
+                    or v <= 0:
+                raise ParameterError(f"{label} must be a positive finite number, got {v!r}")
+        if gain < 1.0:
+            raise ParameterError(f"gain must be >= 1 (linear), got {gain}")
+        exp, g = self.limits.clamp(float(exposure_us), float(gain))
+        with self._lock:
+            t = self._last_t if issue_time_us is None else int(issue_time_us)
+            if not self.device.closed and self.state != "waiting":
+                cycles = self.device.set_exposure_us(exp)
+            else:
+                cycles = self.device.us_to_cycles(exp)  # written when the device returns
+            self._exposure_us = exp
+            self._commands.append(CommandRecord(t, exp, g))
+            self._cycles.append(cycles)
+            self._pending.append(len(self._commands) - 1)
+
+    def commands(self) -> list[CommandRecord]:
+        """Every command received, with the start of the first exposure that used it."""
+        with self._lock:
+            return list(self._commands)
+
+    def close(self) -> None:
+        """Stop the device (documented stop order), join the reader thread, release USB. Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        self._end_stream(stop_device=True)
+        self.device.close()
+        if self.state not in ("finished", "disconnected"):
+            self.state = "closed"
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    @property
+    def stats(self) -> dict:
+        """transfers, bytes, stalls, timeouts (USB); events, frames, skipped_words, ... (decoder);
+        dropped_events (device counters, when the device has statistics); reconnects."""
+        out = dict(self._totals)
+        if self._reader is not None:
+            for k, v in self._reader.stats.items():
+                out[k] += v
+        dec = dict(self._decoded)
+        if self._decoder is not None:
+            for k, v in self._decoder.stats.items():
+                dec[k] = dec.get(k, 0) + v
+        out.update(dec)
+        for k in ("events", "frames", "skipped_words"):
+            out.setdefault(k, 0)
+        if not self.device.closed and self.state not in ("waiting", "disconnected"):
+            try:
+                self._device_stats = self.device.statistics()
+            except DeviceError:
+                pass
+        out.update(self._device_stats)
+        out["dropped_events"] = int(self._device_stats.get("dvs_dropped_on_stall", 0)
+                                    + self._device_stats.get("dvs_dropped", 0))
+        out["reconnects"] = self.reconnects
+        return out
+
+    @property
+    def exposure_us(self) -> float:
+        """The last commanded exposure (µs)."""
+        return self._exposure_us
+
+    # -- streaming ----------------------------------------------------------------------------------
+    def _start_stream(self, time_offset_us: int) -> None:
+        d = self.device
+        self._decoder = DavisDecoder(d.dvs_size[0], d.dvs_size[1], aps_width=d.aps_size[0], aps_height=d.aps_size[1],
+                                     dvs_invert_xy=bool(d.dvs_orientation & 4), aps_orientation=d.aps_orientation,
+                                     imu_orientation=d.imu_orientation, imu_model=d.imu_type,
+                                     adc_shift=1 if d.kind == "DAVIS240" else 0, time_offset_us=time_offset_us)
+        self._reader = BulkReader(d, transfer_size=self.transfer_size)
+        d.start()
+        self._reader.start()
+        self.state = "streaming"
+
+    def _end_stream(self, stop_device: bool) -> None:
+        """Stop the reader (and the device) and fold the counters of this connection into the totals."""
+        if self._reader is not None:
+            if stop_device:
+                try:
+                    self.device.stop()
+                except DeviceError:
+                    pass
+            self._reader.stop()
+            for k, v in self._reader.stats.items():
+                self._totals[k] += v
+            self._reader = None
+        if self._decoder is not None:
+            for k, v in self._decoder.stats.items():
+                self._decoded[k] = self._decoded.get(k, 0) + v
+            self._decoder = None
+
+    def _wait_for_device(self) -> bool:
+        """Poll discovery every 0.5 s until the same serial returns; reopen it. False if closed meanwhile."""
+        self.state = "waiting"
+        serial = self.device.serial
+        self.device.close()
+        while not self._closed:
+            time.sleep(RECONNECT_POLL_S)
+            try:
+                dev = open_device(self.backend, serial, self.device.emulated)
+            except DeviceNotFoundError:
+                continue
+            except DeviceError:
+                continue
+            with self._lock:
+                self.device = dev
+                dev.send_default_config(self._exposure_us, self.frame_interval_us)
+                self.reconnects += 1
+            return True
+        return False
+
+    # -- packets --------------------------------------------------------------------------------------
+    def _deliver(self, pk):
+        if isinstance(pk, np.ndarray):
+            if pk.size == 0:
+                return
+            self._last_t = int(pk["t"][-1])
+            t = pk["t"]
+            b = self.batch_us
+            if (int(t[0]) // b) == (int(t[-1]) // b):
+                yield pk
+                return
+            edges = np.arange((int(t[0]) // b + 1) * b, int(t[-1]) + 1, b)
+            cuts = np.searchsorted(t, edges, side="left")
+            prev = 0
+            for c in cuts.tolist() + [pk.size]:
+                if c > prev:
+                    yield pk[prev:c]
+                    prev = c
+            return
+        if isinstance(pk, Frame):
+            pk = self._apply_command(pk)
+            self._last_t = max(self._last_t, int(pk.exposure_end_us))
+        elif hasattr(pk, "t_us"):
+            self._last_t = max(self._last_t, int(pk.t_us))
+        yield pk
+
+    def _apply_command(self, frame: Frame) -> Frame:
+        """Mark the command this frame was exposed with as applied; apply its digital gain."""
+        cyc = self._decoder.last_frame_exposure_cycles if self._decoder is not None else -1
+        with self._lock:
+            chosen = None
+            for k in reversed(self._pending):
+                c = self._commands[k]
+                if c.issue_time_us <= frame.exposure_start_us and (cyc < 0 or self._cycles[k] == cyc):
+                    chosen = k
+                    break
+            if chosen is not None:
+                c = self._commands[chosen]
+                self._commands[chosen] = CommandRecord(c.issue_time_us, c.exposure_us, c.gain,
+                                                       int(frame.exposure_start_us))
+                self._gain = c.gain
+                # older commands were superseded before they took effect
+                self._pending = [k for k in self._pending if k > chosen]
+            gain = self._gain
+        if gain == 1.0:
+            return frame
+        img = np.clip(np.rint(frame.image.astype(np.float32) * np.float32(gain)), 0, 255).astype(np.uint8)
+        return Frame(img, frame.exposure_start_us, frame.exposure_end_us, gain, frame.sequence)
+
+
+def open_camera(device: str = "usb", serial: str | None = None, *, scenario: str = "tunnel_exit", seed: int = 0,
+                duration_s: float | None = None, reconnect: bool = False, faults=None, realtime: bool = False,
+                exposure_us: float = 5000.0, frame_interval_us: float = 20_000.0,
+                backend=None) -> DavisCamera:
+    """Open a DAVIS camera: ``device="usb"`` (hardware through libusb) or ``"emulated"``.
+
+    For the emulator, ``scenario``/``seed``/``duration_s`` choose the simulated scene, ``faults`` an
+    :class:`~.emulator.Faults` and ``realtime`` paces the stream to the wall clock; ``backend`` may pass
+    an existing :class:`~.emulator.EmulatedDavis346` (or any pyusb backend). The device is configured
+    (default biases, ``exposure_us``, ``frame_interval_us``) but streams only once iterated.
+    Raises :class:`DeviceNotFoundError` (none attached / no such serial) or :class:`DeviceError`
+    (version mismatch, permission denied, ...).
+    """
+    if device not in ("usb", "emulated"):
+        raise ParameterError(f"device must be 'usb' or 'emulated', got {device!r}")
+    emulated = device == "emulated"
+    if backend is None:
+        if emulated:
+            from .emulator import EmulatedDavis346
+
+            backend = EmulatedDavis346(scenario=scenario, seed=seed, duration_s=duration_s, faults=faults,
+                                       realtime=realtime)
+        else:
+            backend = usb_backend()
+    dev = open_device(backend, serial, emulated)
+    try:
+        return DavisCamera(dev, backend, reconnect=reconnect, exposure_us=exposure_us,
+                           frame_interval_us=frame_interval_us)
+    except BaseException:
+        dev.close()
+        raise

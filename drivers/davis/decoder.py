@@ -1,0 +1,700 @@
+"""DAVIS 16-bit word stream → events, exposure markers, frames, IMU samples and triggers.
+
+The bulk endpoint delivers little-endian 16-bit words (layout: ``shared/reference/davis-usb.md`` §2).
+:func:`decode_words` is a Numba state machine that walks the words once; :class:`DavisDecoder` keeps its
+state between calls (so a stream split at any byte decodes exactly as the unsplit stream) and turns
+its output into packets in stream order (see :mod:`necviz.drivers.source`).
+
+State machine (one step per word, O(1) each, so a buffer of ``n`` words costs O(n) plus one copy per
+completed frame):
+
+* **time** — ``bit15 = 1``: ``now = wrap + (w & 0x7FFF)``; a value below ``now`` (time running
+  backwards without a wrap/reset) is garbage: skipped and counted in ``time_regressions``.
+  Code 7 (wrap): ``wrap += 0x8000 * data`` (``data = 0`` is garbage), ``now = wrap``.
+  Special 1 (timestamp reset): ``wrap = now = 0`` and the output offset grows by the device time
+  reached, so output ``t = offset + now`` (int64 µs) never decreases, across wraps and resets.
+* **DVS** — code 1 stores the row (``last_y``); codes 2/3 emit one event (OFF → p = -1, ON → p = +1)
+  at ``(x, last_y)`` stamped with the current time. With ``invertXY`` the row word carries x.
+  An out-of-range address, a reserved/unknown special code or an X word with no valid row is
+  garbage: it is skipped, and the row is forgotten so no event is emitted until the next row word
+  (resynchronisation). Every event therefore corresponds to exactly one X word of the input.
+* **APS** — idle → (special 8/9 frame start) → header (3 misc10 exposure chunks in any position,
+  8 misc8 ROI words: start col, start row, end col, end row, hi/lo bytes) → readout: special 11/12
+  starts a reset/signal column (separate counters per type), code 4 stores one sample at
+  ``(countX[type], countY[type]++)``, special 13 ends the column (``countX[type]++``); special 14/15
+  mark exposure start/end → special 10 frame end: the frame is complete when both readouts covered
+  every column; otherwise it is dropped (``frames_dropped``). Samples beyond the ROI, outside a frame
+  or before the ROI is known are skipped. Pixel placement: ``x = flipX ? W-1-countX : countX``,
+  ``y = flipY ? H-1-countY : countY``, swapped if ``invertXY`` (APS orientation bits 2..0); the
+  image origin is top-left. CDS at the signal sample: ``Z10 = 1023`` if ``reset < 384`` or
+  ``signal == 0`` (saturated), else ``clip(reset - signal, 0, 1023)``; the frame stores
+  ``Z8 = Z10 >> 2`` (uint8).
+* **IMU** — special 5 opens a sample, misc8 sub 3 gives scales and which sensors are present,
+  misc8 sub 0 delivers the 14 big-endian bytes (AX AY AZ T GX GY GZ; absent sensors are skipped),
+  special 7 closes it: a complete sample is emitted at the time of the end word, scaled to g, °/s
+  and °C (absent sensors are NaN), with the IMU orientation flips applied.
+* **Triggers** — specials 1 (timestamp reset), 2/3/4 (external input falling/rising/pulse) and
+  16/17 (generator falling/rising) become :data:`~necviz.core.imu.TRIGGER_KINDS` records.
+
+Frames have the APS array's shape: pixels of the ROI are placed at their sensor position (ROI
+registers are sensor coordinates), the rest is 0.
+
+Packets (:meth:`DavisDecoder.decode`): event batches are split only at exposure markers and frames
+(and at 65,536 events); IMU samples and triggers are gathered per call and delivered before the next
+marker/frame or after the call's events, so they never fragment event batches.
+
+Exposure markers: special 14 (inside a frame) emits ``start``; special 15 emits ``end`` (at least
+1 µs after its start, so a zero-length exposure still yields a valid pair). If a new frame starts or
+the timestamps reset while an exposure is open, an ``end`` marker closes it (``exposures_aborted``),
+so markers always come in start/end pairs. A frame is emitted after its end marker.
+
+The decoder never raises on stream content: garbage is skipped and counted (``skipped_words``).
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from ...core.errors import ParameterError
+from ...core.events import EVENT_DTYPE
+from ...core.frames import ExposureMarker, Frame
+from ...core.imu import IMU_DTYPE, TRIGGER_DTYPE, ImuBatch, TriggerBatch
+
+# ---- state vector layout (int64) ------------------------------------------------------------------
+S_WRAP, S_NOW, S_OFFSET, S_LAST_Y = 0, 1, 2, 3
+S_NEV, S_NMK, S_NIMU, S_FRAME_READY = 4, 5, 6, 7  # outputs of the last call
+S_SKIPPED, S_TIME_REG, S_FRAMES_DROPPED, S_IMU_DROPPED, S_EXPO_ABORTED = 8, 9, 10, 11, 12
+S_IN_FRAME, S_FRAME_OK, S_ROI_IDX, S_GS = 13, 14, 15, 16
+S_ROI = 17  # 17..20: start col, start row, end col, end row
+S_EXPX, S_EXPY, S_SIZEX = 21, 22, 23
+S_RTYPE, S_CX0, S_CY0, S_CX1, S_CY1 = 24, 25, 26, 27, 28
+S_EXP_IDX, S_EXP_CYC = 29, 30
+S_T_FS, S_T_ES, S_HAS_ES, S_HAS_EE, S_T_EE = 31, 32, 33, 34, 35
+S_EXPO_OPEN, S_EXPO_OPEN_T = 36, 37
+S_IMU_ACTIVE, S_IMU_COUNT, S_IMU_TYPE, S_IMU_ASCALE, S_IMU_GSCALE = 38, 39, 40, 41, 42
+S_IMU_B = 43  # 43..56: the 14 IMU bytes
+S_F_ES, S_F_EE, S_F_CYC, S_F_T_END = 57, 58, 59, 60  # the completed frame
+S_ROI_TMP = 61
+S_WORDS = 62
+S_SIZE = 64
+
+# ---- configuration vector layout ----------------------------------------------------------------
+C_DVS_W, C_DVS_H, C_DVS_INVERT, C_APS_W, C_APS_H, C_APS_ORIENT, C_IMU_ORIENT, C_IMU_MODEL, C_ADC_SHIFT = range(9)
+C_SIZE = 9
+
+# ---- marker kinds ---------------------------------------------------------------------------------
+MK_EXPOSURE_START, MK_EXPOSURE_END, MK_FRAME, MK_IMU, MK_TRIGGER = 0, 1, 2, 3, 4
+
+# special code -> TRIGGER_KINDS index (timestamp_reset, external_rising, external_falling,
+# external_pulse, generator_rising, generator_falling)
+TRIG_RESET, TRIG_RISING, TRIG_FALLING, TRIG_PULSE, TRIG_GEN_RISING, TRIG_GEN_FALLING = 0, 1, 2, 3, 4, 5
+
+
+@nb.njit(cache=True, inline="always")
+def _marker(mk, st, kind, t, nev, aux):
+    k = st[S_NMK]
+    mk[k, 0] = kind
+    mk[k, 1] = t
+    mk[k, 2] = nev
+    mk[k, 3] = aux
+    st[S_NMK] = k + 1
+
+
+@nb.njit(cache=True)
+def _close_exposure(mk, st, t, nev):
+    """Emit an ``end`` marker for an exposure left open (new frame start or timestamp reset)."""
+    if st[S_EXPO_OPEN] == 1:
+        te = max(t, st[S_EXPO_OPEN_T] + 1)
+        _marker(mk, st, MK_EXPOSURE_END, te, nev, 1)
+        st[S_EXPO_OPEN] = 0
+        st[S_EXPO_ABORTED] += 1
+
+
+@nb.njit(cache=True)
+def _imu_skip_absent(st):
+    """Advance the IMU byte counter over sensors the config word says are absent."""
+    c = st[S_IMU_COUNT]
+    typ = st[S_IMU_TYPE]
+    while c < 14:
+        if c < 6:
+            if typ & 4:
+                break
+            c = 6
+        elif c < 8:
+            if typ & 1:
+                break
+            c = 8
+        else:
+            if typ & 2:
+                break
+            c = 14
+    st[S_IMU_COUNT] = c
+
+
+@nb.njit(cache=True)
+def _imu_emit(st, cfg, imu_t, imu_v, t):
+    k = st[S_NIMU]
+    typ = st[S_IMU_TYPE]
+    a_lsb = (4 << st[S_IMU_ASCALE]) / 65536.0
+    g_lsb = (500 << st[S_IMU_GSCALE]) / 65536.0
+    vals = np.empty(7, np.float64)
+    for j in range(7):
+        raw = (st[S_IMU_B + 2 * j] << 8) | st[S_IMU_B + 2 * j + 1]
+        if raw >= 32768:
+            raw -= 65536
+        vals[j] = raw
+    nan = np.float32(np.nan)
+    o = cfg[C_IMU_ORIENT]
+    sx = -1.0 if o & 4 else 1.0
+    sy = -1.0 if o & 2 else 1.0
+    sz = -1.0 if o & 1 else 1.0
+    imu_t[k] = t
+    if typ & 4:
+        imu_v[k, 0] = sx * vals[0] * a_lsb
+        imu_v[k, 1] = sy * vals[1] * a_lsb
+        imu_v[k, 2] = sz * vals[2] * a_lsb
+    else:
+        imu_v[k, 0] = nan
+        imu_v[k, 1] = nan
+        imu_v[k, 2] = nan
+    if typ & 2:
+        imu_v[k, 3] = sx * vals[4] * g_lsb
+        imu_v[k, 4] = sy * vals[5] * g_lsb
+        imu_v[k, 5] = sz * vals[6] * g_lsb
+    else:
+        imu_v[k, 3] = nan
+        imu_v[k, 4] = nan
+        imu_v[k, 5] = nan
+    if typ & 1:
+        if cfg[C_IMU_MODEL] == 2:
+            imu_v[k, 6] = vals[3] / 333.87 + 21.0
+        else:
+            imu_v[k, 6] = vals[3] / 340.0 + 35.0
+    else:
+        imu_v[k, 6] = nan
+    st[S_NIMU] = k + 1
+    return k
+
+
+@nb.njit(cache=True)
+def _aps_run(words, i, st, cfg, reset_buf, frame):
+    """Store the run of ADC samples (code 4) starting at ``words[i]``; return (next index, skipped).
+
+    Samples go to ``(countX[type], countY[type]++)`` of the current readout type; samples outside a
+    valid frame, before the ROI is known or beyond the ROI are skipped. Within a column the pixel
+    index is affine in ``countY`` (``base + step * countY``, from the flips), so a sample costs a
+    load, two compares and a store.
+    """
+    n = words.shape[0]
+    typ = st[S_RTYPE]
+    skipped = 0
+    if st[S_IN_FRAME] == 0 or st[S_FRAME_OK] == 0 or st[S_ROI_IDX] < 8 or typ < 0:
+        while i < n and (words[i] >> 12) == 4:
+            i += 1
+            skipped += 1
+        return i, skipped
+    cx = st[S_CX0] if typ == 0 else st[S_CX1]
+    cy = st[S_CY0] if typ == 0 else st[S_CY1]
+    ex = st[S_EXPX]
+    ey = st[S_EXPY]
+    o = cfg[C_APS_ORIENT]
+    shift = cfg[C_ADC_SHIFT]
+    sizex = st[S_SIZEX]
+    fw = cfg[C_APS_W]
+    fb0 = st[S_ROI + 1] * fw + st[S_ROI]  # frame index of the ROI's top-left pixel
+    xc = ex - 1 - cx if o & 2 else cx  # the column coordinate is fixed within a column
+    # pixel of countY = c: ROI index rb + rs * c, frame index fb + fs * c
+    if o & 4:  # invertXY: countY runs along image x, countX along image y
+        if o & 1:
+            rb, rs, fb, fs = xc * sizex + ey - 1, -1, fb0 + xc * fw + ey - 1, -1
+        else:
+            rb, rs, fb, fs = xc * sizex, 1, fb0 + xc * fw, 1
+    else:
+        if o & 1:
+            rb, rs, fb, fs = (ey - 1) * sizex + xc, -sizex, fb0 + (ey - 1) * fw + xc, -fw
+        else:
+            rb, rs, fb, fs = xc, sizex, fb0 + xc, fw
+    valid_col = cx < ex
+    while i < n:
+        w = np.int64(words[i])
+        if (w >> 12) != 4:
+            break
+        i += 1
+        if not valid_col or cy >= ey:
+            skipped += 1
+            continue
+        v = (w & 0xFFF) << shift
+        if typ == 0:
+            reset_buf[rb + rs * cy] = v
+        else:
+            r = reset_buf[rb + rs * cy]
+            if r < 384 or v == 0:
+                z = 1023
+            else:
+                z = r - v
+                if z < 0:
+                    z = 0
+                elif z > 1023:
+                    z = 1023
+            frame[fb + fs * cy] = z >> 2
+        cy += 1
+    if typ == 0:
+        st[S_CY0] = cy
+    else:
+        st[S_CY1] = cy
+    return i, skipped
+
+
+@nb.njit(cache=True)
+def decode_words(words, start, st, cfg, ev, mk, imu_t, imu_v, reset_buf, frame):
+    """Decode ``words[start:]`` into the output arrays; return the index after the last word used.
+
+    ``st`` (int64[S_SIZE]) is the persistent state, ``cfg`` (int64[C_SIZE]) the device geometry and
+    orientation. Outputs: ``ev`` (EVENT_DTYPE), ``mk`` (int64[m, 4]: kind, t µs, number of events
+    before it, aux; m >= 2), ``imu_t``/``imu_v`` (IMU samples), ``frame`` (uint8 H x W: the frame
+    being assembled, flat H*W). Counts of this call are in ``st[S_NEV]``, ``st[S_NMK]``, ``st[S_NIMU]``.
+    Decoding stops early when an output array is full, or right after a completed frame
+    (``st[S_FRAME_READY] = 1``; its times in ``st[S_F_ES]``/``st[S_F_EE]``) so the caller can copy
+    it; the caller resumes at the returned index. O(n) in the number of words.
+    """
+    n = words.shape[0]
+    wrap = st[S_WRAP]
+    now = st[S_NOW]
+    offset = st[S_OFFSET]
+    last_y = st[S_LAST_Y]
+    nev = 0
+    st[S_NMK] = 0
+    st[S_NIMU] = 0
+    st[S_FRAME_READY] = 0
+    skipped = 0
+    dvs_w = cfg[C_DVS_W]
+    dvs_h = cfg[C_DVS_H]
+    inv = cfg[C_DVS_INVERT]
+    row_lim = dvs_w if inv else dvs_h
+    col_lim = dvs_h if inv else dvs_w
+    tcur = offset + now
+    mk_cap = mk.shape[0]
+    imu_cap = imu_t.shape[0]
+    # every event needs at least one word: stopping after ev.shape[0] words can never overflow ``ev``
+    stop = min(n, start + ev.shape[0])
+    i = start
+    while i < stop:
+        w = np.int64(words[i])
+        i += 1
+        if w & 0x8000:
+            t = wrap + (w & 0x7FFF)
+            if t >= now:
+                now = t
+                tcur = offset + now
+            else:
+                skipped += 1
+                st[S_TIME_REG] += 1
+            continue
+        code = w >> 12
+        data = w & 0xFFF
+        if code == 2 or code == 3:
+            if last_y >= 0 and data < col_lim:
+                e = ev[nev]
+                e.t = tcur
+                if inv:
+                    e.x = last_y
+                    e.y = data
+                else:
+                    e.x = data
+                    e.y = last_y
+                e.p = 1 if code == 3 else -1
+                nev += 1
+            else:
+                skipped += 1
+                last_y = -1
+            continue
+        if code == 1:
+            if data < row_lim:
+                last_y = data
+            else:
+                skipped += 1
+                last_y = -1
+            continue
+        if code == 4:
+            i, sk = _aps_run(words, i - 1, st, cfg, reset_buf, frame)
+            skipped += sk
+            continue
+        if code == 7:
+            if data == 0:
+                skipped += 1
+                last_y = -1
+            else:
+                wrap += 0x8000 * data
+                now = wrap
+                tcur = offset + now
+            continue
+        if code == 5:
+            sub = (data >> 8) & 0xF
+            v = data & 0xFF
+            if sub == 0:  # IMU data byte
+                if st[S_IMU_ACTIVE] == 1:
+                    _imu_skip_absent(st)
+                    c = st[S_IMU_COUNT]
+                    if c < 14:
+                        st[S_IMU_B + c] = v
+                        st[S_IMU_COUNT] = c + 1
+                    else:
+                        skipped += 1
+                        st[S_IMU_ACTIVE] = 2  # overfull: the sample is dropped at its end word
+                else:
+                    skipped += 1
+            elif sub == 1 or sub == 2:  # ROI high / low byte
+                r = st[S_ROI_IDX]
+                if st[S_IN_FRAME] == 1 and st[S_FRAME_OK] == 1 and r < 8 and (r & 1) == sub - 1:
+                    if sub == 1:
+                        st[S_ROI_TMP] = v << 8
+                    else:
+                        st[S_ROI + (r >> 1)] = st[S_ROI_TMP] | v
+                    r += 1
+                    st[S_ROI_IDX] = r
+                    if r == 8:
+                        c0 = st[S_ROI]
+                        r0 = st[S_ROI + 1]
+                        c1 = st[S_ROI + 2]
+                        r1 = st[S_ROI + 3]
+                        if c1 < c0 or r1 < r0 or c1 >= cfg[C_APS_W] or r1 >= cfg[C_APS_H]:
+                            st[S_FRAME_OK] = 0
+                        else:
+                            sx = c1 + 1 - c0
+                            sy = r1 + 1 - r0
+                            st[S_SIZEX] = sx
+                            if cfg[C_APS_ORIENT] & 4:
+                                st[S_EXPX] = sy
+                                st[S_EXPY] = sx
+                            else:
+                                st[S_EXPX] = sx
+                                st[S_EXPY] = sy
+                else:
+                    skipped += 1
+                    if st[S_IN_FRAME] == 1:
+                        st[S_FRAME_OK] = 0
+            elif sub == 3:  # IMU configuration
+                if st[S_IMU_ACTIVE] == 1 and st[S_IMU_COUNT] == 0:
+                    st[S_IMU_ASCALE] = (v >> 2) & 3
+                    st[S_IMU_GSCALE] = v & 3
+                    st[S_IMU_TYPE] = (v >> 5) & 7
+                else:
+                    skipped += 1
+            else:
+                skipped += 1
+            continue
+        if code == 6:
+            sub = (data >> 10) & 3
+            if sub == 0 and st[S_IN_FRAME] == 1 and st[S_EXP_IDX] < 3:
+                st[S_EXP_CYC] |= (data & 0x3FF) << (10 * st[S_EXP_IDX])
+                st[S_EXP_IDX] += 1
+            else:
+                skipped += 1
+            continue
+        # code 0: special events (each emits at most 2 markers and 1 IMU sample)
+        if st[S_NMK] + 2 > mk_cap or st[S_NIMU] >= imu_cap:
+            i -= 1
+            break
+        if data == 13:  # column end
+            if st[S_IN_FRAME] == 1 and st[S_RTYPE] >= 0:
+                if st[S_RTYPE] == 0:
+                    st[S_CX0] += 1
+                else:
+                    st[S_CX1] += 1
+            else:
+                skipped += 1
+        elif data == 11 or data == 12:  # reset / signal column start
+            if st[S_IN_FRAME] == 1 and st[S_FRAME_OK] == 1 and st[S_ROI_IDX] == 8:
+                if data == 11:
+                    st[S_RTYPE] = 0
+                    st[S_CY0] = 0
+                else:
+                    st[S_RTYPE] = 1
+                    st[S_CY1] = 0
+            else:
+                skipped += 1
+        elif data == 8 or data == 9:  # frame start
+            _close_exposure(mk, st, tcur, nev)
+            if st[S_IN_FRAME] == 1:
+                st[S_FRAMES_DROPPED] += 1
+            st[S_IN_FRAME] = 1
+            st[S_FRAME_OK] = 1
+            st[S_GS] = 1 if data == 8 else 0
+            st[S_ROI_IDX] = 0
+            st[S_RTYPE] = -1
+            st[S_CX0] = 0
+            st[S_CY0] = 0
+            st[S_CX1] = 0
+            st[S_CY1] = 0
+            st[S_EXP_IDX] = 0
+            st[S_EXP_CYC] = 0
+            st[S_T_FS] = tcur
+            st[S_HAS_ES] = 0
+            st[S_HAS_EE] = 0
+            frame[:] = 0
+        elif data == 14:  # exposure start
+            if st[S_IN_FRAME] == 1 and st[S_HAS_ES] == 0:
+                st[S_HAS_ES] = 1
+                st[S_T_ES] = tcur
+                st[S_EXPO_OPEN] = 1
+                st[S_EXPO_OPEN_T] = tcur
+                _marker(mk, st, MK_EXPOSURE_START, tcur, nev, 0)
+            else:
+                skipped += 1
+        elif data == 15:  # exposure end
+            if st[S_EXPO_OPEN] == 1:
+                te = max(tcur, st[S_EXPO_OPEN_T] + 1)
+                _marker(mk, st, MK_EXPOSURE_END, te, nev, 0)
+                st[S_EXPO_OPEN] = 0
+                st[S_HAS_EE] = 1
+                st[S_T_EE] = te
+            else:
+                skipped += 1
+        elif data == 10:  # frame end
+            if st[S_IN_FRAME] == 1:
+                ex = st[S_EXPX]
+                ok = (st[S_FRAME_OK] == 1 and st[S_ROI_IDX] == 8 and st[S_CX0] == ex and st[S_CX1] == ex
+                      and st[S_HAS_ES] == 1 and st[S_HAS_EE] == 1)
+                st[S_IN_FRAME] = 0
+                if ok:
+                    st[S_F_ES] = st[S_T_ES]
+                    st[S_F_EE] = st[S_T_EE]
+                    st[S_F_CYC] = st[S_EXP_CYC] if st[S_EXP_IDX] == 3 else -1
+                    st[S_F_T_END] = tcur
+                    _marker(mk, st, MK_FRAME, tcur, nev, 0)
+                    st[S_FRAME_READY] = 1
+                    break
+                st[S_FRAMES_DROPPED] += 1
+            else:
+                skipped += 1
+        elif data == 5:  # IMU sample start
+            if st[S_IMU_ACTIVE] != 0:
+                st[S_IMU_DROPPED] += 1
+            st[S_IMU_ACTIVE] = 1
+            st[S_IMU_COUNT] = 0
+            st[S_IMU_TYPE] = 7
+            st[S_IMU_ASCALE] = 0
+            st[S_IMU_GSCALE] = 0
+        elif data == 7:  # IMU sample end
+            if st[S_IMU_ACTIVE] == 1:
+                _imu_skip_absent(st)
+                if st[S_IMU_COUNT] == 14:
+                    k = _imu_emit(st, cfg, imu_t, imu_v, tcur)
+                    _marker(mk, st, MK_IMU, tcur, nev, k)
+                else:
+                    st[S_IMU_DROPPED] += 1
+            elif st[S_IMU_ACTIVE] == 2:
+                st[S_IMU_DROPPED] += 1
+            else:
+                skipped += 1
+            st[S_IMU_ACTIVE] = 0
+        elif data == 1:  # timestamp reset
+            _close_exposure(mk, st, tcur, nev)
+            offset = tcur
+            wrap = 0
+            now = 0
+            _marker(mk, st, MK_TRIGGER, tcur, nev, TRIG_RESET)
+            if st[S_IN_FRAME] == 1:
+                st[S_FRAMES_DROPPED] += 1
+            st[S_IN_FRAME] = 0
+            if st[S_IMU_ACTIVE] != 0:
+                st[S_IMU_DROPPED] += 1
+            st[S_IMU_ACTIVE] = 0
+        elif data == 2:
+            _marker(mk, st, MK_TRIGGER, tcur, nev, TRIG_FALLING)
+        elif data == 3:
+            _marker(mk, st, MK_TRIGGER, tcur, nev, TRIG_RISING)
+        elif data == 4:
+            _marker(mk, st, MK_TRIGGER, tcur, nev, TRIG_PULSE)
+        elif data == 16:
+            _marker(mk, st, MK_TRIGGER, tcur, nev, TRIG_GEN_FALLING)
+        elif data == 17:
+            _marker(mk, st, MK_TRIGGER, tcur, nev, TRIG_GEN_RISING)
+        else:  # reserved (0) or unknown special code: garbage
+            skipped += 1
+            last_y = -1
+    st[S_WRAP] = wrap
+    st[S_NOW] = now
+    st[S_OFFSET] = offset
+    st[S_LAST_Y] = last_y
+    st[S_NEV] = nev
+    st[S_SKIPPED] += skipped
+    st[S_WORDS] += i - start
+    return i
+
+
+_IMU_FIELDS = ("ax", "ay", "az", "gx", "gy", "gz", "temp")
+
+
+class DavisDecoder:
+    """Resumable decoder for one DAVIS stream: feed raw transfer bytes, get packets in stream order.
+
+    Parameters
+    ----------
+    width, height : DVS array size (``SIZE_COLUMNS``/``SIZE_ROWS`` of the DVS module).
+    aps_width, aps_height : APS array size (default: the DVS size).
+    dvs_invert_xy : DVS orientation bit 2 (row words carry x).
+    aps_orientation : APS ``ORIENTATION_INFO`` (bit2 invertXY, bit1 flipX, bit0 flipY).
+    imu_orientation : IMU ``ORIENTATION_INFO`` (bit2 flipX, bit1 flipY, bit0 flipZ); ``imu_model``
+        1 (MPU6050/6150) or 2 (MPU9250) selects the temperature formula.
+    adc_shift : left shift of the ADC samples (1 on DAVIS240, as libcaer doubles them).
+    time_offset_us : added to every output time (used to continue a stream after a reconnect).
+
+    :meth:`decode` accepts any bytes-like object; an odd trailing byte is kept for the next call.
+    Frames come out as ``Frame(Z8, exposure_start_us, exposure_end_us, gain=1.0, sequence)`` with
+    ``Z8 = CDS10 >> 2`` in image coordinates (top-left origin); ``last_frame_exposure_cycles`` is
+    the exposure the device reported for the last frame (ADC cycles, -1 if absent).
+    """
+
+    def __init__(self, width: int = 346, height: int = 260, *, aps_width: int | None = None,
+                 aps_height: int | None = None, dvs_invert_xy: bool = False, aps_orientation: int = 0,
+                 imu_orientation: int = 0, imu_model: int = 1, adc_shift: int = 0, time_offset_us: int = 0):
+        for label, v in (("width", width), ("height", height)):
+            if not isinstance(v, (int, np.integer)) or not 0 < v <= 4096:
+                raise ParameterError(f"decoder {label} must be an integer in 1..4096, got {v!r}")
+        aps_width = width if aps_width is None else aps_width
+        aps_height = height if aps_height is None else aps_height
+        self.width, self.height = int(width), int(height)
+        self.aps_shape = (int(aps_height), int(aps_width))
+        self.cfg = np.array([width, height, int(bool(dvs_invert_xy)), aps_width, aps_height, aps_orientation & 7,
+                             imu_orientation & 7, imu_model, adc_shift], np.int64)
+        self.st = np.zeros(S_SIZE, np.int64)
+        self.st[S_LAST_Y] = -1
+        self.st[S_RTYPE] = -1
+        self.st[S_OFFSET] = int(time_offset_us)
+        self._reset_buf = np.zeros(int(aps_width) * int(aps_height), np.int64)
+        self._frame = np.zeros(self.aps_shape, np.uint8)
+        self._frame_flat = self._frame.reshape(-1)
+        self._carry = b""
+        #: events per kernel call (so no event batch is longer than this)
+        self.max_batch = 1 << 16
+        self._mk = np.empty((4096, 4), np.int64)
+        self._imu_t = np.empty(1024, np.int64)
+        self._imu_v = np.empty((1024, 7), np.float32)
+        self.frames = 0
+        self.events = 0
+        self.imu_samples = 0
+        self.triggers = 0
+        self.last_frame_exposure_cycles = -1
+        #: exposure cycles (misc10) of each frame, by frame sequence number (kept for the last 64)
+        self.frame_cycles: dict[int, int] = {}
+
+    # -- statistics -----------------------------------------------------------------------------
+    @property
+    def time_us(self) -> int:
+        """Current stream time (µs, offset included): the time of the last timestamp seen."""
+        return int(self.st[S_OFFSET] + self.st[S_NOW])
+
+    @property
+    def stats(self) -> dict:
+        st = self.st
+        return {"words": int(st[S_WORDS]), "events": self.events, "frames": self.frames,
+                "frames_dropped": int(st[S_FRAMES_DROPPED]), "imu_samples": self.imu_samples,
+                "imu_dropped": int(st[S_IMU_DROPPED]), "triggers": self.triggers,
+                "skipped_words": int(st[S_SKIPPED]), "time_regressions": int(st[S_TIME_REG]),
+                "exposures_aborted": int(st[S_EXPO_ABORTED])}
+
+    # -- decoding -------------------------------------------------------------------------------
+    def words_of(self, data) -> np.ndarray:
+        """The complete little-endian words in ``carry + data``; keeps an odd trailing byte."""
+        if isinstance(data, np.ndarray) and data.dtype == np.uint16 and not self._carry:
+            return data
+        raw = bytes(memoryview(data).cast("B")) if not isinstance(data, bytes) else data
+        if self._carry:
+            raw = self._carry + raw
+        cut = len(raw) & ~1
+        self._carry = raw[cut:]
+        return np.frombuffer(raw, "<u2", count=cut // 2)
+
+    def decode(self, data) -> list:
+        """Decode one transfer (bytes-like, or a uint16 word array); return its packets in order.
+
+        Packets: event batches (EVENT_DTYPE), :class:`ExposureMarker`, :class:`Frame`,
+        :class:`ImuBatch` (one per sample run between other packets) and :class:`TriggerBatch`.
+        """
+        words = self.words_of(data)
+        out: list = []
+        n = words.shape[0]
+        pos = 0
+        mk, imu_t, imu_v = self._mk, self._imu_t, self._imu_v
+        while pos < n:
+            ev = np.empty(min(n - pos, self.max_batch), EVENT_DTYPE)
+            pos = decode_words(words, pos, self.st, self.cfg, ev, mk, imu_t, imu_v, self._reset_buf,
+                               self._frame_flat)
+            self._emit(out, ev[: self.st[S_NEV]], mk[: self.st[S_NMK]], imu_t, imu_v)
+        return out
+
+    def finish(self) -> list:
+        """End of this stream (device unplugged or stopped): close an exposure left open with an ``end``
+        marker (at least 1 µs after its start; counted in ``exposures_aborted``) and drop a partial frame,
+        so the packets delivered keep pairing start/end markers. Returns the packets to deliver."""
+        st = self.st
+        out = []
+        if st[S_EXPO_OPEN] == 1:
+            out.append(ExposureMarker(int(max(self.time_us, st[S_EXPO_OPEN_T] + 1)), "end"))
+            st[S_EXPO_OPEN] = 0
+            st[S_EXPO_ABORTED] += 1
+        if st[S_IN_FRAME] == 1:
+            st[S_IN_FRAME] = 0
+            st[S_FRAMES_DROPPED] += 1
+        return out
+
+    def _emit(self, out: list, ev: np.ndarray, mk: np.ndarray, imu_t, imu_v) -> None:
+        """Packets of one kernel call in stream order.
+
+        Events are split only at exposure markers and frames. IMU samples and triggers do not split
+        event batches: they are gathered and delivered (each kind as one batch, in time order) right
+        before the next marker/frame, or after the call's last events — at most one transfer later
+        than the events around them. Consumers that ignore them see unfragmented event batches.
+        """
+        self.events += ev.size
+        done = 0
+        imu_a = imu_b = -1
+        trig: list[tuple[int, int]] = []
+
+        def flush_side():
+            nonlocal imu_a, imu_b
+            if imu_b > imu_a:
+                s = np.empty(imu_b - imu_a, IMU_DTYPE)
+                s["t"] = imu_t[imu_a:imu_b]
+                v = imu_v[imu_a:imu_b]
+                for j, name in enumerate(_IMU_FIELDS):
+                    s[name] = v[:, j]
+                out.append(ImuBatch(s))
+                self.imu_samples += imu_b - imu_a
+                imu_a = imu_b = -1
+            if trig:
+                out.append(TriggerBatch(np.array(trig, TRIGGER_DTYPE)))
+                self.triggers += len(trig)
+                trig.clear()
+
+        for kind, t, at, aux in mk.tolist():
+            if kind == MK_IMU:  # samples of one call are numbered consecutively
+                if imu_a < 0:
+                    imu_a = aux
+                imu_b = aux + 1
+                continue
+            if kind == MK_TRIGGER:
+                trig.append((t, aux))
+                continue
+            if at > done:
+                out.append(ev[done:at])
+                done = at
+            flush_side()
+            if kind == MK_EXPOSURE_START:
+                out.append(ExposureMarker(int(t), "start"))
+            elif kind == MK_EXPOSURE_END:
+                out.append(ExposureMarker(int(t), "end"))
+            else:
+                es, ee = int(self.st[S_F_ES]), int(self.st[S_F_EE])
+                cyc = int(self.st[S_F_CYC])
+                self.last_frame_exposure_cycles = cyc
+                self.frame_cycles[self.frames] = cyc
+                self.frame_cycles.pop(self.frames - 64, None)
+                out.append(Frame(self._frame.copy(), es, ee, 1.0, self.frames))
+                self.frames += 1
+        if done < ev.size:
+            out.append(ev[done:])
+        flush_side()
+

@@ -1,0 +1,224 @@
+"""Events, frames, IMU samples and triggers → the DAVIS 16-bit word stream (logic 18).
+
+Written from the documented layout (``shared/reference/davis-usb.md`` §2, "encoder recipe"), not from
+the decoder, so encoder→decoder round trips check the decoder against an independent reading of the
+format. Used by the emulator (:mod:`.emulator`), the tests and ``necviz bench decode``.
+
+:class:`StreamEncoder` keeps the device-side state (current timestamp, wrap base, last row) and
+returns ``uint16`` word arrays; times are device microseconds and must not decrease. Each
+timestamp that differs from the current one costs wrap words (code 7, up to 4095 wraps each) and a
+timestamp word (``0x8000 | t & 0x7FFF``); each event costs an X word plus a Y word when its row
+differs from the previous event's. Events are encoded by a Numba kernel (two passes: count, fill).
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from ...core.errors import ParameterError
+
+#: special event codes (code 0)
+TS_RESET, EXT_FALLING, EXT_RISING, EXT_PULSE = 1, 2, 3, 4
+IMU_START, IMU_END = 5, 7
+FRAME_START_GS, FRAME_START_RS, FRAME_END = 8, 9, 10
+RESET_COL_START, SIGNAL_COL_START, COL_END = 11, 12, 13
+EXPOSURE_START, EXPOSURE_END = 14, 15
+GEN_FALLING, GEN_RISING = 16, 17
+
+#: TRIGGER_KINDS name -> special code
+TRIGGER_CODES = {"timestamp_reset": TS_RESET, "external_rising": EXT_RISING, "external_falling": EXT_FALLING,
+                 "external_pulse": EXT_PULSE, "generator_rising": GEN_RISING, "generator_falling": GEN_FALLING}
+
+
+@nb.njit(cache=True)
+def _time_words(t, wrap, now, out, k):
+    """Write the wrap/timestamp words moving the device clock from (wrap, now) to ``t``."""
+    if t != now:
+        nwraps = (t >> 15) - (wrap >> 15)
+        while nwraps > 0:
+            step = min(nwraps, 4095)
+            out[k] = 0x7000 | step
+            k += 1
+            nwraps -= step
+        out[k] = 0x8000 | (t & 0x7FFF)
+        k += 1
+    return k
+
+
+@nb.njit(cache=True)
+def _encode_events(t, x, y, p, state, out, always_y):
+    """Encode events; ``state`` = [wrap, now, last_y]; ``out=None`` only counts. Returns words used."""
+    wrap = state[0]
+    now = state[1]
+    last_y = state[2]
+    k = 0
+    for i in range(t.shape[0]):
+        ti = t[i]
+        if ti != now:
+            nwraps = (ti >> 15) - (wrap >> 15)
+            while nwraps > 0:
+                step = min(nwraps, 4095)
+                if out is not None:
+                    out[k] = 0x7000 | step
+                k += 1
+                nwraps -= step
+            if out is not None:
+                out[k] = 0x8000 | (ti & 0x7FFF)
+            k += 1
+            wrap = ti & ~np.int64(0x7FFF)
+            now = ti
+        yi = np.int64(y[i])
+        if always_y or yi != last_y:
+            if out is not None:
+                out[k] = 0x1000 | yi
+            k += 1
+            last_y = yi
+        if out is not None:
+            out[k] = (0x3000 if p[i] > 0 else 0x2000) | np.int64(x[i])
+        k += 1
+    if out is not None:
+        state[0] = wrap
+        state[1] = now
+        state[2] = last_y
+    return k
+
+
+def _u16(seq) -> np.ndarray:
+    return np.asarray(seq, dtype=np.uint16)
+
+
+class StreamEncoder:
+    """Stateful encoder of a DAVIS word stream (device time in µs, non-decreasing).
+
+    ``aps_orientation`` (bit2 invertXY, bit1 flipX, bit0 flipY) sets the readout order of frame
+    samples so that a decoder applying the same bits puts every pixel back where it was.
+    ``always_y``: repeat the row word before every X word (a valid, less compact stream).
+    """
+
+    def __init__(self, aps_orientation: int = 0, always_y: bool = False):
+        self.aps_orientation = int(aps_orientation) & 7
+        self.always_y = bool(always_y)
+        self.state = np.array([0, 0, -1], np.int64)  # wrap base, current time, last row
+
+    @property
+    def now_us(self) -> int:
+        return int(self.state[1])
+
+    # -- time -------------------------------------------------------------------------------------
+    def time(self, t_us: int) -> np.ndarray:
+        """Words that move the device clock to ``t_us`` (empty if it is already there)."""
+        t_us = int(t_us)
+        wrap, now = int(self.state[0]), int(self.state[1])
+        if t_us < now:
+            raise ParameterError(f"encoder time must not decrease: {t_us} µs after {now} µs")
+        out = np.zeros(((t_us >> 15) - (wrap >> 15)) // 4095 + 2, np.uint16)
+        k = _time_words(t_us, wrap, now, out, 0)
+        self.state[0] = t_us & ~0x7FFF
+        self.state[1] = t_us
+        return out[:k]
+
+    def timestamp_reset(self) -> np.ndarray:
+        """The device's timestamp reset (special 1): the clock restarts at 0."""
+        self.state[:] = (0, 0, self.state[2])
+        return _u16([TS_RESET])
+
+    def special(self, t_us: int, code: int) -> np.ndarray:
+        return np.concatenate([self.time(t_us), _u16([code])])
+
+    def trigger(self, t_us: int, kind: str) -> np.ndarray:
+        """An external-input / generator trigger (``TRIGGER_KINDS`` name, not timestamp_reset)."""
+        if kind not in TRIGGER_CODES or kind == "timestamp_reset":
+            raise ParameterError(f"cannot encode trigger kind {kind!r}")
+        return self.special(t_us, TRIGGER_CODES[kind])
+
+    # -- events -----------------------------------------------------------------------------------
+    def events(self, ev: np.ndarray) -> np.ndarray:
+        """Encode an EVENT_DTYPE batch (time-sorted, t >= the current time)."""
+        if ev.size == 0:
+            return np.zeros(0, np.uint16)
+        t = np.ascontiguousarray(ev["t"], dtype=np.int64)
+        if int(t[0]) < self.now_us or (t.size > 1 and np.any(t[1:] < t[:-1])):
+            raise ParameterError("events to encode must be time-sorted and not earlier than the encoder's time")
+        x, y, p = (np.ascontiguousarray(ev[f]) for f in ("x", "y", "p"))
+        if int(x.max()) > 0xFFF or int(y.max()) > 0xFFF:
+            raise ParameterError("event addresses must fit in 12 bits")
+        n = _encode_events(t, x, y, p, self.state.copy(), None, self.always_y)
+        out = np.empty(n, np.uint16)
+        _encode_events(t, x, y, p, self.state, out, self.always_y)
+        return out
+
+    # -- frames -----------------------------------------------------------------------------------
+    def frame_start(self, t_us: int, roi: tuple[int, int, int, int], exposure_cycles: int | None = None,
+                    global_shutter: bool = True) -> np.ndarray:
+        """Frame start (special 8 GS / 9 RS), optional exposure chunks, 8 ROI words (c0, r0, c1, r1)."""
+        words = [FRAME_START_GS if global_shutter else FRAME_START_RS]
+        if exposure_cycles is not None:
+            c = int(exposure_cycles)
+            words += [0x6000 | (c >> (10 * j)) & 0x3FF for j in range(3)]
+        for v in roi:
+            words += [0x5100 | (int(v) >> 8) & 0xFF, 0x5200 | int(v) & 0xFF]
+        return np.concatenate([self.time(t_us), _u16(words)])
+
+    def readout_order(self, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, cols) of the ROI image in readout order: ``[countX, countY]`` → pixel."""
+        o = self.aps_orientation
+        ex, ey = (h, w) if o & 4 else (w, h)
+        cx, cy = np.meshgrid(np.arange(ex), np.arange(ey), indexing="ij")
+        x = ex - 1 - cx if o & 2 else cx
+        y = ey - 1 - cy if o & 1 else cy
+        if o & 4:
+            x, y = y, x
+        return y, x  # shapes (ex, ey)
+
+    def readout(self, values: np.ndarray, signal: bool) -> np.ndarray:
+        """All columns of one readout (reset or signal) of a ROI image of 10-bit values (h x w)."""
+        v = np.asarray(values)
+        if v.ndim != 2 or (v.size and (v.min() < 0 or v.max() > 0xFFF)):
+            raise ParameterError("readout values must be a 2-D array of 12-bit ADC samples")
+        rows, cols = self.readout_order(*v.shape)
+        ex, ey = rows.shape
+        block = np.empty((ex, ey + 2), np.uint16)
+        block[:, 0] = SIGNAL_COL_START if signal else RESET_COL_START
+        block[:, 1:-1] = 0x4000 | v[rows, cols].astype(np.uint16)
+        block[:, -1] = COL_END
+        return block.ravel()
+
+    def frame(self, t_start: int, t_exp_start: int, t_exp_end: int, t_end: int, reset: np.ndarray,
+              signal: np.ndarray, roi: tuple[int, int, int, int] | None = None,
+              exposure_cycles: int | None = None, global_shutter: bool = True) -> np.ndarray:
+        """A whole frame with no events inside (GS order: start, reset read, exposure, signal read, end)."""
+        h, w = np.shape(reset)
+        roi = roi or (0, 0, w - 1, h - 1)
+        return np.concatenate([
+            self.frame_start(t_start, roi, exposure_cycles, global_shutter),
+            self.readout(reset, False),
+            self.special(t_exp_start, EXPOSURE_START),
+            self.special(t_exp_end, EXPOSURE_END),
+            self.readout(signal, True),
+            self.special(t_end, FRAME_END),
+        ])
+
+    # -- IMU --------------------------------------------------------------------------------------
+    def imu(self, t_us: int, raw, accel_scale: int = 1, gyro_scale: int = 1, sensors: int = 7) -> np.ndarray:
+        """One IMU sample: ``raw`` = 7 int16 (AX AY AZ T GX GY GZ); ``sensors`` bit2 accel, bit1 gyro,
+        bit0 temperature (absent sensors send no bytes)."""
+        raw = np.asarray(raw, np.int64)
+        cfg = (sensors & 7) << 5 | (accel_scale & 3) << 2 | (gyro_scale & 3)
+        words = [IMU_START, 0x5300 | cfg]
+        for j, present in ((0, 4), (1, 4), (2, 4), (3, 1), (4, 2), (5, 2), (6, 2)):
+            if sensors & present:
+                v = int(raw[j]) & 0xFFFF
+                words += [0x5000 | v >> 8, 0x5000 | v & 0xFF]
+        words.append(IMU_END)
+        return np.concatenate([self.time(t_us), _u16(words)])
+
+
+def cds_pair(z8: np.ndarray, reset_level: int = 1023) -> tuple[np.ndarray, np.ndarray]:
+    """Reset and signal samples whose CDS decodes to ``z8``: ``reset - signal = 4 Z8 + 1``.
+
+    With ``reset_level`` >= 1021 every Z8 in 0..255 gives a signal >= 1, so no sample reads as saturated.
+    """
+    z = np.asarray(z8, np.int64)
+    reset = np.full(z.shape, int(reset_level), np.int64)
+    return reset, reset - (4 * z + 1)

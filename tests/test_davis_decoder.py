@@ -1,0 +1,374 @@
+"""DAVIS word-stream decoder: encoder→decoder round trips, split transfers, garbage, wraps and resets.
+
+The expected values come from the generator of each test (what it asked the encoder to write) and
+from the formulas of ``shared/reference/davis-usb.md`` (CDS rule, IMU scales), not from the decoder.
+"""
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from necviz.core.events import EVENT_DTYPE, validate_events
+from necviz.core.frames import ExposureMarker, Frame
+from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, TRIGGER_KINDS, ImuBatch, TriggerBatch
+from necviz.drivers.davis import DavisDecoder, StreamEncoder
+from necviz.drivers.davis.encoder import cds_pair
+
+HYP = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+# ---------------------------------------------------------------------------------------------
+# a stream generator that records what it encoded
+# ---------------------------------------------------------------------------------------------
+class Expect:
+    """What a decoder must output for the words the generator wrote."""
+
+    def __init__(self, w, h):
+        self.w, self.h = w, h
+        self.events = []
+        self.markers = []  # ("start"|"end", t)
+        self.frames = []  # (image, es, ee)
+        self.imu = []  # (t, 7 values)
+        self.triggers = []  # (t, kind)
+        self.offset = 0  # output time = offset + device time
+
+
+def random_events(rng, n, t0, t1, w, h):
+    ev = np.empty(n, EVENT_DTYPE)
+    ev["t"] = np.sort(rng.integers(t0, t1 + 1, n))
+    ev["x"] = rng.integers(0, w, n)
+    ev["y"] = rng.integers(0, h, n)
+    ev["p"] = rng.choice(np.array([-1, 1], np.int8), n)
+    return ev
+
+
+def expected_z8(reset, signal):
+    """Doc §2.1: saturated if reset < 384 or signal == 0, else clip(reset - signal, 0, 1023); then >> 2."""
+    z10 = np.where((reset < 384) | (signal == 0), 1023, np.clip(reset - signal, 0, 1023))
+    return (z10 >> 2).astype(np.uint8)
+
+
+def expected_imu(raw, ascale, gscale, sensors, model=1):
+    """Doc §2.2: accel LSB/g = 65536/(4<<s), gyro LSB/(°/s) = 65536/(500<<s), T = raw/340 + 35."""
+    a = [r / (65536 / (4 << ascale)) for r in raw[:3]]
+    g = [r / (65536 / (500 << gscale)) for r in raw[4:]]
+    temp = raw[3] / 340 + 35 if model == 1 else raw[3] / 333.87 + 21
+    nan = float("nan")
+    return (a if sensors & 4 else [nan] * 3) + (g if sensors & 2 else [nan] * 3) + [temp if sensors & 1 else nan]
+
+
+def gen_stream(seed, w, h, orientation=0, segments=8, garbage_at=None):
+    """Random valid stream: event runs, frames (events inside their exposure), IMU samples, triggers,
+    timestamp resets and long gaps (many wraps). Returns (words, Expect)."""
+    rng = np.random.default_rng(seed)
+    enc = StreamEncoder(aps_orientation=orientation, always_y=bool(rng.integers(0, 2)))
+    ex = Expect(w, h)
+    parts = [enc.timestamp_reset()]
+    ex.triggers.append((0, TRIGGER_KINDS.index("timestamp_reset")))
+    t = int(rng.integers(0, 5000))
+
+    def add_events(t0, t1, n):
+        ev = random_events(rng, n, t0, t1, w, h)
+        parts.append(enc.events(ev))
+        out = ev.copy()
+        out["t"] += ex.offset
+        ex.events.append(out)
+
+    for seg in range(segments):
+        if garbage_at is not None and seg == garbage_at[0]:
+            parts.append(np.asarray(garbage_at[1], np.uint16))
+            enc.state[2] = -1  # the device's next event repeats its row word
+        kind = rng.choice(["events", "frame", "imu", "trigger", "gap", "reset"], p=[.3, .3, .15, .1, .1, .05])
+        if kind == "events":
+            t1 = t + int(rng.integers(0, 70_000))
+            add_events(t, t1, int(rng.integers(0, 300)))
+            t = t1
+        elif kind == "gap":
+            t += int(rng.choice([32768, 65536 * 3, 4095 * 32768 + 5, 5000 * 32768 + 17]))
+        elif kind == "frame":
+            c0, c1 = sorted(rng.integers(0, w, 2))
+            r0, r1 = sorted(rng.integers(0, h, 2))
+            fh, fw = r1 - r0 + 1, c1 - c0 + 1
+            reset = rng.integers(300, 1024, (fh, fw))
+            signal = rng.integers(0, 1024, (fh, fw))
+            cycles = int(rng.integers(0, 1 << 30))
+            ts, es = t, t + int(rng.integers(0, 50))
+            ee = es + int(rng.integers(1, 20_000))
+            fe = ee + int(rng.integers(0, 2000))
+            parts += [enc.frame_start(ts, (c0, r0, c1, r1), cycles, bool(rng.integers(0, 2))),
+                      enc.readout(reset, False), enc.special(es, 14)]
+            ex.markers.append(("start", es + ex.offset))
+            add_events(es, ee, int(rng.integers(0, 100)))
+            parts.append(enc.special(ee, 15))
+            ex.markers.append(("end", ee + ex.offset))
+            add_events(ee, fe, int(rng.integers(0, 30)))
+            parts += [enc.readout(signal, True), enc.special(fe, 10)]
+            img = np.zeros((h, w), np.uint8)
+            img[r0:r1 + 1, c0:c1 + 1] = expected_z8(reset, signal)
+            ex.frames.append((img, es + ex.offset, ee + ex.offset, cycles))
+            t = fe
+        elif kind == "imu":
+            raw = [int(v) for v in rng.integers(-32768, 32768, 7)]
+            a, g, sensors = int(rng.integers(0, 4)), int(rng.integers(0, 4)), int(rng.integers(1, 8))
+            parts.append(enc.imu(t, raw, a, g, sensors))
+            ex.imu.append((t + ex.offset, expected_imu(raw, a, g, sensors)))
+        elif kind == "trigger":
+            name = str(rng.choice(["external_rising", "external_falling", "external_pulse", "generator_rising",
+                                   "generator_falling"]))
+            parts.append(enc.trigger(t, name))
+            ex.triggers.append((t + ex.offset, TRIGGER_KINDS.index(name)))
+        else:  # timestamp reset: device time restarts at 0, output continues from here
+            ex.offset += enc.now_us
+            parts.append(enc.timestamp_reset())
+            ex.triggers.append((ex.offset, TRIGGER_KINDS.index("timestamp_reset")))
+            t = int(rng.integers(0, 100))
+        t += int(rng.integers(0, 3))
+    return np.concatenate(parts), ex
+
+
+def summarise(packets):
+    """Split a packet list into comparable parts, checking the stream-order contract on the way."""
+    evs, markers, frames, imu, trig = [], [], [], [], []
+    open_start = None
+    last_end = None
+    last_t = -1
+    for p in packets:
+        if isinstance(p, np.ndarray):
+            validate_events(p)
+            if p.size:
+                assert int(p["t"][0]) >= last_t, "event batches must not go back in time"
+                last_t = int(p["t"][-1])
+            evs.append(p)
+        elif isinstance(p, ExposureMarker):
+            assert p.t_us >= last_t, "a marker must not precede events already delivered"
+            last_t = p.t_us
+            markers.append((p.kind, p.t_us))
+            if p.kind == "start":
+                assert open_start is None
+                open_start = p.t_us
+            else:
+                assert open_start is not None and p.t_us > open_start
+                last_end = (open_start, p.t_us)
+                open_start = None
+        elif isinstance(p, Frame):
+            assert last_end == (p.exposure_start_us, p.exposure_end_us), "a frame follows its end marker"
+            frames.append(p)
+        elif isinstance(p, ImuBatch):
+            imu.append(p.samples)
+        elif isinstance(p, TriggerBatch):
+            trig.append(p.triggers)
+        else:
+            raise AssertionError(f"unexpected packet {p!r}")
+    cat = lambda xs, dt: np.concatenate(xs) if xs else np.zeros(0, dt)  # noqa: E731
+    return cat(evs, EVENT_DTYPE), markers, frames, cat(imu, IMU_DTYPE), cat(trig, TRIGGER_DTYPE)
+
+
+def decode_split(words, cuts, w, h, orientation=0):
+    """Decode the byte stream cut at the given byte offsets (odd offsets split words)."""
+    raw = words.tobytes()
+    dec = DavisDecoder(w, h, aps_orientation=orientation)
+    packets = []
+    prev = 0
+    for c in sorted(set(cuts)) + [len(raw)]:
+        packets += dec.decode(raw[prev:c])
+        prev = c
+    return packets, dec
+
+
+def check_against(ex: Expect, summary, dec):
+    ev, markers, frames, imu, trig = summary
+    want = np.concatenate(ex.events) if ex.events else np.zeros(0, EVENT_DTYPE)
+    assert ev.size == want.size
+    assert np.array_equal(ev, want)
+    assert markers == ex.markers
+    assert len(frames) == len(ex.frames)
+    for f, (img, es, ee, cycles) in zip(frames, ex.frames):
+        assert (f.exposure_start_us, f.exposure_end_us) == (es, ee)
+        assert np.array_equal(f.image, img)
+        assert dec.frame_cycles.get(f.sequence, cycles) == cycles
+    assert [int(t) for t in imu["t"]] == [t for t, _ in ex.imu]
+    for row, (_, vals) in zip(imu, ex.imu):
+        got = [float(row[k]) for k in ("ax", "ay", "az", "gx", "gy", "gz", "temp")]
+        np.testing.assert_allclose(got, vals, rtol=1e-6, atol=1e-6)
+    assert [(int(a), int(b)) for a, b in trig] == ex.triggers
+
+
+# ---------------------------------------------------------------------------------------------
+# round trips
+# ---------------------------------------------------------------------------------------------
+@HYP
+@given(seed=st.integers(0, 2**32 - 1), size=st.sampled_from([(8, 6), (17, 11), (40, 30)]),
+       orientation=st.integers(0, 7), data=st.data())
+def test_round_trip_split_at_random_transfer_boundaries(seed, size, orientation, data):
+    w, h = size
+    words, ex = gen_stream(seed, w, h, orientation)
+    nbytes = 2 * words.size
+    cuts = data.draw(st.lists(st.integers(0, nbytes), max_size=12))
+    whole, dec_whole = decode_split(words, [], w, h, orientation)
+    split, dec_split = decode_split(words, cuts, w, h, orientation)
+    s_whole, s_split = summarise(whole), summarise(split)
+    check_against(ex, s_whole, dec_whole)
+    check_against(ex, s_split, dec_split)
+    assert dec_whole.stats == dec_split.stats
+    assert dec_whole.stats["skipped_words"] == 0
+    assert dec_whole.stats["frames_dropped"] == 0
+
+
+def test_full_size_frame_round_trip_on_davis346():
+    rng = np.random.default_rng(3)
+    z = rng.integers(0, 256, (260, 346))
+    reset, signal = cds_pair(z)
+    enc = StreamEncoder()
+    words = np.concatenate([enc.timestamp_reset(), enc.frame(10, 20, 4020, 5000, reset, signal, exposure_cycles=120960)])
+    dec = DavisDecoder()
+    packets = dec.decode(words.tobytes())
+    frame = [p for p in packets if isinstance(p, Frame)][0]
+    assert np.array_equal(frame.image, z)
+    assert (frame.exposure_start_us, frame.exposure_end_us) == (20, 4020)
+    assert dec.last_frame_exposure_cycles == 120960
+
+
+def test_cds_rule_saturation_and_clipping():
+    enc = StreamEncoder()
+    reset = np.array([[383, 1023, 500, 1023]])
+    signal = np.array([[10, 0, 600, 3]])  # dark reset, zero signal, signal > reset, normal
+    words = np.concatenate([enc.timestamp_reset(), enc.frame(0, 1, 2, 3, reset, signal)])
+    frame = [p for p in DavisDecoder(4, 1).decode(words) if isinstance(p, Frame)][0]
+    assert frame.image.tolist() == [[255, 255, 0, (1020 >> 2)]]
+
+
+@pytest.mark.parametrize("orientation", range(8))
+def test_flips_put_pixels_in_image_coordinates(orientation):
+    """A gradient image survives every orientation; the sensor's readout order differs each time."""
+    h, w = 5, 7
+    z = (np.arange(h * w).reshape(h, w) * 7) % 256
+    reset, signal = cds_pair(z)
+    enc = StreamEncoder(aps_orientation=orientation)
+    words = np.concatenate([enc.timestamp_reset(), enc.frame(0, 1, 2, 3, reset, signal)])
+    frame = [p for p in DavisDecoder(w, h, aps_orientation=orientation).decode(words) if isinstance(p, Frame)][0]
+    assert np.array_equal(frame.image, z)
+    # and the same words read with no orientation give a different (transposed/flipped) picture
+    if orientation:
+        other = [p for p in DavisDecoder(w, h).decode(words) if isinstance(p, Frame)]
+        assert not other or not np.array_equal(other[0].image, z)
+
+
+def test_dvs_invert_xy_swaps_row_and_column_words():
+    words = np.array([0x0001, 0x8005, 0x1000 | 9, 0x3000 | 2], np.uint16)  # row word 9, column word 2
+    ev = [p for p in DavisDecoder(16, 12, dvs_invert_xy=True).decode(words) if isinstance(p, np.ndarray)][0]
+    assert (int(ev["x"][0]), int(ev["y"][0]), int(ev["p"][0]), int(ev["t"][0])) == (9, 2, 1, 5)
+
+
+# ---------------------------------------------------------------------------------------------
+# time: wraps, resets, regressions
+# ---------------------------------------------------------------------------------------------
+def test_timestamps_wrap_reset_and_never_decrease():
+    enc = StreamEncoder()
+    ev1 = random_events(np.random.default_rng(1), 200, 0, 200_000, 16, 12)  # crosses 6 wraps
+    ev2 = random_events(np.random.default_rng(2), 50, 0, 1000, 16, 12)
+    words = np.concatenate([enc.timestamp_reset(), enc.events(ev1), enc.time(250_000), enc.timestamp_reset(),
+                            enc.events(ev2)])
+    dec = DavisDecoder(16, 12)
+    ev = np.concatenate([p for p in dec.decode(words) if isinstance(p, np.ndarray)])
+    assert np.array_equal(ev["t"][:200], ev1["t"])
+    # after the reset the device restarts at 0: output continues from the time reached (250 ms)
+    assert np.array_equal(ev["t"][200:], ev2["t"] + 250_000)
+    assert np.all(np.diff(ev["t"]) >= 0)
+
+
+def test_many_wraps_in_one_gap_and_a_time_offset():
+    enc = StreamEncoder()
+    t_big = 6000 * 32768 + 123  # needs two wrap words (4095 + 1905)
+    ev = random_events(np.random.default_rng(0), 3, t_big, t_big + 10, 4, 4)
+    words = np.concatenate([enc.timestamp_reset(), enc.events(ev)])
+    assert int(np.sum((words >> 12) == 7)) == 2
+    out = DavisDecoder(4, 4, time_offset_us=1000).decode(words)
+    got = np.concatenate([p for p in out if isinstance(p, np.ndarray)])
+    assert np.array_equal(got["t"], ev["t"] + 1000)
+
+
+def test_backwards_timestamp_is_skipped_and_counted():
+    words = np.array([0x0001, 0x8000 | 500, 0x1003, 0x3002, 0x8000 | 200, 0x3001, 0x8000 | 600, 0x2000], np.uint16)
+    dec = DavisDecoder(8, 8)
+    ev = np.concatenate([p for p in dec.decode(words) if isinstance(p, np.ndarray)])
+    assert ev["t"].tolist() == [500, 500, 600]
+    assert dec.stats["time_regressions"] == 1 and dec.stats["skipped_words"] == 1
+
+
+# ---------------------------------------------------------------------------------------------
+# garbage
+# ---------------------------------------------------------------------------------------------
+#: words that encode nothing usable between frames/IMU blocks (each must be skipped and counted once)
+GARBAGE = [0x0000, 0x0006, 0x0012, 0x0FFF, 0x1FFF, 0x2FFF, 0x3FFF, 0x4123, 0x5105, 0x5207, 0x5042, 0x5311,
+           0x5A00, 0x6400, 0x6C00, 0x7000, 0x0007, 0x000B, 0x000C, 0x000D, 0x000E, 0x000F, 0x000A]
+
+
+@HYP
+@given(seed=st.integers(0, 2**32 - 1), garbage=st.lists(st.sampled_from(GARBAGE), min_size=1, max_size=40),
+       where=st.integers(0, 7), cuts=st.lists(st.integers(0, 20_000), max_size=6))
+def test_garbage_is_skipped_counted_and_the_stream_resynchronises(seed, garbage, where, cuts):
+    """Invalid words between packets: everything else decodes exactly as if they were absent."""
+    words, ex = gen_stream(seed, 17, 11, 0, garbage_at=(where, garbage))
+    packets, dec = decode_split(words, cuts, 17, 11)
+    check_against(ex, summarise(packets), dec)
+    assert dec.stats["skipped_words"] == len(garbage)
+
+
+@settings(max_examples=60, deadline=None)
+@given(raw=st.binary(min_size=0, max_size=6000), cuts=st.lists(st.integers(0, 6000), max_size=5))
+def test_random_bytes_never_crash_and_never_invent_events(raw, cuts):
+    dec = DavisDecoder(16, 12)
+    packets = []
+    prev = 0
+    for c in sorted(set(min(c, len(raw)) for c in cuts)) + [len(raw)]:
+        packets += dec.decode(raw[prev:c])
+        prev = c
+    words = np.frombuffer(raw[: len(raw) & ~1], "<u2")
+    x_words = int(np.sum(((words >> 12) == 2) | ((words >> 12) == 3)))
+    ev, markers, frames, imu, trig = summarise(packets)  # the stream-order contract holds even for garbage
+    assert ev.size <= x_words
+    assert np.all(np.diff(ev["t"]) >= 0)
+    assert ev.size == 0 or (int(ev["x"].max()) < 16 and int(ev["y"].max()) < 12)
+    used = dec.stats["words"] - dec.stats["skipped_words"]
+    assert 0 <= used <= words.size and dec.stats["words"] == words.size
+
+
+def test_incomplete_frame_is_dropped_and_markers_still_pair():
+    enc = StreamEncoder()
+    z = np.full((3, 4), 100)
+    reset, signal = cds_pair(z)
+    full = enc.frame(0, 1, 10, 20, reset, signal)
+    cut = np.flatnonzero(full == 0x000D)[-1]  # drop the last signal column's end word
+    words = np.concatenate([StreamEncoder().timestamp_reset(), full[:cut], full[cut + 1:]])
+    dec = DavisDecoder(4, 3)
+    packets = dec.decode(words)
+    assert not [p for p in packets if isinstance(p, Frame)]
+    assert [(p.kind, p.t_us) for p in packets if isinstance(p, ExposureMarker)] == [("start", 1), ("end", 10)]
+    assert dec.stats["frames_dropped"] == 1
+
+
+def test_exposure_left_open_is_closed_by_the_next_frame_start():
+    words = np.array([0x0001, 0x0008, 0x5100, 0x5200, 0x5100, 0x5200, 0x5100, 0x5200, 0x5100, 0x5200,
+                      0x8000 | 7, 0x000E, 0x8000 | 9, 0x0008], np.uint16)
+    dec = DavisDecoder(4, 4)
+    markers = [(p.kind, p.t_us) for p in dec.decode(words) if isinstance(p, ExposureMarker)]
+    assert markers == [("start", 7), ("end", 9)]
+    assert dec.stats["exposures_aborted"] == 1 and dec.stats["frames_dropped"] == 1
+
+
+def test_imu_sample_with_missing_bytes_is_dropped():
+    enc = StreamEncoder()
+    good = enc.imu(5, [1, 2, 3, 4, 5, 6, 7])
+    words = np.concatenate([StreamEncoder().timestamp_reset(), good[:-3], good[-1:]])  # two data bytes lost
+    dec = DavisDecoder(4, 4)
+    assert not [p for p in dec.decode(words) if isinstance(p, ImuBatch)]
+    assert dec.stats["imu_dropped"] == 1
+
+
+def test_event_batches_are_bounded():
+    ev = random_events(np.random.default_rng(5), 150_000, 0, 1000, 16, 12)
+    words = np.concatenate([StreamEncoder().timestamp_reset(), StreamEncoder().events(ev)])
+    batches = [p for p in DavisDecoder(16, 12).decode(words) if isinstance(p, np.ndarray)]
+    assert max(b.size for b in batches) <= 1 << 16
+    assert sum(b.size for b in batches) == ev.size
