@@ -569,6 +569,8 @@ class PeripheralEstimator:
     @property
     def ready(self) -> bool:
         """True once at least one zone is anchored."""
+        if self.num_zones == 1:  # asked on every event batch: skip the array round trip
+            return math.isfinite(self.anchor_log[0])
         return bool(np.isfinite(self.anchor_log).any())
 
     def predict_zones(self, t_us: int | None = None) -> np.ndarray:

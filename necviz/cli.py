@@ -9,6 +9,8 @@ from . import __version__
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
+    if args.file:
+        return _info_file(args)
     import platform
 
     from .info import collect_info
@@ -22,6 +24,54 @@ def _cmd_info(args: argparse.Namespace) -> int:
     print(f"controllers:              {', '.join(info['controllers']) or 'none'}")
     print(f"sources:                  {', '.join(info['sources']) or 'none'}")
     print(f"simulator scenarios:      {', '.join(info['scenarios'])}")
+    return 0
+
+
+def _info_file(args: argparse.Namespace) -> int:
+    import json
+
+    from .drivers.replay import describe
+
+    info = describe(args.file, exposure_us=args.exposure_us)
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as f:
+            json.dump(info.to_dict(), f, indent=2)
+    print(info.to_text())
+    return 0
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from .replay import run
+
+    run(args)
+    return 0
+
+
+def _cmd_live(args: argparse.Namespace) -> int:
+    from .live import run
+
+    run(args)
+    return 0
+
+
+def _cmd_devices(args: argparse.Namespace) -> int:
+    from .devices import run
+
+    return run(include_emulated=not args.no_emulated)
+
+
+def _cmd_bench_decode(args: argparse.Namespace) -> int:
+    from .bench.decode import run
+
+    run(seconds=args.seconds, repeats=args.repeats, seed=args.seed, json_path=args.json)
+    return 0
+
+
+def _cmd_bench_pipeline(args: argparse.Namespace) -> int:
+    from .bench.pipeline import run
+
+    run(duration_s=args.duration, rate_mev_s=args.rate, fps=args.fps, batch_us=args.batch_us, seed=args.seed,
+        repeats=args.repeats, json_path=args.json)
     return 0
 
 
@@ -69,7 +119,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"necviz {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
 
-    info = sub.add_parser("info", help="versions, Numba threading layer, available sources and controllers")
+    info = sub.add_parser("info", help="versions and capabilities; with FILE, what a recording holds")
+    info.add_argument("file", nargs="?", metavar="FILE", help="a recording (any supported format)")
+    info.add_argument("--exposure-us", type=float, default=None,
+                      help="exposure for formats that do not store it (AEDAT 2.0, text, HDF5, bags)")
+    info.add_argument("--json", metavar="OUT", help="with FILE: also write the summary as JSON")
     info.set_defaults(func=_cmd_info)
 
     cmp_ = sub.add_parser("compare", help="NEC versus the baselines in closed loop on one simulated scene")
@@ -97,6 +151,44 @@ def build_parser() -> argparse.ArgumentParser:
     _run_args(demo)
     demo.set_defaults(func=_cmd_demo)
 
+    rep = sub.add_parser("replay", help="a recording in open loop: frames, events, P-TEDI vs frames, what NEC would do",
+                         description="Replays FILE (necviz, AEDAT 4/3.1/2.0, ROS bag, RPG text, HDF5) through P-TEDI and "
+                                     "a controller in open loop, in the inspect layout, and reports the per-frame "
+                                     "prediction error and saturated frames.")
+    rep.add_argument("file", metavar="FILE", help="the recording")
+    rep.add_argument("--start", type=float, default=None, metavar="S", help="start S seconds into the recording")
+    rep.add_argument("--end", type=float, default=None, metavar="S", help="stop S seconds into the recording")
+    rep.add_argument("--exposure-us", type=float, default=None,
+                     help="exposure for formats that do not store it (AEDAT 2.0 estimates it from frame timing)")
+    rep.add_argument("--format", default=None, help="skip detection (necviz, aedat4, aedat3, aedat2, rosbag1, "
+                                                    "rosbag2, hdf5, rpg-text)")
+    rep.add_argument("--controller", default="nec", help="the controller shown in open loop (default nec)")
+    rep.add_argument("--json", metavar="OUT", help="write the summary (per-frame detail included) as JSON")
+    _run_args(rep, tuning=False)
+    rep.set_defaults(func=_cmd_replay)
+
+    live = sub.add_parser("live", help="a DAVIS camera (USB or emulated) with NEC closing the loop",
+                          description="Runs a controller (NEC by default) in closed loop on a DAVIS346/DAVIS240 over "
+                                      "USB, or on a virtual DAVIS346 (--device emulated), in the live layout.")
+    live.add_argument("--device", choices=("usb", "emulated"), default="usb",
+                      help="usb (a real camera) or emulated (the same driver on a virtual DAVIS346)")
+    live.add_argument("--serial", default=None, help="which camera when several are attached")
+    live.add_argument("--reconnect", action="store_true", help="if the camera is unplugged, wait for it to return")
+    live.add_argument("--controller", default="nec", help="the controller that drives the camera (default nec)")
+    live.add_argument("--duration", type=float, default=None, metavar="S",
+                      help="stop after S seconds of sensor time (emulated: the scene's length)")
+    live.add_argument("--scenario", default="tunnel_exit", help="emulated device: simulator scenario")
+    live.add_argument("--seed", type=int, default=0, help="emulated device: simulator seed")
+    live.add_argument("--emulate-unplug", type=float, default=None, metavar="S",
+                      help="emulated device: unplug it after S seconds (shows what an unplug does)")
+    live.add_argument("--record", metavar="FILE", help="record events, frames and commands to a crash-safe file")
+    _run_args(live)
+    live.set_defaults(func=_cmd_live)
+
+    dev = sub.add_parser("devices", help="attached (and emulated) DAVIS cameras: serial, firmware, logic version")
+    dev.add_argument("--no-emulated", action="store_true", help="list real cameras only")
+    dev.set_defaults(func=_cmd_devices)
+
     bench = sub.add_parser("bench", help="speed benchmarks (print a table, optionally write JSON)")
     bsub = bench.add_subparsers(dest="bench", metavar="BENCH", required=True)
     est = bsub.add_parser("estimators", help="Table 1 of the paper: EDI, mEDI, Fast-EDI, TEDI, P-TEDI and a read-only floor")
@@ -116,6 +208,21 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--scenario", default="tunnel_exit", help="scenario preset (default tunnel_exit)")
     sim.add_argument("--seed", type=int, default=0)
     sim.set_defaults(func=_cmd_bench_sim)
+    dec = bsub.add_parser("decode", help="DAVIS stream decoder throughput on a 12 Mev/s-style stream")
+    dec.add_argument("--json", metavar="FILE", help="write the results as JSON")
+    dec.add_argument("--seconds", type=float, default=1.0, help="stream length in seconds (default 1)")
+    dec.add_argument("--repeats", type=int, default=5, help="timed runs (default 5)")
+    dec.add_argument("--seed", type=int, default=0)
+    dec.set_defaults(func=_cmd_bench_decode)
+    pipe = bsub.add_parser("pipeline", help="the whole dashboard path at 12 Mev/s: real-time factor and control latency")
+    pipe.add_argument("--json", metavar="FILE", help="write the results as JSON")
+    pipe.add_argument("--duration", type=float, default=10.0, help="stream length in seconds (default 10)")
+    pipe.add_argument("--rate", type=float, default=12.0, help="event rate in Mev/s (default 12)")
+    pipe.add_argument("--fps", type=float, default=50.0, help="frame rate (default 50)")
+    pipe.add_argument("--batch-us", type=int, default=1_000, help="event batch period (default 1000 µs)")
+    pipe.add_argument("--repeats", type=int, default=3, help="runs per configuration; the median is reported")
+    pipe.add_argument("--seed", type=int, default=0)
+    pipe.set_defaults(func=_cmd_bench_pipeline)
     return p
 
 
@@ -136,6 +243,11 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("necviz: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # output piped into `head` and the like: not an error
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
 
 
 def _terminate_as_interrupt() -> None:

@@ -55,7 +55,8 @@ def add_run_args(parser, layouts=tuple(LAYOUTS), tuning: bool = True) -> None:
 
 def run_dashboard(args, command: str, source, lanes, layout: str, properties: dict, title: str, sensor,
                   event_lanes=None, recorder=None, record_lane=None, controller_factory=None,
-                  expected_duration_s: float | None = None, out=..., stdin=None) -> dict:
+                  expected_duration_s: float | None = None, sink_options: dict | None = None, out=...,
+                  stdin=None, stop_after_s: float | None = None) -> dict:
     """Run ``lanes`` over ``source`` into the viewer; returns the pipeline statistics."""
     out = sys.stdout if out is ... else out
     layout = getattr(args, "layout", None) or layout
@@ -76,9 +77,12 @@ def run_dashboard(args, command: str, source, lanes, layout: str, properties: di
     rec = viewer.rec
     rec.send_property("run", rr.AnyValues(**{k: str(v) for k, v in properties.items()}, layout=layout))
     style_series(rec, names)
+    sink_options = dict(sink_options or {})
+    if sink_options.pop("lossless_when_unpaced", False):
+        sink_options["lossless"] = speed is None and not watched  # offline into a file: keep everything
     sink = RerunSink(rec, names, sensor.height, sensor.width, event_lanes=event_lanes,
-                     event_window_us=int(window_ms * 1000), raw_points=points)
-    pipe = Pipeline(source, lanes, sink, recorder, record_lane=record_lane, speed=speed)
+                     event_window_us=int(window_ms * 1000), raw_points=points, **sink_options)
+    pipe = Pipeline(source, lanes, sink, recorder, record_lane=record_lane, speed=speed, stop_after_s=stop_after_s)
     pipe.controller_factory = controller_factory
     tune_file = None
     try:
@@ -107,6 +111,10 @@ def run_dashboard(args, command: str, source, lanes, layout: str, properties: di
             tune_file.stop()
         try:
             stats = pipe.finish()
+        except BaseException:
+            if viewer.save_path is not None:  # the error ends the run; what was seen is flushed and readable
+                print(f"  recording so far: {viewer.save_path} (open it with: rerun {viewer.save_path})", file=out)
+            raise
         finally:
             viewer.close()
     _summary(out, stats)

@@ -100,10 +100,11 @@ class Pipeline:
     record_lane : the lane whose camera the recorder keeps (default: the first).
     speed : ``None`` as fast as possible; ``1.0`` real time; ``N`` N times real time.
     prediction_period_us : the predicted irradiance is logged at most this often per lane.
+    stop_after_s : end the run after this much sensor time (``None``: when the source ends).
     """
 
     def __init__(self, source, lanes: list[Lane], sink=None, recorder=None, record_lane: str | None = None,
-                 speed: float | None = None, prediction_period_us: int = 2_000):
+                 speed: float | None = None, prediction_period_us: int = 2_000, stop_after_s: float | None = None):
         if not lanes:
             raise ParameterError("the pipeline needs at least one lane")
         if speed is not None and not (isinstance(speed, (int, float)) and math.isfinite(speed) and speed > 0):
@@ -119,6 +120,7 @@ class Pipeline:
         self.record_lane = record_lane or lanes[0].name
         self.speed = speed
         self.prediction_period_us = int(prediction_period_us)
+        self.stop_after_us = None if stop_after_s is None else int(stop_after_s * 1e6)
         self.events = 0
         self.frames = 0
         self.now_us: int | None = None
@@ -198,12 +200,19 @@ class Pipeline:
                 self._apply_changes()
             if self._stop.is_set():
                 break
-            t = packet_time_us(packet)
+            if cam is None and type(packet) is np.ndarray:  # the common case, kept short
+                if not len(packet):
+                    continue
+                t = int(packet["t"][-1])
+            else:
+                t = packet_time_us(packet)
             if t is not None:
                 if self.first_us is None:
                     self.first_us = t
                     wall0 = time.perf_counter()
                 self.now_us = t
+                if self.stop_after_us is not None and t - self.first_us >= self.stop_after_us:
+                    break
                 if self.speed is not None:
                     ahead = (t - self.first_us) / 1e6 / self.speed - (time.perf_counter() - wall0)
                     if ahead > 0:
@@ -212,10 +221,7 @@ class Pipeline:
             if cam is None:  # events, shared by every lane
                 if not isinstance(packet, np.ndarray):  # pragma: no cover - sources yield (None, events) only
                     continue
-                n = len(packet)
-                if n == 0:
-                    continue
-                self.events += n
+                self.events += len(packet)
                 if sink is not None:
                     sink.events(packet)
                 if rec is not None:

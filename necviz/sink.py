@@ -3,7 +3,7 @@
 The control path never waits for visualisation. The streaming thread hands the sink what it saw
 through calls that only append to memory:
 
-* event batches and frames go into one bounded queue; when the worker falls behind, the oldest
+* event batches and frames go into bounded queues; when the worker falls behind, the oldest
   entries are dropped and counted (``frames_dropped``, ``event_batches_dropped`` in :meth:`summary`);
 * scalars (exposure, gain, irradiance, rates, latency) go into per-series lists that the worker
   sends as columns every ``flush_period_s`` (a handful of ``send_columns`` calls instead of one
@@ -11,7 +11,11 @@ through calls that only append to memory:
 
 Events are drawn as event images (:mod:`necviz.core.event_image`) over windows of
 ``event_window_us`` sensor time. At most ``max_events_per_window`` are drawn per window: above
-that every k-th event is drawn (decimation, counted in ``events_decimated``).
+that every k-th event is drawn; and when the worker is behind (more than ``max_backlog`` batches
+waiting, or the last image was drawn less than ``1 / max_rate_hz`` ago in wall time) a window's
+image is skipped. Both are counted (``events_decimated``, ``event_images_skipped``); the event
+rate is logged for every window regardless. Frames follow the same wall-clock rate cap. With
+``lossless=True`` nothing is dropped or skipped (used by open-loop file replays).
 Entity paths follow :mod:`necviz.schema`.
 """
 
@@ -50,61 +54,90 @@ class RerunSink:
     height, width : sensor size (event images).
     event_lanes : lanes whose ``events`` entity shows the shared event stream (default: all).
     event_window_us : sensor time per event image (33 ms: 30 images per second).
-    max_events_per_window : decimation cap for drawing events.
+    max_events_per_window : decimation cap for drawing events (60k: ~0.7 per pixel, already dense).
+    max_backlog : when more event batches than this wait for the worker, a finished window's
+        image is skipped (counted in ``event_images_skipped``) so the worker catches up.
     raw_points : if > 0, also log up to this many raw events per window as points.
-    queue_size : event batches + frames the queue holds before dropping the oldest.
+    queue_size, frame_queue_size : event batches / frames waiting for the worker before the
+        oldest are dropped (counted).
+    max_rate_hz : at most this many frames per lane, and event images, per wall-clock second
+        (a viewer shows no more); faster streams (replay at xN, benchmarks) are decimated.
+    origin_us : sensor time shown as 0 on the ``t`` timeline (replays of files stamped with an
+        absolute clock start at their first timestamp).
+    lossless : never drop or skip anything; the streaming thread waits when a queue is full.
+        For open-loop replays into a file, where no camera waits for a command.
     jpeg_quality : frames and event images are JPEG-compressed.
     """
 
     def __init__(self, rec: rr.RecordingStream, lanes, height: int, width: int, event_lanes=None,
-                 event_window_us: int = 33_333, max_events_per_window: int = 150_000, raw_points: int = 0,
-                 queue_size: int = 4096, flush_period_s: float = 0.1, jpeg_quality: int = 85):
+                 event_window_us: int = 33_333, max_events_per_window: int = 60_000, max_backlog: int = 64, raw_points: int = 0,
+                 queue_size: int = 8192, frame_queue_size: int = 16, lossless: bool = False,
+                 max_rate_hz: float = 60.0, burst_s: float = 0.02, origin_us: int = 0, flush_period_s: float = 0.1, jpeg_quality: int = 85):
         self.rec = rec
         self.lanes = list(lanes)
         self.event_lanes = list(event_lanes) if event_lanes is not None else list(self.lanes)
         self.event_window_us = int(event_window_us)
         self.max_events_per_window = int(max_events_per_window)
+        self.max_backlog = int(max_backlog)
         self.raw_points = int(raw_points)
         self.flush_period_s = float(flush_period_s)
         self.jpeg_quality = int(jpeg_quality)
-        self._queue: deque = deque()
-        self._queue_size = int(queue_size)
+        self._events: deque = deque()
+        self._frames: deque = deque()
+        self._event_queue_size = int(queue_size)
+        self.lossless = bool(lossless)
+        self.origin_us = int(origin_us)
+        self.burst_s = float(burst_s)
+        self._min_interval_s = 1.0 / float(max_rate_hz)
+        self._next_frame_wall: dict[str, float] = {}
+        self._next_image_wall = 0.0
+        self._frame_queue_size = int(frame_queue_size)
         self._series: dict[str, list] = defaultdict(list)  # path -> [(t_us, value)]
         self._frame_series: dict[str, list] = defaultdict(list)  # path -> [(t_us, seq, value)]
         self._texts: list = []
         self._image = EventImage(height, width)
         self._window_end: int | None = None
         self._window_seen = 0
-        self._stride = 1
-        self._points: list[np.ndarray] = []
-        self._points_kept = 0
+        self._parts: list[np.ndarray] = []
         self.stats = {"frames_logged": 0, "events_seen": 0,
-                      "events_drawn": 0, "events_decimated": 0, "event_images": 0, "scalars": 0}
+                      "events_drawn": 0, "events_decimated": 0, "event_images": 0, "event_images_skipped": 0, "scalars": 0}
         self.dropped = {"frames": 0, "event_batches": 0, "events": 0}  # written by the streaming thread only
-        self._wake = threading.Event()
         self._stop = False
         self._error: BaseException | None = None
         self._thread = threading.Thread(target=self._run, name="necviz-rerun-sink", daemon=True)
         self._thread.start()
 
     # -- called by the streaming thread (never blocks) ------------------------------------------
-    def _push(self, item) -> None:
-        q = self._queue
-        if len(q) >= self._queue_size:
-            old = q.popleft()
-            if old[0] == "frame":
-                self.dropped["frames"] += 1
-            else:
-                self.dropped["event_batches"] += 1
-                self.dropped["events"] += len(old[1])
-        q.append(item)
+    def _wait_for_room(self, q: deque, size: int) -> None:
+        while len(q) >= size and self._thread.is_alive():
+            time.sleep(0.001)
 
     def events(self, batch: np.ndarray) -> None:
         if len(batch):
-            self._push(("events", batch))
+            q = self._events
+            if len(q) >= self._event_queue_size:
+                if self.lossless:
+                    self._wait_for_room(q, self._event_queue_size)
+                else:
+                    old = q.popleft()
+                    self.dropped["event_batches"] += 1
+                    self.dropped["events"] += len(old)
+            q.append(batch)
 
     def frame(self, lane: str, frame: Frame, over: float, under: float) -> None:
-        self._push(("frame", lane, frame, over, under))
+        q = self._frames
+        if self.lossless:
+            self._wait_for_room(q, self._frame_queue_size)
+        else:
+            now = time.perf_counter()
+            if now < self._next_frame_wall.get(lane, 0.0):  # faster than a viewer refreshes: skip
+                self.dropped["frames"] += 1
+                return
+            self._next_frame_wall[lane] = now + self._min_interval_s
+            if len(q) >= self._frame_queue_size:
+                q.popleft()
+                self.dropped["frames"] += 1
+        q.append((lane, frame, over, under))
 
     def scalar(self, lane: str, leaf: str, t_us: int, value: float, seq: int | None = None) -> None:
         if seq is None:
@@ -117,66 +150,75 @@ class RerunSink:
 
     # -- worker ---------------------------------------------------------------------------------
     def _run(self) -> None:
+        """Work in bursts: drain what is queued, then sleep ``burst_s``. A worker that polled
+        continuously would fight the streaming thread for the GIL on every packet."""
         next_flush = time.perf_counter() + self.flush_period_s
         try:
             while True:
-                if self._queue:
-                    item = self._queue.popleft()
-                    if item[0] == "events":
-                        self._draw_events(item[1])
-                    else:
-                        self._log_frame(*item[1:])
-                elif self._stop:
-                    break
-                else:
-                    self._wake.wait(0.02)
-                    self._wake.clear()
+                stopping = self._stop
+                ev, fr = self._events, self._frames
+                while ev or fr:
+                    while ev:  # cheap: batches are only collected per window here
+                        self._collect(ev.popleft())
+                    if fr:
+                        self._log_frame(*fr.popleft())
                 if time.perf_counter() >= next_flush:
                     self._flush_series()
                     next_flush = time.perf_counter() + self.flush_period_s
+                if stopping:
+                    break
+                time.sleep(self.burst_s)
             self._close_window(final=True)
             self._flush_series()
         except BaseException as e:  # report in close(); the control path must go on
             self._error = e
 
-    def _draw_events(self, batch: np.ndarray) -> None:
+    def _collect(self, batch: np.ndarray) -> None:
+        """Keep a batch for the current window; close windows it runs past. O(1) unless it crosses one."""
         t = batch["t"]
         if self._window_end is None:
             self._window_end = (int(t[0]) // self.event_window_us + 1) * self.event_window_us
-        # split the batch at window ends
-        start = 0
-        while start < len(batch):
-            stop = int(np.searchsorted(t, self._window_end, side="left"))
-            if stop >= len(batch):
-                self._add_to_window(batch[start:])
-                break
-            self._add_to_window(batch[start:stop])
+        while int(t[-1]) >= self._window_end:
+            cut = int(np.searchsorted(t, self._window_end, side="left"))
+            if cut:
+                self._parts.append(batch[:cut])
+                self._window_seen += cut
             self._close_window()
-            start = stop
-
-    def _add_to_window(self, part: np.ndarray) -> None:
-        if not len(part):
-            return
-        self._window_seen += len(part)
-        drawn = self._image.add(part, self._stride)
-        self.stats["events_drawn"] += drawn
-        self.stats["events_decimated"] += len(part) - drawn
-        if self.raw_points and self._points_kept < self.raw_points:
-            keep = part[:: self._stride][: self.raw_points - self._points_kept]
-            self._points.append(keep)
-            self._points_kept += len(keep)
+            batch, t = batch[cut:], t[cut:]
+        if len(batch):
+            self._parts.append(batch)
+            self._window_seen += len(batch)
 
     def _close_window(self, final: bool = False) -> None:
+        """Draw the window's events (every k-th above the cap), log the image and the event rate."""
         if self._window_end is None:
             return
         end = self._window_end
         seen = self._window_seen
         self.stats["events_seen"] += seen
-        if seen or not final:
-            self.rec.set_time(S.TIME, duration=end / 1e6)
+        now = time.perf_counter()
+        behind = not self.lossless and (len(self._events) > self.max_backlog or now < self._next_image_wall)
+        if not behind:
+            self._next_image_wall = now + self._min_interval_s
+        if behind:  # the worker is behind the stream: skip this image (the event rate is still logged)
+            self.stats["event_images_skipped"] += 1
+            self.stats["events_decimated"] += seen
+            for lane in self.event_lanes:
+                self._series[S.path(lane, S.EVENT_RATE)].append((end, seen / (self.event_window_us / 1e6)))
+        elif seen or not final:
+            stride = max(1, math.ceil(seen / self.max_events_per_window)) if self.max_events_per_window > 0 else 1
+            if self._parts:
+                sample = np.concatenate([p[::stride] for p in self._parts]) if stride > 1 or len(self._parts) > 1 \
+                    else self._parts[0]
+                drawn = self._image.add(sample)
+            else:
+                sample, drawn = None, 0
+            self.stats["events_drawn"] += drawn
+            self.stats["events_decimated"] += seen - drawn
+            self.rec.set_time(S.TIME, duration=(end - self.origin_us) / 1e6)
             img = _jpeg(np.ascontiguousarray(self._image.render()[:, :, ::-1]), self.jpeg_quality)  # RGB -> BGR
             rate = seen / (self.event_window_us / 1e6)
-            pts = np.concatenate(self._points) if self._points else None
+            pts = sample[: self.raw_points] if (self.raw_points and sample is not None) else None
             for lane in self.event_lanes:
                 self.rec.log(S.path(lane, S.EVENTS), img)
                 self._series[S.path(lane, S.EVENT_RATE)].append((end, rate))
@@ -185,17 +227,16 @@ class RerunSink:
                     self.rec.log(S.path(lane, S.EVENT_POINTS),
                                  rr.Points2D(np.stack([pts["x"], pts["y"]], axis=1).astype(np.float32) + 0.5,
                                              colors=colors, radii=0.5))
+            self.rec.reset_time()
             self.stats["event_images"] += 1
-        # the next window's decimation stride from this window's count
-        self._stride = max(1, math.ceil(seen / self.max_events_per_window)) if self.max_events_per_window > 0 else 1
         self._image.clear()
-        self._points, self._points_kept = [], 0
+        self._parts = []
         self._window_seen = 0
         self._window_end = end + self.event_window_us
 
     def _log_frame(self, lane: str, frame: Frame, over: float, under: float) -> None:
         t = frame.exposure_start_us
-        self.rec.set_time(S.TIME, duration=t / 1e6)
+        self.rec.set_time(S.TIME, duration=(t - self.origin_us) / 1e6)
         self.rec.set_time(S.FRAME, sequence=frame.sequence)
         self.rec.log(S.path(lane, S.FRAME_IMAGE), _jpeg(frame.image, self.jpeg_quality))
         worst = max(over, under)
@@ -213,17 +254,17 @@ class RerunSink:
         texts, self._texts = self._texts, []
         for p, pts in series.items():
             arr = np.asarray(pts, dtype=np.float64)
-            self.rec.send_columns(p, indexes=[rr.TimeColumn(S.TIME, duration=arr[:, 0] / 1e6)],
+            self.rec.send_columns(p, indexes=[rr.TimeColumn(S.TIME, duration=(arr[:, 0] - self.origin_us) / 1e6)],
                                   columns=rr.Scalars.columns(scalars=arr[:, 1]))
             self.stats["scalars"] += len(arr)
         for p, pts in fseries.items():
             arr = np.asarray(pts, dtype=np.float64)
-            self.rec.send_columns(p, indexes=[rr.TimeColumn(S.TIME, duration=arr[:, 0] / 1e6),
+            self.rec.send_columns(p, indexes=[rr.TimeColumn(S.TIME, duration=(arr[:, 0] - self.origin_us) / 1e6),
                                               rr.TimeColumn(S.FRAME, sequence=arr[:, 1].astype(np.int64))],
                                   columns=rr.Scalars.columns(scalars=arr[:, 2]))
             self.stats["scalars"] += len(arr)
         for entity, t_us, msg, level in texts:
-            self.rec.set_time(S.TIME, duration=t_us / 1e6)
+            self.rec.set_time(S.TIME, duration=(t_us - self.origin_us) / 1e6)
             self.rec.log(entity, rr.TextLog(msg, level=level))
         if texts:
             self.rec.reset_time()
@@ -233,7 +274,6 @@ class RerunSink:
         """Drain the queue, send the last series, flush the recording; returns the stats."""
         if not self._stop:
             self._stop = True
-            self._wake.set()
             self._thread.join()
             self.rec.flush()
         if self._error is not None:
