@@ -112,6 +112,8 @@ class Pipeline:
         self.source = source
         self.multi = hasattr(source, "packets") and hasattr(source, "cams")
         self.lanes = {lane.name: lane for lane in lanes}
+        if len(self.lanes) != len(lanes):
+            raise ParameterError(f"lane names must be unique, got {[lane.name for lane in lanes]}")
         if not self.multi and len(self.lanes) != 1:
             raise ParameterError("a single-camera source takes exactly one lane")
         self._only = lanes[0]
@@ -191,9 +193,11 @@ class Pipeline:
         sink, rec = self.sink, self.recorder
         wall0 = time.perf_counter()
         perf_ns = time.perf_counter_ns
+        initial = {}
         for lane in lanes:  # the controller's starting setting goes to the camera first
             if lane.drives:
-                self._apply(lane, lane.controller.initial_command(0))
+                initial[lane.name] = cmd = lane.controller.initial_command(0)
+                self._apply(lane, cmd)
         for cam, packet in self._packets():
             t_in = perf_ns()
             if self._pending:
@@ -210,6 +214,10 @@ class Pipeline:
                 if self.first_us is None:
                     self.first_us = t
                     wall0 = time.perf_counter()
+                    if sink is not None:  # the commanded series start with the setting the run began with
+                        for name, cmd in initial.items():
+                            sink.scalar(name, S.EXPOSURE_COMMANDED, t, cmd.exposure_us)
+                            sink.scalar(name, S.GAIN_COMMANDED, t, cmd.gain)
                 self.now_us = t
                 if self.stop_after_us is not None and t - self.first_us >= self.stop_after_us:
                     break

@@ -12,7 +12,8 @@ path                              archetype                      meaning
 ``NAME/events/points``            Points2D (optional, capped)    raw events of the window
 ``NAME/irradiance/predicted``     Scalars                        P-TEDI ln P(t), high rate
 ``NAME/irradiance/frame``         Scalars                        frame-measured ln Pbar, per frame
-``NAME/exposure/commanded``       Scalars                        commanded exposure, µs
+``NAME/exposure/commanded``       Scalars                        commanded exposure, µs (from the
+                                                                 setting the run started with)
 ``NAME/exposure/applied``         Scalars                        exposure of each frame, µs
 ``NAME/gain/commanded``           Scalars                        commanded gain (linear)
 ``NAME/gain/applied``             Scalars                        gain of each frame (linear)
@@ -58,9 +59,9 @@ LOG = "log"
 TUNING = "tuning"
 
 #: Entities every lane has once it has seen a frame and an event window (tests check them).
+#: ``latency_us`` exists once the controller has issued a command in response to a packet.
 LANE_ENTITIES = (FRAME_IMAGE, EVENTS, IRRADIANCE_PREDICTED, IRRADIANCE_FRAME, EXPOSURE_COMMANDED,
-                 EXPOSURE_APPLIED, GAIN_COMMANDED, GAIN_APPLIED, OVER_EXPOSED, UNDER_EXPOSED, EVENT_RATE,
-                 LATENCY)
+                 EXPOSURE_APPLIED, GAIN_COMMANDED, GAIN_APPLIED, OVER_EXPOSED, UNDER_EXPOSED, EVENT_RATE)
 
 
 def path(lane: str, leaf: str) -> str:

@@ -1,0 +1,125 @@
+"""The dashboard commands end to end on the emulated camera and the real sample recording."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from conftest import SHARED_DATA
+from necviz import schema as S
+from necviz.cli import main
+from necviz.drivers.replay import open_recording
+from necviz.core.frames import Frame
+from rrd_read import Rrd
+
+SAMPLE = SHARED_DATA / "davis346_sample.aedat4"
+needs_sample = pytest.mark.skipif(not SAMPLE.exists(), reason=f"real recording {SAMPLE} not available")
+
+
+def test_live_emulated_closes_the_loop_and_records(tmp_path, capsys):
+    rrd, rec = tmp_path / "live.rrd", tmp_path / "live.necrec"
+    code = main(["live", "--device", "emulated", "--duration", "0.6", "--save", str(rrd), "--record", str(rec),
+                 "--no-prompt"])
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "nec drives the exposure" in out
+    r = Rrd(rrd)
+    for leaf in S.LANE_ENTITIES:
+        assert r.rows.get(S.path("camera", leaf), 0) > 0, leaf
+    recording = open_recording(rec)
+    frames = [p for p in recording if isinstance(p, Frame)]
+    assert len(frames) == r.rows["camera/frame"] >= 20
+    assert len(recording.commands) > 1  # initial setting + NEC's commands, as the camera got them
+    exposures = {f.exposure_us for f in frames}
+    assert len(exposures) > 1  # the commands reached the (emulated) exposure register
+
+
+def test_unplugged_camera_flushes_everything_and_exits_nonzero(tmp_path):
+    """Run as a user would: a separate process, an unplug mid-stream, then both files read back."""
+    rrd, rec = tmp_path / "u.rrd", tmp_path / "u.necrec"
+    proc = subprocess.run([sys.executable, "-m", "necviz", "live", "--device", "emulated", "--duration", "3",
+                           "--emulate-unplug", "0.4", "--save", str(rrd), "--record", str(rec), "--no-prompt"],
+                          capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert proc.returncode == 2
+    assert "necviz: error: DAVIS346 EMU00346 was unplugged at t=0.4" in proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert "recording so far" in proc.stdout
+    exe = Path(sys.executable).with_name("rerun")
+    if exe.exists():
+        assert subprocess.run([str(exe), "rrd", "verify", str(rrd)], capture_output=True).returncode == 0
+    frames = [p for p in open_recording(rec) if isinstance(p, Frame)]
+    assert 15 <= len(frames) <= 21 and frames[-1].exposure_end_us <= 410_000
+    assert Rrd(rrd).rows["camera/frame"] == len(frames)
+
+
+def test_no_camera_is_a_clear_error(capsys):
+    if os.path.exists("/dev/bus/usb"):
+        pytest.skip("a USB bus is present; a camera might be attached")
+    assert main(["live", "--device", "usb", "--no-prompt", "--save", "x.rrd"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("necviz: error: no DAVIS camera found") and "lsusb" in err and "152a" in err
+
+
+def test_devices_lists_the_emulated_camera(capsys):
+    main(["devices"])
+    out = capsys.readouterr().out
+    assert "EMU00346" in out and "emulated" in out
+
+
+@needs_sample
+def test_replay_real_sample_reports_prediction_error(tmp_path, capsys):
+    js = tmp_path / "r.json"
+    assert main(["replay", str(SAMPLE), "--save", str(tmp_path / "r.rrd"), "--json", str(js)]) == 0
+    s = json.loads(js.read_text())
+    assert s["frames"] == 4 and s["events"] == 6676
+    assert 0.17 < s["duration_s"] < 0.18
+    assert s["saturated_frames_50"] == sum(d["saturated"] for d in s["frames_detail"])
+    # three frames follow an anchored one: each has a prediction; P-TEDI agrees with them closely
+    assert s["prediction_error_frames"] == 3 and s["prediction_error_rmse"] < 0.1
+    assert all(d["exposure_us"] == 500 for d in s["frames_detail"])
+    r = Rrd(tmp_path / "r.rrd")
+    t, _ = r.series("camera/exposure/applied")
+    assert len(t) == 4 and 0 <= t[0] < 0.2  # the timeline starts at the recording's first timestamp
+
+
+@needs_sample
+def test_replay_start_end_restrict_the_range(tmp_path):
+    js = tmp_path / "r.json"
+    assert main(["replay", str(SAMPLE), "--start", "0.05", "--end", "0.12", "--save", str(tmp_path / "r.rrd"),
+                 "--json", str(js)]) == 0
+    s = json.loads(js.read_text())
+    assert 0 < s["events"] < 6676 and s["duration_s"] <= 0.07 + 1e-3
+
+
+def test_replay_bad_input_is_one_line(tmp_path, capsys):
+    bad = tmp_path / "junk.aedat4"
+    bad.write_bytes(b"not a recording at all")
+    assert main(["replay", str(bad), "--save", str(tmp_path / "x.rrd")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("necviz: error:") and "junk.aedat4" in err and "\n" not in err
+    assert main(["replay", str(tmp_path / "missing.necrec")]) == 2
+    assert main(["replay", str(bad), "--start", "2", "--end", "1"]) == 2
+
+
+@needs_sample
+def test_info_file(capsys, tmp_path):
+    js = tmp_path / "i.json"
+    assert main(["info", str(SAMPLE), "--json", str(js)]) == 0
+    out = capsys.readouterr().out
+    assert "aedat4" in out and "346 x 260" in out and "6,676" in out
+    assert json.loads(js.read_text())["frames"] == 4
+
+
+def test_headless_default_saves_to_a_file_and_says_so(tmp_path, monkeypatch, capsys):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.chdir(tmp_path)
+    assert main(["demo", "--duration", "0.1", "--controllers", "nec", "--no-prompt"]) == 0
+    saved = list(tmp_path.glob("necviz-demo-*.rrd"))
+    assert len(saved) == 1
+    assert f"open it with: rerun {saved[0].name}" in capsys.readouterr().out

@@ -1,0 +1,216 @@
+"""The streaming pipeline and the Rerun sink: control never waits, drops are counted, faults flush."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+import rerun as rr
+
+from necviz import schema as S
+from necviz.core.control import CameraLimits, make_controller
+from necviz.core.errors import NecvizError, ParameterError
+from necviz.core.event_image import EventImage
+from necviz.core.events import EVENT_DTYPE
+from necviz.core.frames import ExposureMarker, Frame
+from necviz.core.imu import IMU_DTYPE, ImuBatch
+from necviz.core.sensor import SensorGeometry
+from necviz.drivers.replay import Recorder, open_recording
+from necviz.pipeline import Lane, Pipeline
+from necviz.sink import RerunSink
+from rrd_read import Rrd
+
+SENSOR = SensorGeometry(32, 24, "test")
+
+
+class ListSource:
+    """A single-camera source over a packet list; records commands; may fail after ``fail_after`` packets."""
+
+    def __init__(self, packets, fail_after=None):
+        self.sensor = SENSOR
+        self.packets_ = packets
+        self.fail_after = fail_after
+        self.commands = []
+        self.closed = False
+
+    def __iter__(self):
+        for i, p in enumerate(self.packets_):
+            if self.fail_after is not None and i == self.fail_after:
+                raise NecvizError("camera unplugged (test)")
+            yield p
+
+    def set_exposure(self, exposure_us, gain=1.0, issue_time_us=None):
+        self.commands.append((issue_time_us, exposure_us, gain))
+
+    def close(self):
+        self.closed = True
+
+
+def stream(n_frames=10, period_us=10_000, exposure_us=2_000, level=120, brighten_at=None, seed=0):
+    """Events at 200 kev/s (balanced, or net ON after ``brighten_at``), frames of a flat scene."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(n_frames):
+        t0 = 1_000 + k * period_us
+        for b in range(period_us // 1_000):
+            ev = np.zeros(200, EVENT_DTYPE)
+            ev["t"] = np.sort(rng.integers(t0 + b * 1_000, t0 + (b + 1) * 1_000, 200))
+            ev["x"] = rng.integers(0, SENSOR.width, 200)
+            ev["y"] = rng.integers(0, SENSOR.height, 200)
+            on = 0.5 if brighten_at is None or t0 < brighten_at else 0.9
+            ev["p"] = np.where(rng.random(200) < on, 1, -1)
+            if b == 0:
+                out.append(ExposureMarker(t0, "start"))
+            out.append(ev)
+            if b == exposure_us // 1_000 - 1:
+                out.append(ExposureMarker(t0 + exposure_us, "end"))
+                img = np.full(SENSOR.shape, level, np.uint8)
+                out.append(Frame(img, t0, t0 + exposure_us, 1.0, k))
+    return out
+
+
+def nec_lane(drives=True, name="camera"):
+    ctrl = make_controller("nec", sensor=SENSOR, limits=CameraLimits(10, 8_000, 4.0), exposure_us=2_000)
+    return Lane.build(name, ctrl, SENSOR, drives=drives)
+
+
+def open_rec(path):
+    rec = rr.RecordingStream("necviz-test")
+    rec.save(str(path))
+    return rec
+
+
+def test_commands_go_back_to_the_source_between_frames(tmp_path):
+    src = ListSource(stream(n_frames=12, brighten_at=40_000))
+    lane = nec_lane()
+    pipe = Pipeline(src, [lane])
+    stats = pipe.run().finish()
+    frame_ends = [p.exposure_end_us for p in src.packets_ if isinstance(p, Frame)]
+    assert stats["frames"] == 12 and stats["events"] == 12 * 10 * 200
+    assert len(src.commands) == lane.commands + 1  # + the initial setting
+    between = [t for t, _, _ in src.commands[1:] if t not in frame_ends]
+    assert between, "NEC should command on event batches, not only on frames"
+    assert len(lane.latencies_ns) == lane.commands and stats["lanes"]["camera"]["latency_p50_us"] > 0
+    assert src.closed
+
+
+def test_open_loop_lane_never_commands_the_source():
+    src = ListSource(stream(n_frames=6, brighten_at=20_000))
+    lane = nec_lane(drives=False)
+    Pipeline(src, [lane]).run().finish()
+    assert src.commands == [] and lane.commands > 0
+
+
+def test_source_error_ends_the_run_and_everything_before_it_is_kept(tmp_path):
+    packets = stream(n_frames=8)
+    src = ListSource(packets, fail_after=len(packets) // 2)
+    rec = open_rec(tmp_path / "run.rrd")
+    sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, lossless=True)
+    recorder = Recorder(tmp_path / "run.necrec", sensor=SENSOR, properties={})
+    pipe = Pipeline(src, [nec_lane()], sink, recorder).start()
+    assert pipe.wait(30)
+    with pytest.raises(NecvizError, match="unplugged"):
+        pipe.finish()
+    rr.disconnect(rec)
+    frames_before = sum(isinstance(p, Frame) for p in packets[: len(packets) // 2])
+    assert Rrd(tmp_path / "run.rrd").rows["camera/frame"] == frames_before
+    replayed = [p for p in open_recording(tmp_path / "run.necrec") if isinstance(p, Frame)]
+    assert len(replayed) == frames_before
+
+
+def test_stop_ends_a_running_pipeline_promptly(tmp_path):
+    class Endless(ListSource):
+        def __iter__(self):
+            t = 0
+            while True:
+                t += 1_000
+                ev = np.zeros(10, EVENT_DTYPE)
+                ev["t"] = t
+                yield ev
+
+    pipe = Pipeline(Endless([]), [nec_lane()], speed=1.0).start()
+    time.sleep(0.2)
+    assert pipe.running
+    pipe.stop()
+    assert pipe.wait(5)
+    stats = pipe.finish()
+    assert 50_000 <= stats["duration_s"] * 1e6 <= 2_000_000  # paced at real time: ~0.2 s of sensor time
+
+
+def test_stop_after_limits_sensor_time():
+    pipe = Pipeline(ListSource(stream(n_frames=10)), [nec_lane()], stop_after_s=0.03)
+    stats = pipe.run().finish()
+    assert stats["duration_s"] <= 0.031 and stats["frames"] <= 3
+
+
+def test_imu_packets_pass_through_to_the_recorder(tmp_path):
+    packets = stream(n_frames=2)
+    imu = np.zeros(3, IMU_DTYPE)
+    imu["t"] = [1_500, 1_600, 1_700]
+    packets.insert(2, ImuBatch(imu))
+    recorder = Recorder(tmp_path / "imu.necrec", sensor=SENSOR, properties={})
+    Pipeline(ListSource(packets), [nec_lane()], None, recorder).run().finish()
+    got = [p for p in open_recording(tmp_path / "imu.necrec") if isinstance(p, ImuBatch)]
+    assert sum(len(p) for p in got) == 3
+
+
+def test_a_slow_viewer_never_slows_the_control_path(tmp_path, monkeypatch):
+    """The sink's worker is stuck; the stream still runs through, and the drops are counted."""
+    rec = open_rec(tmp_path / "slow.rrd")
+    sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, frame_queue_size=2, queue_size=16,
+                     max_rate_hz=1e6)
+    monkeypatch.setattr(sink, "_log_frame", lambda *a: time.sleep(0.5))
+    monkeypatch.setattr(sink, "_collect", lambda b: time.sleep(0.5))
+    src = ListSource(stream(n_frames=20))
+    t0 = time.perf_counter()
+    pipe = Pipeline(src, [nec_lane()], sink)
+    pipe.run()
+    assert time.perf_counter() - t0 < 2.0  # 20 frames x 0.5 s would be 10 s if control waited
+    sink._stop = True  # don't wait for the stuck worker's backlog in this test
+    summary = sink.summary()
+    assert summary["frames_dropped"] >= 20 - 2 - 2
+    assert summary["event_batches_dropped"] >= 200 - 16 - 2
+    rr.disconnect(rec)
+
+
+def test_sink_decimates_by_stride_and_counts(tmp_path):
+    rec = open_rec(tmp_path / "dec.rrd")
+    sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, event_window_us=10_000,
+                     max_events_per_window=500, lossless=True)
+    src = ListSource(stream(n_frames=5))
+    Pipeline(src, [nec_lane()], sink).run()
+    s = sink.close()
+    rr.disconnect(rec)
+    assert s["events_seen"] == 5 * 10 * 200
+    assert s["events_drawn"] + s["events_decimated"] == s["events_seen"]
+    assert s["events_drawn"] <= s["event_images"] * 500
+    assert s["events_drawn"] >= s["events_seen"] // 5  # stride 4 at 2000 events per window, not more
+    r = Rrd(tmp_path / "dec.rrd")
+    _, rate = r.series(S.path("camera", S.EVENT_RATE))
+    assert np.allclose(rate[1:-1], 200 * 1e6 / 1_000)  # 200 events per ms (the first window starts 1 ms late)
+
+
+def test_event_image_counts_and_colours():
+    ev = np.zeros(5, EVENT_DTYPE)
+    ev["x"], ev["y"], ev["p"] = [1, 1, 1, 2, 3], [0, 0, 0, 1, 2], [1, 1, -1, -1, 1]
+    img = EventImage(4, 5, saturate_at=1.0)
+    assert img.add(ev) == 5
+    assert img.counts_on[0, 1] == 2 and img.counts_off[0, 1] == 1 and img.counts_off[1, 2] == 1
+    rgb = img.render()
+    assert rgb.shape == (4, 5, 3)
+    assert rgb[0, 1, 2] > rgb[0, 1, 0]  # net ON: blue
+    assert rgb[1, 2, 0] > rgb[1, 2, 2]  # OFF: red
+    assert (rgb[3, 4] == rgb[0, 0]).all()  # no events: background
+    img.clear()
+    assert img.counts_on.sum() == 0
+    assert img.add(ev, stride=2) == 3
+
+
+def test_bad_pipeline_parameters():
+    with pytest.raises(ParameterError):
+        Pipeline(ListSource([]), [])
+    with pytest.raises(ParameterError):
+        Pipeline(ListSource([]), [nec_lane()], speed=0)
+    with pytest.raises(ParameterError):
+        Pipeline(ListSource([]), [nec_lane(name="a"), nec_lane(name="b")])
