@@ -35,22 +35,34 @@ def accumulate_events(x, y, p, counts_on, counts_off, stride):
     return added
 
 
+def colour_table(on_rgb, off_rgb, background_rgb, saturate_at: float) -> tuple[np.ndarray, int]:
+    """Colours for net counts ``d = on - off`` in ``[-K, K]`` (``K = ceil(saturate_at)``): the
+    background blended towards the ON (d > 0) or OFF (d < 0) colour by ``min(|d| / saturate_at, 1)``.
+    Returns the ``(2K + 1) x 3`` uint8 table and ``K``."""
+    k = max(1, int(np.ceil(saturate_at)))
+    d = np.arange(-k, k + 1, dtype=np.float32)
+    a = np.minimum(np.abs(d) / np.float32(saturate_at), 1.0)[:, None]
+    target = np.where(d[:, None] > 0, np.asarray(on_rgb, np.float32), np.asarray(off_rgb, np.float32))
+    bg = np.asarray(background_rgb, np.float32)
+    return (bg + a * (target - bg)).astype(np.uint8), k
+
+
 @nb.njit(cache=True, nogil=True)
-def render_event_image(counts_on, counts_off, on_rgb, off_rgb, background_rgb, saturate_at, out):
-    """Colour each pixel by its net polarity: ``w = min(|on - off| / saturate_at, 1)`` blends the
-    background towards the ON or OFF colour. Pixels with equal counts stay background. O(H W)."""
+def render_event_image(counts_on, counts_off, table, k, out):
+    """``out[r, c] = table[clip(on - off, -k, k) + k]``: each pixel coloured by its net polarity.
+    O(H W); releases the GIL."""
     h, w = counts_on.shape
     for r in range(h):
         for c in range(w):
             d = counts_on[r, c] - counts_off[r, c]
-            if d == 0:
-                for k in range(3):
-                    out[r, c, k] = np.uint8(background_rgb[k])
-                continue
-            a = min(abs(d) / saturate_at, 1.0)
-            col = on_rgb if d > 0 else off_rgb
-            for k in range(3):
-                out[r, c, k] = np.uint8(background_rgb[k] + a * (col[k] - background_rgb[k]))
+            if d > k:
+                d = k
+            elif d < -k:
+                d = -k
+            i = d + k
+            out[r, c, 0] = table[i, 0]
+            out[r, c, 1] = table[i, 1]
+            out[r, c, 2] = table[i, 2]
     return out
 
 
@@ -62,16 +74,19 @@ class EventImage:
         self.counts_off = np.zeros((height, width), np.int32)
         self.saturate_at = float(saturate_at)
         self.added = 0
+        self._rgb, self._k = colour_table(ON_RGB, OFF_RGB, BACKGROUND_RGB, self.saturate_at)
+        self._bgr = np.ascontiguousarray(self._rgb[:, ::-1])
 
     def add(self, events: np.ndarray, stride: int = 1) -> int:
         n = accumulate_events(events["x"], events["y"], events["p"], self.counts_on, self.counts_off, int(stride))
         self.added += n
         return n
 
-    def render(self) -> np.ndarray:
+    def render(self, bgr: bool = False) -> np.ndarray:
+        """The window as an H x W x 3 uint8 image, RGB (or BGR for OpenCV's encoders)."""
         out = np.empty(self.counts_on.shape + (3,), np.uint8)
-        return render_event_image(self.counts_on, self.counts_off, ON_RGB, OFF_RGB, BACKGROUND_RGB,
-                                  self.saturate_at, out)
+        table = self._bgr if bgr else self._rgb
+        return render_event_image(self.counts_on, self.counts_off, table, self._k, out)
 
     def clear(self) -> None:
         self.counts_on.fill(0)

@@ -98,6 +98,8 @@ def ptedi_update(
     return -1
 
 
+_direct_integral_py = direct_integral.py_func
+
 BLOCK = 256  # events per block in the whole-sensor kernel (size of its exp tables)
 
 
@@ -297,11 +299,15 @@ class PeripheralEstimator:
         self._zone_flat = self.zmap.ravel()
         self._in_region = self._zone_flat >= 0
         self._inv_n = 1.0 / self.sizes.astype(np.float64)
+        self._inv_n0 = float(self._inv_n[0])
         self._derive(params)
-        self.counts_on = np.zeros(k, np.int64)
-        self._counts2 = np.zeros(2, np.int64)
+        self._counts2 = np.zeros(2, np.int64)  # whole sensor: [ON, OFF], what the scalar kernel updates
         self._c02 = np.zeros(2, np.int64)
-        self.counts_off = np.zeros(k, np.int64)
+        if k == 1:  # views, so the whole-sensor kernel's counts are the zone counts without copying
+            self.counts_on, self.counts_off = self._counts2[0:1], self._counts2[1:2]
+        else:
+            self.counts_on = np.zeros(k, np.int64)
+            self.counts_off = np.zeros(k, np.int64)
         self.last_event_us = np.iinfo(np.int64).min
         # exposure windows
         if not (isinstance(max_pending, int) and max_pending >= 1):
@@ -358,15 +364,13 @@ class PeripheralEstimator:
         w = self._open
         ws = int(self._wstart[w]) if w >= 0 else 0
         if self.whole:
-            counts, c0 = self._counts2, self._c02
-            counts[0], counts[1] = self.counts_on[0], self.counts_off[0]
+            c0 = self._c02
             if w >= 0:
                 c0[0], c0[1] = self._c0_on[w, 0], self._c0_off[w, 0]
             bad = ptedi_update_whole(
-                events["t"], events["p"], self.last_event_us, counts, self._inv_n[0], self._g_tab, self._h_tab,
+                events["t"], events["p"], self.last_event_us, self._counts2, self._inv_n0, self._g_tab, self._h_tab,
                 w, ws, c0, self._wlast, self._wint, *self._kp,
             )
-            self.counts_on[0], self.counts_off[0] = counts
         else:
             bad = ptedi_update(
                 events["t"], events["x"], events["y"], events["p"], self.zmap, self.whole, self.last_event_us,
@@ -594,12 +598,12 @@ class PeripheralEstimator:
             g = int(self.anchor_t[0])
             if t < g:
                 raise ParameterError(f"prediction time {t} µs precedes the anchor at {g} µs")
-            c_on, c_off, a_on, b_on, a_off, b_off = self._kp
-            inv = float(self._inv_n[0])
-            m_on = int(self.counts_on[0] - self.anchor_on[0]) * inv
-            m_off = int(self.counts_off[0] - self.anchor_off[0]) * inv
-            u = float(t - g)
-            return float(self.anchor_log[0]) + direct_integral(1.0, u, m_on, m_off, c_on, c_off, a_on, b_on, a_off, b_off)
+            inv = self._inv_n0
+            counts = self._counts2.tolist()
+            m_on = (counts[0] - int(self.anchor_on[0])) * inv
+            m_off = (counts[1] - int(self.anchor_off[0])) * inv
+            # the kernel's Python form: called from Python, it skips Numba's dispatch
+            return float(self.anchor_log[0]) + _direct_integral_py(1.0, float(t - g), m_on, m_off, *self._kp)
         z = self.predict_zones(t_us)
         ok = np.isfinite(z)
         if not ok.any():

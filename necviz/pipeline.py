@@ -234,8 +234,14 @@ class Pipeline:
                     sink.events(packet)
                 if rec is not None:
                     rec.write(packet)
-                for lane in lanes:
-                    self._feed(lane, packet, t_in, t)
+                for lane in lanes:  # the hot path (every event batch), inlined
+                    if lane.passive_estimator:
+                        lane.estimator.update(packet)
+                    cmd = lane.controller.feed(packet)
+                    if cmd is not None:
+                        self._command(lane, cmd, t_in)
+                    if sink is not None and t >= lane.next_prediction_us:
+                        self._log_prediction(lane, t)
             else:
                 lane = self.lanes.get(cam)
                 if lane is None:
@@ -256,22 +262,26 @@ class Pipeline:
                     pass
 
     def _feed(self, lane: Lane, packet, t_in: int, t: int | None) -> None:
+        """An exposure marker (frames: :meth:`_frame`; event batches are handled inline in :meth:`_run`)."""
         if lane.passive_estimator:
             lane.estimator.feed(packet)
         cmd = lane.controller.feed(packet)
         if cmd is not None:
             self._command(lane, cmd, t_in)
-        if isinstance(packet, np.ndarray) and self.sink is not None and t is not None \
-                and t >= lane.next_prediction_us and lane.estimator.ready:
-            lp = getattr(lane.controller, "last_log_irradiance", math.nan) if not lane.passive_estimator else math.nan
-            if not math.isfinite(lp):
-                try:
-                    lp = lane.estimator.predict(t)
-                except NecvizError:
-                    lp = math.nan
-            if math.isfinite(lp):
-                self.sink.scalar(lane.name, S.IRRADIANCE_PREDICTED, t, lp)
-                lane.next_prediction_us = t + self.prediction_period_us
+
+    def _log_prediction(self, lane: Lane, t: int) -> None:
+        """P-TEDI's ln P(t) for the lane, at most every ``prediction_period_us``."""
+        if not lane.estimator.ready:
+            return
+        lp = math.nan if lane.passive_estimator else getattr(lane.controller, "last_log_irradiance", math.nan)
+        if not math.isfinite(lp):
+            try:
+                lp = lane.estimator.predict(t)
+            except NecvizError:
+                return
+        if math.isfinite(lp):
+            self.sink.scalar(lane.name, S.IRRADIANCE_PREDICTED, t, lp)
+            lane.next_prediction_us = t + self.prediction_period_us
 
     def _command(self, lane: Lane, cmd, t_in: int) -> None:
         self._apply(lane, cmd)

@@ -21,6 +21,7 @@ Entity paths follow :mod:`necviz.schema`.
 
 from __future__ import annotations
 
+import bisect
 import math
 import threading
 import time
@@ -99,6 +100,7 @@ class RerunSink:
         self._window_end: int | None = None
         self._window_seen = 0
         self._parts: list[np.ndarray] = []
+        self._drawing = True
         self.stats = {"frames_logged": 0, "events_seen": 0,
                       "events_drawn": 0, "events_decimated": 0, "event_images": 0, "event_images_skipped": 0, "scalars": 0}
         self.dropped = {"frames": 0, "event_batches": 0, "events": 0}  # written by the streaming thread only
@@ -158,8 +160,11 @@ class RerunSink:
                 stopping = self._stop
                 ev, fr = self._events, self._frames
                 while ev or fr:
-                    while ev:  # cheap: batches are only collected per window here
-                        self._collect(ev.popleft())
+                    if ev:
+                        batches = []
+                        while ev:
+                            batches.append(ev.popleft())
+                        self._collect(batches)
                     if fr:
                         self._log_frame(*fr.popleft())
                 if time.perf_counter() >= next_flush:
@@ -173,21 +178,48 @@ class RerunSink:
         except BaseException as e:  # report in close(); the control path must go on
             self._error = e
 
-    def _collect(self, batch: np.ndarray) -> None:
-        """Keep a batch for the current window; close windows it runs past. O(1) unless it crosses one."""
-        t = batch["t"]
-        if self._window_end is None:
-            self._window_end = (int(t[0]) // self.event_window_us + 1) * self.event_window_us
-        while int(t[-1]) >= self._window_end:
-            cut = int(np.searchsorted(t, self._window_end, side="left"))
+    def _collect(self, batches: list) -> None:
+        """Assign queued batches (in time order) to event windows, closing windows as they end.
+
+        Work is per window, not per batch: the batch that crosses a window end is found by
+        bisection on the batches' last times, and a window that will not be drawn only counts.
+        """
+        k, n = 0, len(batches)
+        last_time = lambda b: int(b["t"][-1])  # noqa: E731
+        while k < n:
+            if self._window_end is None:
+                self._window_end = (int(batches[k]["t"][0]) // self.event_window_us + 1) * self.event_window_us
+                self._drawing = self._decide_drawing()
+            end = self._window_end
+            j = bisect.bisect_left(batches, end, lo=k, hi=n, key=last_time)  # first batch reaching the end
+            if j > k:
+                self._window_seen += sum(map(len, batches[k:j]))
+                if self._drawing:
+                    self._parts.extend(batches[k:j])
+            if j == n:
+                return
+            b = batches[j]
+            cut = int(np.searchsorted(b["t"], end, side="left"))
             if cut:
-                self._parts.append(batch[:cut])
                 self._window_seen += cut
+                if self._drawing:
+                    self._parts.append(b[:cut])
             self._close_window()
-            batch, t = batch[cut:], t[cut:]
-        if len(batch):
-            self._parts.append(batch)
-            self._window_seen += len(batch)
+            if cut < len(b):
+                batches[j] = b[cut:]
+                k = j
+            else:
+                k = j + 1
+
+    def _decide_drawing(self) -> bool:
+        """Draw the next window's image unless the worker is behind or a viewer could not show it."""
+        if self.lossless:
+            return True
+        now = time.perf_counter()
+        if len(self._events) > self.max_backlog or now < self._next_image_wall:
+            return False
+        self._next_image_wall = now + self._min_interval_s
+        return True
 
     def _close_window(self, final: bool = False) -> None:
         """Draw the window's events (every k-th above the cap), log the image and the event rate."""
@@ -195,30 +227,23 @@ class RerunSink:
             return
         end = self._window_end
         seen = self._window_seen
+        rate = seen / (self.event_window_us / 1e6)
         self.stats["events_seen"] += seen
-        now = time.perf_counter()
-        behind = not self.lossless and (len(self._events) > self.max_backlog or now < self._next_image_wall)
-        if not behind:
-            self._next_image_wall = now + self._min_interval_s
-        if behind:  # the worker is behind the stream: skip this image (the event rate is still logged)
+        if not self._drawing:  # behind the stream or faster than a viewer refreshes: count, log the rate
             self.stats["event_images_skipped"] += 1
             self.stats["events_decimated"] += seen
             for lane in self.event_lanes:
-                self._series[S.path(lane, S.EVENT_RATE)].append((end, seen / (self.event_window_us / 1e6)))
+                self._series[S.path(lane, S.EVENT_RATE)].append((end, rate))
         elif seen or not final:
             stride = max(1, math.ceil(seen / self.max_events_per_window)) if self.max_events_per_window > 0 else 1
-            if self._parts:
-                sample = np.concatenate([p[::stride] for p in self._parts]) if stride > 1 or len(self._parts) > 1 \
-                    else self._parts[0]
-                drawn = self._image.add(sample)
-            else:
-                sample, drawn = None, 0
+            drawn = sum(self._image.add(p, stride) for p in self._parts)  # no copy: the kernel strides
             self.stats["events_drawn"] += drawn
             self.stats["events_decimated"] += seen - drawn
             self.rec.set_time(S.TIME, duration=(end - self.origin_us) / 1e6)
-            img = _jpeg(np.ascontiguousarray(self._image.render()[:, :, ::-1]), self.jpeg_quality)  # RGB -> BGR
-            rate = seen / (self.event_window_us / 1e6)
-            pts = sample[: self.raw_points] if (self.raw_points and sample is not None) else None
+            img = _jpeg(self._image.render(bgr=True), self.jpeg_quality)
+            pts = None
+            if self.raw_points and self._parts:
+                pts = np.concatenate([p[::stride] for p in self._parts])[: self.raw_points]
             for lane in self.event_lanes:
                 self.rec.log(S.path(lane, S.EVENTS), img)
                 self._series[S.path(lane, S.EVENT_RATE)].append((end, rate))
@@ -229,10 +254,11 @@ class RerunSink:
                                              colors=colors, radii=0.5))
             self.rec.reset_time()
             self.stats["event_images"] += 1
-        self._image.clear()
+            self._image.clear()
         self._parts = []
         self._window_seen = 0
         self._window_end = end + self.event_window_us
+        self._drawing = self._decide_drawing()
 
     def _log_frame(self, lane: str, frame: Frame, over: float, under: float) -> None:
         t = frame.exposure_start_us

@@ -114,9 +114,16 @@ class NECController(Controller):
 
     # -- packets ------------------------------------------------------------------------------
     def on_events(self, events: np.ndarray) -> ExposureCommand | None:
-        super().on_events(events)
-        self.estimator.update(events)
-        return self._command_now()
+        est = self.estimator  # the hot path (every event batch): kept short
+        est.update(events)
+        t = est.last_event_us
+        if t > self.now_us:
+            self.now_us = t
+        if not est.ready:
+            return None
+        t = self.now_us
+        self.last_log_irradiance = lp = est.predict(t)
+        return self.command_for(lp, t)
 
     def on_exposure_start(self, t_us: int) -> ExposureCommand | None:
         super().on_exposure_start(t_us)
