@@ -154,11 +154,12 @@ def run(scenario="tunnel_exit", controllers="nec,navid,shim,begin,builtin,fixed"
     if out is not None:
         print(f"\n{scenario}, {result['duration_s']:g} s, seed {seed}" + (f" (+{seeds - 1} more)" if seeds > 1 else ""),
               file=out)
-        hdr = f"{'controller':10s} {'frames':>6s} {'sat>50%':>10s} {'sat>10%':>10s} {'mean over':>10s} " \
+        w = max(10, *(len(n) for n in table))  # controller names registered by users may be longer
+        hdr = f"{'controller':{w}s} {'frames':>6s} {'sat>50%':>10s} {'sat>10%':>10s} {'mean over':>10s} " \
               f"{'mean under':>10s} {'recovery ms':>12s} {'SIFT inliers':>13s}"
         print(hdr, file=out)
         for n, r in table.items():
-            print(f"{n:10s} {_fmt(r['frames'], digits=0):>6s} {_fmt(r['saturated_frames_50'], r['saturated_frames_50_std']):>10s} "
+            print(f"{n:{w}s} {_fmt(r['frames'], digits=0):>6s} {_fmt(r['saturated_frames_50'], r['saturated_frames_50_std']):>10s} "
                   f"{_fmt(r['saturated_frames_10'], r['saturated_frames_10_std']):>10s} "
                   f"{_fmt(r['mean_over_exposed_rate'], r['mean_over_exposed_rate_std'], 3):>10s} "
                   f"{_fmt(r['mean_under_exposed_rate'], r['mean_under_exposed_rate_std'], 3):>10s} "
