@@ -32,7 +32,13 @@ def _info_file(args: argparse.Namespace) -> int:
 
     from .drivers.replay import describe
 
-    info = describe(args.file, exposure_us=args.exposure_us)
+    def progress(events, frames, seconds):
+        print(f"\r  reading: {events:,} events, {frames} frames, {seconds:.1f} s", end="", file=sys.stderr, flush=True)
+
+    live = sys.stderr.isatty()
+    info = describe(args.file, progress=progress if live else None, exposure_us=args.exposure_us)
+    if live:
+        print("\r" + " " * 72 + "\r", end="", file=sys.stderr, flush=True)
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:
             json.dump(info.to_dict(), f, indent=2)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 
+import time
+
 import numpy as np
 
 from ...core.frames import ExposureMarker, Frame
@@ -73,8 +75,10 @@ class RecordingInfo:
         return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
 
 
-def describe(path, **open_kwargs) -> RecordingInfo:
+def describe(path, progress=None, **open_kwargs) -> RecordingInfo:
     """Open ``path`` with :func:`open_recording` and count what it holds in one streaming pass.
+
+    ``progress(events, frames, seconds)``, if given, is called about twice a second (large files).
 
     Raises :class:`RecordingError` for unreadable input; damage found mid-file is reported as a
     warning (with what was counted before it) rather than raised, so ``info`` still shows the
@@ -94,8 +98,12 @@ def describe(path, **open_kwargs) -> RecordingInfo:
         t0 = a if t0 is None or a < t0 else t0
         t1 = b if t1 is None or b > t1 else t1
 
+    next_report = time.perf_counter() + 0.5
     try:
-        for pkt in rec:
+        for i, pkt in enumerate(rec):
+            if progress is not None and not i & 255 and time.perf_counter() >= next_report:
+                progress(events, frames, 0.0 if t0 is None else (t1 - t0) / 1e6)
+                next_report = time.perf_counter() + 0.5
             if isinstance(pkt, np.ndarray):
                 if pkt.size:
                     events += pkt.size
