@@ -93,6 +93,33 @@ def to_gray8(image: np.ndarray, bits: int | None = None) -> np.ndarray:
     return np.clip(img.astype(np.int64) >> max(bits - 8, 0), 0, 255).astype(np.uint8)
 
 
+#: Standard gravity (m/s²): formats that store acceleration in SI units are converted to g.
+G = 9.80665
+
+
+def events_from_seconds(t_s, x, y, p) -> np.ndarray:
+    """Events from columns with time in (float) seconds and polarity > 0 = ON: ``t`` rounded to
+    integer µs, ``p`` -> ±1."""
+    ev = np.empty(len(t_s), EVENT_DTYPE)
+    ev["t"] = np.rint(np.asarray(t_s, np.float64) * 1e6).astype(np.int64)
+    ev["x"] = x
+    ev["y"] = y
+    ev["p"] = np.where(np.asarray(p) > 0, 1, -1)
+    return ev
+
+
+def imu_from_si(t_us, accel_ms2, gyro_rad_s) -> np.ndarray:
+    """IMU samples from SI columns (N x 3 m/s², N x 3 rad/s) in necviz's units (g, °/s); no temperature."""
+    imu = np.empty(len(t_us), IMU_DTYPE)
+    imu["t"] = t_us
+    accel, gyro = np.asarray(accel_ms2, np.float64), np.degrees(np.asarray(gyro_rad_s, np.float64))
+    for k, axis in enumerate("xyz"):
+        imu[f"a{axis}"] = accel[:, k] / G
+        imu[f"g{axis}"] = gyro[:, k]
+    imu["temp"] = np.nan
+    return imu
+
+
 class Recording:
     """A recorded file replayed as a :class:`~necviz.drivers.source.Source`.
 
@@ -154,6 +181,20 @@ class Recording:
     def warn(self, text: str) -> None:
         if text not in self.warnings:
             self.warnings.append(text)
+
+    def _assembled(self, asm: "StreamAssembler", feed: Iterator) -> Iterator:
+        """Run ``feed`` (a generator that pushes into ``asm`` and yields its drains), then the rest
+        of ``asm``; on damage, everything assembled before it is yielded before the error. The
+        assembler's warnings become the recording's."""
+        try:
+            yield from feed
+            yield from asm.drain(None)
+        except RecordingError:
+            yield from asm.drain(None)
+            raise
+        finally:
+            for w in asm.warnings():
+                self.warn(w)
 
     def in_range(self, t_us: int) -> bool:
         return (self.start_us is None or t_us >= self.start_us) and (self.end_us is None or t_us <= self.end_us)

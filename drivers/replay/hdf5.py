@@ -22,9 +22,9 @@ import numpy as np
 
 from ...core.events import EVENT_DTYPE
 from ...core.frames import Frame
-from ...core.imu import IMU_DTYPE
 from ...core.sensor import DAVIS346, SensorGeometry
-from .base import NO_EXPOSURE_FRAMES, Recording, RecordingError, StreamAssembler, sensor_from_extent, to_gray8
+from .base import (NO_EXPOSURE_FRAMES, Recording, RecordingError, StreamAssembler, events_from_seconds,
+                   imu_from_si, sensor_from_extent, to_gray8)
 
 try:  # registers Blosc/Zstd/LZ4 HDF5 filters when installed (DSEC files need Blosc)
     import hdf5plugin  # noqa: F401
@@ -32,7 +32,6 @@ except ImportError:  # pragma: no cover - optional
     hdf5plugin = None
 
 CHUNK = 1 << 18
-G = 9.80665
 
 
 def open_hdf5(path, **kwargs) -> Recording:
@@ -132,28 +131,23 @@ class DsecRecording(_Hdf5Recording):
 
     def _packets(self) -> Iterator:
         asm = StreamAssembler(self.sensor, start_us=self.start_us, end_us=self.end_us)
-        try:
-            with self._open() as f:
-                g = f["events"]
-                for i in range(self._first_index(f), self.n, CHUNK):
-                    sl = slice(i, min(i + CHUNK, self.n))
-                    t = self._read(g["t"], sl).astype(np.int64) + self.t_offset
-                    ev = np.empty(t.size, EVENT_DTYPE)
-                    ev["t"] = t
-                    ev["x"] = self._read(g["x"], sl)
-                    ev["y"] = self._read(g["y"], sl)
-                    ev["p"] = np.where(self._read(g["p"], sl) > 0, 1, -1)
-                    asm.push_events(ev)
-                    yield from asm.drain(int(t[-1]))
-                    if self.past_end(int(t[0])):
-                        break
-            yield from asm.drain(None)
-        except RecordingError:
-            yield from asm.drain(None)
-            raise
-        finally:
-            for w in asm.warnings():
-                self.warn(w)
+        return self._assembled(asm, self._feed(asm))
+
+    def _feed(self, asm: StreamAssembler) -> Iterator:
+        with self._open() as f:
+            g = f["events"]
+            for i in range(self._first_index(f), self.n, CHUNK):
+                sl = slice(i, min(i + CHUNK, self.n))
+                t = self._read(g["t"], sl).astype(np.int64) + self.t_offset
+                ev = np.empty(t.size, EVENT_DTYPE)
+                ev["t"] = t
+                ev["x"] = self._read(g["x"], sl)
+                ev["y"] = self._read(g["y"], sl)
+                ev["p"] = np.where(self._read(g["p"], sl) > 0, 1, -1)
+                asm.push_events(ev)
+                yield from asm.drain(int(t[-1]))
+                if self.past_end(int(t[0])):
+                    break
 
 
 class MvsecRecording(_Hdf5Recording):
@@ -195,57 +189,41 @@ class MvsecRecording(_Hdf5Recording):
         use_frames = self.n_frames and self.exposure_us is not None
         if self.n_frames and not use_frames:
             self.warn(f"{self.n_frames} frames skipped: MVSEC stores no exposure; pass --exposure-us")
-        try:
-            with self._open() as f:
-                g = f[self.group]
-                ev_ds = g["events"]
-                stamps = np.rint(self._read(g["image_raw_ts"], slice(None)) * 1e6).astype(np.int64) \
-                    if use_frames else np.zeros(0, np.int64)
-                imu_t = np.rint(self._read(g["imu_ts"], slice(None)) * 1e6).astype(np.int64) \
-                    if self.has_imu else np.zeros(0, np.int64)
-                half = 0 if self.exposure_us is None else self.exposure_us / 2
-                i0 = 0
-                if self.start_us is not None:
-                    i0 = self._bisect(lambda i: float(self._read(ev_ds, (i, 2))), self.n, self.start_us / 1e6)
-                    fi = int(np.searchsorted(stamps, self.start_us))
-                    ii = int(np.searchsorted(imu_t, self.start_us))
-                else:
-                    fi = ii = 0
-                for i in range(i0, self.n, CHUNK):
-                    rows = self._read(ev_ds, slice(i, min(i + CHUNK, self.n)))
-                    ev = np.empty(rows.shape[0], EVENT_DTYPE)
-                    ev["t"] = np.rint(rows[:, 2] * 1e6).astype(np.int64)
-                    ev["x"] = rows[:, 0]
-                    ev["y"] = rows[:, 1]
-                    ev["p"] = np.where(rows[:, 3] > 0, 1, -1)
-                    horizon = int(ev["t"][-1]) if ev.size else 0
-                    last = i + CHUNK >= self.n
-                    while fi < stamps.size and (last or stamps[fi] - half < horizon):
-                        span = self.frame_exposure_from_stamp(int(stamps[fi]), None)
-                        img = to_gray8(self._read(g["image_raw"], fi))
-                        asm.push_frame(Frame(img, span[0], span[1], 1.0, fi))
-                        fi += 1
-                    if ii < imu_t.size:
-                        jj = imu_t.size if last else int(np.searchsorted(imu_t, horizon))
-                        if jj > ii:
-                            raw = self._read(g["imu"], slice(ii, jj))
-                            imu = np.empty(jj - ii, IMU_DTYPE)
-                            imu["t"] = imu_t[ii:jj]
-                            for k, name in enumerate(("ax", "ay", "az")):
-                                imu[name] = raw[:, k] / G
-                            for k, name in enumerate(("gx", "gy", "gz")):
-                                imu[name] = np.degrees(raw[:, 3 + k])
-                            imu["temp"] = np.nan
-                            asm.push_imu(imu)
-                            ii = jj
-                    asm.push_events(ev)
-                    yield from asm.drain(horizon)
-                    if self.past_end(horizon):
-                        break
-            yield from asm.drain(None)
-        except RecordingError:
-            yield from asm.drain(None)
-            raise
-        finally:
-            for w in asm.warnings():
-                self.warn(w)
+        return self._assembled(asm, self._feed(asm, use_frames))
+
+    def _feed(self, asm: StreamAssembler, use_frames) -> Iterator:
+        with self._open() as f:
+            g = f[self.group]
+            ev_ds = g["events"]
+            stamps = np.rint(self._read(g["image_raw_ts"], slice(None)) * 1e6).astype(np.int64) \
+                if use_frames else np.zeros(0, np.int64)
+            imu_t = np.rint(self._read(g["imu_ts"], slice(None)) * 1e6).astype(np.int64) \
+                if self.has_imu else np.zeros(0, np.int64)
+            half = 0 if self.exposure_us is None else self.exposure_us / 2
+            i0 = 0
+            if self.start_us is not None:
+                i0 = self._bisect(lambda i: float(self._read(ev_ds, (i, 2))), self.n, self.start_us / 1e6)
+                fi = int(np.searchsorted(stamps, self.start_us))
+                ii = int(np.searchsorted(imu_t, self.start_us))
+            else:
+                fi = ii = 0
+            for i in range(i0, self.n, CHUNK):
+                rows = self._read(ev_ds, slice(i, min(i + CHUNK, self.n)))
+                ev = events_from_seconds(rows[:, 2], rows[:, 0], rows[:, 1], rows[:, 3])
+                horizon = int(ev["t"][-1]) if ev.size else 0
+                last = i + CHUNK >= self.n
+                while fi < stamps.size and (last or stamps[fi] - half < horizon):
+                    span = self.frame_exposure_from_stamp(int(stamps[fi]), None)
+                    img = to_gray8(self._read(g["image_raw"], fi))
+                    asm.push_frame(Frame(img, span[0], span[1], 1.0, fi))
+                    fi += 1
+                if ii < imu_t.size:
+                    jj = imu_t.size if last else int(np.searchsorted(imu_t, horizon))
+                    if jj > ii:
+                        raw = self._read(g["imu"], slice(ii, jj))
+                        asm.push_imu(imu_from_si(imu_t[ii:jj], raw[:, 0:3], raw[:, 3:6]))
+                        ii = jj
+                asm.push_events(ev)
+                yield from asm.drain(horizon)
+                if self.past_end(horizon):
+                    break

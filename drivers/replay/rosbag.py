@@ -30,14 +30,13 @@ from ...core.events import EVENT_DTYPE
 from ...core.frames import Frame
 from ...core.imu import IMU_DTYPE
 from ...core.sensor import SensorGeometry
-from .base import NO_EXPOSURE_FRAMES, Recording, StreamAssembler, to_gray8
+from .base import G, NO_EXPOSURE_FRAMES, Recording, StreamAssembler, to_gray8
 
 DVS_MSGS = {
     "dvs_msgs/msg/Event": "uint16 x\nuint16 y\nbuiltin_interfaces/Time ts\nbool polarity\n",
     "dvs_msgs/msg/EventArray": "std_msgs/Header header\nuint32 height\nuint32 width\ndvs_msgs/Event[] events\n",
 }
 ROS1_EVENT = np.dtype([("x", "<u2"), ("y", "<u2"), ("sec", "<u4"), ("nsec", "<u4"), ("p", "u1")])
-G = 9.80665
 
 
 def _stamp_us(stamp) -> int:

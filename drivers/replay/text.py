@@ -26,14 +26,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ...core.events import EVENT_DTYPE
 from ...core.frames import Frame
-from ...core.imu import IMU_DTYPE
 from ...core.sensor import SensorGeometry
-from .base import NO_EXPOSURE_FRAMES, Recording, RecordingError, StreamAssembler, sensor_from_extent, to_gray8
+from .base import (NO_EXPOSURE_FRAMES, Recording, RecordingError, StreamAssembler, events_from_seconds,
+                   imu_from_si, sensor_from_extent, to_gray8)
 
 BLOCK_BYTES = 8 << 20
-G = 9.80665
 
 
 def _parse(block: bytes, ncols: int) -> np.ndarray:
@@ -192,56 +190,40 @@ class RpgTextRecording(Recording):
         if not self.imu_path.is_file():
             return
         for _, rows in numeric_blocks(self, self.imu_path, 7):
-            imu = np.empty(rows.shape[0], IMU_DTYPE)
-            imu["t"] = np.rint(rows[:, 0] * 1e6).astype(np.int64)
-            for k, name in enumerate(("ax", "ay", "az")):
-                imu[name] = rows[:, 1 + k] / G
-            for k, name in enumerate(("gx", "gy", "gz")):
-                imu[name] = np.degrees(rows[:, 4 + k])
-            imu["temp"] = np.nan
-            yield imu
+            yield imu_from_si(np.rint(rows[:, 0] * 1e6).astype(np.int64), rows[:, 1:4], rows[:, 4:7])
 
     def _packets(self) -> Iterator:
         asm = StreamAssembler(self.sensor, start_us=self.start_us, end_us=self.end_us)
         use_frames = bool(self._frames) and self.exposure_us is not None
         if self._frames and not use_frames:
             self.warn(f"{len(self._frames)} frames skipped: images.txt stores no exposure; pass --exposure-us")
+        return self._assembled(asm, self._feed(asm, use_frames))
+
+    def _feed(self, asm: StreamAssembler, use_frames) -> Iterator:
         fi = 0
         imu_iter = self._imu_blocks()
         imu_next = next(imu_iter, None)
-        try:
-            for off, rows in numeric_blocks(self, self.events_path, 4, self._seek()):
-                if rows.shape[0] == 0:
-                    continue
-                ev = np.empty(rows.shape[0], EVENT_DTYPE)
-                ev["t"] = np.rint(rows[:, 0] * 1e6).astype(np.int64)
-                ev["x"] = rows[:, 1]
-                ev["y"] = rows[:, 2]
-                ev["p"] = np.where(rows[:, 3] > 0, 1, -1)
-                horizon = int(ev["t"][-1])
-                while use_frames and fi < len(self._frames) and self._frames[fi][0] - self.exposure_us / 2 < horizon:
-                    t, file = self._frames[fi]
-                    if self.start_us is None or t >= self.start_us:  # (the assembler applies the exact range)
-                        asm.push_frame(self._load_frame(fi, t, file))
-                    fi += 1
-                while imu_next is not None and int(imu_next["t"][0]) < horizon:
-                    asm.push_imu(imu_next)
-                    imu_next = next(imu_iter, None)
-                asm.push_events(ev)
-                yield from asm.drain(horizon)
-                if self.past_end(horizon):
-                    break
-            else:
-                while use_frames and fi < len(self._frames):
-                    asm.push_frame(self._load_frame(fi, *self._frames[fi]))
-                    fi += 1
-                while imu_next is not None:
-                    asm.push_imu(imu_next)
-                    imu_next = next(imu_iter, None)
-            yield from asm.drain(None)
-        except RecordingError:
-            yield from asm.drain(None)
-            raise
-        finally:
-            for w in asm.warnings():
-                self.warn(w)
+        for off, rows in numeric_blocks(self, self.events_path, 4, self._seek()):
+            if rows.shape[0] == 0:
+                continue
+            ev = events_from_seconds(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3])
+            horizon = int(ev["t"][-1])
+            while use_frames and fi < len(self._frames) and self._frames[fi][0] - self.exposure_us / 2 < horizon:
+                t, file = self._frames[fi]
+                if self.start_us is None or t >= self.start_us:  # (the assembler applies the exact range)
+                    asm.push_frame(self._load_frame(fi, t, file))
+                fi += 1
+            while imu_next is not None and int(imu_next["t"][0]) < horizon:
+                asm.push_imu(imu_next)
+                imu_next = next(imu_iter, None)
+            asm.push_events(ev)
+            yield from asm.drain(horizon)
+            if self.past_end(horizon):
+                break
+        else:
+            while use_frames and fi < len(self._frames):
+                asm.push_frame(self._load_frame(fi, *self._frames[fi]))
+                fi += 1
+            while imu_next is not None:
+                asm.push_imu(imu_next)
+                imu_next = next(imu_iter, None)

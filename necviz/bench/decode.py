@@ -18,15 +18,12 @@ of the driver path: on a shared machine other processes only ever slow a run dow
 
 from __future__ import annotations
 
-import json
-import platform
 import sys
 import time
-from pathlib import Path
 
-import numba as nb
 import numpy as np
 
+from .common import machine, write_result
 from ..core.errors import ParameterError
 from ..core.events import EVENT_DTYPE
 from ..core.sensor import DAVIS346
@@ -160,11 +157,7 @@ def run(seconds: float = 1.0, repeats: int = 5, seed: int = 0, json_path=None, o
         "stream": {"seconds": seconds, "events": n_events, "words": int(words.size),
                    "words_per_event": float(words.size / n_events), "frames": n_frames,
                    "transfer_bytes": TRANSFER_BYTES, "rate_mevs": SENSOR_MAX_MEVS, "repeats": repeats, "seed": seed},
-        "machine": {"python": platform.python_version(), "processor": platform.processor() or platform.machine(),
-                    "numba": nb.__version__, "numpy": np.__version__},
+        "machine": machine(),
     }
-    if json_path:
-        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
-        Path(json_path).write_text(json.dumps(result, indent=2) + "\n")
-        print(f"wrote {json_path}", file=out)
+    write_result(result, json_path, out)
     return result

@@ -15,15 +15,13 @@ Timings exclude JIT compilation (a warm-up run precedes them).
 
 from __future__ import annotations
 
-import json
-import platform
 import sys
 import time
-from pathlib import Path
 
 import numba as nb
 import numpy as np
 
+from .common import machine, write_result
 from ..core.crf import default_davis346
 from ..core.errors import ParameterError
 from ..core.event_model import TediParams
@@ -169,11 +167,7 @@ def run(events=10_000_000, duration_s=2.0, fps=50.0, exposure_us=5_000, repeats=
         "stream": {"events": int(ev.size), "events_timed": n_span, "duration_s": duration_s, "timed_span_s": span_s,
                    "fps": fps, "exposure_us": exposure_us, "frames": len(frames), "sensor": "346x260",
                    "edi_samples": edi_samples, "repeats": repeats, "seed": seed},
-        "machine": {"python": platform.python_version(), "processor": platform.processor() or platform.machine(),
-                    "numba": nb.__version__, "numpy": np.__version__},
+        "machine": machine(),
     }
-    if json_path:
-        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
-        Path(json_path).write_text(json.dumps(result, indent=2) + "\n")
-        print(f"wrote {json_path}", file=out)
+    write_result(result, json_path, out)
     return result

@@ -17,9 +17,7 @@ so the ON/OFF balance integrates to that wave with c_on = 0.26, c_off = 0.24.
 
 from __future__ import annotations
 
-import json
 import math
-import platform
 import sys
 import tempfile
 import time
@@ -27,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .common import machine, write_result
 from ..core.control import CameraLimits, make_controller
 from ..core.crf import US_PER_S, default_davis346
 from ..core.errors import ParameterError
@@ -215,7 +214,7 @@ def run(duration_s: float = 10.0, rate_mev_s: float = 12.0, fps: float = 50.0, b
     result = {"duration_s": duration_s, "rate_mev_s": rate_mev_s, "fps": fps, "batch_us": batch_us, "repeats": repeats,
               "events": int(len(events)), "runs": rows,
               "targets": {"realtime_factor_with_logging": 19.0, "latency_p99_us": 1000.0},
-              "machine": {"python": platform.python_version(), "processor": platform.processor() or platform.machine()}}
+              "machine": machine()}
     print(f"\n  {'run':14s} {'wall s':>7s} {'RT factor':>9s} {'commands':>8s} {'lat p50 µs':>10s} {'lat p99 µs':>10s}",
           file=out)
     for name, r in rows.items():
@@ -226,7 +225,5 @@ def run(duration_s: float = 10.0, rate_mev_s: float = 12.0, fps: float = 50.0, b
         print(f"  sink: {sk['frames_logged']} frames logged, {sk['frames_dropped']} dropped; {sk['event_images']} "
               f"event images; {sk['events_decimated']:,} of {sk['events_seen']:,} events not drawn; "
               f"{rows['with_logging']['rrd_bytes'] / 1e6:.1f} MB written", file=out)
-    if json_path:
-        Path(json_path).write_text(json.dumps(result, indent=2))
-        print(f"  wrote {json_path}", file=out)
+    write_result(result, json_path, out)
     return result

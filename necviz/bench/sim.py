@@ -8,14 +8,12 @@ samples rendered and frames per camera. Prints a live progress line while it run
 
 from __future__ import annotations
 
-import json
-import platform
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
+from .common import machine, write_result
 from ..core.errors import ParameterError
 from ..core.frames import Frame
 
@@ -53,13 +51,10 @@ def run(duration_s=5.0, cameras=6, scenario="tunnel_exit", seed=0, json_path=Non
         "wall_s": wall, "realtime_factor": duration_s / wall, "events": int(events),
         "mev_per_s_generated": events / wall / 1e6, "samples_rendered": rig.samples_rendered,
         "frames": frames, "sensor": f"{scene.sensor.width}x{scene.sensor.height}",
-        "machine": {"python": platform.python_version(), "processor": platform.processor() or platform.machine()},
+        "machine": machine(),
     }
     print(f"{scenario}: {duration_s:g} s with {cameras} cameras in {wall:.2f} s -> real-time factor "
           f"{result['realtime_factor']:.2f}; {events:,} events, {rig.samples_rendered} scene samples, "
           f"{frames} frames", file=out)
-    if json_path:
-        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
-        Path(json_path).write_text(json.dumps(result, indent=2) + "\n")
-        print(f"wrote {json_path}", file=out)
+    write_result(result, json_path, out)
     return result
