@@ -37,14 +37,14 @@ def style_series(rec: rr.RecordingStream, lanes: list[str]) -> None:
         lines = {
             S.EXPOSURE_COMMANDED: (f"{n} commanded", dim), S.EXPOSURE_APPLIED: (f"{n} applied", c),
             S.GAIN_COMMANDED: (f"{n} gain commanded", dim), S.GAIN_APPLIED: (f"{n} gain applied", c),
-            S.IRRADIANCE_PREDICTED: (f"{n} P-TEDI", c), S.IRRADIANCE_FRAME: (f"{n} frame", (240, 240, 240)),
+            S.IRRADIANCE_PREDICTED: (f"{n} P-TEDI", c), S.IRRADIANCE_FRAME: (f"{n} frame", (255, 160, 40)),
             S.OVER_EXPOSED: (f"{n} over", c), S.UNDER_EXPOSED: (f"{n} under", dim),
             S.EVENT_RATE: (f"{n} events/s", c), S.LATENCY: (f"{n} latency µs", dim),
             S.PREDICTION_ERROR: (f"{n} error", c),
         }
         for leaf, (label, col) in lines.items():
             rec.log(S.path(n, leaf), rr.SeriesLines(colors=[col], names=[label], widths=[1.5]), static=True)
-        for leaf, (label, col) in ((S.IRRADIANCE_FRAME, (f"{n} frame", (240, 240, 240))),
+        for leaf, (label, col) in ((S.IRRADIANCE_FRAME, (f"{n} frame", (255, 160, 40))),
                                    (S.SATURATED, (f"{n} saturated frame", (231, 76, 60)))):
             rec.log(S.path(n, leaf), rr.SeriesPoints(colors=[col], names=[label], markers=["circle"],
                                                       marker_sizes=[4.0]), static=True)

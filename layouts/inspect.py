@@ -37,5 +37,5 @@ def blueprint(lanes: list[str], width: int, height: int, window_s: float | None 
             ),
             column_shares=[3, 1],
         ),
-        *panels(S.FRAME),
+        *panels(),  # the `t` timeline: events and predictions are not per frame; frames carry `frame` too
     )
