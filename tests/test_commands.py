@@ -33,7 +33,10 @@ def test_live_emulated_closes_the_loop_and_records(tmp_path, capsys):
         assert r.rows.get(S.path("camera", leaf), 0) > 0, leaf
     recording = open_recording(rec)
     frames = [p for p in recording if isinstance(p, Frame)]
-    assert len(frames) == r.rows["camera/frame"] >= 20
+    # the recorder keeps every frame; the live view may skip some (60 per wall second at most)
+    assert len(frames) >= 20 and 0 < r.rows["camera/frame"] <= len(frames)
+    _, exposure_logged = r.series("camera/exposure/applied")
+    assert len(exposure_logged) == len(frames)  # scalar series are never dropped
     assert len(recording.commands) > 1  # initial setting + NEC's commands, as the camera got them
     exposures = {f.exposure_us for f in frames}
     assert len(exposures) > 1  # the commands reached the (emulated) exposure register
@@ -54,7 +57,9 @@ def test_unplugged_camera_flushes_everything_and_exits_nonzero(tmp_path):
         assert subprocess.run([str(exe), "rrd", "verify", str(rrd)], capture_output=True).returncode == 0
     frames = [p for p in open_recording(rec) if isinstance(p, Frame)]
     assert 15 <= len(frames) <= 21 and frames[-1].exposure_end_us <= 410_000
-    assert Rrd(rrd).rows["camera/frame"] == len(frames)
+    r = Rrd(rrd)
+    assert 0 < r.rows["camera/frame"] <= len(frames)  # the live view may skip frames; the series may not
+    assert len(r.series("camera/exposure/applied")[1]) == len(frames)
 
 
 def test_no_camera_is_a_clear_error(capsys):
