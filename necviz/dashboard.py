@@ -121,7 +121,19 @@ def run_dashboard(args, command: str, source, lanes, layout: str, properties: di
     if viewer.save_path is not None:
         print(f"  recording: {viewer.save_path} (open it with: rerun {viewer.save_path})", file=out)
     stats["rrd"] = str(viewer.save_path) if viewer.save_path is not None else None
+    if viewer.url is not None and getattr(args, "serve", False):
+        _keep_serving(viewer, out)
     return stats
+
+
+def _keep_serving(viewer, out) -> None:
+    """The run is over but the web viewer is still being watched: serve until Ctrl-C (or SIGTERM)."""
+    print(f"  still serving the recording at {viewer.url}; press Ctrl-C to stop", file=out, flush=True)
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        print("  stopped serving", file=out)
 
 
 def _progress(out, command, pipe, expected, wall) -> None:

@@ -45,6 +45,26 @@ def _jpeg(image: np.ndarray, quality: int) -> rr.EncodedImage:
     return rr.EncodedImage(contents=buf.tobytes(), media_type="image/jpeg")
 
 
+class RateLimit:
+    """A token bucket: on average ``rate_hz`` takes per wall-clock second, in bursts of up to
+    ``burst`` (sources deliver frames in bursts; a strict interval would drop them at real time)."""
+
+    def __init__(self, rate_hz: float, burst: int = 30):
+        self.rate = float(rate_hz)
+        self.burst = float(burst)
+        self.tokens = float(burst)
+        self.last = time.perf_counter()
+
+    def take(self) -> bool:
+        now = time.perf_counter()
+        self.tokens = min(self.burst, self.tokens + (now - self.last) * self.rate)
+        self.last = now
+        if self.tokens >= 1.0:
+            self.tokens -= 1.0
+            return True
+        return False
+
+
 class RerunSink:
     """Logs a run to a Rerun recording stream from its own thread.
 
@@ -89,9 +109,8 @@ class RerunSink:
         self.lossless = bool(lossless)
         self.origin_us = int(origin_us)
         self.burst_s = float(burst_s)
-        self._min_interval_s = 1.0 / float(max_rate_hz)
-        self._next_frame_wall: dict[str, float] = {}
-        self._next_image_wall = 0.0
+        self._frame_rate: dict[str, RateLimit] = defaultdict(lambda: RateLimit(max_rate_hz))
+        self._image_rate = RateLimit(max_rate_hz)
         self._frame_queue_size = int(frame_queue_size)
         self._series: dict[str, list] = defaultdict(list)  # path -> [(t_us, value)]
         self._frame_series: dict[str, list] = defaultdict(list)  # path -> [(t_us, seq, value)]
@@ -131,11 +150,9 @@ class RerunSink:
         if self.lossless:
             self._wait_for_room(q, self._frame_queue_size)
         else:
-            now = time.perf_counter()
-            if now < self._next_frame_wall.get(lane, 0.0):  # faster than a viewer refreshes: skip
+            if not self._frame_rate[lane].take():  # faster than a viewer refreshes: skip
                 self.dropped["frames"] += 1
                 return
-            self._next_frame_wall[lane] = now + self._min_interval_s
             if len(q) >= self._frame_queue_size:
                 q.popleft()
                 self.dropped["frames"] += 1
@@ -215,11 +232,7 @@ class RerunSink:
         """Draw the next window's image unless the worker is behind or a viewer could not show it."""
         if self.lossless:
             return True
-        now = time.perf_counter()
-        if len(self._events) > self.max_backlog or now < self._next_image_wall:
-            return False
-        self._next_image_wall = now + self._min_interval_s
-        return True
+        return len(self._events) <= self.max_backlog and self._image_rate.take()
 
     def _close_window(self, final: bool = False) -> None:
         """Draw the window's events (every k-th above the cap), log the image and the event rate."""

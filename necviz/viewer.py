@@ -53,8 +53,10 @@ class Viewer:
     url: str | None = None
 
     def close(self) -> None:
+        """Flush what was logged. A served recording stays available until the process ends."""
         self.rec.flush()
-        rr.disconnect(self.rec)
+        if self.url is None:
+            rr.disconnect(self.rec)
 
 
 def open_viewer(args: argparse.Namespace, command: str, blueprint, name: str) -> Viewer:
