@@ -30,7 +30,11 @@ def _cmd_info(args: argparse.Namespace) -> int:
 def _info_file(args: argparse.Namespace) -> int:
     import json
 
+    from .dashboard import check_output_path
     from .drivers.replay import describe
+
+    if args.json:
+        check_output_path(args.json, "--json")
 
     def progress(events, frames, seconds):
         print(f"\r  reading: {events:,} events, {frames} frames, {seconds:.1f} s", end="", file=sys.stderr, flush=True)

@@ -37,6 +37,46 @@ def parse_speed(text: str | None) -> float | None:
     return v
 
 
+def check_run_args(args) -> None:
+    """Check every run flag before anything is opened (camera, recorder, viewer), so a typo never
+    truncates a recording or leaves a camera running. One-line :class:`ParameterError` s."""
+    from pathlib import Path
+
+    from .viewer import check_save_path
+
+    speed = getattr(args, "speed", None)
+    if speed is not None:
+        v = parse_speed(speed)
+        if v is not None and not 1e-3 <= v <= 1e4:
+            raise ParameterError(f"--speed must lie between x0.001 and x10000, got {speed!r}")
+    window_ms = getattr(args, "event_window_ms", 33.3)
+    if not (0.1 <= window_ms <= 10_000):
+        raise ParameterError(f"--event-window-ms must lie in 0.1..10000, got {window_ms}")
+    if getattr(args, "event_points", 0) < 0:
+        raise ParameterError(f"--event-points must be >= 0, got {args.event_points}")
+    tune = getattr(args, "tune_file", None)
+    if tune and not Path(tune).is_file():
+        raise ParameterError(f"--tune-file: {tune!r} is not a file")
+    if getattr(args, "save", None) is not None:
+        check_save_path(args.save)
+    for flag in ("json", "record"):
+        out_path = getattr(args, flag, None)
+        if out_path:
+            check_output_path(out_path, f"--{flag}")
+
+
+def check_output_path(path, flag: str) -> None:
+    """An output file we are about to write: its folder exists and it is not a folder itself."""
+    from pathlib import Path
+
+    p = Path(path)
+    if p.is_dir():
+        raise ParameterError(f"{flag}: {str(p)!r} is a folder, not a file")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        raise ParameterError(f"{flag}: folder {str(parent)!r} does not exist")
+
+
 def add_run_args(parser, layouts=tuple(LAYOUTS), tuning: bool = True) -> None:
     from .viewer import add_viewer_args
 
@@ -59,6 +99,22 @@ def run_dashboard(args, command: str, source, lanes, layout: str, properties: di
                   stdin=None, stop_after_s: float | None = None) -> dict:
     """Run ``lanes`` over ``source`` into the viewer; returns the pipeline statistics."""
     out = sys.stdout if out is ... else out
+    try:
+        return _run_dashboard(args, command, source, lanes, layout, properties, title, sensor, event_lanes,
+                              recorder, record_lane, controller_factory, expected_duration_s, sink_options, out,
+                              stdin, stop_after_s)
+    except BaseException:
+        if recorder is not None:  # a failure before the pipeline took it over: keep what it holds readable
+            recorder.close()
+        if hasattr(source, "close"):
+            source.close()
+        raise
+
+
+def _run_dashboard(args, command, source, lanes, layout, properties, title, sensor, event_lanes, recorder,
+                   record_lane, controller_factory, expected_duration_s, sink_options, out, stdin,
+                   stop_after_s) -> dict:
+    check_run_args(args)
     layout = getattr(args, "layout", None) or layout
     names = [lane.name for lane in lanes]
     blueprint = make_blueprint(layout, names, sensor.width, sensor.height)

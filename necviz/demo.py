@@ -12,7 +12,7 @@ import sys
 from .compare import parse_controllers
 from .core.control import CameraLimits, make_controller
 from .core.errors import ParameterError
-from .dashboard import run_dashboard
+from .dashboard import check_run_args, run_dashboard
 from .drivers.sim.aps import ApsParams
 from .drivers.sim.camera import SimRig
 from .drivers.sim.scenes import SCENARIOS, make_scenario
@@ -44,6 +44,7 @@ def build(scenario: str = "tunnel_exit", controllers: str = DEFAULT_CONTROLLERS,
 
 def run(args, out=...) -> dict:
     out = sys.stdout if out is ... else out
+    check_run_args(args)  # before anything is opened or truncated
     rig, lanes, props = build(args.scenario, args.controllers, args.seed, args.duration)
     recorder = None
     if getattr(args, "record", None):

@@ -16,7 +16,7 @@ import sys
 
 from .core.control import CONTROLLERS, make_controller
 from .core.errors import ParameterError
-from .dashboard import run_dashboard
+from .dashboard import check_run_args, run_dashboard
 from .pipeline import Lane
 
 LANE = "camera"
@@ -24,6 +24,7 @@ LANE = "camera"
 
 def run(args, out=...) -> dict:
     out = sys.stdout if out is ... else out
+    check_run_args(args)  # before anything is opened or truncated
     from .drivers.davis import open_camera
 
     if args.controller not in CONTROLLERS:

@@ -129,6 +129,7 @@ class Pipeline:
         self.first_us: int | None = None
         self.error: BaseException | None = None
         self._stop = threading.Event()
+        self._done = threading.Event()
         self._pending: list = []  # live-tuning changes, applied between packets
         self._thread: threading.Thread | None = None
         self.wall_s = 0.0
@@ -143,7 +144,7 @@ class Pipeline:
 
     @property
     def running(self) -> bool:
-        return self._thread is not None and self._thread.is_alive()
+        return self._thread is not None and not self._done.is_set()
 
     def start(self) -> "Pipeline":
         self._thread = threading.Thread(target=self._run_guarded, name="necviz-stream", daemon=True)
@@ -156,11 +157,14 @@ class Pipeline:
         return self
 
     def wait(self, timeout: float | None = None) -> bool:
-        """Wait for the streaming thread; True when it has ended."""
+        """Wait for the streaming thread; True when it has ended.
+
+        Waits on an event the thread sets last, not on ``Thread.join``: a join interrupted by
+        Ctrl-C can mark a still-running thread as stopped (CPython 3.11).
+        """
         if self._thread is None:
             return True
-        self._thread.join(timeout)
-        return not self._thread.is_alive()
+        return self._done.wait(timeout)
 
     # -- the streaming thread -----------------------------------------------------------------
     def _packets(self):
@@ -187,6 +191,7 @@ class Pipeline:
             self.error = e
         finally:
             self.wall_s = time.perf_counter() - t0
+            self._done.set()
 
     def _run(self) -> None:
         lanes = list(self.lanes.values())
@@ -218,14 +223,15 @@ class Pipeline:
                         for name, cmd in initial.items():
                             sink.scalar(name, S.EXPOSURE_COMMANDED, t, cmd.exposure_us)
                             sink.scalar(name, S.GAIN_COMMANDED, t, cmd.gain)
-                self.now_us = t
                 if self.stop_after_us is not None and t - self.first_us >= self.stop_after_us:
                     break
                 if self.speed is not None:
                     ahead = (t - self.first_us) / 1e6 / self.speed - (time.perf_counter() - wall0)
                     if ahead > 0:
-                        time.sleep(ahead)
+                        if self._stop.wait(ahead):  # paced: a gap in the recording must not delay a stop
+                            break
                         t_in = perf_ns()
+                self.now_us = t
             if cam is None:  # events, shared by every lane
                 if not isinstance(packet, np.ndarray):  # pragma: no cover - sources yield (None, events) only
                     continue
@@ -359,9 +365,16 @@ class Pipeline:
     def finish(self, close_source: bool = True) -> dict:
         """Close the source, flush the recorder and sink; re-raise a streaming error; return stats."""
         self.stop()
-        self.wait()
         errors = []
-        if close_source and hasattr(self.source, "close"):
+        closed = False
+        if not self.wait(5.0) and close_source and hasattr(self.source, "close"):
+            try:  # the thread is blocked inside the source (a silent camera): closing it unblocks the read
+                self.source.close()
+            except BaseException as e:
+                errors.append(e)
+            closed = True
+        self.wait()
+        if close_source and not closed and hasattr(self.source, "close"):
             try:
                 self.source.close()
             except BaseException as e:  # keep flushing

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from .core.control import CONTROLLERS, CameraLimits, make_controller
 from .core.errors import ParameterError
-from .dashboard import run_dashboard, write_json
+from .dashboard import check_run_args, run_dashboard, write_json
 from .pipeline import Lane, packet_time_us
 
 LANE = "camera"
@@ -71,6 +71,7 @@ def summarise(stats: dict, lane: Lane) -> dict:
 
 def run(args, out=...) -> dict:
     out = sys.stdout if out is ... else out
+    check_run_args(args)  # before anything is opened or truncated
     path = Path(args.file)
     if args.controller not in CONTROLLERS:
         raise ParameterError(f"unknown controller {args.controller!r}; available: {', '.join(sorted(CONTROLLERS))}")
@@ -90,6 +91,9 @@ def run(args, out=...) -> dict:
     stats = run_dashboard(args, "replay", recording, [lane], "inspect", props, f"necviz replay: {path.name}", sensor,
                           sink_options={"origin_us": origin, "lossless_when_unpaced": True}, out=out)
     summary = summarise(stats, lane)
+    if not summary["events"] and not summary["frames"] and (args.start is not None or args.end is not None):
+        raise ParameterError(f"nothing in the selected range (--start {args.start} --end {args.end} s): it lies "
+                             f"past the end of {path.name}; `necviz info {path}` shows its duration")
     for w in getattr(recording, "warnings", []):
         print(f"  warning: {w}", file=out)
     rmse = summary["prediction_error_rmse"]

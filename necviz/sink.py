@@ -112,9 +112,12 @@ class RerunSink:
         self._frame_rate: dict[str, RateLimit] = defaultdict(lambda: RateLimit(max_rate_hz))
         self._image_rate = RateLimit(max_rate_hz)
         self._frame_queue_size = int(frame_queue_size)
+        # written by the streaming thread: deques (append / popleft are atomic), drained by the worker
+        self._scalar_q: deque = deque()
+        self._text_q: deque = deque()
+        # owned by the worker
         self._series: dict[str, list] = defaultdict(list)  # path -> [(t_us, value)]
         self._frame_series: dict[str, list] = defaultdict(list)  # path -> [(t_us, seq, value)]
-        self._texts: list = []
         self._image = EventImage(height, width)
         self._window_end: int | None = None
         self._window_seen = 0
@@ -159,13 +162,10 @@ class RerunSink:
         q.append((lane, frame, over, under))
 
     def scalar(self, lane: str, leaf: str, t_us: int, value: float, seq: int | None = None) -> None:
-        if seq is None:
-            self._series[S.path(lane, leaf)].append((t_us, value))
-        else:
-            self._frame_series[S.path(lane, leaf)].append((t_us, seq, value))
+        self._scalar_q.append((S.path(lane, leaf), t_us, value, seq))
 
     def text(self, entity: str, t_us: int, message: str, level: str = "INFO") -> None:
-        self._texts.append((entity, t_us, message, level))
+        self._text_q.append((entity, t_us, message, level))
 
     # -- worker ---------------------------------------------------------------------------------
     def _run(self) -> None:
@@ -207,6 +207,12 @@ class RerunSink:
             if self._window_end is None:
                 self._window_end = (int(batches[k]["t"][0]) // self.event_window_us + 1) * self.event_window_us
                 self._drawing = self._decide_drawing()
+            if int(batches[k]["t"][0]) >= self._window_end + self.event_window_us:  # a gap in the stream:
+                self._close_window()  # close the open window once, then jump to the next event's window
+                t0 = int(batches[k]["t"][0])
+                if t0 >= self._window_end:
+                    self._window_end = (t0 // self.event_window_us + 1) * self.event_window_us
+                continue
             end = self._window_end
             j = bisect.bisect_left(batches, end, lo=k, hi=n, key=last_time)  # first batch reaching the end
             if j > k:
@@ -288,9 +294,16 @@ class RerunSink:
         self.stats["frames_logged"] += 1
 
     def _flush_series(self) -> None:
+        q = self._scalar_q
+        for _ in range(len(q)):  # what is queued now; later values wait for the next flush
+            path, t, value, seq = q.popleft()
+            if seq is None:
+                self._series[path].append((t, value))
+            else:
+                self._frame_series[path].append((t, seq, value))
         series, self._series = self._series, defaultdict(list)
         fseries, self._frame_series = self._frame_series, defaultdict(list)
-        texts, self._texts = self._texts, []
+        texts = [self._text_q.popleft() for _ in range(len(self._text_q))]
         for p, pts in series.items():
             arr = np.asarray(pts, dtype=np.float64)
             self.rec.send_columns(p, indexes=[rr.TimeColumn(S.TIME, duration=(arr[:, 0] - self.origin_us) / 1e6)],

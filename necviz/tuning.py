@@ -106,6 +106,11 @@ def _set(lane_name: str | None, key: str, v: float):
                     c.dead_band, c.full_band = dead, full
                 touched.append(lane.name)
         else:
+            hw = getattr(pipeline.source, "limits", None)  # what the camera itself can do, if it says
+            if hw is not None:
+                lo, hi = (1.0, hw.gain_max) if key == "gain_max" else (hw.exposure_min_us, hw.exposure_max_us)
+                if not lo <= v <= hi:
+                    raise ParameterError(f"{key} = {v:g} is outside what the camera accepts ({lo:g}..{hi:g})")
             for lane in lanes:
                 lim = lane.controller.limits
                 fields = {"exposure_min": "exposure_min_us", "exposure_max": "exposure_max_us", "gain_max": "gain_max"}

@@ -39,6 +39,21 @@ def add_viewer_args(parser: argparse.ArgumentParser, layouts: tuple[str, ...]) -
     g.add_argument("--memory-limit", default="1GB", help="viewer / server memory limit (default 1GB)")
 
 
+def check_save_path(save) -> Path:
+    """``--save``: a ``.rrd`` name in a folder that exists and can be written."""
+    save = Path(save)
+    if save.suffix != ".rrd":
+        raise ParameterError(f"--save expects a .rrd file name, got {str(save)!r}")
+    if save.is_dir():
+        raise ParameterError(f"--save: {str(save)!r} is a folder")
+    parent = save.parent if str(save.parent) else Path(".")
+    if not parent.is_dir():
+        raise ParameterError(f"--save: folder {str(parent)!r} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise ParameterError(f"--save: folder {str(parent)!r} is not writable")
+    return save
+
+
 def has_display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
@@ -63,11 +78,7 @@ def open_viewer(args: argparse.Namespace, command: str, blueprint, name: str) ->
     """Create the recording and attach the sinks the flags ask for."""
     save = getattr(args, "save", None)
     if save is not None:
-        save = Path(save)
-        if save.suffix != ".rrd":
-            raise ParameterError(f"--save expects a .rrd file name, got {str(save)!r}")
-        if save.parent and not save.parent.exists():
-            raise ParameterError(f"--save: folder {str(save.parent)!r} does not exist")
+        save = check_save_path(save)
     spawn = getattr(args, "spawn", False)
     serve = getattr(args, "serve", False)
     connect = getattr(args, "connect", None)
@@ -78,6 +89,13 @@ def open_viewer(args: argparse.Namespace, command: str, blueprint, name: str) ->
         else:
             save = Path(f"necviz-{command}-{time.strftime('%Y%m%d-%H%M%S')}.rrd")
             messages.append(f"no display: saving to {save} (open it with: rerun {save})")
+    try:
+        return _open(args, blueprint, name, save, spawn, serve, connect, messages)
+    except RuntimeError as e:  # Rerun reports bad URLs, ports and memory limits this way
+        raise ParameterError(f"viewer: {e}") from None
+
+
+def _open(args, blueprint, name, save, spawn, serve, connect, messages) -> Viewer:
     rec = rr.RecordingStream("necviz", recording_id=str(uuid.uuid4()))
     sinks = []
     url = None

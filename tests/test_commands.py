@@ -128,3 +128,55 @@ def test_headless_default_saves_to_a_file_and_says_so(tmp_path, monkeypatch, cap
     saved = list(tmp_path.glob("necviz-demo-*.rrd"))
     assert len(saved) == 1
     assert f"open it with: rerun {saved[0].name}" in capsys.readouterr().out
+
+
+def test_a_bad_flag_never_truncates_an_existing_recording(tmp_path, capsys):
+    rec = tmp_path / "keep.necrec"
+    assert main(["demo", "--duration", "0.2", "--controllers", "nec", "--save", str(tmp_path / "a.rrd"),
+                 "--record", str(rec), "--no-prompt"]) == 0
+    size = rec.stat().st_size
+    for bad in (["--save", str(tmp_path / "a.txt")], ["--speed", "abc"], ["--speed", "1e-300"],
+                ["--tune-file", str(tmp_path / "missing")], ["--event-window-ms", "0"]):
+        args = ["demo", "--duration", "0.2", "--controllers", "nec", "--record", str(rec), "--no-prompt", *bad]
+        if "--save" not in bad:
+            args += ["--save", str(tmp_path / "b.rrd")]
+        assert main(args) == 2, bad
+        assert rec.stat().st_size == size, bad
+    assert not (tmp_path / "b.rrd").exists()
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and err.count("necviz: error:") == 5
+
+
+@pytest.mark.parametrize("flags", [["--connect", "notaurl"], ["--json", "/nonexistent/x.json"]])
+def test_viewer_and_output_mistakes_are_one_line(tmp_path, capsys, flags):
+    from necviz.drivers.replay import Recorder
+    from test_pipeline import SENSOR, stream
+
+    with Recorder(tmp_path / "x.necrec", sensor=SENSOR, properties={}) as rec:
+        for p in stream(n_frames=2):
+            rec.write(p)
+    assert main(["replay", str(tmp_path / "x.necrec"), "--save", str(tmp_path / "r.rrd"), *flags]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("necviz: error:") and "Traceback" not in err and "\n" not in err.strip()
+    assert err.startswith("necviz: error: --json") if "--json" in flags else err.startswith("necviz: error: viewer:")
+
+
+@needs_sample
+def test_replay_range_past_the_end_is_an_error(tmp_path, capsys):
+    assert main(["replay", str(SAMPLE), "--start", "100", "--save", str(tmp_path / "r.rrd")]) == 2
+    assert "past the end" in capsys.readouterr().err
+
+
+def test_tuned_limits_must_fit_the_camera():
+    from necviz.core.control import CameraLimits
+    from necviz.tuning import parse
+    from test_pipeline import ListSource, nec_lane
+    from necviz.pipeline import Pipeline
+
+    src = ListSource([])
+    src.limits = CameraLimits(10, 19_000, 8.0)
+    pipe = Pipeline(src, [nec_lane()])
+    with pytest.raises(Exception, match="outside what the camera accepts"):
+        parse("exposure_max = 1000000")(pipe)
+    msg, _ = parse("exposure_max = 12000")(pipe)
+    assert pipe.lanes["camera"].controller.limits.exposure_max_us == 12000

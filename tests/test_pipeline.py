@@ -216,3 +216,39 @@ def test_bad_pipeline_parameters():
         Pipeline(ListSource([]), [nec_lane()], speed=0)
     with pytest.raises(ParameterError):
         Pipeline(ListSource([]), [nec_lane(name="a"), nec_lane(name="b")])
+
+
+def test_a_gap_in_the_stream_costs_one_window_not_one_per_window(tmp_path):
+    """An hour-long pause in a recording must not make the sink draw 100,000 empty images."""
+    a, b = stream(n_frames=2), stream(n_frames=2)
+    later = []
+    for p in b:  # the same packets, an hour later
+        if isinstance(p, np.ndarray):
+            q = p.copy()
+            q["t"] += 3_600_000_000
+            later.append(q)
+        elif isinstance(p, ExposureMarker):
+            later.append(ExposureMarker(p.t_us + 3_600_000_000, p.kind))
+        else:
+            later.append(Frame(p.image, p.exposure_start_us + 3_600_000_000, p.exposure_end_us + 3_600_000_000,
+                               p.gain, p.sequence + 2))
+    rec = open_rec(tmp_path / "gap.rrd")
+    sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, lossless=True)
+    t0 = time.perf_counter()
+    Pipeline(ListSource(a + later), [nec_lane()], sink).run().finish()
+    rr.disconnect(rec)
+    assert time.perf_counter() - t0 < 10
+    s = sink.summary()
+    assert s["events_seen"] == 4 * 10 * 200 and s["event_images"] <= 6
+
+
+def test_stop_is_prompt_even_inside_a_paced_gap():
+    packets = stream(n_frames=1)
+    tail = np.zeros(5, EVENT_DTYPE)
+    tail["t"] = 3_600_000_000  # an hour later: paced at real time, the thread waits for it
+    pipe = Pipeline(ListSource(packets + [tail]), [nec_lane()], speed=1.0).start()
+    time.sleep(0.3)
+    t0 = time.perf_counter()
+    stats = pipe.finish()
+    assert time.perf_counter() - t0 < 2.0
+    assert stats["events"] == 10 * 200 and not pipe.running

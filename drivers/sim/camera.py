@@ -31,7 +31,8 @@ from .aps import ApsParams, expose, integrate_samples
 from .dvs import DvsParams, EventSimulator
 from .scene import Scene
 
-_START, _END, _FRAME = 0, 1, 2
+# at equal times: an exposure ends, then a frame is read out, then the next exposure starts
+_END, _FRAME, _START = 0, 1, 2
 
 
 @dataclass
