@@ -1,4 +1,4 @@
-"""Byte-exact synthetic recordings written from the documented layouts (shared/reference/file-formats.md).
+"""Byte-exact synthetic recordings written from the documented layouts (docs/file-formats.md).
 
 Independent of the readers under test: only ``struct``/``numpy``/``zlib`` (plus h5py for HDF5 and
 rosbags' own Writer for bags). Coordinates given here are image coordinates (top-left origin);

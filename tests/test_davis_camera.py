@@ -171,7 +171,7 @@ def test_source_contract_batches_and_stats():
     with pytest.raises(NecvizError, match="iterated once"):
         next(iter(cam))
     with pytest.raises(NecvizError, match="gain must be >= 1"):
-        cam.set_exposure(1000, 0.5)
+        cam.set_exposure("camera", 1000, 0.5)
 
 
 def test_nec_runs_in_closed_loop_on_the_emulated_camera():
@@ -181,7 +181,7 @@ def test_nec_runs_in_closed_loop_on_the_emulated_camera():
     for p in cam:
         cmd = ctl.feed(p)
         if cmd is not None:
-            cam.set_exposure(cmd.exposure_us, cmd.gain, issue_time_us=cmd.issue_time_us)
+            cam.set_exposure("camera", cmd.exposure_us, cmd.gain)
         if isinstance(p, Frame):
             frames.append(p)
     applied = [c for c in cam.commands() if c.applied_start_us is not None]

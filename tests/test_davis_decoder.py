@@ -1,7 +1,7 @@
 """DAVIS word-stream decoder: encoder→decoder round trips, split transfers, garbage, wraps and resets.
 
 The expected values come from the generator of each test (what it asked the encoder to write) and
-from the formulas of ``shared/reference/davis-usb.md`` (CDS rule, IMU scales), not from the decoder.
+from the formulas in docs/davis-protocol.md (CDS rule, IMU scales), not from the decoder.
 """
 
 import numpy as np
@@ -372,3 +372,122 @@ def test_event_batches_are_bounded():
     batches = [p for p in DavisDecoder(16, 12).decode(words) if isinstance(p, np.ndarray)]
     assert max(b.size for b in batches) <= 1 << 16
     assert sum(b.size for b in batches) == ev.size
+
+
+# ---------------------------------------------------------------------------------------------
+# markers and events in one time order (issue 14)
+# ---------------------------------------------------------------------------------------------
+def _skew_stream(w=4, h=3):
+    """A frame whose exposure starts and ends in the same µs (100), with events at 100 after the end
+    word and at 200: the end marker is due at 101 — after the events at 100, before those at 200."""
+    enc = StreamEncoder()
+    reset, signal = cds_pair(np.full((h, w), 100))
+    at100 = np.array([(100, 1, 1, 1), (100, 2, 0, -1)], EVENT_DTYPE)
+    at200 = np.array([(200, 3, 2, 1)], EVENT_DTYPE)
+    return np.concatenate([enc.timestamp_reset(), enc.frame_start(50, (0, 0, w - 1, h - 1), 3), enc.readout(reset, False),
+                           enc.special(100, 14), enc.special(100, 15), enc.events(at100), enc.events(at200),
+                           enc.readout(signal, True), enc.special(300, 10)])
+
+
+def _timeline(packets):
+    """(time, kind) of events and markers in delivery order; frames as ("frame", start, end)."""
+    out = []
+    for p in packets:
+        if isinstance(p, np.ndarray):
+            out += [(int(t), "event") for t in p["t"]]
+        elif isinstance(p, ExposureMarker):
+            out.append((p.t_us, p.kind))
+        elif isinstance(p, Frame):
+            out.append(("frame", p.exposure_start_us, p.exposure_end_us))
+    return out
+
+
+def test_an_exposure_ending_in_the_microsecond_it_started_keeps_markers_after_its_events():
+    """Was: the end marker at 101 µs came right after the end word, ahead of the events at 100 µs."""
+    words = _skew_stream()
+    want = [(100, "start"), (100, "event"), (100, "event"), (101, "end"), (200, "event"), ("frame", 100, 101)]
+    dec = DavisDecoder(4, 3)
+    assert _timeline(dec.decode(words)) == want
+    assert dec.stats["frames_dropped"] == 0 and dec.stats["skipped_words"] == 0
+    # the same at every transfer boundary (the pending end survives between calls)
+    raw = words.tobytes()
+    for cut in range(0, len(raw) + 1):
+        packets, _ = decode_split(words, [cut], 4, 3)
+        assert _timeline(packets) == want, cut
+        summarise(packets)
+
+
+def test_a_pending_end_marker_is_delivered_by_finish_and_by_a_wrap():
+    enc = StreamEncoder()
+    words = np.concatenate([enc.timestamp_reset(), enc.frame_start(5, (0, 0, 1, 1)), enc.special(7, 14),
+                            enc.special(7, 15)])
+    dec = DavisDecoder(2, 2)
+    assert _timeline(dec.decode(words)) == [(7, "start")]
+    assert _timeline(dec.finish()) == [(8, "end")]
+    assert dec.stats["exposures_aborted"] == 0
+    # a wrap word moves time on: the end comes before the events of the new time
+    dec = DavisDecoder(2, 2)
+    later = np.array([(32768 + 3, 1, 1, 1)], EVENT_DTYPE)
+    got = _timeline(dec.decode(np.concatenate([words, enc.events(later)])))
+    assert got == [(7, "start"), (8, "end"), (32771, "event")]
+
+
+def test_a_frame_start_in_the_microsecond_an_exposure_started_closes_it_in_time_order():
+    enc = StreamEncoder()
+    ev = np.array([(7, 0, 0, 1)], EVENT_DTYPE)
+    words = np.concatenate([enc.timestamp_reset(), enc.frame_start(5, (0, 0, 1, 1)), enc.special(7, 14),
+                            enc.frame_start(7, (0, 0, 1, 1)), enc.events(ev), enc.time(9)])
+    dec = DavisDecoder(2, 2)
+    packets = dec.decode(words)
+    assert _timeline(packets) == [(7, "start"), (7, "event"), (8, "end")]
+    assert dec.stats["exposures_aborted"] == 1
+    summarise(packets)
+
+
+# ---------------------------------------------------------------------------------------------
+# properties on hostile input (issue 14): random and mutated word streams
+# ---------------------------------------------------------------------------------------------
+def _word():
+    """Words biased towards the ones that mean something: specials 0..17, small rows/columns, time words."""
+    meaningful = st.builds(lambda c, d: (c << 12) | d, st.integers(0, 7), st.integers(0, 24))
+    imu_roi = st.builds(lambda sub, v: 0x5000 | (sub << 8) | v, st.integers(0, 3), st.integers(0, 255))
+    time = st.builds(lambda t: 0x8000 | t, st.integers(0, 0x7FFF))
+    return st.one_of(st.integers(0, 0xFFFF), meaningful, meaningful, imu_roi, time)
+
+
+def _decode_checked(words, w, h, cuts=()):
+    packets, dec = decode_split(np.asarray(words, np.uint16), list(cuts), w, h)
+    packets += dec.finish()
+    ev, markers, frames, imu, trig = summarise(packets)  # time order of events+markers, pairing, frames
+    assert ev.size == 0 or (int(ev["x"].max()) < w and int(ev["y"].max()) < h), "event off the sensor"
+    starts = [t for k, t in markers if k == "start"]
+    ends = [t for k, t in markers if k == "end"]
+    assert len(starts) == len(ends), "every exposure start gets its end"
+    return ev, dec
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(words=st.lists(_word(), max_size=1500), size=st.sampled_from([(4, 3), (17, 11), (346, 260)]),
+       cuts=st.lists(st.integers(0, 3000), max_size=4))
+def test_random_word_streams_keep_every_invariant(words, size, cuts):
+    """No crash, no event off the sensor, events and markers in one time order, markers paired,
+    frames after their end marker — whatever the words and wherever the transfers split them."""
+    w, h = size
+    ev, dec = _decode_checked(words, w, h, cuts)
+    x_words = sum(1 for v in words if (v >> 12) in (2, 3) and not v & 0x8000)
+    assert ev.size <= x_words
+    assert dec.stats["words"] == len(words)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**32 - 1), flips=st.lists(st.integers(0, 2**40), min_size=1, max_size=8))
+def test_one_flipped_bit_adds_at_most_one_event(seed, flips):
+    """A valid stream with one bit flipped (at each of several positions, one at a time): at most one
+    event more than the clean stream, and every invariant still holds."""
+    words, _ = gen_stream(seed, 17, 11)
+    clean, _ = _decode_checked(words, 17, 11)
+    for f in flips:
+        bad = words.copy()
+        bad[f % words.size] ^= np.uint16(1 << (f // words.size % 16))
+        ev, _ = _decode_checked(bad, 17, 11)
+        assert ev.size <= clean.size + 1

@@ -1,7 +1,7 @@
 """The emulated DAVIS346 behind pyusb, driven through the real driver path.
 
 Independent truths: the start/stop order and register numbers are written out here from
-``shared/reference/davis-usb.md`` §1.6 (not imported from the driver); the exposure register is
+docs/davis-protocol.md (libcaer's ``dataStart``/``dataStop``; not imported from the driver); the exposure register is
 checked against µs x (ADC MHz x deviation / 1000) read back from SYSINFO; decoded frames are compared
 with a separately built simulator with the same scene, seed and exposure.
 """
@@ -62,7 +62,7 @@ def test_register_file_single_and_multiple_requests():
     usb.util.dispose_resources(dev)
 
 
-# documented dataStart (davis-usb.md §1.6 step 5) and dataStop (step 6)
+# documented dataStart and dataStop order (docs/davis-protocol.md, after libcaer's src/davis.c)
 STOP_ALL = [(1, 3, 0), (2, 4, 0), (3, 2, 0), (3, 3, 0), (3, 4, 0), (4, 0, 0), (0, 0, 0), (0, 1, 0), (9, 0, 0), (0, 3, 0)]
 RUN_CHIP = [(0, 3, 1)]
 TRANSPORT = [(9, 0, 1), (0, 1, 1), (0, 0, 1)]
@@ -76,7 +76,7 @@ def test_start_and_stop_follow_the_documented_order_and_pauses():
     config_writes = len(be.writes())
     packets = list(cam)  # runs to the end of the scenario, then closes (stop sequence)
     assert any(isinstance(p, Frame) for p in packets)
-    recs = be.transfers
+    recs = list(be.transfers)
     run_recs = [r for r in recs if r.direction == "clear_halt" or (r.direction == "out" and (r.module, r.param) in RUN_PARAMS)]
     seq = [("halt",) if r.direction == "clear_halt" else (r.module, r.param, r.value) for r in run_recs]
     expected_start = STOP_ALL + [("halt",)] + RUN_CHIP + TRANSPORT + PRODUCERS
@@ -105,9 +105,9 @@ def test_exposure_register_is_microseconds_times_actual_adc_clock():
     assert be.reg(2, 12) == round(5000 * adc)
     assert be.reg(2, 13) == round(20_000 * adc)  # frame interval (20 ms default)
     for us in (10.0, 1234.5, 18_000.0):
-        cam.set_exposure(us)
+        cam.set_exposure("camera", us)
         assert be.reg(2, 12) == round(us * adc)
-    cam.set_exposure(1e9)  # clamped to the limit
+    cam.set_exposure("camera", 1e9)  # clamped to the limit
     assert be.reg(2, 12) == round(cam.limits.exposure_max_us * adc)
     cam.close()
 
@@ -139,7 +139,7 @@ def test_emulator_honours_the_exposure_register_in_closed_loop_and_gain_is_digit
         if isinstance(p, Frame):
             frames.append(p)
             if len(frames) == 3:
-                cam.set_exposure(1500.0, gain=2.0)
+                cam.set_exposure("camera", 1500.0, gain=2.0)
         elif isinstance(p, ExposureMarker):
             markers.append(p)
     (cmd,) = cam.commands()

@@ -73,7 +73,7 @@ def test_round_trip_every_packet_type(tmp_path):
     assert r.warnings == []
     assert r.commands == [CommandRecord(1000, 2500.0, 2.0, 21_000), CommandRecord(2000, 3000.0, 1.0, None)]
     assert r.annotations == [(5000, {"param": "kp", "value": 0.5})]
-    r.set_exposure(1000.0)  # open loop: accepted and ignored
+    r.set_exposure("camera", 1000.0)  # open loop: accepted and ignored
     info = describe(path)
     assert (info.events, info.frames, info.imu_samples, info.triggers, info.commands) == (ev.size, 5, 3, 2, 2)
     assert info.exposure_min_us == info.exposure_max_us == 3000

@@ -1,4 +1,4 @@
-"""DAVIS cameras over USB (pyusb): driver, stream decoder and a device emulator (issue 6).
+"""DAVIS cameras over USB (pyusb): driver, stream decoder and a device emulator.
 
 * :func:`open_camera` → :class:`DavisCamera`, the live :class:`~necviz.drivers.source.Source`
   (``device="usb"`` for hardware, ``"emulated"`` for the virtual DAVIS346).

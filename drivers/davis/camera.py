@@ -11,7 +11,13 @@ APS EXPOSURE = ``round(exposure_us x ADC clock MHz)`` (the device's actual clock
 analog gain, so ``gain`` is applied digitally: ``Frame.image = clip(round(Z8 x gain), 0, 255)`` with
 ``Z8 = CDS10 >> 2`` and ``Frame.gain = gain``. A command applies from the first frame that starts
 after it was issued and was exposed with its register value (each frame reports its exposure in
-ADC cycles); that frame's start is the command's ``applied_start_us``.
+ADC cycles); that frame's start is the command's ``applied_start_us``. Memory stays bounded over a
+long session: commands wait for their frame in a queue of at most :data:`PENDING_COMMANDS` and
+:meth:`DavisCamera.commands` keeps the last :data:`COMMAND_HISTORY`.
+
+Loss: the reader thread buffers ``buffer_s`` (2 s) of data at the peak rate, so a consumer that
+pauses (a GC pause, a slow viewer) loses nothing; past that it stops reading and the device drops
+whole DVS events and counts them — ``stats["dropped_events"]`` (see :class:`~.device.BulkReader`).
 
 Unplugging: every packet already decoded is yielded, then iteration raises
 :class:`~.errors.DeviceDisconnectedError` — unless ``reconnect=True``: then ``state`` becomes
@@ -24,6 +30,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections import deque
 
 import numpy as np
 
@@ -31,7 +38,7 @@ from ...core.control.base import CameraLimits
 from ...core.errors import ParameterError
 from ...core.frames import Frame
 from ...core.sensor import SensorGeometry
-from ..source import CommandRecord
+from ..source import CAMERA, CommandRecord, route
 from . import protocol as P
 from .decoder import DavisDecoder
 from .device import BulkReader, DavisDevice, open_device, usb_backend
@@ -42,6 +49,24 @@ DIGITAL_GAIN_MAX = 8.0
 #: readout time kept free in each frame interval when limiting the exposure (µs)
 READOUT_ALLOWANCE_US = 1000
 RECONNECT_POLL_S = 0.5
+#: commands kept for :meth:`DavisCamera.commands` (the oldest are forgotten; ``commands_issued`` counts all)
+COMMAND_HISTORY = 4096
+#: commands still waiting for a frame exposed with them (a controller issues at most a few per frame;
+#: older ones are superseded anyway)
+PENDING_COMMANDS = 256
+
+
+class _Command:
+    """A command as issued; ``applied_start_us`` is filled in when a frame used it."""
+
+    __slots__ = ("issue_time_us", "exposure_us", "gain", "cycles", "applied_start_us")
+
+    def __init__(self, issue_time_us: int, exposure_us: float, gain: float, cycles: int):
+        self.issue_time_us, self.exposure_us, self.gain, self.cycles = issue_time_us, exposure_us, gain, cycles
+        self.applied_start_us: int | None = None
+
+    def record(self) -> CommandRecord:
+        return CommandRecord(self.issue_time_us, self.exposure_us, self.gain, self.applied_start_us)
 
 
 class DavisCamera:
@@ -53,7 +78,8 @@ class DavisCamera:
     """
 
     def __init__(self, device: DavisDevice, backend, *, reconnect: bool = False, exposure_us: float = 5000.0,
-                 frame_interval_us: float = 20_000.0, batch_us: int = 1000, transfer_size: int = 256 * 1024):
+                 frame_interval_us: float = 20_000.0, batch_us: int = 1000, transfer_size: int = 256 * 1024,
+                 buffer_s: float = 2.0):
         if not (isinstance(frame_interval_us, (int, float)) and 2 * READOUT_ALLOWANCE_US <= frame_interval_us
                 <= P.FRAME_INTERVAL_MAX_US):
             raise ParameterError(f"frame interval must be {2 * READOUT_ALLOWANCE_US}..{P.FRAME_INTERVAL_MAX_US} µs, "
@@ -64,6 +90,9 @@ class DavisCamera:
         self.frame_interval_us = float(frame_interval_us)
         self.batch_us = int(batch_us)
         self.transfer_size = int(transfer_size)
+        if isinstance(buffer_s, bool) or not isinstance(buffer_s, (int, float)) or not 0 < buffer_s <= 60:
+            raise ParameterError(f"buffer_s must be 0..60 seconds of data at the peak rate, got {buffer_s!r}")
+        self.buffer_s = float(buffer_s)
         w, h = device.dvs_size
         self.sensor = SensorGeometry(int(w), int(h), device.kind)
         self.limits = CameraLimits(exposure_min_us=10.0,
@@ -72,9 +101,9 @@ class DavisCamera:
                                    gain_max=DIGITAL_GAIN_MAX)
         self.state = "ready"
         self._lock = threading.RLock()
-        self._commands: list[CommandRecord] = []
-        self._cycles: list[int] = []  # register value of each command
-        self._pending: list[int] = []  # indices of commands not yet applied
+        self._history: deque[_Command] = deque(maxlen=COMMAND_HISTORY)
+        self._pending: deque[_Command] = deque(maxlen=PENDING_COMMANDS)  # not yet applied, oldest first
+        self.commands_issued = 0
         self._gain = 1.0
         self._exposure_us = float(self.limits.clamp(exposure_us, 1.0)[0])
         self._last_t = 0
@@ -82,14 +111,22 @@ class DavisCamera:
         self._decoder: DavisDecoder | None = None
         self._iterating = False
         self._closed = False
-        self._totals = {"transfers": 0, "bytes": 0, "stalls": 0, "timeouts": 0, "host_dropped_bytes": 0}
+        self._totals = {"transfers": 0, "bytes": 0, "stalls": 0, "timeouts": 0, "backpressure_s": 0.0,
+                        "queue_peak_bytes": 0}
         self._decoded = {}
-        self._device_stats: dict = {}
+        self._device_stats: dict = {}  # the device's counters, as last read on this connection
+        self._device_totals: dict = {}  # counters of earlier connections (they restart at power-up)
         self.reconnects = 0
         self.info = device.info
         device.send_default_config(self._exposure_us, self.frame_interval_us)
 
     # -- source interface -------------------------------------------------------------------------
+    cameras = (CAMERA,)
+
+    def packets(self):
+        """``(camera, packet)`` pairs (:class:`~necviz.drivers.source.Source`); iterate the camera for bare packets."""
+        return route(CAMERA, self)
+
     def __iter__(self):
         if self._iterating or self._closed:
             raise ParameterError("a DavisCamera can be iterated once (open a new one to read again)")
@@ -129,12 +166,17 @@ class DavisCamera:
         finally:
             self.close()
 
-    def set_exposure(self, exposure_us: float, gain: float = 1.0, issue_time_us: int | None = None) -> None:
+    def set_exposure(self, camera: str, exposure_us: float, gain: float = 1.0, *,
+                     issue_time_us: int | None = None) -> None:
         """Command exposure (µs, clamped to ``limits``) and digital gain (linear, 1..``limits.gain_max``).
+
+        ``camera`` is ``"camera"`` (the :class:`~necviz.drivers.source.Source` signature).
 
         Writes APS EXPOSURE = round(exposure_us x ADC MHz) now; ``issue_time_us`` (default: the time of
         the last packet delivered) is the sensor time recorded with the command.
         """
+        if camera != CAMERA:
+            raise ParameterError(f"this source has one camera, {CAMERA!r}; got {camera!r}")
         for label, v in (("exposure_us", exposure_us), ("gain", gain)):
             if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v) \
                     or v <= 0:
@@ -149,14 +191,16 @@ class DavisCamera:
             else:
                 cycles = self.device.us_to_cycles(exp)  # written when the device returns
             self._exposure_us = exp
-            self._commands.append(CommandRecord(t, exp, g))
-            self._cycles.append(cycles)
-            self._pending.append(len(self._commands) - 1)
+            c = _Command(t, exp, g, cycles)
+            self._history.append(c)
+            self._pending.append(c)
+            self.commands_issued += 1
 
     def commands(self) -> list[CommandRecord]:
-        """Every command received, with the start of the first exposure that used it."""
+        """The last :data:`COMMAND_HISTORY` commands received (all of a short run), each with the start of
+        the first exposure that used it (``commands_issued`` counts every command)."""
         with self._lock:
-            return list(self._commands)
+            return [c.record() for c in self._history]
 
     def close(self) -> None:
         """Stop the device (documented stop order), join the reader thread, release USB. Idempotent."""
@@ -176,12 +220,20 @@ class DavisCamera:
 
     @property
     def stats(self) -> dict:
-        """transfers, bytes, stalls, timeouts (USB); events, frames, skipped_words, ... (decoder);
-        dropped_events (device counters, when the device has statistics); reconnects."""
+        """Counters of the whole session (all connections):
+
+        * USB: ``transfers``, ``bytes``, ``stalls``, ``timeouts``; ``backpressure_s`` (time the reader
+          stopped reading because the consumer was ``buffer_s`` behind) and ``queue_peak_bytes``;
+        * decoder: ``events``, ``frames``, ``skipped_words``, ``frames_dropped``, ... ;
+        * the device's loss counters (when it has statistics): ``dvs_dropped_on_stall`` (DVS events
+          the device dropped because the host did not read), ``extinput_dropped_on_stall``,
+          ``dvs_dropped``; ``dropped_events`` is their DVS total — events lost, never silently;
+        * ``commands_issued``, ``reconnects``.
+        """
         out = dict(self._totals)
         if self._reader is not None:
             for k, v in self._reader.stats.items():
-                out[k] += v
+                out[k] = max(out[k], v) if k == "queue_peak_bytes" else out[k] + v
         dec = dict(self._decoded)
         if self._decoder is not None:
             for k, v in self._decoder.stats.items():
@@ -189,16 +241,23 @@ class DavisCamera:
         out.update(dec)
         for k in ("events", "frames", "skipped_words"):
             out.setdefault(k, 0)
+        self._read_device_stats()
+        dev = dict(self._device_totals)
+        for k, v in self._device_stats.items():
+            dev[k] = dev.get(k, 0) + v
+        out.update(dev)
+        out["dropped_events"] = int(dev.get("dvs_dropped_on_stall", 0) + dev.get("dvs_dropped", 0))
+        out["commands_issued"] = self.commands_issued
+        out["reconnects"] = self.reconnects
+        return out
+
+    def _read_device_stats(self) -> None:
+        """Refresh the device's counters (kept as last read if the device is gone)."""
         if not self.device.closed and self.state not in ("waiting", "disconnected"):
             try:
                 self._device_stats = self.device.statistics()
             except DeviceError:
                 pass
-        out.update(self._device_stats)
-        out["dropped_events"] = int(self._device_stats.get("dvs_dropped_on_stall", 0)
-                                    + self._device_stats.get("dvs_dropped", 0))
-        out["reconnects"] = self.reconnects
-        return out
 
     @property
     def exposure_us(self) -> float:
@@ -212,7 +271,7 @@ class DavisCamera:
                                      dvs_invert_xy=bool(d.dvs_orientation & 4), aps_orientation=d.aps_orientation,
                                      imu_orientation=d.imu_orientation, imu_model=d.imu_type,
                                      adc_shift=1 if d.kind == "DAVIS240" else 0, time_offset_us=time_offset_us)
-        self._reader = BulkReader(d, transfer_size=self.transfer_size)
+        self._reader = BulkReader(d, transfer_size=self.transfer_size, buffer_s=self.buffer_s)
         d.start()
         self._reader.start()
         self.state = "streaming"
@@ -227,8 +286,12 @@ class DavisCamera:
                     pass
             self._reader.stop()
             for k, v in self._reader.stats.items():
-                self._totals[k] += v
+                self._totals[k] = max(self._totals[k], v) if k == "queue_peak_bytes" else self._totals[k] + v
             self._reader = None
+            self._read_device_stats()  # the last counts of this connection (a replugged device restarts them)
+            for k, v in self._device_stats.items():
+                self._device_totals[k] = self._device_totals.get(k, 0) + v
+            self._device_stats = {}
         if self._decoder is not None:
             for k, v in self._decoder.stats.items():
                 self._decoded[k] = self._decoded.get(k, 0) + v
@@ -285,18 +348,16 @@ class DavisCamera:
         cyc = self._decoder.last_frame_exposure_cycles if self._decoder is not None else -1
         with self._lock:
             chosen = None
-            for k in reversed(self._pending):
-                c = self._commands[k]
-                if c.issue_time_us <= frame.exposure_start_us and (cyc < 0 or self._cycles[k] == cyc):
-                    chosen = k
+            for c in reversed(self._pending):
+                if c.issue_time_us <= frame.exposure_start_us and (cyc < 0 or c.cycles == cyc):
+                    chosen = c
                     break
             if chosen is not None:
-                c = self._commands[chosen]
-                self._commands[chosen] = CommandRecord(c.issue_time_us, c.exposure_us, c.gain,
-                                                       int(frame.exposure_start_us))
-                self._gain = c.gain
-                # older commands were superseded before they took effect
-                self._pending = [k for k in self._pending if k > chosen]
+                chosen.applied_start_us = int(frame.exposure_start_us)
+                self._gain = chosen.gain
+                # it and the older commands (superseded before they took effect) stop waiting
+                while self._pending and self._pending.popleft() is not chosen:
+                    pass
             gain = self._gain
         if gain == 1.0:
             return frame
@@ -307,13 +368,15 @@ class DavisCamera:
 def open_camera(device: str = "usb", serial: str | None = None, *, scenario: str = "tunnel_exit", seed: int = 0,
                 duration_s: float | None = None, reconnect: bool = False, faults=None, realtime: bool = False,
                 exposure_us: float = 5000.0, frame_interval_us: float = 20_000.0,
-                backend=None) -> DavisCamera:
+                backend=None, buffer_s: float = 2.0) -> DavisCamera:
     """Open a DAVIS camera: ``device="usb"`` (hardware through libusb) or ``"emulated"``.
 
     For the emulator, ``scenario``/``seed``/``duration_s`` choose the simulated scene, ``faults`` an
     :class:`~.emulator.Faults` and ``realtime`` paces the stream to the wall clock; ``backend`` may pass
     an existing :class:`~.emulator.EmulatedDavis346` (or any pyusb backend). The device is configured
-    (default biases, ``exposure_us``, ``frame_interval_us``) but streams only once iterated.
+    (default biases, ``exposure_us``, ``frame_interval_us``) but streams only once iterated. ``buffer_s``:
+    how far (seconds at the peak data rate) the consumer may fall behind before the reader stops
+    reading and the device drops (and counts) events.
     Raises :class:`DeviceNotFoundError` (none attached / no such serial) or :class:`DeviceError`
     (version mismatch, permission denied, ...).
     """
@@ -331,7 +394,7 @@ def open_camera(device: str = "usb", serial: str | None = None, *, scenario: str
     dev = open_device(backend, serial, emulated)
     try:
         return DavisCamera(dev, backend, reconnect=reconnect, exposure_us=exposure_us,
-                           frame_interval_us=frame_interval_us)
+                           frame_interval_us=frame_interval_us, buffer_s=buffer_s)
     except BaseException:
         dev.close()
         raise

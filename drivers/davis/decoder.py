@@ -1,6 +1,7 @@
 """DAVIS 16-bit word stream → events, exposure markers, frames, IMU samples and triggers.
 
-The bulk endpoint delivers little-endian 16-bit words (layout: ``shared/reference/davis-usb.md`` §2).
+The bulk endpoint delivers little-endian 16-bit words (layout: libcaer's event translator in
+``src/davis_common.h``, github.com/inivation/libcaer; summarised in docs/davis-protocol.md).
 :func:`decode_words` is a Numba state machine that walks the words once; :class:`DavisDecoder` keeps its
 state between calls (so a stream split at any byte decodes exactly as the unsplit stream) and turns
 its output into packets in stream order (see :mod:`necviz.drivers.source`).
@@ -43,10 +44,15 @@ Packets (:meth:`DavisDecoder.decode`): event batches are split only at exposure 
 (and at 65,536 events); IMU samples and triggers are gathered per call and delivered before the next
 marker/frame or after the call's events, so they never fragment event batches.
 
-Exposure markers: special 14 (inside a frame) emits ``start``; special 15 emits ``end`` (at least
-1 µs after its start, so a zero-length exposure still yields a valid pair). If a new frame starts or
-the timestamps reset while an exposure is open, an ``end`` marker closes it (``exposures_aborted``),
-so markers always come in start/end pairs. A frame is emitted after its end marker.
+Exposure markers: special 14 (inside a frame) emits ``start``; special 15 emits ``end`` at its
+time. Markers and events together never go back in time, and an ``end`` is always after its
+``start``: when the end arrives within the µs its exposure started (a sub-µs exposure), its marker
+is due at start + 1 µs, which is later than the events that may still follow at the current µs, so
+it is held (the exposure is "pending") and emitted as soon as a timestamp or wrap word moves time
+past the start — before any event of the new time. If a new frame starts or the timestamps reset
+while an exposure is open, an ``end`` marker closes it the same way (``exposures_aborted``), so
+markers always come in start/end pairs. A frame is emitted after its end marker; a frame whose end
+marker is still pending at its frame-end word (read out within one µs: garbage) is dropped.
 
 The decoder never raises on stream content: garbage is skipped and counted (``skipped_words``).
 """
@@ -102,12 +108,34 @@ def _marker(mk, st, kind, t, nev, aux):
 
 
 @nb.njit(cache=True)
-def _close_exposure(mk, st, t, nev):
-    """Emit an ``end`` marker for an exposure left open (new frame start or timestamp reset)."""
-    if st[S_EXPO_OPEN] == 1:
-        te = max(t, st[S_EXPO_OPEN_T] + 1)
-        _marker(mk, st, MK_EXPOSURE_END, te, nev, 1)
+def _end_exposure(mk, st, t, nev, aux):
+    """The open exposure ends at ``t``: emit its ``end`` marker now if ``t`` is after its start;
+    otherwise (same µs) the marker is due at start + 1 µs, later than events still to come at ``t``,
+    so it is only noted (state 2) and emitted by :func:`_emit_pending_end` once time moves on."""
+    if t > st[S_EXPO_OPEN_T]:
+        _marker(mk, st, MK_EXPOSURE_END, t, nev, aux)
         st[S_EXPO_OPEN] = 0
+    else:
+        st[S_EXPO_OPEN] = 2
+    return st[S_EXPO_OPEN_T] + 1 if t <= st[S_EXPO_OPEN_T] else t
+
+
+@nb.njit(cache=True)
+def _emit_pending_end(mk, st, tnew, nev):
+    """Time moves to ``tnew``: emit a pending ``end`` marker (at start + 1 <= tnew). False if ``mk`` is full."""
+    if st[S_EXPO_OPEN] == 2 and tnew > st[S_EXPO_OPEN_T]:
+        if st[S_NMK] >= mk.shape[0]:
+            return False
+        _marker(mk, st, MK_EXPOSURE_END, st[S_EXPO_OPEN_T] + 1, nev, 0)
+        st[S_EXPO_OPEN] = 0
+    return True
+
+
+@nb.njit(cache=True)
+def _close_exposure(mk, st, t, nev):
+    """End an exposure left open (new frame start or timestamp reset); counted as aborted."""
+    if st[S_EXPO_OPEN] == 1:
+        _end_exposure(mk, st, t, nev, 1)
         st[S_EXPO_ABORTED] += 1
 
 
@@ -246,7 +274,7 @@ def _aps_run(words, i, st, cfg, reset_buf, frame):
     return i, skipped
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)  # releases the GIL: the USB reader thread runs while a transfer decodes
 def decode_words(words, start, st, cfg, ev, mk, imu_t, imu_v, reset_buf, frame):
     """Decode ``words[start:]`` into the output arrays; return the index after the last word used.
 
@@ -285,6 +313,9 @@ def decode_words(words, start, st, cfg, ev, mk, imu_t, imu_v, reset_buf, frame):
         if w & 0x8000:
             t = wrap + (w & 0x7FFF)
             if t >= now:
+                if not _emit_pending_end(mk, st, offset + t, nev):
+                    i -= 1
+                    break
                 now = t
                 tcur = offset + now
             else:
@@ -325,6 +356,9 @@ def decode_words(words, start, st, cfg, ev, mk, imu_t, imu_v, reset_buf, frame):
                 skipped += 1
                 last_y = -1
             else:
+                if not _emit_pending_end(mk, st, offset + wrap + 0x8000 * data, nev):
+                    i -= 1
+                    break
                 wrap += 0x8000 * data
                 now = wrap
                 tcur = offset + now
@@ -434,7 +468,7 @@ def decode_words(words, start, st, cfg, ev, mk, imu_t, imu_v, reset_buf, frame):
             st[S_HAS_EE] = 0
             frame[:] = 0
         elif data == 14:  # exposure start
-            if st[S_IN_FRAME] == 1 and st[S_HAS_ES] == 0:
+            if st[S_IN_FRAME] == 1 and st[S_HAS_ES] == 0 and st[S_EXPO_OPEN] == 0:
                 st[S_HAS_ES] = 1
                 st[S_T_ES] = tcur
                 st[S_EXPO_OPEN] = 1
@@ -444,18 +478,17 @@ def decode_words(words, start, st, cfg, ev, mk, imu_t, imu_v, reset_buf, frame):
                 skipped += 1
         elif data == 15:  # exposure end
             if st[S_EXPO_OPEN] == 1:
-                te = max(tcur, st[S_EXPO_OPEN_T] + 1)
-                _marker(mk, st, MK_EXPOSURE_END, te, nev, 0)
-                st[S_EXPO_OPEN] = 0
+                st[S_T_EE] = _end_exposure(mk, st, tcur, nev, 0)
                 st[S_HAS_EE] = 1
-                st[S_T_EE] = te
             else:
                 skipped += 1
         elif data == 10:  # frame end
             if st[S_IN_FRAME] == 1:
                 ex = st[S_EXPX]
+                # a frame whose end marker is still pending (read out within the µs its exposure
+                # started: garbage) cannot be delivered after it: dropped
                 ok = (st[S_FRAME_OK] == 1 and st[S_ROI_IDX] == 8 and st[S_CX0] == ex and st[S_CX1] == ex
-                      and st[S_HAS_ES] == 1 and st[S_HAS_EE] == 1)
+                      and st[S_HAS_ES] == 1 and st[S_HAS_EE] == 1 and st[S_EXPO_OPEN] == 0)
                 st[S_IN_FRAME] = 0
                 if ok:
                     st[S_F_ES] = st[S_T_ES]
@@ -627,14 +660,18 @@ class DavisDecoder:
 
     def finish(self) -> list:
         """End of this stream (device unplugged or stopped): close an exposure left open with an ``end``
-        marker (at least 1 µs after its start; counted in ``exposures_aborted``) and drop a partial frame,
-        so the packets delivered keep pairing start/end markers. Returns the packets to deliver."""
+        marker (at least 1 µs after its start; counted in ``exposures_aborted``), deliver an ``end``
+        marker still pending (start + 1 µs: nothing follows it now) and drop a partial frame, so the
+        packets delivered keep pairing start/end markers. Returns the packets to deliver."""
         st = self.st
         out = []
         if st[S_EXPO_OPEN] == 1:
             out.append(ExposureMarker(int(max(self.time_us, st[S_EXPO_OPEN_T] + 1)), "end"))
             st[S_EXPO_OPEN] = 0
             st[S_EXPO_ABORTED] += 1
+        elif st[S_EXPO_OPEN] == 2:
+            out.append(ExposureMarker(int(st[S_EXPO_OPEN_T] + 1), "end"))
+            st[S_EXPO_OPEN] = 0
         if st[S_IN_FRAME] == 1:
             st[S_IN_FRAME] = 0
             st[S_FRAMES_DROPPED] += 1

@@ -6,12 +6,14 @@ patch >= 1), reads sizes, clocks and capabilities, writes configuration (vendor 
 and runs the documented start/stop sequences (:mod:`.protocol`). :class:`BulkReader` reads the bulk
 endpoint 0x82 on a dedicated thread.
 
-Reading at full rate: the DAVIS346 peaks at about 12 Mev/s (~50 MB/s of words). The reader thread
-does nothing but synchronous ``dev.read`` calls with large buffers (256 KiB by default) and hands
-the bytes to a queue, so the time between two transfers is a few tens of µs of Python overhead,
-which the FX3's on-chip buffers absorb; the device's early-packet delay (1 ms) ends a transfer
-early when the rate is low, so latency stays about 1 ms. The device's own counters of dropped
-events (MUX/DVS statistics registers) are read by :meth:`DavisDevice.statistics`.
+Reading at full rate: the DAVIS346 peaks at about 12 Mev/s (~70 MB/s of words with frames). The
+reader thread does nothing but synchronous ``dev.read`` calls with large buffers (256 KiB by
+default, ~4 ms at the peak rate) and hands the bytes to a queue sized from the peak rate (2 s), so
+the time between two transfers is a few tens of µs of Python overhead, which the FX3's on-chip
+buffers absorb, and a consumer that pauses loses nothing; the device's early-packet delay (1 ms)
+ends a transfer early when the rate is low, so latency stays about 1 ms. When the queue is full the
+thread stops reading and the device drops whole DVS events and counts them; those counters (MUX/DVS
+statistics registers) are read by :meth:`DavisDevice.statistics` (see :class:`BulkReader`).
 """
 
 from __future__ import annotations
@@ -452,28 +454,47 @@ def describe(backend, emulated: bool = False) -> list[DeviceInfo]:
 
 
 # -- reader thread ----------------------------------------------------------------------------------
+#: The DAVIS346's peak data rate assumed to size host buffers (bytes/s): 12 Mev/s at about 4.2 bytes
+#: an event (an X word, plus the row and timestamp words shared by the events of a row and µs) and
+#: 50 fps of 346 x 260 frames (two 16-bit readouts each, ~18 MB/s) — the ~34 M words/s of
+#: ``necviz bench decode``'s full-rate stream, rounded up.
+PEAK_BYTES_PER_S = 70_000_000
+
+
 class BulkReader:
     """Reads endpoint 0x82 on a daemon thread into a queue of ``(kind, payload)`` items.
 
     Kinds: ``"data"`` (bytes of one transfer), ``"disconnected"`` (the device vanished: ENODEV),
     ``"finished"`` (the backend says its stream is over: the emulator's ``stream_finished``),
     ``"error"`` (another USBError, payload = the exception). A stalled endpoint (EPIPE) is cleared
-    and reading continues (counted in ``stalls``). If the consumer falls more than ``max_queued``
-    bytes behind, transfers are discarded and counted (``host_dropped_bytes``) — the decoder
-    resynchronises on what follows.
+    and reading continues (counted in ``stalls``).
+
+    Riding out a consumer that stops reading (a slow viewer, a long computation, a pause): pyusb has
+    no asynchronous transfers, so this thread keeps one transfer in flight at all times and parks
+    completed transfers in a queue of up to ``max_queued`` bytes — by default ``buffer_s`` = 2 s at
+    the peak rate (:data:`PEAK_BYTES_PER_S`, 140 MB), i.e. 40 pauses of 50 ms back to back. When the
+    queue is full the thread stops reading (``backpressure_s`` counts the time) instead of
+    discarding transfers: a discarded transfer would cut the word stream anywhere (losing a wrap
+    word shifts every later timestamp), whereas a device that is not read drops whole DVS events
+    itself and counts them (MUX ``STAT_DVS_DROPPED``, with ``DROP_DVS_ON_TRANSFER_STALL`` on), which
+    :meth:`DavisDevice.statistics` reads. Loss is therefore never silent. Not covered: a stall of
+    the whole process (the GIL held for tens of ms) stops this thread too; the transfer in flight
+    and the device's own buffers then hold only a few ms at the peak rate, and what the device
+    drops is reported the same way. ``queue_peak_bytes`` is the deepest the queue has been.
     """
 
     def __init__(self, device: DavisDevice, transfer_size: int = 256 * 1024, timeout_ms: int = 100,
-                 max_queued: int = 512 * 1024 * 1024):
+                 buffer_s: float = 2.0, max_queued: int | None = None):
         self.device = device
         self.transfer_size = int(transfer_size)
         self.timeout_ms = int(timeout_ms)
-        self.max_queued = int(max_queued)
+        self.max_queued = int(max_queued if max_queued is not None else buffer_s * PEAK_BYTES_PER_S)
         self.queue: queue.Queue = queue.Queue()
         self.queued_bytes = 0
-        self._lock = threading.Lock()
+        self._room = threading.Condition()
         self._stop = threading.Event()
-        self.stats = {"transfers": 0, "bytes": 0, "stalls": 0, "timeouts": 0, "host_dropped_bytes": 0}
+        self.stats = {"transfers": 0, "bytes": 0, "stalls": 0, "timeouts": 0, "backpressure_s": 0.0,
+                      "queue_peak_bytes": 0}
         self.thread = threading.Thread(target=self._run, name=f"necviz-davis-{device.serial}", daemon=True)
 
     def start(self) -> None:
@@ -481,6 +502,8 @@ class BulkReader:
 
     def stop(self) -> None:
         self._stop.set()
+        with self._room:
+            self._room.notify_all()
         if self.thread.is_alive() and threading.current_thread() is not self.thread:
             self.thread.join(timeout=5.0)
 
@@ -491,9 +514,25 @@ class BulkReader:
         except queue.Empty:
             return None
         if item[0] == "data":
-            with self._lock:
+            with self._room:
                 self.queued_bytes -= len(item[1])
+                self._room.notify()
         return item
+
+    def _wait_for_room(self, n: int) -> bool:
+        """Block until ``n`` more bytes fit in the queue (the device holds, then drops, meanwhile);
+        False if stopped. A transfer always fits into an empty queue."""
+        with self._room:
+            if self.queued_bytes + n > self.max_queued and self.queued_bytes > 0:
+                t0 = time.monotonic()
+                while self.queued_bytes + n > self.max_queued and self.queued_bytes > 0 and not self._stop.is_set():
+                    self._room.wait(0.05)
+                self.stats["backpressure_s"] += time.monotonic() - t0
+            if self._stop.is_set():
+                return False
+            self.queued_bytes += n
+            self.stats["queue_peak_bytes"] = max(self.stats["queue_peak_bytes"], self.queued_bytes)
+            return True
 
     def _run(self) -> None:
         buf = array.array("B", bytes(self.transfer_size))
@@ -533,9 +572,7 @@ class BulkReader:
                 continue
             self.stats["transfers"] += 1
             self.stats["bytes"] += n
-            with self._lock:
-                if self.queued_bytes + n > self.max_queued:
-                    self.stats["host_dropped_bytes"] += n
-                    continue
-                self.queued_bytes += n
-            self.queue.put(("data", bytes(view[:n])))
+            data = bytes(view[:n])
+            if not self._wait_for_room(n):
+                return
+            self.queue.put(("data", data))

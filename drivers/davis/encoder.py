@@ -1,7 +1,7 @@
 """Events, frames, IMU samples and triggers → the DAVIS 16-bit word stream (logic 18).
 
-Written from the documented layout (``shared/reference/davis-usb.md`` §2, "encoder recipe"), not from
-the decoder, so encoder→decoder round trips check the decoder against an independent reading of the
+Written from the documented layout (docs/davis-protocol.md, after libcaer's ``src/davis_common.h``), not
+from the decoder, so encoder→decoder round trips check the decoder against an independent reading of the
 format. Used by the emulator (:mod:`.emulator`), the tests and ``necviz bench decode``.
 
 :class:`StreamEncoder` keeps the device-side state (current timestamp, wrap base, last row) and

@@ -1,8 +1,10 @@
 """DAVIS USB protocol constants: ids, vendor requests, the module/parameter map and bias encodings.
 
-Facts from ``shared/reference/davis-usb.md`` (libcaer 3.x / logic 18 register map). Nothing here
-talks to a device; :mod:`.device` and :mod:`.emulator` both use these names so the driver and the
-emulated DAVIS346 agree by construction and the tests can check both against the document.
+Facts from libcaer's public source (github.com/inivation/libcaer, 3.x: ``include/libcaer/devices/davis.h``,
+``src/davis_common.h``, ``src/davis.c``, ``src/usb_utils.h``; logic 18 register map), summarised in
+docs/davis-protocol.md. Nothing here talks to a device; :mod:`.device` and :mod:`.emulator` both use
+these names so the driver and the emulated DAVIS346 agree by construction and the tests can check
+both against the documented protocol.
 
 Units: clocks in MHz, times in µs, register values as the FPGA stores them (APS exposure and
 frame interval in ADC-clock cycles).
@@ -259,7 +261,7 @@ DAVIS346_BIASES = {
 DAVIS346_CHIP_CONFIG = {128: 0, 129: 0, 130: 0, 131: 0, 132: 0, 133: 0, 134: 0, 135: 0, 136: 1, 137: 0, 138: 1,
                         140: 0, 141: 0, 143: 1, 144: 0}
 
-#: DAVIS240 biases (old 22-branch generator). The reference gives no DAVIS240 defaults: these reuse the
+#: DAVIS240 biases (old 22-branch generator). No DAVIS240 defaults were taken from libcaer: these reuse the
 #: DAVIS346 settings of the same-named branches; APSCASEPC, DIFFCASBNC and APSOVERFLOWLEVELBN are
 #: mid-range guesses [inferred, unverified: check on hardware before relying on them].
 DAVIS240_BIASES = {

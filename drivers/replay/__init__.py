@@ -1,4 +1,4 @@
-"""Recorded files: readers for AEDAT 4/3.1/2.0, ROS bags, text and HDF5, and the crash-safe native recorder (issue 7).
+"""Recorded files: readers for AEDAT 4/3.1/2.0, ROS bags, text and HDF5, and the crash-safe native recorder.
 
 ``open_recording(path)`` detects the format by content and returns a :class:`Recording` (a
 :class:`~necviz.drivers.source.Source`); ``describe(path)`` summarises a file for ``necviz info``;
@@ -9,8 +9,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ...core.errors import NecvizError
 from ...core.sensor import SensorGeometry
-from .base import Recording, RecordingError, StreamAssembler
+from .base import Recording, RecordingError, StreamAssembler, first_line, is_damage, reason
 from .detect import FORMATS, SUPPORTED, detect_format
 from .native import NativeRecording, Recorder
 from .summary import RecordingInfo, describe
@@ -51,7 +52,9 @@ def open_recording(path, *, exposure_us: float | None = None, start_us: int | No
     ``exposure_us``: exposure (µs) for formats that do not store it (AEDAT 2.0, RPG text, HDF5, bags
     without an exposure topic); ignored where exposure is stored. ``start_us``/``end_us``: replay
     only that time range (sensor clock, µs). ``format``: skip detection (one of :data:`FORMATS`).
-    ``sensor``: geometry hint for files that store none. Raises :class:`RecordingError`.
+    ``sensor``: geometry hint for files that store none. Raises :class:`RecordingError` (and
+    nothing else) for a missing, unreadable or damaged file; iterating the recording does the same
+    (see :mod:`.base`).
     """
     p = Path(path)
     if not p.exists():
@@ -62,5 +65,15 @@ def open_recording(path, *, exposure_us: float | None = None, start_us: int | No
     cls = _reader(fmt)
     try:
         return cls(p, exposure_us=exposure_us, start_us=start_us, end_us=end_us, sensor=sensor)
+    except RecordingError:
+        raise
     except OSError as exc:
-        raise RecordingError(f"{p}: cannot read ({exc.strerror or exc})") from None
+        if exc.strerror:  # the OS refused (permissions, a folder where a file was expected ...)
+            raise RecordingError(f"{p}: cannot read ({exc.strerror})") from None
+        raise RecordingError(f"{p}: unreadable {fmt} file ({reason(exc)})") from None
+    except BaseException as exc:
+        if isinstance(exc, NecvizError):  # e.g. an impossible sensor size read from the file
+            raise RecordingError(f"{p}: unreadable {fmt} file ({first_line(exc) or type(exc).__name__})") from None
+        if not is_damage(exc):
+            raise
+        raise RecordingError(f"{p}: unreadable {fmt} file ({reason(exc)})") from None

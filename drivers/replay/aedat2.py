@@ -29,9 +29,9 @@ charge transfer just before the signal readout), so for that pixel this interval
 pixel-read time.
 
 Bounded memory: the file is read in blocks of 1 Mi records (8 MiB). Damage: a partial trailing
-record, or a timestamp that jumps backwards by more than 2 ms (not an int32 wrap) or forwards by
-more than 2^30 µs, raises :class:`RecordingError` with the byte offset after the packets before it
-were yielded. Seeking: blocks are located by bisection on record timestamps (monotonic files).
+record (a body that is not a multiple of 8 bytes), or a timestamp that jumps backwards by more than
+2 ms (not an int32 wrap) or forwards by more than 2^30 µs, raises :class:`RecordingError` with the
+byte offset after the packets before it were yielded. Seeking: blocks are located by bisection on record timestamps (monotonic files).
 """
 
 from __future__ import annotations
@@ -133,13 +133,14 @@ class Aedat2Recording(Recording):
                 raise self.error(f"wrong magic (expected '#!AER-DAT2.0', found {head!r})", 0)
             lines, self._data_start = read_text_header(self.path, fh, (MAGIC,), None)
             self.header_lines = lines
-            chip = next((ln.split(":", 1)[1].strip() for ln in lines if ln.strip().startswith("AEChip")), "")
+            chip = next((ln.partition(":")[2].strip() for ln in lines if ln.strip().startswith("AEChip")), "")
             self.properties = {"chip": chip} if chip else {}
             if self.sensor is None and chip:
                 self.sensor = sensor_from_chip(chip.rsplit(".", 1)[-1])
             if self.sensor is None:
                 fh.seek(self._data_start)
-                rec = np.frombuffer(fh.read(8 * BLOCK_RECORDS // 8 * 8), RECORD)
+                head = fh.read(8 * BLOCK_RECORDS)
+                rec = np.frombuffer(head[: len(head) // 8 * 8], RECORD)
                 a = rec["addr"][(rec["addr"] & 0x80000400) == 0] if rec.size else rec["addr"]
                 if a.size == 0:
                     raise self.error("cannot tell the sensor size (no AEChip header, no DVS events); "
@@ -182,13 +183,19 @@ class Aedat2Recording(Recording):
         prev_ts = None
         lag, seq = 0, 0
         self._carry_t = np.zeros(0, np.int64)
+        self._asm = asm
         fh = open(self.path, "rb")
         try:
             i0 = self._first_record(fh)
             for start in range(i0, self.n_records, BLOCK_RECORDS):
                 n = min(BLOCK_RECORDS, self.n_records - start)
-                fh.seek(self._data_start + 8 * start)
-                rec = np.frombuffer(fh.read(8 * n), RECORD)
+                self._where = self._data_start + 8 * start
+                fh.seek(self._where)
+                data = fh.read(8 * n)
+                if len(data) < 8 * n:  # the file shrank while being read
+                    yield from asm.drain(None)
+                    raise self.error(f"file ends early ({len(data)} of {8 * n} bytes)", self._where)
+                rec = np.frombuffer(data, RECORD)
                 raw = rec["ts"].astype(np.int64)
                 # unwrap int32 timestamps and find damage (big jumps that are not wraps)
                 prev = raw[0] if prev_ts is None else prev_ts
@@ -232,8 +239,6 @@ class Aedat2Recording(Recording):
                 self.warn(f"{counts['odd_exposure']} frames dropped: no time between first reset and signal read")
             if counts["imu_bad"]:
                 self.warn(f"{counts['imu_bad']} IMU words dropped (not in complete groups of 7)")
-            for w in asm.warnings():
-                self.warn(w)
             if counts["frames"] == 0 and self.start_us is None and self.end_us is None:
                 self.exposure_source = "none (no frames)"
 

@@ -54,6 +54,12 @@ for _k, _v in SPECIAL_TO_TRIGGER.items():
     _LUT[_k] = _v
 
 
+def _plausible(typ: int, esize: int, cap: int, num: int, valid: int, overflow: int) -> bool:
+    """Whether a packet header's fields are possible (type, event size, capacity >= number >= valid)."""
+    return (0 <= typ < 64 and 0 < esize < (1 << 26) and 0 <= num <= cap < (1 << 26) and 0 <= valid <= num
+            and overflow >= 0)
+
+
 def read_text_header(path, fh, magics, end_line: bytes | None, limit: int = 1 << 20) -> tuple[list[str], int]:
     """Header lines (decoded, without '#' and line end) and the byte offset where data start.
 
@@ -98,7 +104,7 @@ class Aedat3Recording(Recording):
             if self._data_start < 0:
                 raise self.error("truncated or damaged text header (no '#!END-HEADER' line)", 0)
             self.header_lines = lines
-            chip = next((ln.split(":", 1)[1].strip() for ln in lines if ln.startswith("Source")), "")
+            chip = next((ln.partition(":")[2].strip() for ln in lines if ln.startswith("Source")), "")
             self.properties = {"source": chip} if chip else {}
             if self.sensor is None:
                 self.sensor = sensor_from_chip(chip) if chip else None
@@ -116,14 +122,14 @@ class Aedat3Recording(Recording):
             if len(h) < PACKET_HEAD.size:
                 break
             typ, _, esize, _, _, cap, num, _ = PACKET_HEAD.unpack(h)
-            if esize <= 0 or cap < 0 or off + PACKET_HEAD.size + esize * cap > self.size:
+            if not _plausible(typ, esize, cap, num, 0, 0) or off + PACKET_HEAD.size + esize * cap > self.size:
                 break
             body = fh.read(esize * cap)
             if typ == POLARITY and esize == 8 and num:
                 d = np.frombuffer(body, "<u4", count=2 * num)[0::2]
                 mx, my = max(mx, int((d >> 17).max())), max(my, int(((d >> 2) & 0x7FFF).max()))
-            elif typ == FRAME and num:
-                fr = np.frombuffer(body[:36], FRAME_HEAD)[0]
+            elif typ == FRAME and num and esize >= FRAME_HEAD.itemsize:
+                fr = np.frombuffer(body, FRAME_HEAD, count=1)[0]
                 mx, my = max(mx, int(fr["lx"]) - 1), max(my, int(fr["ly"]) - 1)
             off += PACKET_HEAD.size + esize * cap
         if mx < 0:
@@ -134,18 +140,19 @@ class Aedat3Recording(Recording):
         asm = StreamAssembler(self.sensor, start_us=self.start_us, end_us=self.end_us)
         lag, seq = 0, 0
         skipped: Counter = Counter()
+        self._asm = asm
         fh = open(self.path, "rb")
         off = self._data_start
         try:
             while off < self.size:
+                self._where = off
                 fh.seek(off)
                 h = fh.read(PACKET_HEAD.size)
                 if len(h) < PACKET_HEAD.size:
                     yield from asm.drain(None)
                     raise self.error(f"truncated packet header ({len(h)} of {PACKET_HEAD.size} bytes)", off)
                 typ, _src, esize, _tsoff, overflow, cap, num, valid = PACKET_HEAD.unpack(h)
-                if not (0 <= typ < 64 and 0 < esize < (1 << 26) and 0 <= num <= cap < (1 << 26)
-                        and 0 <= valid <= num and overflow >= 0):
+                if not _plausible(typ, esize, cap, num, valid, overflow):
                     yield from asm.drain(None)
                     raise self.error(f"implausible packet header (type {typ}, size {esize}, capacity {cap}, "
                                      f"number {num}): garbage or damaged data", off)
@@ -155,6 +162,9 @@ class Aedat3Recording(Recording):
                     raise self.error(f"truncated packet (type {typ}: {esize * cap} bytes declared, "
                                      f"{self.size - off - PACKET_HEAD.size} present)", off)
                 base = overflow << 31
+                if typ in (SPECIAL, POLARITY) and esize != 8 or typ == FRAME and esize < FRAME_HEAD.itemsize:
+                    yield from asm.drain(None)
+                    raise self.error(f"packet of type {typ} with {esize}-byte events (garbage or damaged data)", off)
                 if typ not in (SPECIAL, POLARITY, FRAME, IMU6):
                     skipped[typ] += 1
                     off = end
@@ -236,7 +246,5 @@ class Aedat3Recording(Recording):
             if skipped:
                 kinds = ", ".join(f"type {k} x{v}" for k, v in sorted(skipped.items()))
                 self.warn(f"packets of unsupported event types skipped ({kinds})")
-            for w in asm.warnings():
-                self.warn(w)
             if asm.frames_out == 0 and self.start_us is None and self.end_us is None:
                 self.exposure_source = "none (no frames)"

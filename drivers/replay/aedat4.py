@@ -18,8 +18,9 @@ buffered. Seeking: the ``aedat`` decoder has no random access, so packets before
 decoded and dropped (cheap: no per-event Python), and decoding stops once past ``end_us``.
 
 Damage: the packet headers (``uint32 stream_id, uint32 size``) are walked in step with the
-decoder, so a truncated packet, an unknown stream id or a packet the decoder rejects is reported
-with its byte offset after everything before it has been yielded.
+decoder, so a truncated packet, an unknown stream id or a packet the decoder rejects (an error or
+a Rust panic of the decoder) is reported with its byte offset after everything before it has been
+yielded.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from ...core.events import EVENT_DTYPE
 from ...core.frames import Frame
 from ...core.imu import IMU_DTYPE, TRIGGER_DTYPE, TRIGGER_KINDS
 from ...core.sensor import SensorGeometry
-from .base import Recording, StreamAssembler, sensor_from_chip, to_gray8
+from .base import Recording, StreamAssembler, first_line, is_rust_panic, sensor_from_chip, to_gray8
 
 MAGIC = b"#!AER-DAT4.0\r\n"
 COMPRESSION = ("none", "LZ4", "LZ4 high", "Zstd", "Zstd high")
@@ -48,8 +49,19 @@ def _flatbuffer_table(buf: bytes, root: int):
     return root, fields
 
 
+class DescriptionNotText(ValueError):
+    """The IOHeader description is not UTF-8; ``offset`` is the first bad byte within the IOHeader."""
+
+    def __init__(self, offset: int):
+        super().__init__(f"IOHeader description is not UTF-8 at byte {offset} of the header")
+        self.offset = offset
+
+
 def parse_ioheader(buf: bytes) -> tuple[int, int, str]:
-    """(compression enum, file_data_position, description XML) from an IOHeader flatbuffer."""
+    """(compression enum, file_data_position, description XML) from an IOHeader flatbuffer.
+
+    Raises struct.error/IndexError for a malformed flatbuffer and :class:`DescriptionNotText` if
+    the description is not UTF-8."""
     root = struct.unpack_from("<I", buf, 0)[0]
     pos, fields = _flatbuffer_table(buf, root)
     get = lambda i: fields[i] if i < len(fields) else 0  # noqa: E731
@@ -60,7 +72,10 @@ def parse_ioheader(buf: bytes) -> tuple[int, int, str]:
         at = pos + get(2)
         s = at + struct.unpack_from("<I", buf, at)[0]
         n = struct.unpack_from("<I", buf, s)[0]
-        desc = buf[s + 4:s + 4 + n].decode("utf-8", "replace")
+        try:
+            desc = buf[s + 4:s + 4 + n].decode("utf-8")  # strict: see Aedat4Recording.__init__
+        except UnicodeDecodeError as exc:
+            raise DescriptionNotText(s + 4 + exc.start) from None
     return compression, data_pos, desc
 
 
@@ -87,6 +102,11 @@ class Aedat4Recording(Recording):
             compression, data_pos, desc = parse_ioheader(hbuf)
         except (struct.error, IndexError):
             raise self.error("unreadable IOHeader flatbuffer", len(MAGIC) + 4) from None
+        except DescriptionNotText as exc:
+            # checked here because aedat 2.3 aborts the process (a panic while reporting the error)
+            # when the description it parses is not UTF-8
+            raise self.error("IOHeader description is not UTF-8 text (damaged header)",
+                             len(MAGIC) + 4 + exc.offset) from None
         self.compression = COMPRESSION[compression] if 0 <= compression < len(COMPRESSION) else str(compression)
         self.description = desc
         self._packets_start = len(MAGIC) + 4 + hlen
@@ -95,8 +115,11 @@ class Aedat4Recording(Recording):
 
         try:
             self._streams = aedat.Decoder(str(self.path)).id_to_stream()
-        except Exception as exc:  # noqa: BLE001 - the decoder raises RuntimeError/OSError with a message
-            raise self.error(f"unreadable AEDAT 4 header ({exc})", len(MAGIC)) from None
+        except BaseException as exc:  # noqa: BLE001 - narrowed by _decoder_error
+            err = self._decoder_error(exc, "unreadable AEDAT 4 header", len(MAGIC))
+            if err is exc:
+                raise
+            raise err from None
         if self.sensor is None:
             for kind in ("events", "frame"):
                 for s in self._streams.values():
@@ -111,6 +134,15 @@ class Aedat4Recording(Recording):
         self.exposure_source = "stored" if has_frames else "none (no frames)"
         self.properties = {}
 
+    def _decoder_error(self, exc: BaseException, what: str, offset: int) -> BaseException:
+        """What the ``aedat`` decoder raised, as a one-line RecordingError: its errors (RuntimeError,
+        OSError ...) and its Rust panics (``pyo3_runtime.PanicException``, a BaseException matched
+        by name, so KeyboardInterrupt and GeneratorExit pass through unchanged)."""
+        if isinstance(exc, Exception) or is_rust_panic(exc):
+            kind = "decoder panic: " if is_rust_panic(exc) else ""
+            return self.error(f"{what} ({kind}{first_line(exc) or type(exc).__name__})", offset)
+        return exc
+
     def _chip_name(self, stream: dict) -> str:
         geo = sensor_from_chip(self.description)
         if geo is not None and (geo.width, geo.height) == (int(stream["width"]), int(stream["height"])):
@@ -121,17 +153,25 @@ class Aedat4Recording(Recording):
         import aedat
 
         asm = StreamAssembler(self.sensor, start_us=self.start_us, end_us=self.end_us)
+        self._asm = asm
         lag = 0
         seq = 0
         odd_exposure = 0
         fh = open(self.path, "rb")
         off = self._packets_start
         try:
-            decoder = aedat.Decoder(str(self.path))
+            try:
+                decoder = aedat.Decoder(str(self.path))
+            except BaseException as exc:  # noqa: BLE001 - narrowed by _decoder_error
+                err = self._decoder_error(exc, "unreadable AEDAT 4 header", len(MAGIC))
+                if err is exc:
+                    raise
+                raise err from None
             while True:
                 # the header of the packet the decoder is about to read
                 if off >= self._data_end:
                     break
+                self._where = off
                 fh.seek(off)
                 head = fh.read(8)
                 if len(head) < 8:
@@ -149,9 +189,12 @@ class Aedat4Recording(Recording):
                     packet = next(decoder)
                 except StopIteration:
                     break
-                except Exception as exc:  # noqa: BLE001 - decoder errors are RuntimeError with a message
+                except BaseException as exc:  # noqa: BLE001 - narrowed by _decoder_error
+                    err = self._decoder_error(exc, "undecodable packet", off)
+                    if err is exc:
+                        raise
                     yield from asm.drain(None)
-                    raise self.error(f"undecodable packet ({exc})", off) from None
+                    raise err from None
                 off += 8 + size
                 if "events" in packet:
                     e = packet["events"]
@@ -199,8 +242,6 @@ class Aedat4Recording(Recording):
             fh.close()
             if odd_exposure:
                 self.warn(f"{odd_exposure} frames dropped: exposure end not after exposure begin")
-            for w in asm.warnings():
-                self.warn(w)
             if asm.frames_out == 0 and self.exposure_source == "stored" and self.end_us is None \
                     and self.start_us is None:
                 self.exposure_source = "none (no frames)"

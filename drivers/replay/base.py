@@ -7,12 +7,21 @@ after the events before the exposure end, then the :class:`~necviz.core.frames.F
 its end marker; IMU and trigger batches interleaved by time. Event batches are bounded (at most
 ``batch_us`` = 1 ms of sensor time and at most 65,536 events) so a controller can act between
 frames. All times are integer microseconds (µs).
+
+One error path: whatever a reader or its library (NumPy, h5py, struct, zlib, json, the ``aedat``
+decoder, including its Rust panics) raises on damaged input reaches the caller as one
+:class:`RecordingError` — a one-line message naming the file and the byte offset or key where
+reading stopped — after every packet decoded before the damage has been delivered
+(:meth:`Recording.__iter__`; ``open_recording`` does the same for a reader's constructor).
 """
 
 from __future__ import annotations
 
+import struct
+import zlib
 from collections import Counter
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +31,7 @@ from ...core.events import EVENT_DTYPE
 from ...core.frames import ExposureMarker, Frame
 from ...core.imu import IMU_DTYPE, TRIGGER_DTYPE, ImuBatch, TriggerBatch
 from ...core.sensor import DAVIS240, DAVIS346, SensorGeometry
+from ..source import CAMERA, route
 
 #: Batch bounds of every reader (sensor time per event batch, events per batch).
 BATCH_US = 1000
@@ -51,6 +61,41 @@ class RecordingError(NecvizError):
 
     The message is one line naming the file and, where relevant, the byte offset of the damage.
     """
+
+
+#: What the readers' libraries raise on damaged input: NumPy (ValueError, IndexError, MemoryError
+#: for absurd sizes), h5py (OSError, KeyError, RuntimeError, ValueError, TypeError), struct, zlib,
+#: json (ValueError), the ``aedat`` decoder (RuntimeError, OSError). Rust panics are matched by
+#: :func:`is_rust_panic` (they derive from BaseException). Bugs such as NameError/AttributeError
+#: are not in the list: they stay tracebacks.
+DAMAGE_ERRORS = (OSError, EOFError, ValueError, LookupError, TypeError, RuntimeError, ArithmeticError,
+                 MemoryError, struct.error, zlib.error)
+
+
+def is_rust_panic(exc: BaseException) -> bool:
+    """True for a panic of a Rust extension (PyO3's ``pyo3_runtime.PanicException``, a BaseException).
+
+    Matched by the type's module and name, so KeyboardInterrupt/SystemExit are never caught with it."""
+    t = type(exc)
+    return t.__name__ == "PanicException" and t.__module__ == "pyo3_runtime"
+
+
+def is_damage(exc: BaseException) -> bool:
+    """Whether ``exc`` is what a reader's library raises on damaged input (see :data:`DAMAGE_ERRORS`)."""
+    return isinstance(exc, DAMAGE_ERRORS) or is_rust_panic(exc)
+
+
+def first_line(exc: BaseException, limit: int = 160) -> str:
+    """The first non-empty line of ``str(exc)``, at most ``limit`` characters ("" if none)."""
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    text = lines[0] if lines else ""
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def reason(exc: BaseException, limit: int = 160) -> str:
+    """``Type: first line of the message``, for one-line errors."""
+    text = first_line(exc, limit)
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
 def sensor_from_chip(name: str) -> SensorGeometry | None:
@@ -152,15 +197,46 @@ class Recording:
         self.exposure_source = "none (no frames)"
         self.warnings: list[str] = []
         self.ignored_commands = 0
+        self._asm: StreamAssembler | None = None  # the assembler of the iteration under way
+        self._where: int | str | None = None  # where the reader is (byte offset or key), for errors
 
     # -- Source protocol ----------------------------------------------------------------------
+    cameras = (CAMERA,)
+
+    def packets(self) -> Iterator:
+        """``(camera, packet)`` pairs (:class:`~necviz.drivers.source.Source`); iterate for bare packets."""
+        return route(CAMERA, self)
+
     def __iter__(self) -> Iterator:
-        return self._packets()
+        """The packets in stream order (:meth:`_packets`), through the one error path.
+
+        If reading stops at damage — a :class:`RecordingError` from the reader or anything
+        :func:`is_damage` matches from its libraries — everything the reader's assembler
+        (``self._asm``) still holds is delivered, then one :class:`RecordingError` is raised, naming
+        the file and where reading stopped (``self._where``: a byte offset, or a key/message
+        description, kept up to date by the reader).
+        """
+        self._asm = None
+        self._where = None
+        try:
+            yield from self._packets()
+        except BaseException as exc:
+            err = self.as_recording_error(exc)
+            if err is None:
+                raise
+            if self._asm is not None:
+                yield from self._asm.drain(None)
+            raise err from None
+        finally:
+            if self._asm is not None:
+                for w in self._asm.warnings():
+                    self.warn(w)
 
     def _packets(self) -> Iterator:  # pragma: no cover - abstract
         raise NotImplementedError
 
-    def set_exposure(self, exposure_us: float, gain: float = 1.0, issue_time_us: int | None = None) -> None:
+    def set_exposure(self, camera: str, exposure_us: float, gain: float = 1.0, *,
+                     issue_time_us: int | None = None) -> None:
         """Accept and ignore an exposure command: a replay is open loop (counted in ``ignored_commands``)."""
         self.ignored_commands += 1
 
@@ -174,9 +250,49 @@ class Recording:
         self.close()
 
     # -- helpers --------------------------------------------------------------------------------
-    def error(self, what: str, offset: int | None = None) -> RecordingError:
-        at = "" if offset is None else f" at byte {int(offset)}"
+    def error(self, what: str, offset: int | str | None = None) -> RecordingError:
+        """``RecordingError("<path>: <what> at byte <offset>")``; a string ``offset`` names a key instead
+        (``"... at dataset /events/t"``)."""
+        if offset is None:
+            at = ""
+        elif isinstance(offset, str):
+            at = f" at {offset}"
+        else:
+            at = f" at byte {int(offset)}"
         return RecordingError(f"{self.path}: {what}{at}")
+
+    def damage(self, exc: BaseException, where: int | str | None = None) -> RecordingError:
+        """The one-line error for a library exception raised on damaged data, at ``where`` (default:
+        the reader's current position ``self._where``)."""
+        if where is None:
+            where = getattr(self, "_where", None)
+        return self.error(f"damaged or unreadable data ({reason(exc)})", where)
+
+    def as_recording_error(self, exc: BaseException, where: int | str | None = None) -> RecordingError | None:
+        """``exc`` as the recording's one-line error, or None if it is not about the data (a bug,
+        KeyboardInterrupt, GeneratorExit ...): RecordingError as is; another NecvizError (e.g. a
+        decoded frame or sensor size that is impossible) prefixed with the file and position;
+        library exceptions (:func:`is_damage`) through :meth:`damage`."""
+        if isinstance(exc, RecordingError):
+            return exc
+        if isinstance(exc, NecvizError):
+            if where is None:
+                where = getattr(self, "_where", None)
+            return self.error(f"damaged data ({first_line(exc) or type(exc).__name__})", where)
+        if is_damage(exc):
+            return self.damage(exc, where)
+        return None
+
+    @contextmanager
+    def converting(self, where: int | str | None = None):
+        """Turn library exceptions raised inside the block into one-line :class:`RecordingError`."""
+        try:
+            yield
+        except BaseException as exc:
+            err = self.as_recording_error(exc, where)
+            if err is None or err is exc:
+                raise
+            raise err from None
 
     def warn(self, text: str) -> None:
         if text not in self.warnings:
@@ -184,17 +300,11 @@ class Recording:
 
     def _assembled(self, asm: "StreamAssembler", feed: Iterator) -> Iterator:
         """Run ``feed`` (a generator that pushes into ``asm`` and yields its drains), then the rest
-        of ``asm``; on damage, everything assembled before it is yielded before the error. The
-        assembler's warnings become the recording's."""
-        try:
-            yield from feed
-            yield from asm.drain(None)
-        except RecordingError:
-            yield from asm.drain(None)
-            raise
-        finally:
-            for w in asm.warnings():
-                self.warn(w)
+        of ``asm``. ``asm`` becomes ``self._asm``: on damage :meth:`__iter__` delivers what it holds
+        before the error, and its warnings become the recording's."""
+        self._asm = asm
+        yield from feed
+        yield from asm.drain(None)
 
     def in_range(self, t_us: int) -> bool:
         return (self.start_us is None or t_us >= self.start_us) and (self.end_us is None or t_us <= self.end_us)

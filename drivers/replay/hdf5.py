@@ -23,8 +23,8 @@ import numpy as np
 from ...core.events import EVENT_DTYPE
 from ...core.frames import Frame
 from ...core.sensor import DAVIS346, SensorGeometry
-from .base import (NO_EXPOSURE_FRAMES, Recording, RecordingError, StreamAssembler, events_from_seconds,
-                   imu_from_si, sensor_from_extent, to_gray8)
+from .base import (NO_EXPOSURE_FRAMES, Recording, RecordingError, StreamAssembler, first_line, imu_from_si,
+                   is_damage, reason, sensor_from_extent, to_gray8)
 
 try:  # registers Blosc/Zstd/LZ4 HDF5 filters when installed (DSEC files need Blosc)
     import hdf5plugin  # noqa: F401
@@ -34,17 +34,63 @@ except ImportError:  # pragma: no cover - optional
 CHUNK = 1 << 18
 
 
+def _show(sl) -> str:
+    """A dataset index as text: ``a:b`` for slices, else the index."""
+    if isinstance(sl, slice):
+        return f"{'' if sl.start is None else sl.start}:{'' if sl.stop is None else sl.stop}"
+    return str(sl)
+
+
+def _valid_rows(t, x, y, p, n: int, t_scale: float):
+    """Event columns checked for damage: ``(t µs int64, x, y, p, first bad row or None)``.
+
+    A row is bad if a value is not numeric or finite, a coordinate is negative or above 65535, or
+    the time (``t * t_scale`` µs) does not fit in int64; only the rows before the first bad one are
+    returned. Columns of the wrong shape make row 0 bad."""
+    cols = [np.asarray(c) for c in (t, x, y, p)]
+    if any(c.ndim != 1 or c.shape[0] != n or c.dtype.kind not in "biuf" for c in cols):
+        z = np.zeros(0, np.int64)
+        return z, z, z, z, 0
+    t, x, y, p = (c.astype(np.float64) if c.dtype.kind == "f" else c for c in cols)
+    ok = np.ones(n, bool)
+    for c in (t, x, y, p):
+        if c.dtype.kind == "f":
+            ok &= np.isfinite(c)
+    for c in (x, y):
+        ok &= (c >= 0) & (c <= 65535)
+    if t.dtype.kind == "u" and t.dtype.itemsize == 8:
+        ok &= t < (1 << 62)
+    elif t.dtype.kind == "f":
+        ok &= np.abs(t) * t_scale < 9e18
+    bad = None
+    if not ok.all():
+        bad = int(np.argmin(ok))
+        t, x, y, p = t[:bad], x[:bad], y[:bad], p[:bad]
+    tt = np.rint(t * t_scale).astype(np.int64) if t.dtype.kind == "f" or t_scale != 1.0 else t.astype(np.int64)
+    return tt, x, y, p, bad
+
+
 def open_hdf5(path, **kwargs) -> Recording:
-    """Open an HDF5 recording, choosing the layout by its groups."""
+    """Open an HDF5 recording, choosing the layout by its groups.
+
+    Every h5py call of this module runs inside :meth:`_Hdf5Recording._at` (or, here, an equivalent
+    guard), so what h5py raises on a damaged file (OSError, KeyError, RuntimeError, ValueError,
+    TypeError ...) becomes a one-line :class:`RecordingError` naming the file and the group or
+    dataset being read."""
     import h5py
 
+    where = "the root group"
     try:
         with h5py.File(path, "r") as f:
             keys = sorted(f.keys())
+            where = "group /events"
             dsec = "events" in f and isinstance(f["events"], h5py.Group) and "t" in f["events"]
+            where = "group /davis"
             mvsec = "davis" in f
-    except OSError as exc:
-        raise RecordingError(f"{path}: unreadable HDF5 file ({str(exc).splitlines()[0]})") from None
+    except BaseException as exc:
+        if not is_damage(exc):
+            raise
+        raise RecordingError(f"{path}: unreadable HDF5 file ({reason(exc)}) at {where}") from None
     if dsec:
         return DsecRecording(path, **kwargs)
     if mvsec:
@@ -54,24 +100,44 @@ def open_hdf5(path, **kwargs) -> Recording:
 
 
 class _Hdf5Recording(Recording):
+    def _at(self, where: str):
+        """Guard for h5py calls: damage inside becomes a RecordingError "... at <where>"."""
+        self._where = where
+        return self.converting(where)
+
     def _open(self):
         import h5py
 
         try:
             return h5py.File(self.path, "r")
-        except OSError as exc:
-            raise self.error(f"unreadable HDF5 file ({str(exc).splitlines()[0]})") from None
+        except BaseException as exc:
+            if not is_damage(exc):
+                raise
+            raise self.error(f"unreadable HDF5 file ({reason(exc)})") from None
+
+    def _get(self, group, key: str):
+        """``group[key]`` (a dataset or group), a RecordingError naming the key if that fails."""
+        with self._at(f"key {key}"):
+            name = f"{group.name.rstrip('/')}/{key}"
+        with self._at(f"key {name}"):
+            return group[key]
 
     def _read(self, ds, sl):
+        """``ds[sl]``; a missing compression filter or damage becomes a RecordingError naming the dataset."""
+        with self._at("a dataset"):
+            name = ds.name
+        where = f"dataset {name}" + ("" if isinstance(sl, tuple) and not sl or sl == slice(None) else f" [{_show(sl)}]")
+        self._where = where
         try:
             return ds[sl]
-        except OSError as exc:
-            msg = str(exc).splitlines()[0]
-            if "filter" in msg.lower():
-                filters = ", ".join(str(k) for k in ds._filters) or "unknown"
-                raise self.error(f"dataset {ds.name} uses an HDF5 compression filter that is not available "
+        except BaseException as exc:
+            if not is_damage(exc):
+                raise
+            if isinstance(exc, OSError) and "filter" in first_line(exc).lower():
+                filters = ", ".join(str(k) for k in getattr(ds, "_filters", {})) or "unknown"
+                raise self.error(f"dataset {name} uses an HDF5 compression filter that is not available "
                                  f"({filters}; DSEC uses Blosc: pip install hdf5plugin)") from None
-            raise self.error(f"cannot read {ds.name} ({msg})") from None
+            raise self.damage(exc, where) from None
 
     @staticmethod
     def _bisect(get, n: int, target: float) -> int:
@@ -94,39 +160,55 @@ class DsecRecording(_Hdf5Recording):
         kwargs.pop("exposure_us", None)
         super().__init__(path, **kwargs)
         with self._open() as f:
-            g = f["events"]
-            missing = [k for k in "txyp" if k not in g]
+            g = self._get(f, "events")
+            with self._at("group /events"):
+                missing = [k for k in "txyp" if k not in g]
             if missing:
                 raise self.error(f"/events lacks dataset(s) {', '.join(missing)}")
-            self.n = int(g["t"].shape[0])
-            if any(int(g[k].shape[0]) != self.n for k in "xyp"):
-                raise self.error("/events/{t,x,y,p} have different lengths")
-            self.t_offset = int(self._read(f["t_offset"], ())) if "t_offset" in f else 0
+            ds = {k: self._get(g, k) for k in "txyp"}
+            with self._at("dataset /events/t"):
+                self.n = int(ds["t"].shape[0]) if ds["t"].ndim == 1 else -1
+            if self.n < 0:
+                raise self.error("/events/t is not a 1-D dataset")
+            with self._at("datasets /events/{x,y,p}"):
+                if any(ds[k].ndim != 1 or int(ds[k].shape[0]) != self.n for k in "xyp"):
+                    raise self.error("/events/{t,x,y,p} have different lengths")
+            with self._at("key /t_offset"):
+                has_offset = "t_offset" in f
+            self.t_offset = 0
+            if has_offset:
+                v = np.asarray(self._read(self._get(f, "t_offset"), ())).reshape(-1)
+                if v.size != 1 or v.dtype.kind not in "iuf" or not abs(float(v[0])) < 2.0 ** 62:
+                    raise self.error("t_offset is not one integer number of µs", "dataset /t_offset")
+                self.t_offset = int(v[0])
             if self.sensor is None:
-                w = f.attrs.get("width") or g.attrs.get("width")
-                h = f.attrs.get("height") or g.attrs.get("height")
+                with self._at("width/height attributes"):
+                    w = f.attrs.get("width") or g.attrs.get("width")
+                    h = f.attrs.get("height") or g.attrs.get("height")
                 if w and h:
                     self.sensor = SensorGeometry(int(w), int(h))
                 else:
                     k = min(self.n, 1 << 22)
                     if k == 0:
                         raise self.error("no events and no width/height attributes; pass a sensor geometry")
-                    self.sensor = sensor_from_extent(int(self._read(g["x"], slice(0, k)).max()),
-                                                     int(self._read(g["y"], slice(0, k)).max()))
+                    self.sensor = sensor_from_extent(int(self._read(ds["x"], slice(0, k)).max()),
+                                                     int(self._read(ds["y"], slice(0, k)).max()))
             else:
-                self._read(g["t"], slice(0, 1))
+                self._read(ds["t"], slice(0, 1))
         self.exposure_source = "none (no frames)"
 
     def _first_index(self, f) -> int:
         if self.start_us is None:
             return 0
         rel = self.start_us - self.t_offset
-        if "ms_to_idx" in f and rel >= 0:
-            m2i = f["ms_to_idx"]
+        with self._at("key /ms_to_idx"):
+            has_index = "ms_to_idx" in f
+        if has_index and rel >= 0:
+            m2i = self._get(f, "ms_to_idx")
             ms = rel // 1000
             if ms < m2i.shape[0]:
-                return int(self._read(m2i, ms))
-        t = f["events"]["t"]
+                return min(max(int(self._read(m2i, ms)), 0), self.n)
+        t = self._get(self._get(f, "events"), "t")
         return self._bisect(lambda i: int(self._read(t, i)), self.n, rel)
 
     def _packets(self) -> Iterator:
@@ -135,19 +217,25 @@ class DsecRecording(_Hdf5Recording):
 
     def _feed(self, asm: StreamAssembler) -> Iterator:
         with self._open() as f:
-            g = f["events"]
+            g = self._get(f, "events")
+            ds = {k: self._get(g, k) for k in "txyp"}
             for i in range(self._first_index(f), self.n, CHUNK):
                 sl = slice(i, min(i + CHUNK, self.n))
-                t = self._read(g["t"], sl).astype(np.int64) + self.t_offset
+                cols = [self._read(ds[k], sl) for k in "txyp"]
+                t, x, y, p, bad = _valid_rows(cols[0], cols[1], cols[2], cols[3], sl.stop - sl.start, 1.0)
                 ev = np.empty(t.size, EVENT_DTYPE)
-                ev["t"] = t
-                ev["x"] = self._read(g["x"], sl)
-                ev["y"] = self._read(g["y"], sl)
-                ev["p"] = np.where(self._read(g["p"], sl) > 0, 1, -1)
+                ev["t"] = t + self.t_offset
+                ev["x"] = x
+                ev["y"] = y
+                ev["p"] = np.where(p > 0, 1, -1)
                 asm.push_events(ev)
-                yield from asm.drain(int(t[-1]))
-                if self.past_end(int(t[0])):
-                    break
+                if bad is not None:
+                    raise self.error("non-numeric, non-finite or negative values in /events/{t,x,y,p}",
+                                     f"dataset /events row {i + bad}")
+                if ev.size:
+                    yield from asm.drain(int(ev["t"][-1]))
+                    if self.past_end(int(ev["t"][0])):
+                        break
 
 
 class MvsecRecording(_Hdf5Recording):
@@ -159,24 +247,41 @@ class MvsecRecording(_Hdf5Recording):
         super().__init__(path, **kwargs)
         self.group = f"davis/{camera}"
         with self._open() as f:
-            if self.group not in f or "events" not in f[self.group]:
+            with self._at(f"group /{self.group}"):
+                found = self.group in f and "events" in f[self.group]
+            if not found:
                 raise self.error(f"no {self.group}/events dataset")
-            g = f[self.group]
-            ev = g["events"]
-            if ev.ndim != 2 or ev.shape[1] < 4:
-                raise self.error(f"{self.group}/events must be N x 4 (x, y, t, p), got {ev.shape}")
-            self.n = int(ev.shape[0])
-            self.n_frames = int(g["image_raw"].shape[0]) if "image_raw" in g and "image_raw_ts" in g else 0
+            g = self._get(f, self.group)
+            ev = self._get(g, "events")
+            with self._at(f"dataset /{self.group}/events"):
+                shape = tuple(int(v) for v in ev.shape) if ev.shape is not None else ()
+            if len(shape) != 2 or shape[1] < 4:
+                raise self.error(f"{self.group}/events must be N x 4 (x, y, t, p), got {shape}")
+            self.n = shape[0]
+            with self._at(f"group /{self.group}"):
+                has_images = "image_raw" in g and "image_raw_ts" in g
+                self.has_imu = "imu" in g and "imu_ts" in g
+            self.n_frames = 0
+            if has_images:
+                img = self._get(g, "image_raw")
+                with self._at(f"dataset /{self.group}/image_raw"):
+                    ishape = tuple(int(v) for v in img.shape) if img.shape is not None else ()
+                if len(ishape) not in (3, 4) or min(ishape) <= 0:
+                    raise self.error(f"{self.group}/image_raw must be N x H x W, got {ishape}")
+                self.n_frames = ishape[0]
             if self.sensor is None:
                 if self.n_frames:
-                    h, w = g["image_raw"].shape[1:3]
+                    h, w = ishape[1:3]
                     self.sensor = DAVIS346 if (w, h) == (346, 260) else SensorGeometry(int(w), int(h))
                 elif self.n:
                     head = self._read(ev, slice(0, min(self.n, 1 << 20)))
-                    self.sensor = sensor_from_extent(int(head[:, 0].max()), int(head[:, 1].max()))
+                    _, x, y, _, bad = _valid_rows(head[:, 2], head[:, 0], head[:, 1], head[:, 3], head.shape[0], 1e6)
+                    if x.size == 0:
+                        raise self.error("no readable events to tell the sensor size; pass a sensor geometry",
+                                         f"dataset /{self.group}/events row {bad or 0}")
+                    self.sensor = sensor_from_extent(int(x.max()), int(y.max()))
                 else:
                     raise self.error("no events or images; pass a sensor geometry")
-            self.has_imu = "imu" in g and "imu_ts" in g
         if not self.n_frames:
             self.exposure_source = "none (no frames)"
         elif self.exposure_us is not None:
@@ -191,14 +296,24 @@ class MvsecRecording(_Hdf5Recording):
             self.warn(f"{self.n_frames} frames skipped: MVSEC stores no exposure; pass --exposure-us")
         return self._assembled(asm, self._feed(asm, use_frames))
 
+    def _times(self, g, key: str) -> np.ndarray:
+        """A time column in seconds -> int64 µs (a RecordingError if it holds non-finite values)."""
+        ds = self._get(g, key)
+        v = np.asarray(self._read(ds, slice(None)), np.float64).reshape(-1)
+        ok = np.isfinite(v) & (np.abs(v) < 9e12)
+        if not ok.all():
+            raise self.error("non-finite or absurd time stamps", f"dataset {ds.name} row {int(np.argmin(ok))}")
+        return np.rint(v * 1e6).astype(np.int64)
+
     def _feed(self, asm: StreamAssembler, use_frames) -> Iterator:
         with self._open() as f:
-            g = f[self.group]
-            ev_ds = g["events"]
-            stamps = np.rint(self._read(g["image_raw_ts"], slice(None)) * 1e6).astype(np.int64) \
-                if use_frames else np.zeros(0, np.int64)
-            imu_t = np.rint(self._read(g["imu_ts"], slice(None)) * 1e6).astype(np.int64) \
-                if self.has_imu else np.zeros(0, np.int64)
+            g = self._get(f, self.group)
+            ev_ds = self._get(g, "events")
+            stamps = self._times(g, "image_raw_ts") if use_frames else np.zeros(0, np.int64)
+            stamps = stamps[: self.n_frames]
+            imu_t = self._times(g, "imu_ts") if self.has_imu else np.zeros(0, np.int64)
+            img_ds = self._get(g, "image_raw") if use_frames else None
+            imu_ds = self._get(g, "imu") if self.has_imu else None
             half = 0 if self.exposure_us is None else self.exposure_us / 2
             i0 = 0
             if self.start_us is not None:
@@ -208,19 +323,30 @@ class MvsecRecording(_Hdf5Recording):
             else:
                 fi = ii = 0
             for i in range(i0, self.n, CHUNK):
-                rows = self._read(ev_ds, slice(i, min(i + CHUNK, self.n)))
-                ev = events_from_seconds(rows[:, 2], rows[:, 0], rows[:, 1], rows[:, 3])
+                rows = np.asarray(self._read(ev_ds, slice(i, min(i + CHUNK, self.n))))
+                if rows.ndim != 2 or rows.shape[1] < 4:
+                    raise self.error("events are not N x 4", f"dataset {ev_ds.name} rows [{i}:]")
+                t, x, y, p, bad = _valid_rows(rows[:, 2], rows[:, 0], rows[:, 1], rows[:, 3], rows.shape[0], 1e6)
+                ev = np.empty(t.size, EVENT_DTYPE)
+                ev["t"], ev["x"], ev["y"], ev["p"] = t, x, y, np.where(p > 0, 1, -1)
+                if bad is not None:
+                    asm.push_events(ev)
+                    raise self.error("non-finite or negative values in the events (x, y, t, p)",
+                                     f"dataset {ev_ds.name} row {i + bad}")
                 horizon = int(ev["t"][-1]) if ev.size else 0
                 last = i + CHUNK >= self.n
                 while fi < stamps.size and (last or stamps[fi] - half < horizon):
                     span = self.frame_exposure_from_stamp(int(stamps[fi]), None)
-                    img = to_gray8(self._read(g["image_raw"], fi))
-                    asm.push_frame(Frame(img, span[0], span[1], 1.0, fi))
+                    img = to_gray8(self._read(img_ds, fi))
+                    if img.ndim == 2:
+                        asm.push_frame(Frame(img, span[0], span[1], 1.0, fi))
                     fi += 1
                 if ii < imu_t.size:
                     jj = imu_t.size if last else int(np.searchsorted(imu_t, horizon))
                     if jj > ii:
-                        raw = self._read(g["imu"], slice(ii, jj))
+                        raw = np.asarray(self._read(imu_ds, slice(ii, jj)), np.float64)
+                        if raw.ndim != 2 or raw.shape[1] < 6 or raw.shape[0] != jj - ii:
+                            raise self.error("IMU samples are not N x 6", f"dataset {imu_ds.name} rows [{ii}:{jj}]")
                         asm.push_imu(imu_from_si(imu_t[ii:jj], raw[:, 0:3], raw[:, 3:6]))
                         ii = jj
                 asm.push_events(ev)

@@ -63,7 +63,8 @@ from ...core.frames import ExposureMarker, Frame
 from ...core.imu import IMU_DTYPE, TRIGGER_DTYPE, ImuBatch, TriggerBatch
 from ...core.sensor import SensorGeometry
 from ..source import CommandRecord
-from .base import Recording, RecordingError
+from ...core.errors import NecvizError
+from .base import Recording, RecordingError, first_line
 
 MAGIC = b"NECVIZ-REC\x00"
 VERSION = 1
@@ -256,13 +257,18 @@ class NativeRecording(Recording):
             raise self.error("missing or incomplete header chunk", PREAMBLE)
         try:
             header = json.loads(payload)
-            s = header["sensor"]
+            s = header["sensor"] if isinstance(header, dict) else None
+            if not isinstance(s, dict):
+                raise ValueError("no sensor object")
             stored = SensorGeometry(int(s["width"]), int(s["height"]), str(s.get("name", "custom")))
-        except (ValueError, KeyError, TypeError) as exc:
-            raise self.error(f"unreadable header chunk ({exc})", PREAMBLE) from None
+            props = header.get("properties") or {}
+            if not isinstance(props, dict):
+                raise ValueError("properties is not an object")
+        except (ValueError, KeyError, TypeError, OverflowError, NecvizError) as exc:
+            raise self.error(f"unreadable header chunk ({first_line(exc)})", PREAMBLE) from None
         self.header = header
         self.sensor = self.sensor or stored
-        self.properties = dict(header.get("properties") or {})
+        self.properties = dict(props)
         self.created_utc = header.get("created_utc")
         self._data_start = PREAMBLE + CHUNK_HEAD.size + length
         self._index: list[tuple[int, int, int, int]] | None = None  # (offset, type, length, t_us)
@@ -347,8 +353,10 @@ class NativeRecording(Recording):
                 kind2, _, _, full, status = self._read_chunk(off)
                 if status != "ok":
                     break
+                if len(full) < {MARKER: MARKER_S.size, COMMAND: COMMAND_S.size, ANNOTATION: T_S.size}[kind]:
+                    break  # malformed: iteration reports it
                 if kind == MARKER:
-                    tm, mk = MARKER_S.unpack(full)
+                    tm, mk = MARKER_S.unpack_from(full)
                     if mk == 0:
                         open_start = tm
                     elif open_start is not None:
@@ -365,7 +373,7 @@ class NativeRecording(Recording):
 
     @staticmethod
     def _command(data: bytes) -> CommandRecord:
-        issue, exp, gain, has, applied = COMMAND_S.unpack(data)
+        issue, exp, gain, has, applied = COMMAND_S.unpack_from(data)
         return CommandRecord(int(issue), float(exp), float(gain), int(applied) if has else None)
 
     def _annotation(self, data: bytes, offset: int):
@@ -422,7 +430,10 @@ class NativeRecording(Recording):
         commands: list[CommandRecord] = []
         notes: list = []
         complete = False
+        w, h = self.sensor.width, self.sensor.height
+        off_sensor = 0
         while True:
+            self._where = off
             kind, length, _, data, status = self._read_chunk(off)
             if status == "eof":
                 self.warn("recording has no end chunk (the writer was not closed); everything written was read")
@@ -438,6 +449,10 @@ class NativeRecording(Recording):
             try:
                 if kind == EVENTS:
                     ev = np.frombuffer(data, dtype=EVENT_DTYPE)
+                    if ev.size and (int(ev["x"].max()) >= w or int(ev["y"].max()) >= h):
+                        keep = (ev["x"] < w) & (ev["y"] < h)
+                        off_sensor += ev.size - int(keep.sum())
+                        ev = ev[keep]
                     if ev.size:
                         t = ev["t"]
                         if t[0] > hi and not awaiting_frame:
@@ -482,6 +497,8 @@ class NativeRecording(Recording):
                     raise
                 raise self.error(f"malformed {_NAMES[kind]} chunk ({exc})", off) from None
             off = next_off
+        if off_sensor:
+            self.warn(f"{off_sensor} events dropped: coordinates outside the {w}x{h} sensor")
         if complete and not ranged and self._index is None:
             self._commands, self._annotations = commands, notes
 

@@ -30,13 +30,21 @@ from ...core.events import EVENT_DTYPE
 from ...core.frames import Frame
 from ...core.imu import IMU_DTYPE
 from ...core.sensor import SensorGeometry
-from .base import G, NO_EXPOSURE_FRAMES, Recording, StreamAssembler, to_gray8
+from .base import G, NO_EXPOSURE_FRAMES, Recording, RecordingError, StreamAssembler, reason, to_gray8
 
 DVS_MSGS = {
     "dvs_msgs/msg/Event": "uint16 x\nuint16 y\nbuiltin_interfaces/Time ts\nbool polarity\n",
     "dvs_msgs/msg/EventArray": "std_msgs/Header header\nuint32 height\nuint32 width\ndvs_msgs/Event[] events\n",
 }
 ROS1_EVENT = np.dtype([("x", "<u2"), ("y", "<u2"), ("sec", "<u4"), ("nsec", "<u4"), ("p", "u1")])
+
+
+def _close(reader) -> None:
+    """Close a rosbags reader; closing a damaged bag may fail too, which changes nothing."""
+    try:
+        reader.close()
+    except Exception:  # noqa: BLE001
+        pass
 
 
 def _stamp_us(stamp) -> int:
@@ -53,41 +61,13 @@ class RosbagRecording(Recording):
         self._reader = None
         reader = self._open_reader()
         try:
-            self.ros1 = not self.path.is_dir() and self.path.suffix != ".mcap" and self.path.suffix != ".db3"
-            self.format = "rosbag1" if self.ros1 else "rosbag2"
-            conns = reader.connections
-            by_type = {}
-            for c in conns:
-                by_type.setdefault(c.msgtype.rsplit("/", 1)[-1], []).append(c)
-            evs = sorted(by_type.get("EventArray", []), key=lambda c: c.topic)
-            if not evs:
-                raise self.error("no dvs_msgs/EventArray topic (topics: "
-                                 + ", ".join(sorted({c.topic for c in conns})) + ")")
-            self.event_topic = evs[0].topic
-            others = sorted({c.topic for c in evs} - {self.event_topic})
-            if others:
-                self.warn(f"replaying events of {self.event_topic}; other event topics ignored: {', '.join(others)}")
-            ns = self.event_topic.rsplit("/", 1)[0]
-            imgs = [c for c in by_type.get("Image", []) if c.msgtype == "sensor_msgs/msg/Image"]
-            imgs.sort(key=lambda c: (not c.topic.startswith(ns + "/"), "image_raw" not in c.topic, c.topic))
-            self.image_topic = imgs[0].topic if imgs else None
-            exps = [c for c in by_type.get("Int32", []) if c.topic.endswith("exposure")]
-            exps.sort(key=lambda c: (not c.topic.startswith(ns + "/"), c.topic))
-            self.exposure_topic = exps[0].topic if exps else None
-            imus = sorted(by_type.get("Imu", []), key=lambda c: (not c.topic.startswith(ns + "/"), c.topic))
-            self.imu_topic = imus[0].topic if imus else None
-            self._topics = {self.event_topic, self.image_topic, self.exposure_topic, self.imu_topic} - {None}
-            if self.sensor is None:
-                first = next(c for c in conns if c.topic == self.event_topic)
-                for conn, _, raw in reader.messages(connections=[first]):
-                    m = reader.deserialize(raw, conn.msgtype)
-                    if m.width and m.height:
-                        self.sensor = SensorGeometry(int(m.width), int(m.height))
-                        break
-            if self.sensor is None:
-                raise self.error("EventArray messages declare no width/height; pass a sensor geometry")
+            self._inspect(reader)
+        except RecordingError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - rosbags/apsw/mcap raise their own types on a damaged bag
+            raise self.error(f"unreadable bag ({reason(exc)})", self._where) from None
         finally:
-            reader.close()
+            _close(reader)
         if self.image_topic is None:
             self.exposure_source = "none (no frames)"
         elif self.exposure_topic is not None:
@@ -98,6 +78,44 @@ class RosbagRecording(Recording):
             self.exposure_source = NO_EXPOSURE_FRAMES
         self.properties = {"event_topic": self.event_topic, "image_topic": self.image_topic,
                            "exposure_topic": self.exposure_topic, "imu_topic": self.imu_topic}
+
+    def _inspect(self, reader) -> None:
+        """Choose the topics (and read the sensor size from the first EventArray if needed)."""
+        self._where = "the bag's connection table"
+        self.ros1 = not self.path.is_dir() and self.path.suffix != ".mcap" and self.path.suffix != ".db3"
+        self.format = "rosbag1" if self.ros1 else "rosbag2"
+        conns = reader.connections
+        by_type = {}
+        for c in conns:
+            by_type.setdefault(c.msgtype.rsplit("/", 1)[-1], []).append(c)
+        evs = sorted(by_type.get("EventArray", []), key=lambda c: c.topic)
+        if not evs:
+            raise self.error("no dvs_msgs/EventArray topic (topics: "
+                             + ", ".join(sorted({c.topic for c in conns})) + ")")
+        self.event_topic = evs[0].topic
+        others = sorted({c.topic for c in evs} - {self.event_topic})
+        if others:
+            self.warn(f"replaying events of {self.event_topic}; other event topics ignored: {', '.join(others)}")
+        ns = self.event_topic.rsplit("/", 1)[0]
+        imgs = [c for c in by_type.get("Image", []) if c.msgtype == "sensor_msgs/msg/Image"]
+        imgs.sort(key=lambda c: (not c.topic.startswith(ns + "/"), "image_raw" not in c.topic, c.topic))
+        self.image_topic = imgs[0].topic if imgs else None
+        exps = [c for c in by_type.get("Int32", []) if c.topic.endswith("exposure")]
+        exps.sort(key=lambda c: (not c.topic.startswith(ns + "/"), c.topic))
+        self.exposure_topic = exps[0].topic if exps else None
+        imus = sorted(by_type.get("Imu", []), key=lambda c: (not c.topic.startswith(ns + "/"), c.topic))
+        self.imu_topic = imus[0].topic if imus else None
+        self._topics = {self.event_topic, self.image_topic, self.exposure_topic, self.imu_topic} - {None}
+        if self.sensor is None:
+            first = next(c for c in conns if c.topic == self.event_topic)
+            for k, (conn, _, raw) in enumerate(reader.messages(connections=[first])):
+                self._where = f"message {k} of {self.event_topic}"
+                m = reader.deserialize(raw, conn.msgtype)
+                if m.width and m.height:
+                    self.sensor = SensorGeometry(int(m.width), int(m.height))
+                    break
+        if self.sensor is None:
+            raise self.error("EventArray messages declare no width/height; pass a sensor geometry")
 
     def _open_reader(self):
         from rosbags.highlevel import AnyReader
@@ -111,12 +129,14 @@ class RosbagRecording(Recording):
             store.register(types)
         except Exception:  # noqa: BLE001 - already registered / conflicting definitions from the bag win
             pass
+        reader = None
         try:
             reader = AnyReader([self.path], default_typestore=store)
             reader.open()
         except Exception as exc:  # noqa: BLE001 - rosbags raises its own error types with a message
-            raise self.error(f"unreadable bag ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") \
-                from None
+            if reader is not None:
+                _close(reader)
+            raise self.error(f"unreadable bag ({reason(exc)})", "its index/metadata") from None
         return reader
 
     def _events(self, reader, conn, raw) -> np.ndarray:
@@ -130,7 +150,7 @@ class RosbagRecording(Recording):
             ev["t"] = rec["sec"].astype(np.int64) * 1_000_000 + (rec["nsec"].astype(np.int64) + 500) // 1000
             ev["x"] = rec["x"]
             ev["y"] = rec["y"]
-            ev["p"] = rec["p"].astype(np.int8) * 2 - 1
+            ev["p"] = np.where(rec["p"] > 0, 1, -1)
             return ev
         m = reader.deserialize(raw, conn.msgtype)
         es = m.events
@@ -144,6 +164,7 @@ class RosbagRecording(Recording):
 
     def _packets(self) -> Iterator:
         asm = StreamAssembler(self.sensor, start_us=self.start_us, end_us=self.end_us)
+        self._asm = asm
         reader = self._open_reader()
         exposure = None
         lag, seq, no_exposure = 0, 0, 0
@@ -153,8 +174,9 @@ class RosbagRecording(Recording):
         try:
             try:
                 conns = [c for c in reader.connections if c.topic in self._topics]
-                for conn, _bag_t, raw in reader.messages(connections=conns, **kw):
+                for k, (conn, bag_t, raw) in enumerate(reader.messages(connections=conns, **kw)):
                     topic = conn.topic
+                    self._where = f"message {k} ({topic}, bag time {bag_t} ns)"
                     if topic == self.event_topic:
                         ev = self._events(reader, conn, raw)
                         if ev.size and np.any(ev["t"][1:] < ev["t"][:-1]):
@@ -186,19 +208,17 @@ class RosbagRecording(Recording):
                         yield from asm.drain(watermark)
                     if watermark is not None and self.past_end(watermark):
                         break
-            except Exception as exc:  # noqa: BLE001 - damaged bag: report after what was read
-                if isinstance(exc, GeneratorExit):
-                    raise
+            except RecordingError:
+                raise
+            except Exception as exc:  # noqa: BLE001 - rosbags/apsw/mcap/NumPy on a damaged bag
+                where = self._where
                 yield from asm.drain(None)
-                raise self.error(f"damaged bag ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") \
-                    from None
+                raise self.error(f"damaged bag ({reason(exc)})", where) from None
             yield from asm.drain(None)
         finally:
-            reader.close()
+            _close(reader)
             if no_exposure:
                 self.warn(f"{no_exposure} frames skipped: no exposure message before them; pass --exposure-us")
-            for w in asm.warnings():
-                self.warn(w)
 
     @staticmethod
     def _image(m) -> np.ndarray:

@@ -125,8 +125,13 @@ def describe(path, progress=None, **open_kwargs) -> RecordingInfo:
                 pass
     except RecordingError as exc:
         damage = f"stopped at damage: {exc}"
+    try:
+        with rec.converting():
+            commands, notes = rec.commands, rec.annotations
+    except RecordingError as exc:
+        commands, notes = [], []
+        damage = damage or f"stopped at damage: {exc}"
     warnings = list(rec.warnings) + ([damage] if damage else [])
-    commands, notes = rec.commands, rec.annotations
     info = RecordingInfo(
         path=str(rec.path), format=rec.format, width=rec.sensor.width, height=rec.sensor.height,
         t_start_us=t0, t_end_us=t1, duration_s=0.0 if t0 is None else (t1 - t0) / 1e6,

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import io
 import os
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -35,30 +36,56 @@ BLOCK_BYTES = 8 << 20
 
 
 def _parse(block: bytes, ncols: int) -> np.ndarray:
-    arr = np.loadtxt(io.BytesIO(block), dtype=np.float64, comments="#", ndmin=2)
+    with warnings.catch_warnings():  # a block of comments only is not worth a warning
+        warnings.simplefilter("ignore", UserWarning)
+        arr = np.loadtxt(io.BytesIO(block), dtype=np.float64, comments="#", ndmin=2)
     if arr.size and arr.shape[1] < ncols:
         raise ValueError(f"expected {ncols} columns, found {arr.shape[1]}")
     return arr[:, :ncols] if arr.size else np.zeros((0, ncols))
 
 
-def _bad_line(block: bytes, ncols: int) -> tuple[int, str]:
-    """Offset (within the block) and text of the first line that does not parse."""
+def _data_lines(block: bytes) -> Iterator[tuple[int, bytes]]:
+    """(offset in the block, content before any '#') of every line NumPy's parser reads as data."""
     pos = 0
     for line in block.split(b"\n"):
-        s = line.strip()
-        if s and not s.startswith(b"#"):
-            try:
-                vals = [float(v) for v in s.split()]
-                if len(vals) < ncols:
-                    raise ValueError
-            except ValueError:
-                return pos, line[:40].decode("latin-1")
+        s = line.split(b"#", 1)[0].strip()
+        if s:
+            yield pos, s
         pos += len(line) + 1
-    return 0, ""
 
 
-def numeric_blocks(rec: Recording, path: Path, ncols: int, start_offset: int = 0) -> Iterator[tuple[int, np.ndarray]]:
-    """Yield (byte offset, float64 rows) blocks of a whitespace-separated numeric text file."""
+def _bad_line(block: bytes, ncols: int) -> tuple[int, str]:
+    """Offset (within the block) and text of the first line that does not parse: not numbers,
+    fewer than ``ncols`` columns, or a column count different from the first line's."""
+    count = None
+    for pos, s in _data_lines(block):
+        try:
+            vals = [float(v) for v in s.split()]
+        except ValueError:
+            return pos, s[:40].decode("latin-1")
+        if count is None:
+            count = len(vals)
+        if len(vals) < ncols or len(vals) != count:
+            return pos, s[:40].decode("latin-1")
+    return len(block), ""
+
+
+def _nth_line(block: bytes, k: int) -> tuple[int, str]:
+    """Offset and text of the ``k``-th data line of ``block``."""
+    for i, (pos, s) in enumerate(_data_lines(block)):
+        if i == k:
+            return pos, s[:40].decode("latin-1")
+    return len(block), ""
+
+
+def numeric_blocks(rec: Recording, path: Path, ncols: int, start_offset: int = 0,
+                   valid=None) -> Iterator[tuple[int, np.ndarray]]:
+    """Yield (byte offset, float64 rows) blocks of a whitespace-separated numeric text file.
+
+    ``valid(rows) -> bool mask`` marks rows whose values are possible. The first line that does not
+    parse (or is not valid) raises :class:`RecordingError` with its byte offset, after the rows
+    before it were yielded.
+    """
     size = os.path.getsize(path)
     with open(path, "rb") as f:
         off = start_offset
@@ -75,17 +102,51 @@ def numeric_blocks(rec: Recording, path: Path, ncols: int, start_offset: int = 0
                     carry = block
                     continue
                 block, carry = block[:cut], block[cut:]
+            rec._where = off
             try:
                 rows = _parse(block, ncols)
+                at, text = len(block), ""
             except ValueError:
                 at, text = _bad_line(block, ncols)
-                if at:
-                    yield off, _parse(block[:at], ncols)  # everything before the damaged line
-                raise rec.error(f"unparsable line {text!r} in {path.name}", off + at) from None
+                try:
+                    rows = _parse(block[:at], ncols)
+                except ValueError:  # cannot happen after _bad_line; report the block start
+                    rows, at, text = np.zeros((0, ncols)), 0, ""
+            if valid is not None and rows.size:
+                ok = np.asarray(valid(rows), bool)
+                if not ok.all():
+                    k = int(np.argmin(ok))
+                    rows = rows[:k]
+                    at, text = _nth_line(block, k)
+            if at < len(block):
+                if rows.size:
+                    yield off, rows  # everything before the damaged line
+                raise rec.error(f"unparsable line {text!r} in {path.name}", off + at)
             yield off, rows
             off += len(block)
             if not data:
                 break
+
+
+def _valid_events(rows: np.ndarray) -> np.ndarray:
+    """Events ``t x y p`` that can be: finite, time within int64 µs, coordinates 0..65535."""
+    t, x, y, p = rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3]
+    return (np.isfinite(rows).all(axis=1) & (np.abs(t) < 9e12) & (x >= 0) & (x <= 65535) & (y >= 0)
+            & (y <= 65535) & np.isfinite(p))
+
+
+def _valid_imu(rows: np.ndarray) -> np.ndarray:
+    return np.isfinite(rows).all(axis=1) & (np.abs(rows[:, 0]) < 9e12)
+
+
+def _imread(file: Path):
+    """The image at ``file`` (OpenCV, unchanged depth), or None if it cannot be read."""
+    import cv2
+
+    try:
+        return cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
+    except Exception:  # noqa: BLE001 - cv2.error / ValueError for an impossible path or image
+        return None
 
 
 class RpgTextRecording(Recording):
@@ -108,15 +169,11 @@ class RpgTextRecording(Recording):
         if self.images_path.is_file():
             for off, rows in self._image_lines():
                 self._frames.append(rows)
-        first_img = None
-        if self._frames:
-            import cv2
-
-            first_img = cv2.imread(str(self._frames[0][1]), cv2.IMREAD_UNCHANGED)
+        first_img = _imread(self._frames[0][1]) if self._frames else None
         if self.sensor is None and first_img is not None:
             self.sensor = SensorGeometry(int(first_img.shape[1]), int(first_img.shape[0]))
         if self.sensor is None:
-            off, rows = next(numeric_blocks(self, self.events_path, 4), (0, np.zeros((0, 4))))
+            off, rows = next(numeric_blocks(self, self.events_path, 4, valid=_valid_events), (0, np.zeros((0, 4))))
             if rows.size == 0:
                 raise self.error("no events in events.txt and no images to tell the sensor size")
             self.sensor = sensor_from_extent(int(rows[:, 1].max()), int(rows[:, 2].max()))
@@ -138,7 +195,9 @@ class RpgTextRecording(Recording):
                     try:
                         t = int(round(float(parts[0]) * 1e6))
                         name = parts[1].decode()
-                    except (ValueError, IndexError):
+                        if "\x00" in name:
+                            raise ValueError("NUL in a file name")
+                    except (ValueError, IndexError, OverflowError):
                         raise RecordingError(f"{self.images_path}: unparsable line {s[:40]!r} at byte {off}") from None
                     yield off, (t, folder / name)
                 off += len(line)
@@ -178,9 +237,7 @@ class RpgTextRecording(Recording):
             return self._ts_at(f, lo)[0]
 
     def _load_frame(self, i: int, t: int, file: Path):
-        import cv2
-
-        img = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
+        img = _imread(file)
         if img is None:
             raise self.error(f"cannot read image {file}")
         span = self.frame_exposure_from_stamp(t, None)
@@ -189,7 +246,9 @@ class RpgTextRecording(Recording):
     def _imu_blocks(self):
         if not self.imu_path.is_file():
             return
-        for _, rows in numeric_blocks(self, self.imu_path, 7):
+        for _, rows in numeric_blocks(self, self.imu_path, 7, valid=_valid_imu):
+            if rows.shape[0] == 0:
+                continue
             yield imu_from_si(np.rint(rows[:, 0] * 1e6).astype(np.int64), rows[:, 1:4], rows[:, 4:7])
 
     def _packets(self) -> Iterator:
@@ -203,7 +262,7 @@ class RpgTextRecording(Recording):
         fi = 0
         imu_iter = self._imu_blocks()
         imu_next = next(imu_iter, None)
-        for off, rows in numeric_blocks(self, self.events_path, 4, self._seek()):
+        for off, rows in numeric_blocks(self, self.events_path, 4, self._seek(), valid=_valid_events):
             if rows.shape[0] == 0:
                 continue
             ev = events_from_seconds(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3])
