@@ -1,7 +1,7 @@
 """The event generation model shared by EDI, TEDI and P-TEDI, and its segment integral.
 
-Direct integral with TEDI compensation (nec-method.md, our design decision for the
-paper's Eq. 6 terms; ``u = |t - g|``, ``m±`` = number of ON/OFF events between ``g`` and ``t``,
+Direct integral with TEDI compensation (our design decision for the paper's Eq. 6 terms, see
+docs/method.md; ``u = |t - g|``, ``m±`` = number of ON/OFF events between ``g`` and ``t``,
 ``σ = sign(t - g)``)::
 
     D±(g,t)   = σ m±
@@ -9,7 +9,9 @@ paper's Eq. 6 terms; ``u = |t - g|``, ``m±`` = number of ON/OFF events between 
     c^T D     = c+ (D+ + D_c+) - c- (D- + D_c-)
 
 With ``a = b = 0`` this is the plain EDI model ``c+ n+ - c- n-``. The compensation credits
-log change for events a pixel misses when its event rate exceeds ``b±/a±``.
+log change for events a pixel misses when its event rate exceeds ``b±/a±``. The terms are per
+pixel: EDI/TEDI apply them to each pixel's counts, and P-TEDI averages the per-pixel terms over
+its region (Eq. 11; :mod:`necviz.core.ptedi`), never applies them to region-mean counts.
 Units: ``c±`` natural-log units per event, ``a±`` dimensionless, ``b±`` events per pixel per
 second, times in µs.
 """

@@ -9,7 +9,7 @@ and ends, so integrals over the exposure can be accumulated as events stream in
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -18,13 +18,20 @@ from .errors import FrameFormatError
 
 @dataclass(frozen=True, eq=False)
 class Frame:
-    """An 8-bit image ``Z`` (H x W) with exposure ``[exposure_start_us, exposure_end_us]`` and gain ``K >= 1``."""
+    """An 8-bit image ``Z`` (H x W) with exposure ``[exposure_start_us, exposure_end_us]`` and gain ``K >= 1``.
+
+    ``truth``: what a real camera cannot know, attached by the simulator only — a
+    :class:`necviz.core.metrics.GroundTruth` (the exposure-averaged true irradiance of every pixel,
+    the scene's lighting trace around the exposure, the camera's true limits and latency). ``None``
+    for frames from cameras and files; never written by recorders, not part of equality or ``repr``.
+    """
 
     image: np.ndarray
     exposure_start_us: int
     exposure_end_us: int
     gain: float = 1.0
     sequence: int = 0
+    truth: object | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         img = self.image

@@ -7,9 +7,12 @@ compensation ``a±, b±``) and the exposure/gain limits. The file is plain JSON:
      "sensor": {"width": 346, "height": 260},
      "crf": {"g": [256 numbers], "valid_min": 9, "valid_max": 250},
      "tedi": {"c_on": 0.26, "c_off": 0.24, "a_on": 0, "b_on": 0, "a_off": 0, "b_off": 0},
-     "limits": {"exposure_min_us": 10, "exposure_max_us": 30000, "gain_max": 1}}
+     "limits": {"exposure_min_us": 10, "exposure_max_us": 30000, "gain_max": 1},
+     "calibration": {...}}
 
-``b±`` are in events per pixel per second.
+``b±`` are in events per pixel per second. ``calibration`` is optional: how the profile was
+obtained (``necviz calibrate`` writes the data used and the residuals before and after); it is
+kept on load and written back unchanged.
 """
 
 from __future__ import annotations
@@ -37,9 +40,10 @@ class CameraProfile:
     crf: CameraResponse = field(default_factory=default_davis346)
     tedi: TediParams = TediParams()
     limits: CameraLimits = CameraLimits()
+    calibration: dict | None = field(default=None, compare=False, hash=False)
 
     def to_dict(self) -> dict:
-        return {
+        d = {
             "format": FORMAT,
             "version": VERSION,
             "name": self.name,
@@ -48,6 +52,9 @@ class CameraProfile:
             "tedi": asdict(self.tedi),
             "limits": asdict(self.limits),
         }
+        if self.calibration is not None:
+            d["calibration"] = self.calibration
+        return d
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "profile") -> "CameraProfile":
@@ -55,6 +62,9 @@ class CameraProfile:
             raise ProfileError(f"{source}: not a necviz camera profile (missing \"format\": \"{FORMAT}\")")
         if d.get("version") != VERSION:
             raise ProfileError(f"{source}: profile version {d.get('version')!r} is not supported (expected {VERSION})")
+        cal = d.get("calibration")
+        if cal is not None and not isinstance(cal, dict):
+            raise ProfileError(f"{source}: section \"calibration\" must be an object")
         try:
             s = _section(d, "sensor", source)
             c = _section(d, "crf", source)
@@ -66,6 +76,7 @@ class CameraProfile:
                 crf=CameraResponse(c["g"], c.get("valid_min", 9), c.get("valid_max", 250)),
                 tedi=TediParams(**{k: _num(t, k, source) for k in t}),
                 limits=CameraLimits(**{k: _num(lim, k, source) for k in lim}),
+                calibration=cal,
             )
         except ProfileError:
             raise

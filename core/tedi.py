@@ -13,7 +13,7 @@ event-free stretch is integrated in closed form by
 ``σ = sign(t-g)``). Conventions as in :mod:`necviz.core.edi` (an event at ``τ`` has happened
 for ``t > τ``; ``g`` anywhere relative to the exposure).
 
-Calibration (Eq. 7, with squared residuals as nec-method.md decides): for consecutive frames
+Calibration (Eq. 7, with squared residuals; see docs/method.md): for consecutive frames
 ``i-1, i`` and a common reference ``g`` (default: the exposure start of frame ``i-1``),
 minimise ``Σ_i Σ_x (ln L_i(g,x) - ln L_{i-1}(g,x))^2`` over pixels valid in both frames with
 ``scipy.optimize.least_squares``.
@@ -22,12 +22,20 @@ Parameterisation: when both ``a±`` and ``b±`` of a polarity are fitted, the so
 ``a±`` and the knee rate ``θ± = b±/a±`` (events/s), so ``D_c = a (m - θ u)``: the gradient in
 ``a±`` stays non-zero at ``a± = 0`` wherever a pixel fires faster than ``θ±``. (With ``(a, b)``
 directly the cost is flat in both once ``a = 0 < b``, a trap observed in practice.) Fitting
-``b±`` alone with ``a± = 0`` fixed cannot move: the compensation is then inactive.
+``b±`` alone with ``a± = 0`` fixed cannot move: the compensation is then inactive. A knee of
+zero makes the compensation ``a m`` a mere rescaling of ``c`` (``c (1 + a)``), so
+:func:`fit_tedi_pairs` can bound the knee below (``knee_min``).
+
+Two layers: :func:`prepare_pair` selects the pixels of one frame pair and keeps only their
+events (:class:`CalibrationPair`, compact: nothing sensor-sized is stored per pair), and
+:func:`fit_tedi_pairs` fits on any list of such pairs — from one array of events
+(:func:`calibrate_tedi`) or streamed from long recordings and simulator runs
+(:mod:`necviz.calibrate`, which also picks the pairs).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numba as nb
 import numpy as np
@@ -50,10 +58,12 @@ from .errors import ParameterError
 from .event_model import TediParams, segment_integral
 from .frames import Frame
 
-__all__ = ["TediCalibration", "calibrate_tedi", "tedi_reconstruct", "valid_mask", "PARAM_NAMES", "REFERENCES"]
+__all__ = ["CalibrationPair", "TediCalibration", "calibrate_tedi", "fit_tedi_pairs", "last_polarity_before",
+           "pair_residuals", "prepare_pair", "tedi_reconstruct", "valid_mask", "PARAM_NAMES", "REFERENCES"]
 
 PARAM_NAMES = ("c_on", "c_off", "a_on", "b_on", "a_off", "b_off")
 REFERENCES = ("previous_start", "previous_end", "current_start", "current_end")
+PEAK_BIN_US = 2_000  # bin of CalibrationPair.peak_rate
 
 
 @nb.njit(cache=True)
@@ -130,13 +140,64 @@ def tedi_reconstruct(events: np.ndarray, frame: Frame, g_us: int, params: TediPa
 # -- calibration (Eq. 7) ----------------------------------------------------------------------------
 
 
+@nb.njit(cache=True)
+def tedi_integral_compact(t, k, p, npix, s, e, g, c_on, c_off, a_on, b_on, a_off, b_off):
+    """:func:`tedi_exposure_integral` for events already mapped to compact pixel indices.
+
+    ``k[i]`` in ``0..npix-1`` is the output index of event ``i``'s pixel (the calibration keeps
+    only the pixels it uses, so no sensor-sized map is stored per frame pair). Same conventions:
+    events sorted by time, possibly extending beyond ``[min(g,s), max(g,e))``; ``b±`` per µs.
+    Returns ``∫_s^e exp(c^T D(g,t,x)) dt`` per pixel (Eq. 5-6). O(events + pixels).
+    """
+    n_on = np.zeros(npix, np.int64)
+    n_off = np.zeros(npix, np.int64)
+    for i in range(t.shape[0]):  # signed counts between g and s
+        ti = t[i]
+        if g <= ti and ti < s:
+            sgn = 1
+        elif s <= ti and ti < g:
+            sgn = -1
+        else:
+            continue
+        if p[i] > 0:
+            n_on[k[i]] += sgn
+        else:
+            n_off[k[i]] += sgn
+    last = np.full(npix, s, np.int64)
+    acc = np.zeros(npix)
+    for i in range(t.shape[0]):
+        ti = t[i]
+        if ti < s:
+            continue
+        if ti >= e:
+            break
+        j = k[i]
+        if ti > last[j]:
+            acc[j] += stretch_integral(last[j], ti, g, n_on[j], n_off[j], c_on, c_off, a_on, b_on, a_off, b_off)
+            last[j] = ti
+        if p[i] > 0:
+            n_on[j] += 1
+        else:
+            n_off[j] += 1
+    for j in range(npix):
+        acc[j] += stretch_integral(last[j], e, g, n_on[j], n_off[j], c_on, c_off, a_on, b_on, a_off, b_off)
+    return acc
+
+
 @dataclass(frozen=True)
 class TediCalibration:
-    """Result of :func:`calibrate_tedi`.
+    """Result of :func:`calibrate_tedi` / :func:`fit_tedi_pairs`.
 
     ``cost`` is ``0.5 Σ r^2`` at the solution; ``rms_before``/``rms_after`` the RMS residual
     (ln units) at ``init`` and at the solution; ``num_pairs`` the frame pairs that contributed,
-    ``num_residuals`` the pixel residuals per evaluation.
+    ``num_residuals`` the pixel residuals per evaluation. ``pair_rms_before``/``pair_rms_after``
+    the RMS residual of each pair (same order as the pairs). ``stderr``: the standard error of
+    each fitted parameter from the Gauss-Newton covariance ``s² (JᵀJ)⁻¹`` (``s²`` = residual
+    variance; it assumes independent residuals, so read it as a lower bound), NaN for parameters
+    not fitted or held at a bound (``at_bound``). ``evaluations``: residual evaluations used.
+    ``inactive``: polarities (``"on"``/``"off"``) whose fitted compensation acted on no pixel of
+    the data (its knee above every rate seen); their ``a, b`` are reported as 0, which gives
+    exactly the same residuals.
     """
 
     params: TediParams
@@ -147,19 +208,78 @@ class TediCalibration:
     num_residuals: int
     success: bool
     message: str
+    pair_rms_before: tuple = ()
+    pair_rms_after: tuple = ()
+    stderr: dict = field(default_factory=dict)
+    at_bound: tuple = ()
+    evaluations: int = 0
+    inactive: tuple = ()
 
 
 @dataclass
-class _Side:
-    """One frame of a pair, everything that does not depend on the parameters."""
+class CalibrationPair:
+    """Two consecutive frames ``i-1, i`` prepared for Eq. 7: everything that does not depend on the
+    parameters or on the camera response ``g``.
 
+    ``t, k, p``: the events of the used pixels in ``[min(g, s_prev), max(g, e_cur))`` (time, compact
+    pixel index ``0..n-1``, polarity); ``z_prev``/``z_cur`` the digital values of the used pixels.
+    ``valid_pixels``: pixels valid in both frames before the change threshold and the subsample;
+    ``events_per_pixel``: events per used pixel in the window; ``mean_abs_change``: mean
+    ``|ln Lbar_i - ln Lbar_{i-1}|`` of the used pixels (response used for the selection);
+    ``peak_rate``: the highest event rate per used pixel (events/s) in 2 ms bins of the window,
+    a measure of how fast the scene changed (aggregated over all used pixels);
+    ``bus_peak_rate``: the highest sensor-wide event rate (all pixels, events/s, 1 ms bins) in the
+    window, set by the caller that has all events (0 if unknown): near the sensor's bus ceiling
+    events were dropped.
+    Memory: 13 bytes per event plus 2 per pixel.
+    """
+
+    g: int
     t: np.ndarray
-    x: np.ndarray
-    y: np.ndarray
+    k: np.ndarray
     p: np.ndarray
-    s: int
-    e: int
-    log_lbar: np.ndarray  # ln Lbar of the selected pixels, in compact order
+    z_prev: np.ndarray
+    z_cur: np.ndarray
+    s_prev: int
+    e_prev: int
+    gain_prev: float
+    s_cur: int
+    e_cur: int
+    gain_cur: float
+    seq_prev: int = 0
+    seq_cur: int = 0
+    valid_pixels: int = 0
+    events_per_pixel: float = 0.0
+    mean_abs_change: float = 0.0
+    peak_rate: float = 0.0
+    bus_peak_rate: float = 0.0
+    source: str = ""
+
+    @property
+    def n(self) -> int:
+        return int(self.z_prev.size)
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.t.nbytes + self.k.nbytes + self.p.nbytes + self.z_prev.nbytes + self.z_cur.nbytes)
+
+    def log_lbar(self, crf: CameraResponse) -> tuple[np.ndarray, np.ndarray]:
+        """``ln Lbar = g(Z) - ln T - ln K`` (Eq. 1) of the used pixels in both frames."""
+        a = np.asarray(crf.log_irradiance(self.z_prev, self.e_prev - self.s_prev, self.gain_prev), np.float64)
+        b = np.asarray(crf.log_irradiance(self.z_cur, self.e_cur - self.s_cur, self.gain_cur), np.float64)
+        return a, b
+
+    def stats(self) -> dict:
+        """Plain numbers describing the pair (for reports)."""
+        return {"source": self.source, "frames": [int(self.seq_prev), int(self.seq_cur)],
+                "t_us": [int(self.s_prev), int(self.e_cur)],
+                "exposure_us": [int(self.e_prev - self.s_prev), int(self.e_cur - self.s_cur)],
+                "gain": [float(self.gain_prev), float(self.gain_cur)], "pixels": self.n,
+                "valid_pixels": int(self.valid_pixels), "events_per_pixel": round(float(self.events_per_pixel), 4),
+                "events_per_pixel_per_s": round(float(self.events_per_pixel) * 1e6 / max(1, self.e_cur - self.s_prev), 2),
+                "mean_abs_change": round(float(self.mean_abs_change), 4),
+                "peak_rate_per_pixel": round(float(self.peak_rate), 1),
+                "bus_peak_rate_mev_s": round(float(self.bus_peak_rate) / 1e6, 3)}
 
 
 def _reference_time(reference: str, prev: Frame, cur: Frame) -> int:
@@ -171,74 +291,160 @@ def _reference_time(reference: str, prev: Frame, cur: Frame) -> int:
     }[reference]
 
 
-def calibrate_tedi(
-    events: np.ndarray,
-    frames,
-    crf: CameraResponse,
-    init: TediParams = TediParams(),
-    reference: str = "previous_start",
-    fit=PARAM_NAMES,
-    max_pixels: int | None = 20_000,
-    progress=None,
-) -> TediCalibration:
-    """Fit the TEDI parameters by frame-to-frame consistency (Eq. 7, squared residuals).
+def _check_count(name: str, v, allow_none: bool = False, minimum: int = 1) -> None:
+    if v is None and allow_none:
+        return
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < minimum:
+        extra = " or None" if allow_none else ""
+        raise ParameterError(f"{name} must be an integer >= {minimum}{extra}, got {v!r}")
 
-    For each pair of consecutive frames ``(i-1, i)`` and reference ``g`` (``reference``:
-    ``"previous_start"`` = exposure start of frame ``i-1`` (default), ``"previous_end"``,
-    ``"current_start"``, ``"current_end"``), the residual of a pixel valid in both frames is
-    ``ln L_i(g,x) - ln L_{i-1}(g,x)`` by :func:`tedi_reconstruct`. ``fit`` names the parameters
-    to optimise (the others stay at ``init``); bounds ``c in [0.01, 2]``, ``a, b >= 0``.
-    ``max_pixels`` caps the pixels used per pair (an even subsample of the valid ones; ``None``:
-    all). ``progress(evaluations, rms)`` is called after every residual evaluation.
-    Event slices, ``ln Lbar`` and masks are computed once; each evaluation costs
-    O(events + pixels) per pair.
+
+def prepare_pair(events: np.ndarray, prev: Frame, cur: Frame, crf: CameraResponse, *,
+                 reference: str = "previous_start", max_pixels: int | None = 20_000, min_change: float = 0.0,
+                 min_pixels: int = 1, last_polarity: np.ndarray | None = None,
+                 mask: np.ndarray | None = None, source: str = "") -> CalibrationPair | None:
+    """Select the pixels of one frame pair for Eq. 7 and keep their events; ``None`` if too few qualify.
+
+    A pixel is used when its digital value is valid (``crf.valid_min..valid_max``) in both frames
+    and its frame-measured change ``|ln Lbar_i - ln Lbar_{i-1}|`` is at least ``min_change`` (ln
+    units). Selecting on the frames, not on the event counts, keeps the selection independent of
+    the event quantisation noise (selecting on counts would bias the thresholds). When more than
+    ``max_pixels`` qualify an even subsample is kept. The pair is rejected (``None``) when fewer
+    than ``min_pixels`` qualify. ``events`` must be sorted and cover ``[min(g, s_prev), max(g, e_cur))``
+    (``g`` from ``reference``, see :func:`calibrate_tedi`); they may extend beyond it.
+
+    ``last_polarity`` (flat or (H, W) int8: each pixel's last event polarity before ``s_prev``,
+    0 for none; :func:`last_polarity_before`) enables the *continuation rule*: a pixel is used only
+    when its change continues in the direction of its previous event (``sign(change) ==
+    last_polarity``). A DVS pixel is a hysteretic quantiser: after ON events its reference lies
+    below the level (by ``[0, c+)``), after OFF events above it, so the first change after a
+    reversal emits on average about ``(c+ + c-) / 2`` less than the model credits, which Eq. 7
+    would absorb into larger thresholds. The rule uses the history before the pair and the
+    frames, never the pair's own event counts.
+
+    ``mask`` (bool, flat or (H, W)): the pixels to use, selected by the caller with the same rules
+    (:class:`necviz.calibrate.PairCollector` caches the per-frame arrays); it replaces the
+    selection above (``min_change`` and ``last_polarity`` are then ignored).
     """
-    frames = check_frames(frames)
-    check_crf(crf)
-    check_params(init)
-    check_event_array(events)
-    if len(frames) < 2:
-        raise ParameterError(f"TEDI calibration needs at least 2 frames, got {len(frames)}")
     if reference not in REFERENCES:
         raise ParameterError(f"reference must be one of {REFERENCES}, got {reference!r}")
+    _check_count("max_pixels", max_pixels, allow_none=True)
+    _check_count("min_pixels", min_pixels, minimum=1)
+    if isinstance(min_change, bool) or not isinstance(min_change, (int, float, np.floating)) or not (
+            np.isfinite(min_change) and min_change >= 0):
+        raise ParameterError(f"min_change must be a number >= 0 (ln units), got {min_change!r}")
+    h, w = prev.shape
+    if cur.shape != (h, w):
+        raise ParameterError(f"frames {prev.sequence} and {cur.sequence} have different shapes")
+    g = int(_reference_time(reference, prev, cur))
+    ok = valid_mask(prev, crf) & valid_mask(cur, crf)
+    n_valid = int(ok.sum())
+    if mask is not None:
+        ok = np.asarray(mask, dtype=bool).reshape(h, w)
+    else:
+        diff = log_mean_irradiance(cur, crf) - log_mean_irradiance(prev, crf)
+        if min_change > 0:
+            ok &= np.abs(diff) >= min_change
+        if last_polarity is not None:
+            lp = np.asarray(last_polarity).reshape(h, w)
+            ok &= (lp != 0) & (np.sign(diff) == lp)
+    sel = np.flatnonzero(ok.ravel())
+    if sel.size < min_pixels or sel.size == 0:
+        return None
+    if max_pixels is not None and sel.size > max_pixels:
+        sel = sel[np.linspace(0, sel.size - 1, int(max_pixels)).round().astype(np.int64)]
+    pixmap = np.full(h * w, -1, np.int32)
+    pixmap[sel] = np.arange(sel.size, dtype=np.int32)
+    lo = min(g, int(prev.exposure_start_us))
+    hi = max(g, int(cur.exposure_end_us))
+    ev = event_window(events, lo, hi, (h, w))
+    kk = pixmap[ev["y"].astype(np.int64) * w + ev["x"]]
+    keep = kk >= 0
+    ev = ev[keep]
+    z_prev, z_cur = prev.image.ravel()[sel].copy(), cur.image.ravel()[sel].copy()
+    change = np.abs(crf.log_irradiance(z_cur, cur.exposure_us, cur.gain)
+                    - crf.log_irradiance(z_prev, prev.exposure_us, prev.gain))
+    peak = 0.0
+    if ev.size:
+        peak = float(np.bincount((ev["t"] - lo) // PEAK_BIN_US).max()) / (sel.size * PEAK_BIN_US * 1e-6)
+    return CalibrationPair(
+        g=g, t=np.ascontiguousarray(ev["t"], dtype=np.int64), k=np.ascontiguousarray(kk[keep]),
+        p=np.ascontiguousarray(ev["p"], dtype=np.int8),
+        z_prev=z_prev, z_cur=z_cur,
+        s_prev=int(prev.exposure_start_us), e_prev=int(prev.exposure_end_us), gain_prev=float(prev.gain),
+        s_cur=int(cur.exposure_start_us), e_cur=int(cur.exposure_end_us), gain_cur=float(cur.gain),
+        seq_prev=int(prev.sequence), seq_cur=int(cur.sequence), valid_pixels=n_valid,
+        events_per_pixel=float(ev.size) / sel.size, mean_abs_change=float(np.mean(change)), peak_rate=peak,
+        source=source,
+    )
+
+
+@nb.njit(cache=True)
+def update_last_polarity(x, y, p, width, last):
+    """``last[y*width + x] = ±1``: the polarity of each pixel's latest event, events in time order. O(events)."""
+    for i in range(x.shape[0]):
+        last[np.int64(y[i]) * width + np.int64(x[i])] = 1 if p[i] > 0 else -1
+
+
+def last_polarity_before(events: np.ndarray, t_us: int, shape: tuple[int, int]) -> np.ndarray:
+    """Per pixel (flat, int8): the polarity of its last event before ``t_us`` (0: none). O(events)."""
+    h, w = shape
+    last = np.zeros(h * w, np.int8)
+    ev = events[: int(np.searchsorted(events["t"], t_us, side="left"))]
+    update_last_polarity(ev["x"], ev["y"], ev["p"], w, last)
+    return last
+
+
+def _check_fit(fit) -> tuple[str, ...]:
     fit = (fit,) if isinstance(fit, str) else tuple(fit)
     if not fit:
         raise ParameterError("fit names no parameter")
     bad = [n for n in fit if n not in PARAM_NAMES]
     if bad or len(set(fit)) != len(fit):
         raise ParameterError(f"fit must name distinct parameters among {PARAM_NAMES}, got {fit}")
-    if max_pixels is not None and (isinstance(max_pixels, bool) or not isinstance(max_pixels, (int, np.integer))
-                                   or max_pixels < 1):
-        raise ParameterError(f"max_pixels must be a positive integer or None, got {max_pixels!r}")
+    return fit
+
+
+def fit_tedi_pairs(pairs, crf: CameraResponse, init: TediParams = TediParams(), fit=PARAM_NAMES,
+                   progress=None, max_nfev: int = 200, knee_min: float = 0.0, loss: str = "linear",
+                   f_scale: float = 1.0) -> TediCalibration:
+    """Fit the TEDI parameters on prepared frame pairs (Eq. 7 with squared residuals).
+
+    The residual of a used pixel of a pair is ``ln L_i(g,x) - ln L_{i-1}(g,x)`` (Eq. 5 on both
+    frames, the exact integral of :func:`tedi_integral_compact`). ``fit`` names the parameters
+    to optimise (the others stay at ``init``); bounds ``c in [0.01, 2]``, ``a, b >= 0``. See the
+    module docstring for the ``(a, b/a)`` parameterisation. ``knee_min`` (events per pixel per
+    second) bounds the knee ``b±/a±`` from below when both of a polarity are fitted: with a knee
+    of zero the compensation ``a m`` is only a rescaling of ``c`` (``c (1 + a)``), so thresholds
+    and compensation are separable only if pixels changing slower than the knee exist in the data
+    and the knee cannot fall below them. ``loss``/``f_scale``: SciPy's robust losses
+    (``"linear"`` = plain squared residuals, Eq. 7 as docs/method.md states it; ``"soft_l1"``,
+    ``"huber"``, ``"cauchy"`` act like squares below ``f_scale`` ln units and grow slower above,
+    so pixels the model cannot explain weigh less). ``cost`` is then the robust cost; the RMS
+    figures are always plain RMS residuals. ``progress(evaluations, rms)`` is called after every
+    residual evaluation. Each evaluation costs O(events + pixels) per pair.
+    """
+    check_crf(crf)
+    check_params(init)
+    fit = _check_fit(fit)
     if progress is not None and not callable(progress):
         raise ParameterError("progress must be callable or None")
-    h, w = frames[0].shape
-    check_events_fit(events, (h, w))
-
-    # --- precompute everything that does not depend on the parameters
-    pairs = []
+    if isinstance(knee_min, bool) or not isinstance(knee_min, (int, float)) or not (np.isfinite(knee_min)
+                                                                                   and knee_min >= 0):
+        raise ParameterError(f"knee_min must be a number >= 0 (events per pixel per second), got {knee_min!r}")
+    if loss not in ("linear", "soft_l1", "huber", "cauchy", "arctan"):
+        raise ParameterError(f"loss must be linear, soft_l1, huber, cauchy or arctan, got {loss!r}")
+    if isinstance(f_scale, bool) or not isinstance(f_scale, (int, float)) or not (np.isfinite(f_scale) and f_scale > 0):
+        raise ParameterError(f"f_scale must be a positive number (ln units), got {f_scale!r}")
+    pairs = list(pairs)
+    if not pairs or not all(isinstance(pr, CalibrationPair) for pr in pairs):
+        raise ParameterError("fit_tedi_pairs needs a non-empty list of CalibrationPair")
+    prepared = []
     num_res = 0
-    for prev, cur in zip(frames[:-1], frames[1:]):
-        g = int(_reference_time(reference, prev, cur))
-        ok = (valid_mask(prev, crf) & valid_mask(cur, crf)).ravel()
-        sel = np.flatnonzero(ok)
-        if sel.size == 0:
-            continue
-        if max_pixels is not None and sel.size > max_pixels:
-            sel = sel[np.linspace(0, sel.size - 1, int(max_pixels)).round().astype(np.int64)]
-        pixmap = np.full(h * w, -1, np.int64)
-        pixmap[sel] = np.arange(sel.size)
-        sides = []
-        for f in (prev, cur):
-            s, e = int(f.exposure_start_us), int(f.exposure_end_us)
-            ev = event_window(events, min(g, s), max(g, e), (h, w))
-            keep = pixmap[ev["y"].astype(np.int64) * w + ev["x"]] >= 0
-            ev = ev[keep]
-            sides.append(_Side(ev["t"], ev["x"], ev["y"], ev["p"], s, e, log_mean_irradiance(f, crf).ravel()[sel]))
-        pairs.append((g, pixmap, sel.size, sides[0], sides[1]))
-        num_res += sel.size
-    if not pairs:
-        raise ParameterError("no pixel is valid (within the camera response's valid range) in two consecutive frames")
+    for pr in pairs:
+        la, lb = pr.log_lbar(crf)
+        prepared.append((pr, la, lb, num_res))
+        num_res += pr.n
 
     names = list(PARAM_NAMES)
     base = np.array([getattr(init, n) for n in names], dtype=np.float64)
@@ -257,8 +463,8 @@ def calibrate_tedi(
             spec.append((n, i, 1.0, 0.0, np.inf, v))
         elif n[2:] in knee:
             a0 = base[names.index("a_" + n[2:])]
-            theta0 = v / a0 if a0 > 0 else v
-            spec.append(("knee_" + n[2:], i, max(100.0, theta0), 0.0, np.inf, theta0))
+            theta0 = max(v / a0 if a0 > 0 else v, knee_min)
+            spec.append(("knee_" + n[2:], i, max(100.0, theta0), float(knee_min), np.inf, theta0))
         else:
             spec.append((n, i, max(100.0, v), 0.0, np.inf, v))
     scale = np.array([sp[2] for sp in spec])
@@ -284,25 +490,149 @@ def calibrate_tedi(
         c_on, c_off, a_on, b_on, a_off, b_off = values(xv)
         kp = (c_on, c_off, a_on, b_on * 1e-6, a_off, b_off * 1e-6)
         out = np.empty(num_res)
-        pos = 0
-        for g, pixmap, n, a, b in pairs:
-            ia = tedi_exposure_integral(a.t, a.x, a.y, a.p, pixmap, w, n, a.s, a.e, g, *kp)
-            ib = tedi_exposure_integral(b.t, b.x, b.y, b.p, pixmap, w, n, b.s, b.e, g, *kp)
-            la = a.log_lbar - np.log(ia / (a.e - a.s))
-            lb_ = b.log_lbar - np.log(ib / (b.e - b.s))
-            out[pos:pos + n] = lb_ - la
-            pos += n
+        for pr, la, lb_, pos in prepared:
+            n = pr.n
+            ia = tedi_integral_compact(pr.t, pr.k, pr.p, n, pr.s_prev, pr.e_prev, pr.g, *kp)
+            ib = tedi_integral_compact(pr.t, pr.k, pr.p, n, pr.s_cur, pr.e_cur, pr.g, *kp)
+            out[pos:pos + n] = (lb_ - np.log(ib / (pr.e_cur - pr.s_cur))) - (la - np.log(ia / (pr.e_prev - pr.s_prev)))
         evaluations += 1
         if progress is not None:
             progress(evaluations, float(np.sqrt(np.mean(out ** 2))))
         return out
 
+    def per_pair(r):
+        return tuple(float(np.sqrt(np.mean(r[pos:pos + pr.n] ** 2))) for pr, _, _, pos in prepared)
+
     r0 = residuals(x0)
     rms_before = float(np.sqrt(np.mean(r0 ** 2)))
     res = scipy.optimize.least_squares(residuals, x0, bounds=(lb, ub), method="trf", x_scale=1.0,
-                                       diff_step=1e-3, xtol=1e-8, ftol=1e-10, gtol=1e-10, max_nfev=200)
+                                       diff_step=1e-3, xtol=1e-8, ftol=1e-10, gtol=1e-10, max_nfev=max_nfev,
+                                       loss=loss, f_scale=float(f_scale))
     v = values(res.x)
     params = TediParams(**{n: float(val) for n, val in zip(names, v)})
     rms_after = float(np.sqrt(np.mean(res.fun ** 2)))
+    stderr, at_bound = _standard_errors(res, values, spec, names, num_res)
+    # A compensation that acts on no pixel of the data (knee above every rate seen) leaves the
+    # residuals unchanged (within 1e-9 ln) whatever a± and b± are: report it as a = b = 0, "inactive".
+    inactive = []
+    for pol in ("on", "off"):
+        ia, ib = names.index(f"a_{pol}"), names.index(f"b_{pol}")
+        if v[ia] <= 0 or not ({f"a_{pol}", f"b_{pol}"} & set(fit)):
+            continue
+        w = v.copy()
+        w[ia] = w[ib] = 0.0
+        r_off = pair_residuals(pairs, crf, TediParams(**{n: float(val) for n, val in zip(names, w)}))
+        if np.max(np.abs(np.concatenate(r_off) - res.fun)) <= 1e-9:
+            v = w
+            inactive.append(pol)
+            for n in (f"a_{pol}", f"b_{pol}"):
+                stderr[n] = float("nan")
+    if inactive:
+        params = TediParams(**{n: float(val) for n, val in zip(names, v)})
     return TediCalibration(params, float(res.cost), rms_before, rms_after, len(pairs), num_res,
-                           bool(res.success), str(res.message))
+                           bool(res.success), str(res.message), per_pair(r0), per_pair(res.fun),
+                           stderr, at_bound, evaluations, tuple(inactive))
+
+
+def pair_residuals(pairs, crf: CameraResponse, params: TediParams) -> list[np.ndarray]:
+    """The Eq. 7 residuals ``ln L_i(g,x) - ln L_{i-1}(g,x)`` of each prepared pair at ``params``."""
+    check_crf(crf)
+    check_params(params)
+    kp = params.as_tuple()
+    out = []
+    for pr in pairs:
+        la, lb = pr.log_lbar(crf)
+        ia = tedi_integral_compact(pr.t, pr.k, pr.p, pr.n, pr.s_prev, pr.e_prev, pr.g, *kp)
+        ib = tedi_integral_compact(pr.t, pr.k, pr.p, pr.n, pr.s_cur, pr.e_cur, pr.g, *kp)
+        out.append((lb - np.log(ib / (pr.e_cur - pr.s_cur))) - (la - np.log(ia / (pr.e_prev - pr.s_prev))))
+    return out
+
+
+def _propagate_inf(vj, cov_x):
+    """``vj cov_x vjᵀ`` where infinite variances (non-identifiable directions) stay infinite."""
+    finite = np.where(np.isinf(cov_x), 0.0, cov_x)
+    cov = vj @ finite @ vj.T
+    bad = np.isinf(np.diag(cov_x))
+    touched = (np.abs(vj[:, bad]) > 0).any(axis=1)
+    cov[touched, :] = np.inf
+    cov[:, touched] = np.inf
+    return cov
+
+
+def _standard_errors(res, values, spec, names, num_res):
+    """Gauss-Newton standard errors of the six parameters (delta method through ``values``)."""
+    q = len(spec)
+    stderr = {n: float("nan") for n in names}
+    at_bound = tuple(names[spec[j][1]] for j in range(q) if res.active_mask[j] != 0)
+    dof = num_res - q
+    if dof <= 0:
+        return stderr, at_bound
+    s2 = 2.0 * float(res.cost) / dof
+    jac = np.asarray(res.jac, dtype=np.float64)
+    norms = np.sqrt((jac ** 2).sum(axis=0))
+    flat = norms <= 1e-9 * max(float(norms.max()), 1e-300)  # the residuals do not depend on it here
+    cov_x = np.linalg.pinv(jac.T @ jac) * s2
+    cov_x[flat, :] = 0.0
+    cov_x[:, flat] = 0.0
+    cov_x[flat, flat] = np.inf
+    # d values / d x by central differences (values is linear except b = a θ)
+    vj = np.zeros((len(names), q))
+    for j in range(q):
+        h = 1e-6 * max(1.0, abs(res.x[j]))
+        xp, xm = res.x.copy(), res.x.copy()
+        xp[j] += h
+        xm[j] -= h
+        vj[:, j] = (values(xp) - values(xm)) / (2 * h)
+    cov = _propagate_inf(vj, cov_x)
+    fitted = {spec[j][1] for j in range(q)}
+    for i, n in enumerate(names):
+        if i in fitted and n not in at_bound:
+            stderr[n] = float(np.sqrt(max(cov[i, i], 0.0)))  # inf: the data do not determine it
+    return stderr, at_bound
+
+
+def calibrate_tedi(
+    events: np.ndarray,
+    frames,
+    crf: CameraResponse,
+    init: TediParams = TediParams(),
+    reference: str = "previous_start",
+    fit=PARAM_NAMES,
+    max_pixels: int | None = 20_000,
+    progress=None,
+    min_change: float = 0.0,
+) -> TediCalibration:
+    """Fit the TEDI parameters by frame-to-frame consistency (Eq. 7, squared residuals).
+
+    For each pair of consecutive frames ``(i-1, i)`` and reference ``g`` (``reference``:
+    ``"previous_start"`` = exposure start of frame ``i-1`` (default), ``"previous_end"``,
+    ``"current_start"``, ``"current_end"``), the residual of a pixel valid in both frames (and
+    whose frame-measured change is at least ``min_change``, default 0) is
+    ``ln L_i(g,x) - ln L_{i-1}(g,x)`` by :func:`tedi_reconstruct`. ``fit`` names the parameters
+    to optimise (the others stay at ``init``); bounds ``c in [0.01, 2]``, ``a, b >= 0``.
+    ``max_pixels`` caps the pixels used per pair (an even subsample of the valid ones; ``None``:
+    all). ``progress(evaluations, rms)`` is called after every residual evaluation.
+    Event slices and masks are computed once (:func:`prepare_pair`); each evaluation costs
+    O(events + pixels) per pair (:func:`fit_tedi_pairs`).
+    """
+    frames = check_frames(frames)
+    check_crf(crf)
+    check_params(init)
+    check_event_array(events)
+    if len(frames) < 2:
+        raise ParameterError(f"TEDI calibration needs at least 2 frames, got {len(frames)}")
+    if reference not in REFERENCES:
+        raise ParameterError(f"reference must be one of {REFERENCES}, got {reference!r}")
+    fit = _check_fit(fit)
+    _check_count("max_pixels", max_pixels, allow_none=True)
+    if progress is not None and not callable(progress):
+        raise ParameterError("progress must be callable or None")
+    check_events_fit(events, frames[0].shape)
+    pairs = []
+    for prev, cur in zip(frames[:-1], frames[1:]):
+        pr = prepare_pair(events, prev, cur, crf, reference=reference, max_pixels=max_pixels, min_change=min_change)
+        if pr is not None:
+            pairs.append(pr)
+    if not pairs:
+        raise ParameterError("no pixel is valid (within the camera response's valid range) in two consecutive frames")
+    return fit_tedi_pairs(pairs, crf, init, fit, progress)

@@ -15,6 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from necviz.core.errors import EventFormatError, FrameFormatError, NotAnchoredError, ParameterError, StreamError
+from necviz.core.crf import default_davis346
 from necviz.core.event_model import TediParams
 from necviz.core.events import make_events
 from necviz.core.frames import Frame
@@ -211,10 +212,11 @@ def test_batch_boundaries_do_not_change_the_result(cuts):
 
 
 def test_whole_sensor_and_general_kernels_agree(crf):
-    """The register-only whole-sensor kernel and the zone kernel implement the same equations."""
+    """The register-only whole-sensor kernel and the zone kernel implement the same equations (without
+    compensation; with it both regions go through the per-pixel kernel, see test_ptedi_compensation.py)."""
     scene = AnalyticScene(64, 48, [Trajectory("exp", 3_000, 2.5, 4_000)], log_level=4.0)
     frames = [scene.frame(crf, 0, 8_000), scene.frame(crf, 20_000, 22_000, seq=1)]
-    params = TediParams(C_ON, C_OFF, 0.6, 40.0, 0.4, 30.0)
+    params = TediParams(C_ON, C_OFF)
     out = []
     for force_general in (False, True):
         est = PeripheralEstimator(SENSOR, params, crf)
@@ -226,7 +228,8 @@ def test_whole_sensor_and_general_kernels_agree(crf):
 
 
 def test_compensation_adds_the_documented_term():
-    """Forward prediction applies c (n + max(0, a n - b u)) on mean counts (nec-method.md)."""
+    """Forward prediction applies c (n + max(0, a n - b u)) per pixel and averages (Eq. 11; the term as in
+    docs/method.md); with equal counts on every pixel that is the term of the mean count."""
     sensor = SensorGeometry(4, 1)
     params = TediParams(0.2, 0.3, a_on=0.5, b_on=1_000.0, a_off=0.0, b_off=0.0)
     est = PeripheralEstimator(sensor, params, image_form="mean_log")
@@ -243,6 +246,11 @@ def test_compensation_adds_the_documented_term():
     assert est.predict(2_000) - base == pytest.approx(0.2 * 16)
     # the compensation fades as time passes without events (u grows): back to 0.2 * 12 at u >= 6 ms
     assert est.predict(10_000) - base == pytest.approx(0.2 * 12)
+    # unequal counts: 10 more on pixel 0 only (m = 22, 12, 12, 12; mean 14.5). Pixel 0 is still compensated
+    # at u = 10 ms (0.5 * 22 - 10 = 1, mean 0.25) and 8 ms (3, mean 0.75), the mean count's term is 0 at both
+    est.update(make_events([10_000] * 10, [0] * 10, [0] * 10, [1] * 10))
+    assert est.predict(10_000) - base == pytest.approx(0.2 * (14.5 + 0.25))
+    assert est.predict(8_000) - base == pytest.approx(0.2 * (14.5 + 0.75))
 
 
 def test_stream_errors_are_clear(crf):
@@ -312,3 +320,77 @@ def test_saturated_frame_bounds_the_estimate_when_events_were_lost(crf):
     event_only = fes[1].log_anchor[0] + 0.2 * 4.0
     assert event_only < est.predict(99_000) <= truth + TOL
     assert est.frames_bounded >= 1
+
+
+@pytest.mark.parametrize("zoned", [False, True])
+@pytest.mark.parametrize("form", ["paper", "mean_log"])
+def test_saturation_bounds_are_what_a_clipped_frame_proves(zoned, form, crf):
+    """A frame clipped at both ends never pulls the anchor down to its own (invalid) g(mean Z); with the
+    paper's form it may only raise it to its linear lower bound (under-exposed pixels counted as
+    receiving nothing). Clipped at one end only, it bounds from that side."""
+    sensor = SensorGeometry(20, 10)
+    anchored_frame = np.full((10, 20), 128, np.uint8)
+
+    def frame_with(fractions):  # {digit: fraction of the 200 pixels}
+        z = np.concatenate([np.full(round(f * 200), d, np.uint8) for d, f in fractions.items()])
+        return z.reshape(10, 20)
+
+    paper = form == "paper"
+    cases = [  # (image, expected bounded); no events, so the prediction at s is the first anchor
+        # two-sided, reads brighter: paper form raises the anchor to the linear lower bound; mean_log: nothing
+        (frame_with({255: 0.40, 0: 0.35, 200: 0.25}), paper),
+        # two-sided, reads darker by g(mean Z), yet 35 % over-exposed proves it brighter on average: paper form
+        # raises the anchor to the linear lower bound; it never lowers it (no upper bound with 35 % over-exposed)
+        (frame_with({255: 0.35, 0: 0.40, 40: 0.25}), paper),
+        (frame_with({255: 0.60, 200: 0.40}), True),  # over-exposed only: a lower bound above the prediction
+        (frame_with({255: 0.60, 0: 0.04, 200: 0.36}), True),  # essentially one-sided (4 % at the other end)
+        (frame_with({0: 0.60, 40: 0.40}), True),  # under-exposed only: an upper bound below the prediction
+    ]
+    for image, expect in cases:
+        est = PeripheralEstimator(sensor, PARAMS, crf, image_form=form)
+        est.whole = not zoned  # zoned: the per-zone (bincount) image path on the same single zone
+        est.begin_exposure(0)
+        est.end_exposure(1_000)
+        first = est.add_frame(Frame(anchored_frame, 0, 1_000))
+        assert first.anchored[0]
+        est.begin_exposure(10_000)
+        est.end_exposure(11_000)
+        fe = est.add_frame(Frame(image, 10_000, 11_000, 1.0, 1))
+        assert not fe.anchored[0] and fe.valid_fraction[0] < 0.5
+        assert bool(fe.bounded[0]) == expect
+        if expect:
+            assert est.anchor_t[0] == 10_000
+            lo, hi = est.frame_bounds(Frame(image, 10_000, 11_000, 1.0, 1))
+            moved = est.anchor_log[0] - first.log_anchor[0]
+            if moved > 0:  # raised to a lower bound (at most the truth: see the property test below)
+                assert est.anchor_log[0] == pytest.approx(lo[0] - fe.log_e[0])
+            else:  # lowered to an upper bound
+                assert est.anchor_log[0] == pytest.approx(hi[0] - fe.log_e[0]) and moved < 0
+        else:
+            assert est.anchor_t[0] == 0 and est.anchor_log[0] == first.log_anchor[0]
+            assert abs(fe.log_anchor[0] - first.log_anchor[0]) > 0.1  # the frame disagrees, and is ignored
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.lists(st.floats(-6.0, 6.0), min_size=20, max_size=200), st.floats(-4.0, 2.0))
+def test_the_lower_bound_never_exceeds_the_truth(log_l, log_t):
+    """For any scene and exposure, the paper-form lower bound is at most ln(mean irradiance) (noiseless frames)."""
+    crf = default_davis346()
+    sensor = SensorGeometry(len(log_l), 1)
+    lin = np.exp(np.asarray(log_l))
+    exposure_us = math.exp(log_t) * 1e6
+    z = np.clip(np.rint(crf.intensity(np.asarray(log_l) + log_t)), 0, 255).astype(np.uint8).reshape(1, -1)
+    est = PeripheralEstimator(sensor, PARAMS, crf)
+    frame = Frame(z, 0, max(1, int(round(exposure_us))))
+    lo, hi = est.frame_bounds(frame)
+    truth = math.log(lin.mean())
+    t_used = math.log(frame.exposure_us / 1e6)
+    slack = 0.03 + abs(t_used - log_t)  # the digit rounding and the integer µs of the exposure
+    if np.isfinite(lo[0]):
+        assert lo[0] <= truth + slack
+    if np.isfinite(hi[0]) and not (z > crf.valid_max).any():  # (a few hot pixels are tolerated, not bounded)
+        assert hi[0] >= truth - slack
+
+
+    with pytest.raises(ParameterError, match="one_sided_clip"):
+        PeripheralEstimator(SensorGeometry(20, 10), PARAMS, crf, one_sided_clip=1.5)

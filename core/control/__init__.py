@@ -19,6 +19,7 @@ from .shim import ShimController
 #: name -> controller class
 CONTROLLERS: dict[str, type[Controller]] = {
     "nec": NECController,
+    "nec-raw": NECController,  # NEC without the TEDI compensation (a± = b± = 0): shows what it adds
     "navid": NavidController,
     "shim": ShimController,
     "begin": BeginController,
@@ -32,17 +33,29 @@ def make_controller(name: str, *, sensor: SensorGeometry, limits: CameraLimits, 
                     **params) -> Controller:
     """Build controller ``name`` with its documented defaults (``params`` override them).
 
-    NEC gets a whole-sensor P-TEDI estimator with ``tedi`` thresholds; controllers that use the
-    camera response (Bégin) get ``crf``.
+    NEC gets a whole-sensor P-TEDI estimator with ``tedi`` (thresholds and compensation);
+    ``nec-raw`` is the same controller with the compensation switched off (``a± = b± = 0``, the
+    thresholds kept), so a comparison shows what the compensation adds. Controllers that use
+    the camera response (Bégin) get ``crf``.
     """
     if name not in CONTROLLERS:
         raise ParameterError(f"unknown controller {name!r}; available: {', '.join(sorted(CONTROLLERS))}")
     crf = crf or default_davis346()
-    if name == "nec":
+    if CONTROLLERS[name] is NECController:
+        from dataclasses import replace
+
         from ..ptedi import PeripheralEstimator
 
-        est = PeripheralEstimator(sensor, tedi or TediParams(), crf)
-        return NECController(est, limits, exposure_us, gain, **params)
+        tedi = tedi or TediParams()
+        if name == "nec-raw":
+            tedi = replace(tedi, a_on=0.0, b_on=0.0, a_off=0.0, b_off=0.0)
+        est = PeripheralEstimator(sensor, tedi, crf)
+        try:
+            ctrl = NECController(est, limits, exposure_us, gain, **params)
+        except TypeError as e:
+            raise ParameterError(f"controller {name!r}: {e}") from None
+        ctrl.name = name
+        return ctrl
     cls = CONTROLLERS[name]
     if "crf" in inspect.signature(cls).parameters:
         params.setdefault("crf", crf)

@@ -17,11 +17,12 @@ import math
 
 import numpy as np
 
+from ..checks import check_number
 from ..crf import US_PER_S
 from ..errors import ParameterError
 from ..frames import Frame
 from ..ptedi import FrameEstimate, PeripheralEstimator
-from .base import CameraLimits, Controller, ExposureCommand
+from .base import CameraLimits, Controller, ExposureCommand, Tunable
 
 
 def error_weight(relative_error: float, dead_band: float, full_band: float) -> float:
@@ -54,6 +55,12 @@ class NECController(Controller):
     """
 
     name = "nec"
+    TUNABLE = (
+        Tunable("dead_band", "ln", "f_w is 0 while |ln(H_opt/H_i)| is at most this (no flicker from tiny corrections)", 0.0),
+        Tunable("full_band", "ln", "f_w is 1 from this |ln(H_opt/H_i)| on (one-shot jumps on big changes)", 0.0, lo_open=True),
+        Tunable("goal", "DN", "goal intensity I_opt: the digit the mean exposure aims at", 0.0, 255.0, True, True),
+        Tunable("min_command_change", "ln", "a new command must differ from the last by more than this", 0.0),
+    )
 
     def __init__(
         self,
@@ -70,31 +77,63 @@ class NECController(Controller):
         if not isinstance(estimator, PeripheralEstimator):
             raise ParameterError("NECController needs a PeripheralEstimator")
         for label, v in (("dead_band", dead_band), ("full_band", full_band), ("min_command_change", min_command_change)):
-            if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                raise ParameterError(f"{label} must be a finite number >= 0, got {v!r}")
+            check_number(label, v, 0.0)
         if full_band <= dead_band:
             raise ParameterError(f"full_band ({full_band}) must exceed dead_band ({dead_band})")
         self.estimator = estimator
         self.dead_band = float(dead_band)
         self.full_band = float(full_band)
         goal = estimator.crf.goal_log_exposure if goal_log_exposure is None else goal_log_exposure
-        if not isinstance(goal, (int, float)) or not math.isfinite(goal):
-            raise ParameterError(f"goal_log_exposure must be finite, got {goal!r}")
-        self.goal_log_exposure = float(goal)
+        self.goal_log_exposure = check_number("goal_log_exposure", goal)
         self.min_command_change = float(min_command_change)
         self.last_log_irradiance = math.nan
         self.last_frame_estimate: FrameEstimate | None = None
 
+    # -- tunable parameters --------------------------------------------------------------------
+    def _get_param(self, name: str) -> float:
+        if name == "goal":
+            return float(self.estimator.crf.intensity(self.goal_log_exposure))
+        return getattr(self, name)
+
+    def _set_param(self, name: str, value: float) -> None:
+        if name == "goal":
+            self.goal_log_exposure = float(self.estimator.crf.log_exposure(value))
+        else:
+            setattr(self, name, value)
+
+    def _check_params(self, params: dict[str, float]) -> None:
+        if params["full_band"] <= params["dead_band"]:
+            raise ParameterError(f"need dead_band < full_band, got {params['dead_band']:g} and {params['full_band']:g}")
+        crf = self.estimator.crf
+        if not crf.valid_min < params["goal"] < crf.valid_max:
+            raise ParameterError(f"goal must lie inside the valid range {crf.valid_min}..{crf.valid_max} DN, "
+                                 f"got {params['goal']:g}")
+
     # -- the control law ----------------------------------------------------------------------
     def command_for(self, log_irradiance: float, t_us: int) -> ExposureCommand | None:
-        """Eq. 2-4 for a given mean log irradiance; ``None`` inside the dead band."""
+        """Eq. 2-4 for a given mean log irradiance; ``None`` inside the dead band.
+
+        Inside the dead band of the applied setting ``H_i`` nothing needs to change, but the
+        camera applies the newest command it received at its next exposure start: a command
+        issued for a transient that has passed would still take effect. So when the outstanding
+        command (:attr:`last_command`) differs from ``H_i`` by more than ``min_command_change``
+        and lies outside the dead band of ``H_opt`` itself, the applied setting is commanded
+        again (which cancels the stale one); otherwise ``None``.
+        """
         if not math.isfinite(log_irradiance):
             return None
         h_i = self.exposure_us * self.gain
         h_opt = math.exp(self.goal_log_exposure - log_irradiance) * US_PER_S
         w = error_weight(math.log(h_opt / h_i), self.dead_band, self.full_band)
         if w == 0.0:
-            return None
+            last = self.last_command
+            if last is None:
+                return None
+            h_last = last.exposure_us * last.gain
+            if (abs(math.log(h_last / h_i)) <= self.min_command_change
+                    or abs(math.log(h_opt / h_last)) <= self.dead_band):
+                return None  # nothing outstanding, or what is outstanding is as good as H_i
+            return ExposureCommand(self.exposure_us, self.gain, int(t_us), self.name)
         h_set = h_i + w * (h_opt - h_i)
         lim = self.limits
         gain = max(1.0, h_set / lim.exposure_max_us)

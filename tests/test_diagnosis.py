@@ -1,0 +1,193 @@
+"""Failure diagnosis: one deliberately built case of each cause, each named by the rule that explains it.
+
+The closed-loop cases run the simulator on a small sensor (64 x 48) for a few frames: a scene
+function with a lighting step placed against the frame clock (exposures start at 1, 21, 41, … ms;
+commands take effect 1 ms after they are issued). The data-only cases (no ground truth: a replayed
+camera) build the evidence directly.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from necviz.core.control import CameraLimits
+from necviz.core.crf import default_davis346
+from necviz.core.diagnosis import CAUSES, Command, Evidence, best_valid_fraction, diagnose
+from necviz.core.metrics import GroundTruth
+from necviz.core.sensor import SensorGeometry
+from necviz.drivers.sim.aps import ApsParams
+from necviz.drivers.sim.camera import SimRig
+from necviz.drivers.sim.dvs import DvsParams
+from necviz.drivers.sim.scene import FunctionScene, LightingChange
+from necviz.pipeline import Lane, Pipeline
+from necviz.runs import build_controller
+from necviz.telemetry import Telemetry
+
+SENSOR = SensorGeometry(64, 48)
+YY, XX = np.mgrid[0:48, 0:64].astype(np.float32)
+TEXTURE = 0.5 * np.sin(XX / 3.0) * np.cos(YY / 4.0) + 0.2 * np.sin((XX + YY) / 7.0)
+
+
+def step_scene(t_step_us: float, level: float, step: float, ramp_us: float = 0.0, duration_us: int = 100_000):
+    """``ln L = level + texture`` stepping up by ``step`` at ``t_step_us`` (linear over ``ramp_us``)."""
+
+    def fn(t_us, sensor):
+        a = 0.0 if t_us < t_step_us else (1.0 if ramp_us <= 0 or t_us >= t_step_us + ramp_us
+                                         else (t_us - t_step_us) / ramp_us)
+        return level + TEXTURE + np.float32(step * a)
+
+    return FunctionScene(fn, SENSOR, duration_us,
+                         changes=[LightingChange(int(t_step_us), "step", step)] if step else [])
+
+
+def run(scene, controller: str, exposure_us: float | None = None, dvs: DvsParams | None = None, **params):
+    """Run one controller in closed loop on ``scene``; returns its per-frame records (dicts) by sequence."""
+    aps = ApsParams()
+    rig = SimRig(scene, {"cam": None if exposure_us is None else (exposure_us, 1.0)}, dvs=dvs, aps=aps, seed=1)
+    limits = CameraLimits(aps.exposure_min_us, aps.exposure_max_us, aps.gain_max)
+    ctrl = build_controller(controller, params or None, sensor=SENSOR, limits=limits,
+                            exposure_us=rig.cams["cam"].exposure_us)
+    lanes = [Lane("cam", ctrl)]
+    tel = Telemetry(["cam"]).attach(lanes, rig)
+    Pipeline(rig, lanes, telemetry=tel).run().finish()
+    return {r["sequence"]: r for r in tel["cam"].table.rows()}, tel["cam"]
+
+
+def test_causes_are_stable_strings_in_rule_order():
+    assert CAUSES == ("change_during_exposure", "command_latency", "limit_reached", "prediction_undercount",
+                      "controller_lag", "controller")
+
+
+def test_a_step_inside_an_exposure_is_a_change_during_the_exposure():
+    # frame 2 is exposed over [41 ms, ~45 ms] for ln L = 5; the light rises 3 ln (26 dB) at 43 ms
+    rows, lane = run(step_scene(43_000, 5.0, 3.0), "fixed")
+    f = rows[2]
+    assert (f["exposure_start_us"], not rows[1]["saturated"]) == (41_000, True)
+    assert f["exposure_start_us"] < 43_000 < f["exposure_end_us"] and f["saturated"]
+    assert f["saturation_cause"] == "change_during_exposure"
+    assert "during the" in f["saturation_explanation"] and "+3.00 ln" in f["saturation_explanation"]
+    assert lane.summary()["saturation_causes"]["change_during_exposure"] == 1
+
+
+def test_a_step_half_a_millisecond_before_an_exposure_is_command_latency():
+    # NEC sees the step in the events at once and commands within a batch (1 ms); the command needs
+    # 1 ms to take effect, so frame 2 (starting at 41 ms) still gets the old exposure
+    rows, _ = run(step_scene(40_500, 5.0, 3.0), "nec")
+    f = rows[2]
+    assert f["saturated"] and f["saturation_cause"] == "command_latency"
+    assert "0.5 ms before the exposure started" in f["saturation_explanation"]
+    assert "commands take effect 1.0 ms after" in f["saturation_explanation"]
+    assert not rows[3]["saturated"]  # and NEC's command holds from the next frame on
+
+
+def test_a_40_db_step_beyond_the_event_rate_ceiling_is_a_prediction_undercount():
+    # 9.2 ln (40 dB; 60 dB does not fit in the exposure range) over 2 ms between two exposures, on an
+    # ideal sensor with a ceiling of 0.3 Mev/s (the DAVIS346's 12 Mev/s per pixel is 0.1 Mev/s on this
+    # 3072-pixel sensor): most of the step's ~110 k events are lost, so P-TEDI's prediction, and NEC's
+    # exposure, follow only part of the change
+    dvs = DvsParams.ideal(max_event_rate=3e5)
+    rows, _ = run(step_scene(37_500, 3.6, 9.2, ramp_us=2_000), "nec", dvs=dvs)
+    f = rows[2]
+    assert f["exposure_start_us"] == 41_000 and f["saturated"] and f["over_exposed_rate"] > 0.5
+    assert f["saturation_cause"] == "prediction_undercount", f["saturation_explanation"]
+    assert "P-TEDI predicted a change of" in f["saturation_explanation"]
+    # the same step with every event delivered is followed (no saturated frame after it)
+    rows_all, _ = run(step_scene(37_500, 3.6, 9.2, ramp_us=2_000), "nec", dvs=DvsParams.ideal())
+    assert not rows_all[2]["saturated"]
+
+
+def test_a_fixed_exposure_at_its_minimum_in_a_too_bright_scene_is_the_limit():
+    # ln L = 16 needs ~0.04 µs; the camera's shortest exposure is 1 µs
+    rows, lane = run(step_scene(0, 16.0, 0.0), "fixed", exposure_us=1.0)
+    assert len(rows) >= 4 and all(r["saturated"] and r["exposure_us"] == 1 for r in rows.values())
+    assert {r["saturation_cause"] for r in rows.values()} == {"limit_reached"}
+    assert "at its minimum (1 µs" in rows[1]["saturation_explanation"]
+    assert lane.summary()["saturation_causes"] == {**dict.fromkeys(CAUSES, 0), "limit_reached": len(rows)}
+
+
+def test_an_image_only_controller_one_frame_behind_is_controller_lag():
+    # the light rises 3 ln at 30 ms, after frame 1 ([21, ~25] ms) was read out: no frame showing the
+    # change exists before frame 2 starts (41 ms), so an image-only controller cannot have reacted
+    rows, _ = run(step_scene(30_000, 5.0, 3.0), "navid")
+    f = rows[2]
+    assert not rows[1]["saturated"] and f["saturated"]
+    assert f["saturation_cause"] == "controller_lag"
+    assert "11.0 ms before the exposure started" in f["saturation_explanation"]
+    # NEC on the same step sees it in its events and is not saturated at all
+    rows_nec, _ = run(step_scene(30_000, 5.0, 3.0), "nec")
+    assert not any(r["saturated"] for r in rows_nec.values())
+
+
+def test_a_controller_that_never_reacts_is_the_controller():
+    # the fixed exposure sees frame 2 show the change and still does nothing: frame 3 on is its choice
+    rows, _ = run(step_scene(30_000, 5.0, 3.0), "fixed")
+    assert rows[2]["saturation_cause"] == "controller_lag"
+    assert {rows[k]["saturation_cause"] for k in (3, 4)} == {"controller"}
+    assert "no command from the controller" in rows[3]["saturation_explanation"]
+
+
+def test_unsaturated_frames_carry_no_cause():
+    rows, lane = run(step_scene(0, 5.0, 0.0), "nec")
+    assert all(not r["saturated"] and r["saturation_cause"] == "" and r["saturation_explanation"] == ""
+               for r in rows.values())
+    assert sum(lane.summary()["saturation_causes"].values()) == 0
+
+
+# --- without ground truth (a camera, a file): the evidence the data gives ----------------------
+BASE = dict(sequence=7, start_us=100_000, end_us=104_000, exposure_us=4_000.0, gain=1.0, over=0.8, under=0.0,
+            exposure_min_us=10.0, exposure_max_us=30_000.0, gain_max=1.0, latency_us=1_000.0, drives=True)
+
+
+@pytest.mark.parametrize("extra, cause", [
+    ({"sees_events": True, "exposure_log_change": 1.2}, "change_during_exposure"),
+    ({"sees_events": True, "commands": (Command(98_000, 4_000.0, 1.0), Command(99_400, 600.0, 1.0))},
+     "command_latency"),
+    ({"sees_events": False, "exposure_us": 10.0, "end_us": 100_010}, "limit_reached"),
+    ({"sees_events": True, "predicted_change": 0.4, "frame_change": 2.5}, "prediction_undercount"),
+    ({"sees_events": False, "previous_saturated": False}, "controller_lag"),
+    ({"sees_events": False, "previous_saturated": True}, "controller"),
+    ({"sees_events": True, "predicted_change": 2.4, "frame_change": 2.5}, "controller"),
+])
+def test_data_only_evidence_names_each_cause(extra, cause):
+    name, why = diagnose(Evidence(**{**BASE, **extra}))
+    assert name == cause and why
+
+
+def test_data_only_rules_need_what_they_claim():
+    # an under-exposed frame: the change and the correction go the other way
+    under = {**BASE, "over": 0.0, "under": 0.9}
+    assert diagnose(Evidence(**under, sees_events=True, exposure_log_change=1.2))[0] == "controller"
+    assert diagnose(Evidence(**under, sees_events=True, exposure_log_change=-1.2))[0] == "change_during_exposure"
+    # a late command that would make it worse is not a correction
+    late = (Command(99_400, 9_000.0, 1.0),)
+    assert diagnose(Evidence(**BASE, sees_events=True, commands=late))[0] == "controller"
+    # in open loop (a replay) the lane's commands and prediction did not set the exposure
+    replay = {**BASE, "drives": False}
+    assert diagnose(Evidence(**replay, sees_events=True, predicted_change=0.0, frame_change=3.0))[0] == "controller"
+    name, why = diagnose(Evidence(**replay, sees_events=True))
+    assert name == "controller" and "open loop" in why
+    # unknown limits are not reached
+    assert diagnose(Evidence(**{**BASE, "exposure_min_us": None, "exposure_us": 10.0}))[0] == "controller"
+    assert math.isnan(Evidence(**BASE).predicted_change)
+
+
+def test_a_frame_clipped_at_both_ends_proves_no_undercount():
+    # the same shortfall as the prediction_undercount case, but 30 % of the frame is also black:
+    # its mean is pulled down at one end and up at the other, so it bounds nothing
+    two_sided = {**BASE, "over": 0.6, "under": 0.3}
+    name, why = diagnose(Evidence(**two_sided, sees_events=True, predicted_change=0.4, frame_change=2.5))
+    assert name == "controller" and "clipped at both ends (60% over, 30% under)" in why
+
+
+def test_best_valid_fraction_of_a_uniform_log_ramp():
+    # ln L uniform over 8 ln: a window as wide as the sensor's valid range, g(249.5) - g(9.5), holds that share
+    crf = default_davis346()
+    width = crf.log_exposure(249.5) - crf.log_exposure(9.5)
+    lbar = np.tile(np.exp(np.linspace(0.0, 8.0, 4000)).astype(np.float32), (8, 1))  # along x: the grid samples it evenly
+    tr = GroundTruth(lbar, crf, np.zeros(0, np.int64), np.zeros(0))
+    assert best_valid_fraction(tr) == pytest.approx(width / 8.0, abs=0.002)
+    flat = GroundTruth(np.full((40, 40), 3.0, np.float32), crf, np.zeros(0, np.int64), np.zeros(0))
+    assert best_valid_fraction(flat) == 1.0
