@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """NEC versus the baselines on every simulator scenario: the README's comparison tables.
 
-Runs `necviz compare` for each scenario (default duration, all six controllers, SIFT on),
+Runs `necviz compare` for each scenario (default duration, every controller of the comparison, SIFT on),
 writes benchmarks/results/compare_<scenario>.json and prints one Markdown table per scenario.
 About 5 minutes on 2 cores (SIFT on every frame is most of it).
 
@@ -14,12 +14,13 @@ from pathlib import Path
 
 from necviz.compare import run
 from necviz.drivers.sim.scenes import SCENARIOS
+from necviz.options import CompareOptions, SceneOptions
 
 ORDER = ["tunnel_exit", "indoor_outdoor", "flicker", "static_lab", "handheld_scan"]
 
 
 def cell(row, key, digits):
-    v, s = row[key], row.get(key + "_std")
+    v, s = row[key], row.get(key + "_ci95")
     if v is None:
         return "never"
     txt = f"{v:.{digits}f}" if isinstance(v, float) else str(v)
@@ -36,7 +37,8 @@ def main() -> int:
         if name not in SCENARIOS:
             print(f"unknown scenario {name}", file=sys.stderr)
             return 2
-        res = run(name, seeds=args.seeds, json_path=out_dir / f"compare_{name}.json", out=sys.stderr)
+        res = run(CompareOptions(SceneOptions(name), seeds=args.seeds, json=out_dir / f"compare_{name}.json",
+                                 force=True), out=sys.stderr)
         print(f"\n**{name}** ({res['duration_s']:g} s, seed {res['seed']}"
               + (f", {res['seeds']} seeds" if res["seeds"] > 1 else "") + ")\n")
         print("| controller | frames | saturated >50 % | >10 % | mean over-exposed | mean under-exposed | recovery ms | SIFT inliers |")

@@ -1,6 +1,6 @@
 #!/usr/bin/env python
 """Which image side of P-TEDI predicts better: the paper's ``g(mean Z)`` (Eq. 15) or the mean over
-valid pixels of ``g(Z)`` (consistent with Eq. 8)? nec-method.md asks us to measure it.
+valid pixels of ``g(Z)`` (consistent with Eq. 8)? The result is discussed in docs/method.md.
 
 Static analytic scenes (tests/analytic.py) with texture contrast ``sigma`` (the spread of
 ln L across pixels) are exposed ``offset`` ln units away from the goal (0 = well exposed,

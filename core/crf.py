@@ -6,7 +6,7 @@ Eq. (1) of the paper: ``g(Z(x)) = ln T + ln K + ln L(x)``. necviz fixes the unit
 ``g(128) = 0``: an exposure-gain product of 1 s on irradiance ``L = 1`` gives ``Z = 128``.
 
 Valid digits are 9..250 (the paper); the goal intensity is the log mid-point
-``g(I_opt) = (g(9) + g(250)) / 2`` (nec-method.md).
+``g(I_opt) = (g(9) + g(250)) / 2`` (Eq. 2; see docs/method.md).
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ compensation terms ``a±, b±`` are ignored here, see :mod:`necviz.core.tedi`)::
     ln Lbar   = g(Z) - ln T - ln K                          (Eq. 1, crf.log_irradiance)
 
 ``n±(g,t,x)`` counts the pixel's ON/OFF events between ``g`` and ``t``, positive when
-``t > g`` and negative when ``t < g`` (nec-method.md). Half-open convention: an event at time
+``t > g`` and negative when ``t < g`` (docs/method.md). Half-open convention: an event at time
 ``τ`` has happened for every time ``t > τ``, so ``n(g,t) = #{g <= τ < t}`` for ``t > g`` and
 ``-#{t <= τ < g}`` for ``t < g``. Moving forward in time past an event always adds ``+1``.
 The reference ``g`` may lie before, inside or after the exposure ``[s, e]``.

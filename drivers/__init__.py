@@ -6,7 +6,7 @@ Every source implements :class:`necviz.drivers.source.Source`; :data:`SOURCES` n
 
 #: name -> "module:attribute" of the source's class or factory.
 SOURCES: dict[str, str] = {
-    "sim": "necviz.drivers.sim.camera:SimulatedCamera",
+    "sim": "necviz.drivers.sim.camera:SimRig",
     "davis": "necviz.drivers.davis:open_camera",
     "replay": "necviz.drivers.replay:open_recording",
 }

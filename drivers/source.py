@@ -1,15 +1,26 @@
 """The source interface shared by the simulator, the live DAVIS driver and the file replayers.
 
-A source is iterated for packets in stream order — event batches (``EVENT_DTYPE`` arrays),
-:class:`~necviz.core.frames.ExposureMarker` and :class:`~necviz.core.frames.Frame`, plus optional
-:class:`~necviz.core.imu.ImuBatch` and :class:`~necviz.core.imu.TriggerBatch` — and may accept
-exposure commands with :meth:`set_exposure`. The pipeline never needs to know whether a
-source is simulated, live or recorded.
+A source is one or more cameras that share a sensor geometry and, where they share a scene, one
+event stream. :meth:`Source.packets` yields ``(camera, packet)`` pairs in stream order:
+
+* ``(None, events)`` for event batches (``EVENT_DTYPE`` arrays), which every camera of the source
+  shares (a single camera's events are "shared" by its one camera);
+* ``(name, packet)`` for what belongs to one camera: :class:`~necviz.core.frames.ExposureMarker`,
+  :class:`~necviz.core.frames.Frame`, and optional :class:`~necviz.core.imu.ImuBatch` and
+  :class:`~necviz.core.imu.TriggerBatch`.
+
+A single camera is a source with one name in :attr:`Source.cameras` (``"camera"`` by default);
+:func:`route` turns a plain packet iterator into such pairs. Commands go back with
+:meth:`Source.set_exposure`, which has the same signature everywhere: the source stamps each
+command with its own clock (the time of the last packet it delivered), because a command cannot
+be issued before the packet that caused it arrived. ``issue_time_us`` exists for tests that need
+to place a command at an exact time. Recordings accept commands and ignore them (replay is open
+loop). The pipeline never needs to know whether a source is simulated, live or recorded.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from typing import Protocol, Union, runtime_checkable
 
@@ -21,6 +32,9 @@ from ..core.sensor import SensorGeometry
 
 #: What a source yields. Consumers that do not use IMU samples or triggers skip them.
 Packet = Union[np.ndarray, ExposureMarker, Frame, ImuBatch, TriggerBatch]
+
+#: The name of the only camera of a single-camera source.
+CAMERA = "camera"
 
 
 @dataclass(frozen=True)
@@ -39,10 +53,23 @@ class CommandRecord:
 
 @runtime_checkable
 class Source(Protocol):
+    """One camera, or a rig of cameras sharing a scene (see the module docstring)."""
+
     sensor: SensorGeometry
+    cameras: tuple[str, ...]
 
-    def __iter__(self) -> Iterator[Packet]: ...
+    def packets(self) -> Iterator[tuple[str | None, Packet]]: ...
 
-    def set_exposure(self, exposure_us: float, gain: float = 1.0, issue_time_us: int | None = None) -> None: ...
+    def set_exposure(self, camera: str, exposure_us: float, gain: float = 1.0, *,
+                     issue_time_us: int | None = None) -> None: ...
 
     def close(self) -> None: ...
+
+
+def route(camera: str, packets: Iterable[Packet]) -> Iterator[tuple[str | None, Packet]]:
+    """A single camera's packet stream as :meth:`Source.packets` pairs (events shared, the rest ``camera``'s)."""
+    for packet in packets:
+        yield (None if isinstance(packet, np.ndarray) else camera), packet
+
+
+__all__ = ["CAMERA", "CommandRecord", "Packet", "Source", "route"]

@@ -6,7 +6,8 @@ the log exposure-gain product ``ln(T K)`` a fraction ``k`` of the way from the f
 value to the goal intensity, through the camera response (``g(I_opt) - g(mean Z)``), exposure first,
 then gain. It sees frames only, so it reacts one frame late and at most ~1.4 ln per frame when the
 image is white. All three controllers run on one ``SimRig`` (one scene, one event stream, one
-camera each), the way ``necviz compare`` does it; the table comes from ``necviz.core.metrics.summarise``.
+camera each) through the same ``Pipeline`` as ``necviz compare``; the per-frame rates come from its
+``Telemetry`` and the table from ``necviz.core.metrics.summarise``.
 
 To use it with ``necviz compare --controllers nec,navid,meanprop`` add it to ``CONTROLLERS`` in
 core/control/__init__.py (``"meanprop": MeanIntensityController``); ``make_controller`` then
@@ -22,10 +23,11 @@ import math
 from necviz.core import Frame, SensorGeometry, default_davis346
 from necviz.core.control import CONTROLLERS, CameraLimits, Controller, ExposureCommand, make_controller
 from necviz.core.errors import ParameterError
-from necviz.core.metrics import over_exposed_rate, summarise, under_exposed_rate
+from necviz.core.metrics import summarise
 from necviz.drivers.sim.aps import ApsParams
 from necviz.drivers.sim.camera import SimRig
 from necviz.drivers.sim.scenes import make_scenario
+from necviz.pipeline import Lane, Pipeline
 
 
 class MeanIntensityController(Controller):
@@ -64,10 +66,11 @@ def main() -> None:
         ap.error("need 0.2 <= --duration-s <= 10, --seed >= 0 and 0 < --k <= 1")
     names = ["nec", "navid", MeanIntensityController.name]
     if args.via_compare:
-        from necviz.compare import run
+        import necviz
 
         CONTROLLERS[MeanIntensityController.name] = MeanIntensityController  # now make_controller knows it
-        run("tunnel_exit", ",".join(names), seed=args.seed, duration_s=args.duration_s, sift=False)
+        necviz.run_compare(necviz.CompareOptions(necviz.SceneOptions("tunnel_exit", args.seed, args.duration_s),
+                                                 names, sift=False))
         return
 
     sensor = SensorGeometry(173, 130)  # half the DAVIS346 resolution: same optics, 4x faster
@@ -78,22 +81,18 @@ def main() -> None:
     start_us = rig.cams["nec"].exposure_us
     ctrls = {n: make_controller(n, sensor=sensor, limits=limits, exposure_us=start_us, crf=crf) for n in names[:2]}
     ctrls[names[2]] = MeanIntensityController(limits, start_us, crf=crf, k=args.k)
-    per = {n: ([], [], []) for n in names}  # frame starts µs, over-exposed rates, under-exposed rates
-    for cam, packet in rig.packets():
-        for n in names if cam is None else (cam,):  # events go to everyone, frames to their own controller
-            if (cmd := ctrls[n].feed(packet)) is not None:
-                rig.set_exposure(n, cmd.exposure_us, cmd.gain)
-        if isinstance(packet, Frame):
-            for lst, v in zip(per[cam], (packet.exposure_start_us, over_exposed_rate(packet.image),
-                                         under_exposed_rate(packet.image))):
-                lst.append(v)
+    # events go to every lane, frames to their own camera's lane; commands back to that camera
+    pipe = Pipeline(rig, [Lane(n, ctrls[n]) for n in names])
+    pipe.run().finish()
     steps_us = [c.t_us for c in scene.changes]
     print(f"tunnel_exit, {sensor.width}x{sensor.height} px, {args.duration_s:g} s, seed {args.seed}, "
           f"exit at {steps_us[0] / 1e3:.0f} ms, start exposure {start_us:.0f} µs")
     print(f"{'controller':10s} {'frames':>6s} {'sat>50%':>7s} {'sat>10%':>7s} {'mean over':>9s} {'mean under':>10s} "
           f"{'recovery ms':>11s}")
     for n in names:
-        m = summarise(*per[n], steps_us, end_us=scene.duration_us)
+        frames = pipe.telemetry[n].table
+        m = summarise(frames.column("exposure_start_us"), frames.column("over_exposed_rate"),
+                      frames.column("under_exposed_rate"), steps_us, end_us=scene.duration_us)
         rec = "never" if m.recovery_ms is None else f"{m.recovery_ms:.0f}"
         print(f"{n:10s} {m.frames:6d} {m.saturated_frames_50:7d} {m.saturated_frames_10:7d} "
               f"{m.mean_over_exposed_rate:9.3f} {m.mean_under_exposed_rate:10.3f} {rec:>11s}")

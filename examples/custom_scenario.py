@@ -4,8 +4,9 @@
 The scene is a ``FunctionScene``: a Python function returning ln L for every pixel at time t µs
 (here a textured room that dims by ``--dim-ln`` natural-log units at 30 % of the run and comes
 back at 65 %). ``--toml`` builds the same light steps from TOML text instead (the ``static_lab``
-preset via ``scenario_from_toml``). A ``SimulatedCamera`` renders events and frames; NEC (built
-by ``make_controller("nec", ...)``) sees every packet and its commands go back to the camera.
+preset via ``scenario_from_toml``). A one-camera ``SimRig`` renders events and frames; NEC (built
+by ``make_controller("nec", ...)``) sees every packet through the ``Pipeline`` every necviz command
+runs, and its commands go back to the camera.
 Printed: the exposure/gain NEC applied in each phase, the saturated frames (> 50 % of pixels
 over- or under-exposed) and the exposure trace.
 
@@ -17,13 +18,13 @@ import math
 
 import numpy as np
 
-from necviz.core import Frame, SensorGeometry, default_davis346
+from necviz.core import SensorGeometry, default_davis346
 from necviz.core.control import CameraLimits, make_controller
-from necviz.core.metrics import over_exposed_rate, under_exposed_rate
 from necviz.drivers.sim.aps import ApsParams
-from necviz.drivers.sim.camera import SimulatedCamera
+from necviz.drivers.sim.camera import SimRig
 from necviz.drivers.sim.scene import FunctionScene, LightingChange
 from necviz.drivers.sim.scenes import scenario_from_toml
+from necviz.pipeline import Lane, Pipeline
 
 RAMP_US = 5_000  # a lamp takes 5 ms to switch
 
@@ -74,15 +75,13 @@ def main() -> None:
     limits = CameraLimits(aps.exposure_min_us, aps.exposure_max_us, aps.gain_max)
     # start at the exposure that is right for the first instant: g(I_opt) = ln T + ln L (T in s)
     start_us = math.exp(crf.goal_log_exposure - float(np.mean(scene.log_irradiance(0)))) * 1e6
-    cam = SimulatedCamera(scene, exposure_us=start_us, aps=aps, crf=crf, seed=0)
+    cam = SimRig(scene, {"camera": (start_us, 1.0)}, aps=aps, crf=crf, seed=0)
     nec = make_controller("nec", sensor=sensor, limits=limits, exposure_us=start_us, crf=crf)
-    frames = []  # (start µs, exposure µs, gain, over-exposed rate, under-exposed rate)
-    for packet in cam:
-        if (cmd := nec.feed(packet)) is not None:
-            cam.set_exposure(cmd.exposure_us, cmd.gain)
-        if isinstance(packet, Frame):
-            frames.append((packet.exposure_start_us, packet.exposure_us, packet.gain,
-                           over_exposed_rate(packet.image), under_exposed_rate(packet.image)))
+    pipe = Pipeline(cam, [Lane("camera", nec)])  # the closed loop every necviz command runs
+    pipe.run().finish()
+    table = pipe.telemetry["camera"].table  # (start µs, exposure µs, gain, over-exposed rate, under-exposed rate)
+    frames = np.stack([table.column(k) for k in ("exposure_start_us", "exposure_us", "gain", "over_exposed_rate",
+                                                 "under_exposed_rate")], axis=1)
     f = np.array(frames)
     sat = (f[:, 3] > 0.5) | (f[:, 4] > 0.5)
 

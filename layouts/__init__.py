@@ -39,7 +39,7 @@ def style_series(rec: rr.RecordingStream, lanes: list[str]) -> None:
             S.GAIN_COMMANDED: (f"{n} gain commanded", dim), S.GAIN_APPLIED: (f"{n} gain applied", c),
             S.IRRADIANCE_PREDICTED: (f"{n} P-TEDI", c), S.IRRADIANCE_FRAME: (f"{n} frame", (255, 160, 40)),
             S.OVER_EXPOSED: (f"{n} over", c), S.UNDER_EXPOSED: (f"{n} under", dim),
-            S.EVENT_RATE: (f"{n} events/s", c), S.LATENCY: (f"{n} latency µs", dim),
+            S.LATENCY: (f"{n} latency µs", c),
             S.PREDICTION_ERROR: (f"{n} error", c),
         }
         for leaf, (label, col) in lines.items():
@@ -48,6 +48,7 @@ def style_series(rec: rr.RecordingStream, lanes: list[str]) -> None:
                                    (S.SATURATED, (f"{n} saturated frame", (231, 76, 60)))):
             rec.log(S.path(n, leaf), rr.SeriesPoints(colors=[col], names=[label], markers=["circle"],
                                                       marker_sizes=[4.0]), static=True)
+    rec.log(S.EVENT_RATE, rr.SeriesLines(colors=[(200, 200, 200)], names=["events/s"], widths=[1.5]), static=True)
 
 
 __all__ = ["LAYOUTS", "make_blueprint", "style_series", "lane_color"]

@@ -15,27 +15,29 @@ from necviz import schema as S
 from .common import image_view, panels, series_view
 
 
-def blueprint(lanes: list[str], width: int, height: int, window_s: float | None = None) -> rrb.Blueprint:
+def blueprint(lanes: list[str], width: int, height: int) -> rrb.Blueprint:
     n = lanes[0]
     p = lambda leaf: S.path(n, leaf)  # noqa: E731
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
                 rrb.Horizontal(image_view(p(S.FRAME_IMAGE), "frame", width, height),
-                               image_view(p(S.EVENTS), "events", width, height)),
-                series_view("ln irradiance: predicted vs frame", [p(S.IRRADIANCE_PREDICTED), p(S.IRRADIANCE_FRAME)],
-                            window_s),
-                series_view("exposure (µs) · gain", [p(S.EXPOSURE_COMMANDED), p(S.EXPOSURE_APPLIED),
-                                                    p(S.GAIN_COMMANDED), p(S.GAIN_APPLIED)], window_s),
+                               image_view(S.EVENTS, "events", width, height)),
+                series_view("ln irradiance: predicted vs frame", [p(S.IRRADIANCE_PREDICTED), p(S.IRRADIANCE_FRAME)]),
+                rrb.Horizontal(
+                    series_view("exposure (µs)", [p(S.EXPOSURE_COMMANDED), p(S.EXPOSURE_APPLIED)]),
+                    series_view("gain (linear)", [p(S.GAIN_COMMANDED), p(S.GAIN_APPLIED)]),
+                    column_shares=[3, 1],
+                ),
                 series_view("saturated fraction", [p(S.OVER_EXPOSED), p(S.UNDER_EXPOSED), p(S.SATURATED)],
-                            window_s, y_range=(0.0, 1.0)),
+                            y_range=(0.0, 1.0)),
                 row_shares=[3, 2, 2, 2],
             ),
             rrb.Vertical(
-                series_view("prediction error (ln)", [p(S.PREDICTION_ERROR)], window_s),
+                series_view("prediction error (ln)", [p(S.PREDICTION_ERROR)]),
                 rrb.TextLogView(origin="/", contents=[f"/{p(S.LOG)}", f"/{S.TUNING}"], name="log"),
             ),
             column_shares=[3, 1],
         ),
-        *panels(),  # the `t` timeline: events and predictions are not per frame; frames carry `frame` too
+        *panels(),  # every entity is on both `t` and `frame`
     )

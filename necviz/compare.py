@@ -1,175 +1,179 @@
 """``necviz compare``: every controller in closed loop on the same simulated scene.
 
 All cameras share one scene and one event stream (:class:`~necviz.drivers.sim.camera.SimRig`);
-each controller drives its own camera. NEC sees events and frames, the image-only baselines see
-their frames (they receive the event batches too, and ignore them). Every controller starts from
-the same exposure (right for the scene's first instant) under the same camera limits.
+each controller drives its own camera through the same :class:`~necviz.pipeline.Pipeline` as
+``necviz demo``, so a comparison and a demo of the same scene produce the same recording
+(``--save``: the same entity schema and the ``compare`` layout, written losslessly). NEC sees
+events and frames, the image-only baselines see their frames (they receive the event batches
+too, and ignore them). Every controller starts from the same exposure (right for the scene's
+first instant) under the same camera limits.
+
+With ``seeds > 1`` every metric is reported as the mean over seeds with a 95 % confidence
+interval (Student's t on the per-seed values). Each controller's ``saturation_causes`` counts its
+saturated frames by diagnosed cause (:mod:`necviz.core.diagnosis`), as the mean per run over seeds;
+with one seed every frame's cause is in ``frames_detail``.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 import time
-from pathlib import Path
+from dataclasses import replace
 
 import numpy as np
 
-from .core.control import CONTROLLERS, CameraLimits, make_controller
-from .core.errors import ParameterError
-from .core.frames import Frame
-from .core.metrics import SiftMatcher, over_exposed_rate, summarise, under_exposed_rate
-from .drivers.sim.aps import ApsParams
-from .drivers.sim.camera import SimRig
-from .drivers.sim.scenes import SCENARIOS, make_scenario
+from .options import CompareOptions
+from .outputs import check_distinct, check_output, write_json
+from .pipeline import Pipeline
+from .runs import run_once
 
 METRICS = ("frames", "saturated_frames_50", "saturated_frames_10", "mean_over_exposed_rate",
-           "mean_under_exposed_rate", "recovery_ms", "sift_inliers_mean")
+           "mean_under_exposed_rate", "recovery_ms", "sift_inliers_mean", "sift_inliers_normalised_mean",
+           "true_valid_fraction_mean", "rank_correlation_mean", "pedestrian_valid_fraction", "pedestrian_well_exposed")
 
 
-def parse_controllers(text: str) -> list[str]:
-    names = [n.strip() for n in text.split(",") if n.strip()]
-    unknown = [n for n in names if n not in CONTROLLERS]
-    if not names or unknown:
-        raise ParameterError(f"unknown controller(s) {', '.join(unknown) or '(none given)'}; "
-                             f"available: {', '.join(sorted(CONTROLLERS))}")
-    if len(set(names)) != len(names):
-        raise ParameterError("each controller may appear once in --controllers")
-    return names
+def run_pipeline(pipe: Pipeline, label: str, expected_s: float, out) -> dict:
+    """Run ``pipe`` on its thread with a live count on ``out``; Ctrl-C stops it (what ran is kept)."""
+    from .progress import LiveLine
+
+    line = LiveLine(out)
+    pipe.start()
+    t0 = time.perf_counter()
+    try:
+        while not pipe.wait(0.5):
+            t = ((pipe.now_us or 0) - (pipe.first_us or 0)) / 1e6
+            line.show(f"  {label}: {t:5.2f}/{expected_s:g} s simulated ({time.perf_counter() - t0:4.1f} s)")
+    except KeyboardInterrupt:
+        pipe.stop()
+        pipe.finish()
+        raise
+    line.clear()
+    return pipe.finish()
 
 
-def run_once(scenario: str, controllers: list[str], seed: int, duration_s: float | None, sift: bool,
-             recording=None, scenario_params: dict | None = None, out=...) -> dict:
-    """One closed-loop run; returns ``{name: metrics dict}`` plus traces."""
-    out = sys.stdout if out is ... else out
-    scene = make_scenario(scenario, seed=seed, duration_us=None if duration_s is None else int(duration_s * 1e6),
-                          **(scenario_params or {}))
-    aps = ApsParams()
-    rig = SimRig(scene, controllers, aps=aps, seed=seed)
-    limits = CameraLimits(aps.exposure_min_us, aps.exposure_max_us, aps.gain_max)
-    ctrls = {n: make_controller(n, sensor=scene.sensor, limits=limits, exposure_us=rig.cams[n].exposure_us)
-             for n in controllers}
-    per = {n: {"starts": [], "over": [], "under": [], "sift": [], "exposure": [], "gain": []} for n in controllers}
-    sifts = {n: SiftMatcher() for n in controllers} if sift else {}
-    t_wall = time.perf_counter()
-    next_report = 0.0
-    for cam, packet in rig.packets():
-        for n in (controllers if cam is None else (cam,)):
-            cmd = ctrls[n].feed(packet)
-            if cmd is not None:
-                rig.set_exposure(n, cmd.exposure_us, cmd.gain)
-                if recording is not None:
-                    recording.scalar(f"{n}/exposure/commanded", cmd.issue_time_us, cmd.exposure_us)
-                    recording.scalar(f"{n}/gain/commanded", cmd.issue_time_us, cmd.gain)
-                    lp = getattr(ctrls[n], "last_log_irradiance", math.nan)
-                    if math.isfinite(lp):
-                        recording.scalar(f"{n}/irradiance/predicted", cmd.issue_time_us, lp)
-        if isinstance(packet, Frame):
-            p = per[cam]
-            over, under = over_exposed_rate(packet.image), under_exposed_rate(packet.image)
-            p["starts"].append(packet.exposure_start_us)
-            p["over"].append(over)
-            p["under"].append(under)
-            p["exposure"].append(packet.exposure_us)
-            p["gain"].append(packet.gain)
-            if sift:
-                p["sift"].append(sifts[cam].next(packet.image))
-            if recording is not None:
-                recording.frame(cam, packet.exposure_start_us, packet.sequence, packet.image, over, under)
-                recording.scalar(f"{cam}/exposure/applied", packet.exposure_start_us, packet.exposure_us)
-                recording.scalar(f"{cam}/gain/applied", packet.exposure_start_us, packet.gain)
-                recording.scalar(f"{cam}/over_exposed_rate", packet.exposure_start_us, over)
-                recording.scalar(f"{cam}/under_exposed_rate", packet.exposure_start_us, under)
-        now = time.perf_counter()
-        if out is not None and now >= next_report:
-            print(f"\r  {scenario} seed {seed}: {rig.now_us / 1e6:5.2f}/{scene.duration_us / 1e6:g} s simulated "
-                  f"({now - t_wall:4.1f} s)", end="", file=out, flush=True)
-            next_report = now + 0.5
-    if out is not None:
-        print(file=out)
-    steps = [c.t_us for c in scene.changes]
-    res = {}
-    for n in controllers:
-        p = per[n]
-        m = summarise(p["starts"], p["over"], p["under"], steps, p["sift"] if sift else None, end_us=scene.duration_us)
-        res[n] = {**m.as_dict(), "exposure_trace_us": p["exposure"], "gain_trace": p["gain"],
-                  "frame_starts_us": p["starts"]}
-    return {"results": res, "duration_s": scene.duration_us / 1e6, "steps_us": steps}
+def confidence_interval(values) -> tuple[float, float]:
+    """Mean and the half-width of its 95 % confidence interval (Student's t; 0 for one value)."""
+    v = np.asarray(values, dtype=np.float64)
+    if v.size < 2:
+        return float(v.mean()), 0.0
+    from scipy.stats import t
+
+    return float(v.mean()), float(t.ppf(0.975, v.size - 1) * v.std(ddof=1) / math.sqrt(v.size))
 
 
-def _fmt(v, std=None, digits=1):
+def _fmt(v, ci=None, digits=1):
     if v is None:
         return "—"
     s = f"{v:.{digits}f}" if isinstance(v, float) else str(v)
-    if std is not None and std > 0:
-        s += f" ± {std:.{digits}f}"
+    if ci:
+        s += f" ± {ci:.{digits}f}"
     return s
 
 
-def run(scenario="tunnel_exit", controllers="nec,navid,shim,begin,builtin,fixed", seed=0, seeds=1,
-        duration_s=None, sift=True, json_path=None, save=None, scenario_params=None, out=...) -> dict:
-    """Run the comparison (``seeds`` runs from ``seed``), print a table, write JSON and an .rrd."""
+def run(options: CompareOptions | None = None, out=...) -> dict:
+    """Run the comparison (``options.seeds`` runs from the scene's seed); print a table; write JSON / .rrd."""
     out = sys.stdout if out is ... else out
-    if scenario not in SCENARIOS:
-        raise ParameterError(f"unknown scenario {scenario!r}; available: {', '.join(sorted(SCENARIOS))}")
-    names = parse_controllers(controllers) if isinstance(controllers, str) else list(controllers)
-    if not isinstance(seeds, int) or seeds < 1:
-        raise ParameterError(f"--seeds must be a positive integer, got {seeds!r}")
-    if duration_s is not None and not (0 < duration_s <= 600):
-        raise ParameterError(f"--duration must lie in (0, 600] s, got {duration_s}")
-    recording = None
-    if save:
-        from .recording import CompareRecording
-
-        recording = CompareRecording(save, {"scenario": scenario, "seed": seed, "seeds": seeds,
-                                            "controllers": ",".join(names), **(scenario_params or {})})
+    options = options or CompareOptions()
+    outputs = {"--json": options.json, "--save": options.save}
+    check_distinct(outputs)
+    for flag, path in outputs.items():
+        if path is not None:
+            check_output(path, flag, force=options.force, suffixes=(".rrd",) if flag == "--save" else None)
+    profile = _profile(options.profile)
+    names = list(options.controllers)
+    sc = options.scene
+    seed0 = sc.resolved_seed
     runs = []
-    try:
-        for k in range(seeds):
-            runs.append(run_once(scenario, names, seed + k, duration_s, sift,
-                                 recording if k == 0 else None, scenario_params, out))
-    finally:
-        if recording is not None:
-            recording.close()
+    for k in range(options.seeds):
+        observers = ()
+        if k == 0 and options.save:
+            observers = (lambda rig, lanes: _file_sink(options, rig, lanes),)
+        runs.append(run_once(replace(sc, seed=seed0 + k), names, options.sift, profile, observers,
+                             options.controller_params, options.sim,
+                             progress=lambda pipe, label, s: run_pipeline(pipe, label, s, out)))
     table = {}
     for n in names:
         row = {}
         for key in METRICS:
             vals = [r["results"][n][key] for r in runs]
             if any(v is None for v in vals):
-                row[key] = None
-                row[key + "_std"] = None
+                row[key] = row[key + "_std"] = row[key + "_ci95"] = None
+                row[key + "_missing"] = sum(v is None for v in vals)
             else:
-                row[key] = vals[0] if seeds == 1 else float(np.mean(vals))
-                row[key + "_std"] = float(np.std(vals, ddof=1)) if seeds > 1 else 0.0
-        if seeds == 1:
-            row["recovery_ms_per_step"] = runs[0]["results"][n]["recovery_ms_per_step"]
-            row["exposure_trace_us"] = runs[0]["results"][n]["exposure_trace_us"]
-            row["gain_trace"] = runs[0]["results"][n]["gain_trace"]
-            row["frame_starts_us"] = runs[0]["results"][n]["frame_starts_us"]
+                mean, ci = confidence_interval(vals)
+                row[key] = vals[0] if options.seeds == 1 else mean
+                row[key + "_std"] = float(np.std(vals, ddof=1)) if options.seeds > 1 else 0.0
+                row[key + "_ci95"] = ci
+            if options.seeds > 1:
+                row[key + "_per_seed"] = vals
+        causes = [r["results"][n].get("saturation_causes") or {} for r in runs]
+        row["saturation_causes"] = {c: sum(k.get(c, 0) for k in causes) / len(runs)
+                                    for c in dict.fromkeys(c for k in causes for c in k)}
+        if options.seeds > 1:
+            row["saturation_causes_per_seed"] = causes
+        if options.seeds == 1:
+            for key in ("recovery_ms_per_step", "exposure_trace_us", "gain_trace", "frame_starts_us", "frames_detail"):
+                row[key] = runs[0]["results"][n][key]
         table[n] = row
-    result = {"scenario": scenario, "seed": seed, "seeds": seeds, "duration_s": runs[0]["duration_s"],
+    result = {"scenario": sc.name, "seed": seed0, "seeds": options.seeds, "duration_s": runs[0]["duration_s"],
+              "scenario_params": sc.params, "controller_params": options.controller_params, "sim": options.sim,
+              "profile": str(options.profile) if options.profile else None,
               "lighting_steps_us": runs[0]["steps_us"], "controllers": table}
     if out is not None:
-        print(f"\n{scenario}, {result['duration_s']:g} s, seed {seed}" + (f" (+{seeds - 1} more)" if seeds > 1 else ""),
-              file=out)
-        w = max(10, *(len(n) for n in table))  # controller names registered by users may be longer
-        hdr = f"{'controller':{w}s} {'frames':>6s} {'sat>50%':>10s} {'sat>10%':>10s} {'mean over':>10s} " \
-              f"{'mean under':>10s} {'recovery ms':>12s} {'SIFT inliers':>13s}"
-        print(hdr, file=out)
-        for n, r in table.items():
-            print(f"{n:{w}s} {_fmt(r['frames'], digits=0):>6s} {_fmt(r['saturated_frames_50'], r['saturated_frames_50_std']):>10s} "
-                  f"{_fmt(r['saturated_frames_10'], r['saturated_frames_10_std']):>10s} "
-                  f"{_fmt(r['mean_over_exposed_rate'], r['mean_over_exposed_rate_std'], 3):>10s} "
-                  f"{_fmt(r['mean_under_exposed_rate'], r['mean_under_exposed_rate_std'], 3):>10s} "
-                  f"{_fmt(r['recovery_ms'], r['recovery_ms_std']):>12s} "
-                  f"{_fmt(r['sift_inliers_mean'], r['sift_inliers_mean_std']):>13s}", file=out)
-    if json_path:
-        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
-        Path(json_path).write_text(json.dumps(result, indent=1) + "\n")
+        print_table(result, out)
+    if options.json:
+        write_json(options.json, result, indent=1)
         if out is not None:
-            print(f"wrote {json_path}", file=out)
-    if save and out is not None:
-        print(f"wrote {save} (open it with: rerun {save})", file=out)
+            print(f"wrote {options.json}", file=out)
+    if options.save and out is not None:
+        print(f"wrote {options.save} (open it with: rerun {options.save})", file=out)
     return result
+
+
+def print_table(result: dict, out) -> None:
+    seeds = result["seeds"]
+    print(f"\n{result['scenario']}, {result['duration_s']:g} s, seed {result['seed']}"
+          + (f" (+{seeds - 1} more; mean ± 95 % CI)" if seeds > 1 else ""), file=out)
+    table = result["controllers"]
+    w = max(10, *(len(n) for n in table))  # controller names registered by users may be longer
+    print(f"{'controller':{w}s} {'frames':>6s} {'sat>50%':>12s} {'sat>10%':>12s} {'mean over':>14s} "
+          f"{'mean under':>14s} {'recovery ms':>14s} {'SIFT inliers':>14s} {'SIFT norm.':>14s} "
+          f"{'true valid':>14s} {'rank ρ':>14s} {'pedestrian':>14s}", file=out)
+    for n, r in table.items():
+        c = lambda k: r.get(k + "_ci95")  # noqa: E731
+        ped = r.get("pedestrian_valid_fraction")
+        print(f"{n:{w}s} {_fmt(r['frames'], digits=0):>6s} {_fmt(r['saturated_frames_50'], c('saturated_frames_50')):>12s} "
+              f"{_fmt(r['saturated_frames_10'], c('saturated_frames_10')):>12s} "
+              f"{_fmt(r['mean_over_exposed_rate'], c('mean_over_exposed_rate'), 3):>14s} "
+              f"{_fmt(r['mean_under_exposed_rate'], c('mean_under_exposed_rate'), 3):>14s} "
+              f"{_fmt(r['recovery_ms'], c('recovery_ms')):>14s} "
+              f"{_fmt(r['sift_inliers_mean'], c('sift_inliers_mean')):>14s} "
+              f"{_fmt(r.get('sift_inliers_normalised_mean'), c('sift_inliers_normalised_mean')):>14s} "
+              f"{_fmt(r.get('true_valid_fraction_mean'), c('true_valid_fraction_mean'), 3):>14s} "
+              f"{_fmt(r.get('rank_correlation_mean'), c('rank_correlation_mean'), 3):>14s} "
+              f"{_fmt(None if ped is None else float(ped), c('pedestrian_valid_fraction'), 2):>14s}", file=out)
+    print("saturated frames by diagnosed cause" + (" (mean per run)" if seeds > 1 else "") + ":", file=out)
+    for n, r in table.items():
+        causes = r.get("saturation_causes") or {}
+        text = ", ".join(f"{k} {_fmt(float(v), digits=1 if seeds > 1 else 0)}" for k, v in causes.items() if v) or "none"
+        print(f"  {n:{w}s} {text}", file=out)
+
+
+def _profile(path):
+    if path is None:
+        return None
+    from .core.profile import load_profile
+
+    return load_profile(path)
+
+
+def _file_sink(options: CompareOptions, rig, lanes):
+    """The dashboard's sink, writing losslessly to ``options.save`` with the ``compare`` layout."""
+    from .sink import open_file_sink
+
+    sc = options.scene
+    props = {"command": "compare", "scenario": sc.name, "seed": sc.resolved_seed, "scenario_params": sc.params,
+             "controllers": ",".join(ln.name for ln in lanes), "profile": options.profile or "default"}
+    return open_file_sink(options.save, [ln.name for ln in lanes], rig.sensor, "compare",
+                          f"necviz compare: {sc.name}", props)

@@ -1,71 +1,69 @@
-"""``necviz live``: a DAVIS camera with NEC closing the loop, in the ``live`` layout.
+"""``necviz live``: a DAVIS camera with a controller closing the loop, in the ``live`` layout.
 
-``--device usb`` opens a real DAVIS346/DAVIS240 (pyusb); ``--device emulated`` runs the same
+``device="usb"`` opens a real DAVIS346/DAVIS240 (pyusb); ``device="emulated"`` runs the same
 driver against a virtual DAVIS346 fed by the simulator (no hardware). The controller drives the
 camera: every command goes to the APS exposure register between frames. While it runs, the
-terminal prompt (or ``--tune-file``) changes parameters and ``drive NAME`` switches controller.
+terminal prompt (or a tuning file) changes parameters and ``drive NAME`` switches controller.
 
 If the camera is unplugged, everything recorded so far is flushed (the ``.rrd`` and the
-``--record`` file stay readable) and the command ends with a one-line error — or, with
-``--reconnect``, waits for the camera to come back.
+``--record`` file stay readable) and the run ends with a one-line error — or, with
+``reconnect``, waits for the camera to come back. Per-frame telemetry keeps the last
+``LiveOptions.history`` frames, so memory does not grow with the length of a session.
 """
 
 from __future__ import annotations
 
 import sys
 
-from .core.control import CONTROLLERS, make_controller
-from .core.errors import ParameterError
-from .dashboard import check_run_args, run_dashboard
+from .core.control import make_controller
+from .dashboard import Session, preflight, run_session
+from .options import LiveOptions, ViewerOptions
 from .pipeline import Lane
+from .recorders import open_recorder
 
 LANE = "camera"
 
 
-def run(args, out=...) -> dict:
+def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None, out=..., stdin=None) -> dict:
     out = sys.stdout if out is ... else out
-    check_run_args(args)  # before anything is opened or truncated
+    options = options or LiveOptions()
+    viewer, profile = preflight("live", viewer, {"--record": options.record}, options.force,
+                                profile=options.profile)  # before the camera is opened
     from .drivers.davis import open_camera
 
-    if args.controller not in CONTROLLERS:
-        raise ParameterError(f"unknown controller {args.controller!r}; available: {', '.join(sorted(CONTROLLERS))}")
-    if args.duration is not None and not (0 < args.duration <= 24 * 3600):
-        raise ParameterError(f"--duration must be a positive number of seconds, got {args.duration}")
-    faults = None
-    if args.device == "emulated" and args.emulate_unplug is not None:
-        from .drivers.davis.emulator import Faults
+    backend = None
+    if options.device == "emulated":
+        from .drivers.davis.emulator import EmulatedDavis346, Faults
 
-        if not args.emulate_unplug > 0:
-            raise ParameterError(f"--emulate-unplug must be a positive number of seconds, got {args.emulate_unplug}")
-        faults = Faults(unplug_after_s=args.emulate_unplug)
-    camera = open_camera(args.device, args.serial, scenario=args.scenario, seed=args.seed,
-                         duration_s=args.duration if args.device == "emulated" else None,
-                         reconnect=args.reconnect, faults=faults)
-    info = camera.info
-    limits = camera.limits
-    sensor = camera.sensor
-
-    def factory(name: str, old):
-        return make_controller(name, sensor=sensor, limits=old.limits, exposure_us=old.exposure_us, gain=old.gain)
-
-    ctrl = make_controller(args.controller, sensor=sensor, limits=limits)
-    lane = Lane.build(LANE, ctrl, sensor)
-    props = {"command": "live", "device": args.device, "serial": info.get("serial"),
+        spec = options.scene.spec()
+        faults = Faults(unplug_after_s=options.emulate_unplug_s) if options.emulate_unplug_s is not None else None
+        backend = EmulatedDavis346(scenario=spec["name"], seed=options.scene.resolved_seed,
+                                   duration_s=options.duration_s, faults=faults,
+                                   scenario_params={**spec["params"], **options.scene.params})
+    camera = open_camera(options.device, options.serial, reconnect=options.reconnect, backend=backend)
+    info, limits, sensor = camera.info, camera.limits, camera.sensor
+    kw = {} if profile is None else {"tedi": profile.tedi, "crf": profile.crf}
+    lane = Lane(LANE, make_controller(options.controller, sensor=sensor, limits=limits, **kw))
+    props = {"command": "live", "device": options.device, "serial": info.get("serial"),
              "firmware": info.get("firmware"), "logic": info.get("logic_version", info.get("logic")),
-             "controller": args.controller, "camera_limits": limits, "camera_profile": "default DAVIS346 response",
-             **({"scenario": args.scenario} if args.device == "emulated" else {})}
+             "controller": options.controller, "camera_limits": limits,
+             "camera_profile": str(options.profile) if options.profile else "default DAVIS346 response",
+             **({"scenario": options.scene.name} if options.device == "emulated" else {})}
     recorder = None
-    if args.record:
-        from .drivers.replay import Recorder
-
-        recorder = Recorder(args.record, sensor=sensor, properties={k: str(v) for k, v in props.items()})
-    print(f"  live: {sensor.name or 'DAVIS'} {info.get('serial', '')} ({args.device}), {args.controller} drives "
+    try:
+        if options.record is not None:
+            recorder = open_recorder(options.record, sensor, props)
+    except BaseException:
+        camera.close()
+        raise
+    print(f"  live: {sensor.name or 'DAVIS'} {info.get('serial', '')} ({options.device}), {options.controller} drives "
           f"the exposure ({limits.exposure_min_us:g}..{limits.exposure_max_us:g} µs, digital gain ≤ "
           f"{limits.gain_max:g})", file=out)
     try:
-        return run_dashboard(args, "live", camera, [lane], "live", props, f"necviz live: {info.get('serial', '')}",
-                             sensor, recorder=recorder, controller_factory=factory, out=out,
-                             expected_duration_s=args.duration, stop_after_s=args.duration)
+        return run_session(Session("live", camera, [lane], "live", f"necviz live: {info.get('serial', '')}", props,
+                                   viewer, options.show, options.tune, recorder, LANE, lossless=False,
+                                   history=options.history, expected_duration_s=options.duration_s,
+                                   stop_after_s=options.duration_s), out, stdin)
     finally:
-        if args.record:
-            print(f"  recorded to {args.record} (replay it with: necviz replay {args.record})", file=out)
+        if options.record is not None:
+            print(f"  recorded to {options.record} (replay it with: necviz replay {options.record})", file=out)

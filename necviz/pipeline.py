@@ -1,20 +1,28 @@
-"""The streaming pipeline: source -> P-TEDI -> controller -> command back to the source, and -> Rerun.
+"""The closed loop: source -> controllers -> commands back to the source, on one streaming thread.
 
-One *streaming thread* pulls packets from the source and, for every lane (a camera with its
-controller), feeds the controller (NEC owns its P-TEDI estimator; the other lanes get a passive
-P-TEDI estimator so every lane shows a prediction), sends any command straight back to the
-source, and hands what it saw to the sink (:class:`~necviz.sink.RerunSink`) and the recorder
-through calls that only append to memory. Commands therefore go out between frames, at the
-rate event batches arrive, and never wait for visualisation.
+A :class:`Pipeline` pulls ``(camera, packet)`` pairs from a :class:`~necviz.drivers.source.Source`
+(one camera, or a rig of cameras sharing a scene) and feeds every :class:`Lane` — a controller
+watching one camera, driving it unless the run is open loop. NEC owns its P-TEDI estimator; any
+other controller gets a *passive* one, so every lane has a prediction to show. A command goes
+straight back to the source (``source.set_exposure(camera, exposure_us, gain)``), between frames,
+at the rate event batches arrive.
 
-Measured per command: the processing latency from the moment the packet that caused it left
-the source to the moment the command was handed back to the source (``latency_us``; the
-batch period of the source, ≤ 1 ms, comes on top in sensor time). Measured per stream: events,
-frames, event rate.
+The pipeline only controls. What the frames and commands mean is computed once by a
+:class:`~necviz.telemetry.Telemetry`; whoever wants to see the run — the Rerun sink
+(:mod:`necviz.sink`), the native recorder — is an :class:`Observer`, called with what happened
+through methods that only append to memory, so control never waits for them.
 
-Shutdown: source end, :meth:`Pipeline.stop` (Ctrl-C in the CLI) or a source error all end the
-streaming thread; :meth:`Pipeline.finish` then closes the source and flushes the recorder and
-the sink, and re-raises the error if there was one — so what was seen before a fault is kept.
+Measured per command: the processing latency from the moment the packet that caused it left the
+source to the moment the command was handed back (the source's batch period, ≤ 1 ms, comes on
+top in sensor time).
+
+Changes while running (live tuning, switching the controller) are submitted from any thread
+(:meth:`Pipeline.tune`, :meth:`Pipeline.drive`) and applied on the streaming thread between two
+packets; each returns a :class:`~concurrent.futures.Future` with the outcome.
+
+Shutdown: source end, :meth:`Pipeline.stop` (Ctrl-C) or a source error end the streaming thread;
+:meth:`Pipeline.finish` closes the source and the observers (flushing recordings) and re-raises
+the error if there was one, so what was seen before a fault is kept.
 """
 
 from __future__ import annotations
@@ -22,19 +30,22 @@ from __future__ import annotations
 import math
 import threading
 import time
-from dataclasses import dataclass, field
+from concurrent.futures import Future
+from dataclasses import replace
 
 import numpy as np
 
 from . import schema as S
-from .core.control import Controller, NECController
+from .core.control import CONTROLLERS, Controller, NECController, make_controller
+from .core.checks import check_number
 from .core.errors import NecvizError, ParameterError
-from .core.event_model import TediParams
 from .core.frames import ExposureMarker, Frame
 from .core.imu import ImuBatch, TriggerBatch
-from .core.metrics import over_exposed_rate, under_exposed_rate
 from .core.ptedi import PeripheralEstimator
-from .drivers.source import CommandRecord
+from .telemetry import FrameRecord, Telemetry
+
+#: Thresholds of the lane's P-TEDI estimator, tunable like the controller's own parameters.
+THRESHOLD_KEYS = ("c_on", "c_off", "c")
 
 
 def packet_time_us(packet) -> int | None:
@@ -52,92 +63,161 @@ def packet_time_us(packet) -> int | None:
     return None
 
 
-@dataclass
 class Lane:
-    """One camera and the controller that drives it (or would, in open loop).
-
-    ``estimator`` is NEC's own P-TEDI estimator, or a passive one fed beside any other
-    controller. ``drives``: commands go back to the source (False: shown only).
-    """
-
-    name: str
-    controller: Controller
-    estimator: PeripheralEstimator
-    drives: bool = True
-    passive_estimator: bool = False
-    # run state
-    next_prediction_us: int = -(2**62)
-    predicted_at_start: dict = field(default_factory=dict)
-    latencies_ns: list = field(default_factory=list)
-    commands: int = 0
-    frames: int = 0
-    saturated_frames: int = 0
-    frames_detail: list = field(default_factory=list)
-
-    @classmethod
-    def build(cls, name: str, controller: Controller, sensor, drives: bool = True, tedi=None, crf=None) -> "Lane":
-        """NEC brings its estimator; any other controller gets a passive one on ``sensor``."""
-        if isinstance(controller, NECController):
-            return cls(name, controller, controller.estimator, drives)
-        return cls(name, controller, PeripheralEstimator(sensor, tedi or TediParams(), crf), drives, True)
-
-
-def percentile_us(latencies_ns: list, q: float) -> float:
-    return float(np.percentile(np.asarray(latencies_ns, np.float64), q) / 1e3) if latencies_ns else math.nan
-
-
-class Pipeline:
-    """Runs lanes over a source on a streaming thread.
+    """A controller watching one camera of the source.
 
     Parameters
     ----------
-    source : a :class:`~necviz.drivers.source.Source` (one lane) or a
-        :class:`~necviz.drivers.sim.camera.SimRig` (one lane per camera, named like its cameras).
-    lanes : the lanes, by name.
-    sink : a :class:`~necviz.sink.RerunSink` or ``None``.
-    recorder : an object with ``write(packet)``, ``command(CommandRecord)``,
-        ``annotate(t_us, dict)``, ``close()`` (the native recorder), or ``None``.
-    record_lane : the lane whose camera the recorder keeps (default: the first).
+    name : the lane's name (its entity root in the recording; unique in a pipeline).
+    controller : any :class:`~necviz.core.control.Controller`.
+    camera : the source camera it watches (default: ``name`` if the source has such a camera,
+        else the source's only camera).
+    drives : send its commands to the camera (``False``: open loop, shown only).
+    estimator : the P-TEDI estimator fed beside a controller that has none of its own
+        (default: one on the source's sensor with default thresholds). NEC uses its own.
+    """
+
+    def __init__(self, name: str, controller: Controller, camera: str | None = None, drives: bool = True,
+                 estimator: PeripheralEstimator | None = None):
+        if not isinstance(controller, Controller):
+            raise ParameterError(f"lane {name!r}: the controller must be a necviz Controller")
+        self.name = name
+        self.camera = camera
+        self.drives = bool(drives)
+        self.controller = controller
+        self.passive: PeripheralEstimator | None = None if hasattr(controller, "estimator") else estimator
+
+    @property
+    def estimator(self) -> PeripheralEstimator | None:
+        """The P-TEDI estimator whose prediction this lane shows (the controller's own, or the passive one)."""
+        return self.passive if self.passive is not None else getattr(self.controller, "estimator", None)
+
+    def switch(self, controller: Controller) -> None:
+        """Let ``controller`` take over; a controller without an estimator inherits the current one."""
+        if not hasattr(controller, "estimator"):
+            self.passive = self.estimator
+        else:
+            self.passive = None
+        self.controller = controller
+
+    def tunables(self) -> list[str]:
+        return [*THRESHOLD_KEYS, *self.controller.tunables()]
+
+
+class Observer:
+    """Something that watches a run (the Rerun sink, the native recorder). Every method is called
+    on the streaming thread and must only append to memory; the defaults ignore everything."""
+
+    def started(self, t_us: int, initial: dict) -> None:
+        """The first packet arrived at ``t_us``; ``initial`` maps lane -> its starting command."""
+
+    def events(self, batch: np.ndarray) -> None:
+        """A batch of events, shared by every lane of the source."""
+
+    def packet(self, camera: str, packet) -> None:
+        """A camera's exposure marker, frame, IMU or trigger batch (before the lanes see it)."""
+
+    def command(self, lane: str, command, latency_us: float) -> None:
+        """A lane's controller issued ``command``, handed to the source after ``latency_us``."""
+
+    def prediction(self, lane: str, t_us: int, log_irradiance: float) -> None:
+        """The lane's P-TEDI prediction ln P(t), sampled every few ms."""
+
+    def frame(self, lane: str, frame: Frame, record: FrameRecord) -> None:
+        """A frame of the lane's camera and what telemetry measured on it."""
+
+    def note(self, entity: str, t_us: int, message: str, level: str = "INFO", data: dict | None = None) -> None:
+        """A change during the run (tuning, controller switch); ``data`` for machine-readable logs."""
+
+    def close(self) -> dict | None:
+        """The run is over: flush. May return statistics for the run summary."""
+        return None
+
+
+class Pipeline:
+    """Runs lanes over a source on a streaming thread (or the caller's, with :meth:`run`).
+
+    Parameters
+    ----------
+    source : a :class:`~necviz.drivers.source.Source`.
+    lanes : the lanes (at most one driving lane per camera).
+    telemetry : where per-frame metrics go (default: a :class:`Telemetry` keeping every frame).
+    observers : :class:`Observer` s (the Rerun sink, a recorder).
     speed : ``None`` as fast as possible; ``1.0`` real time; ``N`` N times real time.
-    prediction_period_us : the predicted irradiance is logged at most this often per lane.
+    sample_period_us : predictions go to observers at most this often (sensor time).
     stop_after_s : end the run after this much sensor time (``None``: when the source ends).
     """
 
-    def __init__(self, source, lanes: list[Lane], sink=None, recorder=None, record_lane: str | None = None,
-                 speed: float | None = None, prediction_period_us: int = 2_000, stop_after_s: float | None = None):
+    def __init__(self, source, lanes: list[Lane], *, telemetry: Telemetry | None = None, observers=(),
+                 speed: float | None = None, sample_period_us: int = 2_000, stop_after_s: float | None = None):
         if not lanes:
             raise ParameterError("the pipeline needs at least one lane")
         if speed is not None and not (isinstance(speed, (int, float)) and math.isfinite(speed) and speed > 0):
             raise ParameterError(f"speed must be a positive number (1 = real time), got {speed!r}")
+        names = [lane.name for lane in lanes]
+        if len(set(names)) != len(names):
+            raise ParameterError(f"lane names must be unique, got {names}")
+        cameras = tuple(source.cameras)
+        driven = set()
+        for lane in lanes:
+            if lane.camera is None:
+                lane.camera = lane.name if lane.name in cameras else (cameras[0] if len(cameras) == 1 else None)
+            if lane.camera not in cameras:
+                raise ParameterError(f"lane {lane.name!r} watches camera {lane.camera!r}, which the source does not "
+                                     f"have ({', '.join(cameras)})")
+            if lane.drives:
+                if lane.camera in driven:
+                    raise ParameterError(f"camera {lane.camera!r} is driven by more than one lane")
+                driven.add(lane.camera)
+            if lane.estimator is None:
+                lane.passive = PeripheralEstimator(source.sensor)
         self.source = source
-        self.multi = hasattr(source, "packets") and hasattr(source, "cams")
         self.lanes = {lane.name: lane for lane in lanes}
-        if len(self.lanes) != len(lanes):
-            raise ParameterError(f"lane names must be unique, got {[lane.name for lane in lanes]}")
-        if not self.multi and len(self.lanes) != 1:
-            raise ParameterError("a single-camera source takes exactly one lane")
-        self._only = lanes[0]
-        self.sink = sink
-        self.recorder = recorder
-        self.record_lane = record_lane or lanes[0].name
+        self._watchers: dict[str, list[Lane]] = {c: [ln for ln in lanes if ln.camera == c] for c in cameras}
+        self.telemetry = telemetry if telemetry is not None else Telemetry(names)
+        missing = [n for n in names if n not in self.telemetry.lanes]
+        if missing:
+            raise ParameterError(f"the telemetry has no lane {missing[0]!r}")
+        self.telemetry.attach(lanes, source)  # what the diagnosis of saturated frames needs to know
+        self.observers = list(observers)
         self.speed = speed
-        self.prediction_period_us = int(prediction_period_us)
+        self.sample_period_us = int(sample_period_us)
         self.stop_after_us = None if stop_after_s is None else int(stop_after_s * 1e6)
-        self.events = 0
-        self.frames = 0
-        self.now_us: int | None = None
-        self.first_us: int | None = None
         self.error: BaseException | None = None
+        self.wall_s = 0.0
         self._stop = threading.Event()
         self._done = threading.Event()
-        self._pending: list = []  # live-tuning changes, applied between packets
+        self._pending: list = []  # (function, future): changes applied between packets
+        self._finished = False
         self._thread: threading.Thread | None = None
-        self.wall_s = 0.0
 
-    # -- control ------------------------------------------------------------------------------
-    def submit(self, change) -> None:
-        """Queue ``change(pipeline) -> str`` to run on the streaming thread between packets."""
-        self._pending.append(change)
+    # -- what the run has seen so far (read from any thread) ------------------------------------
+    @property
+    def now_us(self) -> int | None:
+        return self.telemetry.now_us
+
+    @property
+    def first_us(self) -> int | None:
+        return self.telemetry.first_us
+
+    @property
+    def events(self) -> int:
+        return self.telemetry.events
+
+    @property
+    def frames(self) -> int:
+        return self.telemetry.frames
+
+    # -- running ---------------------------------------------------------------------------------
+    def start(self) -> "Pipeline":
+        self._thread = threading.Thread(target=self._run_guarded, name="necviz-stream", daemon=True)
+        self._thread.start()
+        return self
+
+    def run(self) -> "Pipeline":
+        """Run on the calling thread (scripts, comparisons, benchmarks)."""
+        self._run_guarded()
+        return self
 
     def stop(self) -> None:
         self._stop.set()
@@ -145,16 +225,6 @@ class Pipeline:
     @property
     def running(self) -> bool:
         return self._thread is not None and not self._done.is_set()
-
-    def start(self) -> "Pipeline":
-        self._thread = threading.Thread(target=self._run_guarded, name="necviz-stream", daemon=True)
-        self._thread.start()
-        return self
-
-    def run(self) -> "Pipeline":
-        """Run on the calling thread (tests, benchmarks)."""
-        self._run_guarded()
-        return self
 
     def wait(self, timeout: float | None = None) -> bool:
         """Wait for the streaming thread; True when it has ended.
@@ -166,23 +236,108 @@ class Pipeline:
             return True
         return self._done.wait(timeout)
 
-    # -- the streaming thread -----------------------------------------------------------------
-    def _packets(self):
-        if self.multi:
-            yield from self.source.packets()
-        else:
-            name = self._only.name
-            for packet in self.source:
-                yield (None if isinstance(packet, np.ndarray) else name), packet
+    # -- changes while running -------------------------------------------------------------------
+    def submit(self, change) -> Future:
+        """Run ``change(pipeline) -> (message, data)`` on the streaming thread between two packets.
 
-    def _apply(self, lane: Lane, cmd) -> None:
-        if not lane.drives:
+        The future resolves with the message, or with the :class:`NecvizError` that refused it.
+        Before the run starts, changes wait for its first packet; after it has ended they apply at once.
+        """
+        fut: Future = Future()
+        self._pending.append((change, fut))
+        if self._done.is_set():  # no streaming thread any more: apply now
+            self._apply_changes()
+        return fut
+
+    def tune(self, key: str, value: float, lane: str | None = None) -> Future:
+        """Set a tunable parameter (``key``) on one lane or on every lane that has it."""
+        return self.submit(lambda p: p._tune(key, value, lane))
+
+    def drive(self, controller: str, lane: str | None = None) -> Future:
+        """Let controller ``controller`` (a registered name) take over the lane's camera."""
+        return self.submit(lambda p: p._drive(controller, lane))
+
+    def _targets(self, lane: str | None) -> list[Lane]:
+        if lane is None:
+            return list(self.lanes.values())
+        if lane not in self.lanes:
+            raise ParameterError(f"no lane {lane!r}; lanes: {', '.join(self.lanes)}")
+        return [self.lanes[lane]]
+
+    def _tune(self, key: str, value, lane: str | None):
+        targets = [ln for ln in self._targets(lane) if key in ln.tunables()]
+        if not targets:
+            raise ParameterError(f"no lane has a parameter {key!r}")
+        limits = getattr(self.source, "limits", None)  # what the camera itself can do, if it says
+        if limits is not None and key in ("exposure_min", "exposure_max", "gain_max"):
+            lo, hi = (1.0, limits.gain_max) if key == "gain_max" else (limits.exposure_min_us, limits.exposure_max_us)
+            if not (isinstance(value, (int, float)) and lo <= value <= hi):
+                raise ParameterError(f"{key} = {value:g} is outside what the camera accepts ({lo:g}..{hi:g})")
+        if key in THRESHOLD_KEYS:
+            v = check_number(key, value, 0.01, 2.0)
+        else:  # check on every lane first, so a refusal changes nothing
+            v = [ln.controller.check_param(key, value) for ln in targets][0]
+        for ln in targets:
+            if key in THRESHOLD_KEYS:
+                p = ln.estimator.params
+                ln.estimator.set_params(replace(p, c_on=v, c_off=v) if key == "c" else replace(p, **{key: v}))
+            else:
+                ln.controller.set_param(key, v)
+        names = ", ".join(ln.name for ln in targets)
+        return f"{key} = {v:g} on {names}", {"tuning": {"key": key, "value": v, "lanes": [ln.name for ln in targets]}}
+
+    def _drive(self, controller: str, lane: str | None):
+        if controller not in CONTROLLERS:
+            raise ParameterError(f"unknown controller {controller!r}; available: {', '.join(sorted(CONTROLLERS))}")
+        if lane is None:
+            if len(self.lanes) != 1:
+                raise ParameterError("drive: every controller drives its own camera here; name the lane (drive NAME LANE)")
+            ln = next(iter(self.lanes.values()))
+        else:
+            ln = self._targets(lane)[0]
+        old = ln.controller
+        if controller == "nec":  # keep the lane's anchored estimator
+            new = NECController(ln.estimator, old.limits, old.exposure_us, old.gain)
+        else:
+            new = make_controller(controller, sensor=self.source.sensor, limits=old.limits, exposure_us=old.exposure_us,
+                                  gain=old.gain, crf=ln.estimator.crf)
+        ln.switch(new)
+        self.telemetry.attach([ln], self.source)
+        self._note(S.path(ln.name, S.LOG), f"controller: {old.name} -> {controller}")
+        return f"{controller} now drives {ln.camera} (was {old.name})", {"tuning": {"key": "drive", "value": controller,
+                                                                                  "lanes": [ln.name]}}
+
+    def status(self) -> str:
+        """The current settings of every lane, one line each."""
+        lines = []
+        for ln in self.lanes.values():
+            c, p, lim = ln.controller, ln.estimator.params, ln.controller.limits
+            own = ", ".join(f"{k}={v:.4g}" for k, v in c.params().items())
+            lines.append(f"{ln.name}: {c.name}{'' if ln.drives else ' (open loop)'}, c_on={p.c_on:g} c_off={p.c_off:g}, "
+                         f"exposure {lim.exposure_min_us:g}..{lim.exposure_max_us:g} µs, gain_max={lim.gain_max:g}"
+                         + (f", {own}" if own else ""))
+        return "\n".join(lines)
+
+    def _apply_changes(self) -> None:
+        changes, self._pending = self._pending, []
+        for change, fut in changes:
+            try:
+                msg, data = change(self)
+            except NecvizError as e:
+                self._note(S.TUNING, f"rejected: {e}", "WARN")
+                fut.set_exception(e)
+                continue
+            self._note(S.TUNING, msg, "INFO", data)
+            fut.set_result(msg)
+
+    def _note(self, entity: str, message: str, level: str = "INFO", data: dict | None = None) -> None:
+        if self._finished:  # the observers are closed: nothing more to log
             return
-        if self.multi:
-            self.source.set_exposure(lane.name, cmd.exposure_us, cmd.gain, issue_time_us=cmd.issue_time_us)
-        else:
-            self.source.set_exposure(cmd.exposure_us, cmd.gain, issue_time_us=cmd.issue_time_us)
+        t = self.telemetry.now_us or 0
+        for o in self.observers:
+            o.note(entity, t, message, level, data)
 
+    # -- the streaming thread --------------------------------------------------------------------
     def _run_guarded(self) -> None:
         t0 = time.perf_counter()
         try:
@@ -191,179 +346,123 @@ class Pipeline:
             self.error = e
         finally:
             self.wall_s = time.perf_counter() - t0
+            for change, fut in self._pending:  # submitted too late: say so
+                fut.set_exception(ParameterError("the run ended before the change could be applied"))
+            self._pending = []
             self._done.set()
 
     def _run(self) -> None:
         lanes = list(self.lanes.values())
-        sink, rec = self.sink, self.recorder
-        wall0 = time.perf_counter()
+        tel, observers, source = self.telemetry, self.observers, self.source
+        lane_tel = {ln.name: tel[ln.name] for ln in lanes}
         perf_ns = time.perf_counter_ns
+        wall0 = time.perf_counter()
+        next_sample = -(2**62)
         initial = {}
-        for lane in lanes:  # the controller's starting setting goes to the camera first
-            if lane.drives:
-                initial[lane.name] = cmd = lane.controller.initial_command(0)
-                self._apply(lane, cmd)
-        for cam, packet in self._packets():
+        for ln in lanes:  # the controller's starting setting goes to the camera first
+            if ln.drives:
+                initial[ln.name] = cmd = ln.controller.initial_command(0)
+                source.set_exposure(ln.camera, cmd.exposure_us, cmd.gain)
+        for cam, packet in source.packets():
             t_in = perf_ns()
             if self._pending:
                 self._apply_changes()
             if self._stop.is_set():
                 break
-            if cam is None and type(packet) is np.ndarray:  # the common case, kept short
+            if cam is None:  # events: the common case, kept short
                 if not len(packet):
                     continue
                 t = int(packet["t"][-1])
             else:
                 t = packet_time_us(packet)
             if t is not None:
-                if self.first_us is None:
-                    self.first_us = t
+                if tel.first_us is None:
+                    tel.first_us = t
                     wall0 = time.perf_counter()
-                    if sink is not None:  # the commanded series start with the setting the run began with
-                        for name, cmd in initial.items():
-                            sink.scalar(name, S.EXPOSURE_COMMANDED, t, cmd.exposure_us)
-                            sink.scalar(name, S.GAIN_COMMANDED, t, cmd.gain)
-                if self.stop_after_us is not None and t - self.first_us >= self.stop_after_us:
+                    for o in observers:
+                        o.started(t, initial)
+                if self.stop_after_us is not None and t - tel.first_us >= self.stop_after_us:
                     break
                 if self.speed is not None:
-                    ahead = (t - self.first_us) / 1e6 / self.speed - (time.perf_counter() - wall0)
+                    ahead = (t - tel.first_us) / 1e6 / self.speed - (time.perf_counter() - wall0)
                     if ahead > 0:
                         if self._stop.wait(ahead):  # paced: a gap in the recording must not delay a stop
                             break
                         t_in = perf_ns()
-                self.now_us = t
-            if cam is None:  # events, shared by every lane
-                if not isinstance(packet, np.ndarray):  # pragma: no cover - sources yield (None, events) only
-                    continue
-                self.events += len(packet)
-                if sink is not None:
-                    sink.events(packet)
-                if rec is not None:
-                    rec.write(packet)
-                for lane in lanes:  # the hot path (every event batch), inlined
-                    if lane.passive_estimator:
-                        lane.estimator.update(packet)
-                    cmd = lane.controller.feed(packet)
+                tel.now_us = t
+            if cam is None:
+                tel.events += len(packet)
+                for ln in lanes:  # control first: a lossless observer may make the thread wait
+                    if ln.passive is not None:
+                        ln.passive.update(packet)
+                    cmd = ln.controller.feed(packet)
                     if cmd is not None:
-                        self._command(lane, cmd, t_in)
-                    if sink is not None and t >= lane.next_prediction_us:
-                        self._log_prediction(lane, t)
-            else:
-                lane = self.lanes.get(cam)
-                if lane is None:
+                        self._command(ln, cmd, t_in)
+                for o in observers:
+                    o.events(packet)
+                if observers and t >= next_sample:
+                    next_sample = t + self.sample_period_us
+                    self._sample(lanes, t)
+                continue
+            for o in observers:
+                o.packet(cam, packet)
+            watchers = self._watchers.get(cam)
+            if not watchers:
+                continue
+            if isinstance(packet, Frame):
+                tel.frames += 1
+                for ln in watchers:
+                    est = ln.passive.feed(packet) if ln.passive is not None else None
+                    cmd = ln.controller.feed(packet)
+                    if cmd is not None:
+                        self._command(ln, cmd, t_in)
+                    if est is None:
+                        est = getattr(ln.controller, "last_frame_estimate", None)
+                    rec = lane_tel[ln.name].frame(packet, est, ln.estimator.min_valid_fraction)
+                    for o in observers:
+                        o.frame(ln.name, packet, rec)
+            elif isinstance(packet, ExposureMarker):
+                for ln in watchers:
+                    if packet.kind == "start":
+                        lane_tel[ln.name].exposure_start(packet.t_us, ln.estimator)
+                    if ln.passive is not None:
+                        ln.passive.feed(packet)
+                    cmd = ln.controller.feed(packet)
+                    if cmd is not None:
+                        self._command(ln, cmd, t_in)
+            # IMU samples and triggers: for observers only; no controller uses them
+
+    def _sample(self, lanes: list[Lane], t: int) -> None:
+        """Every lane's P-TEDI prediction ln P(t), for the observers."""
+        for ln in lanes:
+            est = ln.estimator
+            if not est.ready:
+                continue
+            lp = math.nan if ln.passive is not None else getattr(ln.controller, "last_log_irradiance", math.nan)
+            if not math.isfinite(lp):
+                try:
+                    lp = est.predict(t)
+                except NecvizError:
                     continue
-                if rec is not None and cam == self.record_lane:
-                    rec.write(packet)
-                if isinstance(packet, Frame):
-                    self.frames += 1
-                    self._frame(lane, packet, t_in)
-                elif isinstance(packet, ExposureMarker):
-                    if packet.kind == "start" and lane.estimator.ready:
-                        try:
-                            lane.predicted_at_start[packet.t_us] = lane.estimator.predict(packet.t_us)
-                        except NecvizError:
-                            pass
-                    self._feed(lane, packet, t_in, t)
-                else:  # IMU, triggers: recorded, not used by controllers
-                    pass
+            if math.isfinite(lp):
+                for o in self.observers:
+                    o.prediction(ln.name, t, lp)
 
-    def _feed(self, lane: Lane, packet, t_in: int, t: int | None) -> None:
-        """An exposure marker (frames: :meth:`_frame`; event batches are handled inline in :meth:`_run`)."""
-        if lane.passive_estimator:
-            lane.estimator.feed(packet)
-        cmd = lane.controller.feed(packet)
-        if cmd is not None:
-            self._command(lane, cmd, t_in)
+    def _command(self, ln: Lane, cmd, t_in: int) -> None:
+        if ln.drives:
+            self.source.set_exposure(ln.camera, cmd.exposure_us, cmd.gain)
+        latency_us = (time.perf_counter_ns() - t_in) / 1e3
+        self.telemetry[ln.name].command(latency_us, cmd)
+        for o in self.observers:
+            o.command(ln.name, cmd, latency_us)
 
-    def _log_prediction(self, lane: Lane, t: int) -> None:
-        """P-TEDI's ln P(t) for the lane, at most every ``prediction_period_us``."""
-        if not lane.estimator.ready:
-            return
-        lp = math.nan if lane.passive_estimator else getattr(lane.controller, "last_log_irradiance", math.nan)
-        if not math.isfinite(lp):
-            try:
-                lp = lane.estimator.predict(t)
-            except NecvizError:
-                return
-        if math.isfinite(lp):
-            self.sink.scalar(lane.name, S.IRRADIANCE_PREDICTED, t, lp)
-            lane.next_prediction_us = t + self.prediction_period_us
-
-    def _command(self, lane: Lane, cmd, t_in: int) -> None:
-        self._apply(lane, cmd)
-        lat = time.perf_counter_ns() - t_in
-        lane.latencies_ns.append(lat)
-        lane.commands += 1
-        if self.recorder is not None and lane.name == self.record_lane:
-            self.recorder.command(CommandRecord(int(cmd.issue_time_us), float(cmd.exposure_us), float(cmd.gain)))
-        sink = self.sink
-        if sink is not None:
-            t = int(cmd.issue_time_us)
-            sink.scalar(lane.name, S.EXPOSURE_COMMANDED, t, cmd.exposure_us)
-            sink.scalar(lane.name, S.GAIN_COMMANDED, t, cmd.gain)
-            sink.scalar(lane.name, S.LATENCY, t, lat / 1e3)
-
-    def _frame(self, lane: Lane, frame: Frame, t_in: int) -> None:
-        fe = lane.estimator.feed(frame) if lane.passive_estimator else None
-        cmd = lane.controller.feed(frame)
-        if cmd is not None:
-            self._command(lane, cmd, t_in)
-        if fe is None:
-            fe = getattr(lane.controller, "last_frame_estimate", None)
-        over, under = over_exposed_rate(frame.image), under_exposed_rate(frame.image)
-        lane.frames += 1
-        saturated = max(over, under) > 0.5
-        lane.saturated_frames += saturated
-        detail = {"sequence": int(frame.sequence), "exposure_start_us": int(frame.exposure_start_us),
-                  "exposure_us": int(frame.exposure_us), "gain": float(frame.gain),
-                  "over_exposed_rate": float(over), "under_exposed_rate": float(under), "saturated": bool(saturated),
-                  "measured_log_irradiance": None, "predicted_log_irradiance": None, "prediction_error": None}
-        pred_s = lane.predicted_at_start.pop(frame.exposure_start_us, None)
-        for k in [k for k in lane.predicted_at_start if k < frame.exposure_start_us]:
-            del lane.predicted_at_start[k]
-        if fe is not None:
-            measured = float(fe.log_mean_irradiance[0]) if fe.log_mean_irradiance.size == 1 else float(
-                np.nanmean(fe.log_mean_irradiance))
-            usable = bool(np.all(fe.valid_fraction >= lane.estimator.min_valid_fraction))
-            if math.isfinite(measured) and usable:
-                detail["measured_log_irradiance"] = measured
-                if pred_s is not None and math.isfinite(pred_s):
-                    predicted = pred_s + float(np.mean(fe.log_e))  # ln Pbar = ln P(s) + ln E_p(s)
-                    detail["predicted_log_irradiance"] = predicted
-                    detail["prediction_error"] = predicted - measured
-        lane.frames_detail.append(detail)
-        sink = self.sink
-        if sink is not None:
-            t, seq = int(frame.exposure_start_us), int(frame.sequence)
-            sink.frame(lane.name, frame, over, under)
-            sink.scalar(lane.name, S.EXPOSURE_APPLIED, t, frame.exposure_us, seq)
-            sink.scalar(lane.name, S.GAIN_APPLIED, t, frame.gain, seq)
-            sink.scalar(lane.name, S.OVER_EXPOSED, t, over, seq)
-            sink.scalar(lane.name, S.UNDER_EXPOSED, t, under, seq)
-            if detail["measured_log_irradiance"] is not None:
-                sink.scalar(lane.name, S.IRRADIANCE_FRAME, t, detail["measured_log_irradiance"], seq)
-            if detail["prediction_error"] is not None:
-                sink.scalar(lane.name, S.PREDICTION_ERROR, t, detail["prediction_error"], seq)
-
-    def _apply_changes(self) -> None:
-        changes, self._pending = self._pending, []
-        t = self.now_us or 0
-        for change in changes:
-            try:
-                msg, data = change(self)
-                level = "INFO"
-            except NecvizError as e:
-                msg, data, level = f"rejected: {e}", None, "WARN"
-            if self.sink is not None:
-                self.sink.text(S.TUNING, t, msg, level)
-            if self.recorder is not None and data is not None:
-                self.recorder.annotate(t, data)
-            if hasattr(change, "reply"):
-                change.reply(msg)
-
-    # -- end ----------------------------------------------------------------------------------
+    # -- end -------------------------------------------------------------------------------------
     def finish(self, close_source: bool = True) -> dict:
-        """Close the source, flush the recorder and sink; re-raise a streaming error; return stats."""
+        """Close the source and the observers (flushing recordings); re-raise a streaming error.
+
+        Returns the run's summary: :meth:`Telemetry.summary` plus ``wall_s`` and, per observer
+        that reports any, its statistics under its ``name`` (the sink: ``"sink"``).
+        """
         self.stop()
         errors = []
         closed = False
@@ -379,36 +478,56 @@ class Pipeline:
                 self.source.close()
             except BaseException as e:  # keep flushing
                 errors.append(e)
-        sink_stats = None
-        for closer in (self.recorder, self.sink):
-            if closer is None:
-                continue
+        extra = {}
+        self._finished = True
+        for o in self.observers:
             try:
-                out = closer.close()
-                if closer is self.sink:
-                    sink_stats = out
+                out = o.close()
+                if out is not None:
+                    extra[getattr(o, "name", type(o).__name__)] = out
             except BaseException as e:
                 errors.append(e)
         err = self.error or (errors[0] if errors else None)
         self.error = None
-        stats = self.stats(sink_stats)
+        stats = {**self.telemetry.summary(), "wall_s": self.wall_s, **extra}
         if err is not None:
             raise err
         return stats
 
-    def stats(self, sink_stats: dict | None = None) -> dict:
-        span_s = ((self.now_us or 0) - (self.first_us or 0)) / 1e6
-        out = {"events": self.events, "frames": self.frames, "duration_s": span_s, "wall_s": self.wall_s,
-               "event_rate_mev_s": self.events / span_s / 1e6 if span_s > 0 else 0.0, "lanes": {}}
-        for lane in self.lanes.values():
-            out["lanes"][lane.name] = {
-                "commands": lane.commands, "frames": lane.frames, "saturated_frames_50": lane.saturated_frames,
-                "latency_p50_us": percentile_us(lane.latencies_ns, 50),
-                "latency_p99_us": percentile_us(lane.latencies_ns, 99),
-            }
-        if sink_stats is not None:
-            out["sink"] = sink_stats
-        return out
+
+class RecorderObserver(Observer):
+    """Keeps one camera's stream (shared events, its markers, frames, IMU, triggers), the commands of
+    the lane that drives it, and every tuning change in a native recorder
+    (:class:`~necviz.drivers.replay.native.Recorder`)."""
+
+    name = "recorder"
+
+    def __init__(self, recorder, camera: str, lane: str | None = None):
+        self.recorder = recorder
+        self.camera = camera
+        self.lane = lane or camera
+
+    def events(self, batch):
+        self.recorder.write(batch)
+
+    def packet(self, camera, packet):
+        if camera == self.camera:
+            self.recorder.write(packet)
+
+    def command(self, lane, command, latency_us):
+        if lane == self.lane:
+            from .drivers.source import CommandRecord
+
+            self.recorder.command(CommandRecord(int(command.issue_time_us), float(command.exposure_us),
+                                                float(command.gain)))
+
+    def note(self, entity, t_us, message, level="INFO", data=None):
+        if data is not None:
+            self.recorder.annotate(t_us, data)
+
+    def close(self):
+        self.recorder.close()
+        return None
 
 
-__all__ = ["Lane", "Pipeline", "packet_time_us", "percentile_us"]
+__all__ = ["Lane", "Observer", "Pipeline", "RecorderObserver", "THRESHOLD_KEYS", "packet_time_us"]

@@ -7,19 +7,22 @@ for that exposure from the events before it (``ln P(s) + ln E_p(s)``, the predic
 exposure start carried across the exposure by its events) and their difference, and flags
 frames more than 50 % saturated.
 
-``--json FILE`` writes ``{"frames", "events", "duration_s", "saturated_frames_50",
-"prediction_error_rmse", "frames_detail": [...]}``.
+``json`` writes ``{"frames", "events", "duration_s", "saturated_frames_50",
+"prediction_error_rmse", "prediction_error_frames", "saturation_causes", "frames_detail": [...]}``;
+each saturated frame in ``frames_detail`` carries its diagnosed ``saturation_cause`` and
+``saturation_explanation`` (:mod:`necviz.core.diagnosis`), ``saturation_causes`` counts them.
 """
 
 from __future__ import annotations
 
-import math
 import sys
 from pathlib import Path
 
-from .core.control import CONTROLLERS, CameraLimits, make_controller
+from .core.control import CameraLimits, make_controller
 from .core.errors import ParameterError
-from .dashboard import check_run_args, run_dashboard, write_json
+from .dashboard import Session, preflight, run_session
+from .options import ReplayOptions, ViewerOptions
+from .outputs import write_json
 from .pipeline import Lane, packet_time_us
 
 LANE = "camera"
@@ -47,11 +50,6 @@ def open_for_replay(path, exposure_us=None, start_s=None, end_s=None, fmt=None):
     """
     from .drivers.replay import open_recording
 
-    for label, v in (("--start", start_s), ("--end", end_s)):
-        if v is not None and not (math.isfinite(v) and v >= 0):
-            raise ParameterError(f"{label} must be a time in seconds >= 0, got {v}")
-    if start_s is not None and end_s is not None and end_s <= start_s:
-        raise ParameterError(f"--end ({end_s} s) must come after --start ({start_s} s)")
     kw = {"exposure_us": exposure_us, "format": fmt}
     origin = _first_time_us(path, kw)
     if origin is None:
@@ -61,49 +59,52 @@ def open_for_replay(path, exposure_us=None, start_s=None, end_s=None, fmt=None):
     return open_recording(path, start_us=start_us, end_us=end_us, **kw), origin
 
 
-def summarise(stats: dict, lane: Lane) -> dict:
-    errors = [d["prediction_error"] for d in lane.frames_detail if d["prediction_error"] is not None]
-    rmse = math.sqrt(sum(e * e for e in errors) / len(errors)) if errors else None
-    return {"frames": lane.frames, "events": stats["events"], "duration_s": stats["duration_s"],
-            "saturated_frames_50": lane.saturated_frames, "prediction_error_rmse": rmse,
-            "prediction_error_frames": len(errors), "frames_detail": lane.frames_detail}
+def summarise(stats: dict, lane: str = LANE) -> dict:
+    """The replay's JSON summary from the run's statistics (telemetry included)."""
+    tel = stats["telemetry"][lane]
+    s = tel.summary()
+    return {"frames": s["frames"], "events": stats["events"], "duration_s": stats["duration_s"],
+            "saturated_frames_50": s["saturated_frames_50"], "prediction_error_rmse": s["prediction_error_rmse"],
+            "prediction_error_frames": s["prediction_error_frames"], "saturation_causes": s["saturation_causes"],
+            "frames_detail": tel.table.rows()}
 
 
-def run(args, out=...) -> dict:
+def run(options: ReplayOptions, viewer: ViewerOptions | None = None, out=...) -> dict:
     out = sys.stdout if out is ... else out
-    check_run_args(args)  # before anything is opened or truncated
-    path = Path(args.file)
-    if args.controller not in CONTROLLERS:
-        raise ParameterError(f"unknown controller {args.controller!r}; available: {', '.join(sorted(CONTROLLERS))}")
-    if args.exposure_us is not None and not (math.isfinite(args.exposure_us) and args.exposure_us > 0):
-        raise ParameterError(f"--exposure-us must be a positive number of µs, got {args.exposure_us}")
-    recording, origin = open_for_replay(path, args.exposure_us, args.start, args.end, args.format)
+    path = Path(options.file)
+    viewer, profile = preflight("replay", viewer, {"--json": options.json}, options.force, inputs=[path],
+                                profile=options.profile)  # before anything is opened
+    recording, origin = open_for_replay(path, options.exposure_us, options.start_s, options.end_s, options.format)
     sensor = recording.sensor
     limits = CameraLimits()
-    ctrl = make_controller(args.controller, sensor=sensor, limits=limits)
-    lane = Lane.build(LANE, ctrl, sensor, drives=False)
+    kw = {} if profile is None else {"tedi": profile.tedi, "crf": profile.crf}
+    lane = Lane(LANE, make_controller(options.controller, sensor=sensor, limits=limits, **kw), drives=False)
     props = {"command": "replay", "file": str(path), "format": recording.format,
-             "exposure_source": recording.exposure_source, "controller": args.controller,
-             "camera_limits": limits, "camera_profile": "default DAVIS346 response",
+             "exposure_source": recording.exposure_source, "controller": options.controller,
+             "camera_limits": limits,
+             "camera_profile": str(options.profile) if options.profile else "default DAVIS346 response",
              **{f"recorded.{k}": v for k, v in getattr(recording, "properties", {}).items()}}
     print(f"  replay: {path} ({recording.format}, {sensor.width}x{sensor.height}, exposure "
-          f"{recording.exposure_source}); {args.controller} in open loop", file=out)
-    stats = run_dashboard(args, "replay", recording, [lane], "inspect", props, f"necviz replay: {path.name}", sensor,
-                          sink_options={"origin_us": origin, "lossless_when_unpaced": True}, out=out)
-    summary = summarise(stats, lane)
-    if not summary["events"] and not summary["frames"] and (args.start is not None or args.end is not None):
-        raise ParameterError(f"nothing in the selected range (--start {args.start} --end {args.end} s): it lies "
-                             f"past the end of {path.name}; `necviz info {path}` shows its duration")
+          f"{recording.exposure_source}); {options.controller} in open loop", file=out)
+    stats = run_session(Session("replay", recording, [lane], "inspect", f"necviz replay: {path.name}", props, viewer,
+                                options.show, None, origin_us=origin, lossless=True), out)
+    summary = summarise(stats)
+    if not summary["events"] and not summary["frames"] and (options.start_s is not None or options.end_s is not None):
+        raise ParameterError(f"nothing in the selected range (--start {options.start_s} --end {options.end_s} s): it "
+                             f"lies past the end of {path.name}; `necviz info {path}` shows its duration")
     for w in getattr(recording, "warnings", []):
         print(f"  warning: {w}", file=out)
     rmse = summary["prediction_error_rmse"]
     print(f"  prediction error (P-TEDI vs frame, ln): RMSE {rmse:.3f} over {summary['prediction_error_frames']} frames"
           if rmse is not None else "  prediction error: no frame pair to compare (need two usable frames)", file=out)
-    sat = [d["sequence"] for d in lane.frames_detail if d["saturated"]]
+    sat = [d["sequence"] for d in summary["frames_detail"] if d["saturated"]]
     if sat:
         shown = ", ".join(map(str, sat[:12])) + (" …" if len(sat) > 12 else "")
         print(f"  saturated frames (>50 %): {len(sat)}: {shown}", file=out)
-    if args.json:
-        write_json(args.json, summary)
-        print(f"  wrote {args.json}", file=out)
+        causes = ", ".join(f"{k} {v}" for k, v in summary["saturation_causes"].items() if v)
+        if causes:
+            print(f"  diagnosed causes: {causes}", file=out)
+    if options.json is not None:
+        write_json(options.json, summary)
+        print(f"  wrote {options.json}", file=out)
     return summary

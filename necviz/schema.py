@@ -1,37 +1,38 @@
 """The Rerun entity schema: every path necviz logs, in one place.
 
-Each camera/controller lane ``NAME`` (``nec``, ``navid``, …; ``camera`` for ``live`` and
-``replay``) owns a subtree:
+What every lane of a source shares is logged once, at the root; each camera/controller lane
+``NAME`` (``nec``, ``navid``, …; ``camera`` for ``live`` and ``replay``) owns a subtree:
 
 ================================  =============================  ================================
 path                              archetype                      meaning
 ================================  =============================  ================================
+``events``                        Image (JPEG, RGB)              events of the last window, ON blue,
+                                                                 OFF red (shared by all lanes)
+``events/points``                 Points2D (optional, capped)    raw events of the window
+``event_rate``                    Scalars                        events/s over the event window
 ``NAME/frame``                    Image (JPEG, grey)             the APS frame, at exposure start
-``NAME/events``                   Image (JPEG, RGB)              events of the last window, ON blue,
-                                                                 OFF red
-``NAME/events/points``            Points2D (optional, capped)    raw events of the window
-``NAME/irradiance/predicted``     Scalars                        P-TEDI ln P(t), high rate
+``NAME/irradiance/predicted``     Scalars                        P-TEDI ln P(t), every few ms
 ``NAME/irradiance/frame``         Scalars                        frame-measured ln Pbar, per frame
 ``NAME/exposure/commanded``       Scalars                        commanded exposure, µs (from the
                                                                  setting the run started with)
 ``NAME/exposure/applied``         Scalars                        exposure of each frame, µs
 ``NAME/gain/commanded``           Scalars                        commanded gain (linear)
 ``NAME/gain/applied``             Scalars                        gain of each frame (linear)
-``NAME/over_exposed_rate``        Scalars                        fraction of pixels > 250 DN
-``NAME/under_exposed_rate``       Scalars                        fraction of pixels < 9 DN
+``NAME/over_exposed_rate``        Scalars                        fraction of pixels >= 250 DN
+``NAME/under_exposed_rate``       Scalars                        fraction of pixels <= 9 DN
 ``NAME/saturated``                Scalars (points)               marker at each frame > 50 %
                                                                  saturated (value: that fraction)
-``NAME/event_rate``               Scalars                        events/s over the event window
 ``NAME/latency_us``               Scalars                        processing latency of each
                                                                  command (packet in -> command out)
-``NAME/prediction_error``         Scalars                        replay: predicted − measured ln Pbar
+``NAME/prediction_error``         Scalars                        predicted − measured ln Pbar
 ``NAME/log``                      TextLog                        saturated frames, controller switches
 ``tuning``                        TextLog                        every live parameter change
 ================================  =============================  ================================
 
-Timelines: ``t`` (sensor time, seconds, as a duration) on everything; ``frame`` (the lane's
-frame number) additionally on per-frame data. Run settings (scenario or file, controller
-settings, camera profile) are recording properties (``rr.send_property``).
+Timelines: ``t`` (sensor time, seconds, as a duration) and ``frame`` (the lane's newest frame
+number at that moment; for the shared events, the first lane's) on everything, so every view
+shows data on either timeline. Run settings (scenario or file, controllers, camera profile) are
+recording properties (``rr.send_property``).
 """
 
 from __future__ import annotations
@@ -40,9 +41,14 @@ from __future__ import annotations
 TIME = "t"
 FRAME = "frame"
 
-FRAME_IMAGE = "frame"
+# shared by every lane (root entities)
 EVENTS = "events"
 EVENT_POINTS = "events/points"
+EVENT_RATE = "event_rate"
+TUNING = "tuning"
+
+# per lane (under NAME/)
+FRAME_IMAGE = "frame"
 IRRADIANCE_PREDICTED = "irradiance/predicted"
 IRRADIANCE_FRAME = "irradiance/frame"
 EXPOSURE_COMMANDED = "exposure/commanded"
@@ -52,16 +58,16 @@ GAIN_APPLIED = "gain/applied"
 OVER_EXPOSED = "over_exposed_rate"
 UNDER_EXPOSED = "under_exposed_rate"
 SATURATED = "saturated"
-EVENT_RATE = "event_rate"
 LATENCY = "latency_us"
 PREDICTION_ERROR = "prediction_error"
 LOG = "log"
-TUNING = "tuning"
 
-#: Entities every lane has once it has seen a frame and an event window (tests check them).
+#: Root entities of every recording that has seen an event window.
+SHARED_ENTITIES = (EVENTS, EVENT_RATE)
+#: Entities every lane has once it has seen a frame (tests check them).
 #: ``latency_us`` exists once the controller has issued a command in response to a packet.
-LANE_ENTITIES = (FRAME_IMAGE, EVENTS, IRRADIANCE_PREDICTED, IRRADIANCE_FRAME, EXPOSURE_COMMANDED,
-                 EXPOSURE_APPLIED, GAIN_COMMANDED, GAIN_APPLIED, OVER_EXPOSED, UNDER_EXPOSED, EVENT_RATE)
+LANE_ENTITIES = (FRAME_IMAGE, IRRADIANCE_PREDICTED, IRRADIANCE_FRAME, EXPOSURE_COMMANDED, EXPOSURE_APPLIED,
+                 GAIN_COMMANDED, GAIN_APPLIED, OVER_EXPOSED, UNDER_EXPOSED)
 
 
 def path(lane: str, leaf: str) -> str:

@@ -1,21 +1,26 @@
 """The Rerun sink: everything the dashboard shows, logged from a worker thread.
 
-The control path never waits for visualisation. The streaming thread hands the sink what it saw
-through calls that only append to memory:
+:class:`RerunSink` is a pipeline :class:`~necviz.pipeline.Observer`. The control path never waits
+for visualisation: the streaming thread hands the sink what it saw through calls that only
+append to memory:
 
 * event batches and frames go into bounded queues; when the worker falls behind, the oldest
   entries are dropped and counted (``frames_dropped``, ``event_batches_dropped`` in :meth:`summary`);
-* scalars (exposure, gain, irradiance, rates, latency) go into per-series lists that the worker
-  sends as columns every ``flush_period_s`` (a handful of ``send_columns`` calls instead of one
+* scalars (exposure, gain, irradiance, rates, latency) go into a queue that the worker sends as
+  columns every ``flush_period_s`` (a handful of ``send_columns`` calls instead of one
   ``rr.log`` per value); they are never dropped.
 
-Events are drawn as event images (:mod:`necviz.core.event_image`) over windows of
-``event_window_us`` sensor time. At most ``max_events_per_window`` are drawn per window: above
-that every k-th event is drawn; and when the worker is behind (more than ``max_backlog`` batches
-waiting, or the last image was drawn less than ``1 / max_rate_hz`` ago in wall time) a window's
-image is skipped. Both are counted (``events_decimated``, ``event_images_skipped``); the event
-rate is logged for every window regardless. Frames follow the same wall-clock rate cap. With
-``lossless=True`` nothing is dropped or skipped (used by open-loop file replays).
+Events are shared by every lane of a source, so they are logged once (``events``, ``event_rate``)
+as event images (:mod:`necviz.core.event_image`) over windows of ``event_window_us`` sensor time.
+At most ``max_events_per_window`` are drawn per window: above that every k-th event is drawn; and
+when the worker is behind (more than ``max_backlog`` batches waiting, or the last image was drawn
+less than ``1 / max_rate_hz`` ago in wall time) a window's image is skipped. Both are counted
+(``events_decimated``, ``event_images_skipped``); the event rate is logged for every window
+regardless. Frames follow the same wall-clock rate cap. With ``lossless=True`` nothing is dropped
+or skipped (simulations and replays written to a file).
+
+Every entity is on both timelines: ``t`` (sensor time) and ``frame`` (the newest frame of the lane
+at that moment; for the shared events, of the first lane), so no view is blank on either.
 Entity paths follow :mod:`necviz.schema`.
 """
 
@@ -31,11 +36,17 @@ import cv2
 import numpy as np
 import rerun as rr
 
+from . import schema as S
 from .core.event_image import EventImage
 from .core.frames import Frame
-from . import schema as S
+from .pipeline import Observer
+from .telemetry import SATURATED, FrameRecord
 
-SATURATED_FRACTION = 0.5  # a frame with more than this fraction of clipped pixels is marked
+#: Ground-truth scalars of simulated frames (``NAME/truth/...``), logged when a frame has them:
+#: the fraction of pixels whose true irradiance was recorded in 10..249 DN, and Spearman's ρ of the
+#: digits against the true irradiance on valid pixels (see :mod:`necviz.core.metrics`).
+TRUE_VALID = "truth/valid_fraction"
+RANK_CORRELATION = "truth/rank_correlation"
 
 
 def _jpeg(image: np.ndarray, quality: int) -> rr.EncodedImage:
@@ -65,7 +76,7 @@ class RateLimit:
         return False
 
 
-class RerunSink:
+class RerunSink(Observer):
     """Logs a run to a Rerun recording stream from its own thread.
 
     Parameters
@@ -73,7 +84,6 @@ class RerunSink:
     rec : the recording stream (sinks already attached).
     lanes : lane names (entity roots).
     height, width : sensor size (event images).
-    event_lanes : lanes whose ``events`` entity shows the shared event stream (default: all).
     event_window_us : sensor time per event image (33 ms: 30 images per second).
     max_events_per_window : decimation cap for drawing events (60k: ~0.7 per pixel, already dense).
     max_backlog : when more event batches than this wait for the worker, a finished window's
@@ -86,17 +96,19 @@ class RerunSink:
     origin_us : sensor time shown as 0 on the ``t`` timeline (replays of files stamped with an
         absolute clock start at their first timestamp).
     lossless : never drop or skip anything; the streaming thread waits when a queue is full.
-        For open-loop replays into a file, where no camera waits for a command.
+        For runs written to a file where no camera waits for a command (simulations, replays).
     jpeg_quality : frames and event images are JPEG-compressed.
     """
 
-    def __init__(self, rec: rr.RecordingStream, lanes, height: int, width: int, event_lanes=None,
-                 event_window_us: int = 33_333, max_events_per_window: int = 60_000, max_backlog: int = 64, raw_points: int = 0,
-                 queue_size: int = 8192, frame_queue_size: int = 16, lossless: bool = False,
-                 max_rate_hz: float = 60.0, burst_s: float = 0.02, origin_us: int = 0, flush_period_s: float = 0.1, jpeg_quality: int = 85):
+    name = "sink"
+
+    def __init__(self, rec: rr.RecordingStream, lanes, height: int, width: int,
+                 event_window_us: int = 33_333, max_events_per_window: int = 60_000, max_backlog: int = 64,
+                 raw_points: int = 0, queue_size: int = 8192, frame_queue_size: int = 16, lossless: bool = False,
+                 max_rate_hz: float = 60.0, burst_s: float = 0.02, origin_us: int = 0, flush_period_s: float = 0.1,
+                 jpeg_quality: int = 85):
         self.rec = rec
         self.lanes = list(lanes)
-        self.event_lanes = list(event_lanes) if event_lanes is not None else list(self.lanes)
         self.event_window_us = int(event_window_us)
         self.max_events_per_window = int(max_events_per_window)
         self.max_backlog = int(max_backlog)
@@ -115,12 +127,14 @@ class RerunSink:
         # written by the streaming thread: deques (append / popleft are atomic), drained by the worker
         self._scalar_q: deque = deque()
         self._text_q: deque = deque()
+        self._seq = {lane: 0 for lane in self.lanes}  # newest frame per lane (the `frame` timeline)
+        self._first_lane = self.lanes[0] if self.lanes else None
         # owned by the worker
-        self._series: dict[str, list] = defaultdict(list)  # path -> [(t_us, value)]
-        self._frame_series: dict[str, list] = defaultdict(list)  # path -> [(t_us, seq, value)]
+        self._series: dict[str, list] = defaultdict(list)  # path -> [(t_us, seq, value)]
         self._image = EventImage(height, width)
         self._window_end: int | None = None
         self._window_seen = 0
+        self._window_seq = 0
         self._parts: list[np.ndarray] = []
         self._drawing = True
         self.stats = {"frames_logged": 0, "events_seen": 0,
@@ -128,13 +142,22 @@ class RerunSink:
         self.dropped = {"frames": 0, "event_batches": 0, "events": 0}  # written by the streaming thread only
         self._stop = False
         self._error: BaseException | None = None
+        self.on_close = None  # called once the recording is flushed (a file sink completes its file)
         self._thread = threading.Thread(target=self._run, name="necviz-rerun-sink", daemon=True)
         self._thread.start()
 
-    # -- called by the streaming thread (never blocks) ------------------------------------------
+    # -- observer: called by the streaming thread (never blocks unless lossless) ------------------
     def _wait_for_room(self, q: deque, size: int) -> None:
         while len(q) >= size and self._thread.is_alive():
             time.sleep(0.001)
+
+    def _scalar(self, lane: str, leaf: str, t_us: int, value: float) -> None:
+        self._scalar_q.append((S.path(lane, leaf), t_us, self._seq.get(lane, 0), value))
+
+    def started(self, t_us: int, initial: dict) -> None:
+        for lane, cmd in initial.items():  # the commanded series start with the setting the run began with
+            self._scalar(lane, S.EXPOSURE_COMMANDED, t_us, cmd.exposure_us)
+            self._scalar(lane, S.GAIN_COMMANDED, t_us, cmd.gain)
 
     def events(self, batch: np.ndarray) -> None:
         if len(batch):
@@ -143,12 +166,42 @@ class RerunSink:
                 if self.lossless:
                     self._wait_for_room(q, self._event_queue_size)
                 else:
-                    old = q.popleft()
+                    old = q.popleft()[0]
                     self.dropped["event_batches"] += 1
                     self.dropped["events"] += len(old)
-            q.append(batch)
+            q.append((batch, self._seq.get(self._first_lane, 0)))
 
-    def frame(self, lane: str, frame: Frame, over: float, under: float) -> None:
+    def prediction(self, lane: str, t_us: int, log_irradiance: float) -> None:
+        self._scalar(lane, S.IRRADIANCE_PREDICTED, t_us, log_irradiance)
+
+    def command(self, lane: str, command, latency_us: float) -> None:
+        t = int(command.issue_time_us)
+        self._scalar(lane, S.EXPOSURE_COMMANDED, t, command.exposure_us)
+        self._scalar(lane, S.GAIN_COMMANDED, t, command.gain)
+        self._scalar(lane, S.LATENCY, t, latency_us)
+
+    def frame(self, lane: str, frame: Frame, record: FrameRecord) -> None:
+        self._seq[lane] = int(frame.sequence)
+        t = int(frame.exposure_start_us)
+        self._scalar(lane, S.EXPOSURE_APPLIED, t, frame.exposure_us)
+        self._scalar(lane, S.GAIN_APPLIED, t, frame.gain)
+        self._scalar(lane, S.OVER_EXPOSED, t, record.over_exposed_rate)
+        self._scalar(lane, S.UNDER_EXPOSED, t, record.under_exposed_rate)
+        if math.isfinite(record.measured_log_irradiance):
+            self._scalar(lane, S.IRRADIANCE_FRAME, t, record.measured_log_irradiance)
+        if math.isfinite(record.prediction_error):
+            self._scalar(lane, S.PREDICTION_ERROR, t, record.prediction_error)
+        if math.isfinite(record.true_valid_fraction):
+            self._scalar(lane, TRUE_VALID, t, record.true_valid_fraction)
+        if math.isfinite(record.rank_correlation):
+            self._scalar(lane, RANK_CORRELATION, t, record.rank_correlation)
+        if record.saturated:
+            worst = max(record.over_exposed_rate, record.under_exposed_rate)
+            kind = "over" if record.over_exposed_rate >= record.under_exposed_rate else "under"
+            self._scalar(lane, S.SATURATED, t, worst)
+            why = (f" — {record.saturation_cause}: {record.saturation_explanation}" if record.saturation_cause else "")
+            self._text_q.append((S.path(lane, S.LOG), t, int(frame.sequence),
+                                 f"frame {frame.sequence}: {worst:.0%} {kind}-exposed{why}", "WARN"))
         q = self._frames
         if self.lossless:
             self._wait_for_room(q, self._frame_queue_size)
@@ -159,13 +212,11 @@ class RerunSink:
             if len(q) >= self._frame_queue_size:
                 q.popleft()
                 self.dropped["frames"] += 1
-        q.append((lane, frame, over, under))
+        q.append((lane, frame))
 
-    def scalar(self, lane: str, leaf: str, t_us: int, value: float, seq: int | None = None) -> None:
-        self._scalar_q.append((S.path(lane, leaf), t_us, value, seq))
-
-    def text(self, entity: str, t_us: int, message: str, level: str = "INFO") -> None:
-        self._text_q.append((entity, t_us, message, level))
+    def note(self, entity: str, t_us: int, message: str, level: str = "INFO", data=None) -> None:
+        lane = entity.split("/", 1)[0]
+        self._text_q.append((entity, t_us, self._seq.get(lane, self._seq.get(self._first_lane, 0)), message, level))
 
     # -- worker ---------------------------------------------------------------------------------
     def _run(self) -> None:
@@ -195,12 +246,14 @@ class RerunSink:
         except BaseException as e:  # report in close(); the control path must go on
             self._error = e
 
-    def _collect(self, batches: list) -> None:
+    def _collect(self, items: list) -> None:
         """Assign queued batches (in time order) to event windows, closing windows as they end.
 
         Work is per window, not per batch: the batch that crosses a window end is found by
         bisection on the batches' last times, and a window that will not be drawn only counts.
         """
+        batches = [b for b, _ in items]
+        seqs = [q for _, q in items]
         k, n = 0, len(batches)
         last_time = lambda b: int(b["t"][-1])  # noqa: E731
         while k < n:
@@ -217,11 +270,13 @@ class RerunSink:
             j = bisect.bisect_left(batches, end, lo=k, hi=n, key=last_time)  # first batch reaching the end
             if j > k:
                 self._window_seen += sum(map(len, batches[k:j]))
+                self._window_seq = seqs[j - 1]
                 if self._drawing:
                     self._parts.extend(batches[k:j])
             if j == n:
                 return
             b = batches[j]
+            self._window_seq = seqs[j]
             cut = int(np.searchsorted(b["t"], end, side="left"))
             if cut:
                 self._window_seen += cut
@@ -248,27 +303,22 @@ class RerunSink:
         seen = self._window_seen
         rate = seen / (self.event_window_us / 1e6)
         self.stats["events_seen"] += seen
-        if not self._drawing:  # behind the stream or faster than a viewer refreshes: count, log the rate
+        self._series[S.EVENT_RATE].append((end, self._window_seq, rate))
+        if not self._drawing:  # behind the stream or faster than a viewer refreshes: count only
             self.stats["event_images_skipped"] += 1
             self.stats["events_decimated"] += seen
-            for lane in self.event_lanes:
-                self._series[S.path(lane, S.EVENT_RATE)].append((end, rate))
         elif seen or not final:
             stride = max(1, math.ceil(seen / self.max_events_per_window)) if self.max_events_per_window > 0 else 1
             drawn = sum(self._image.add(p, stride) for p in self._parts)  # no copy: the kernel strides
             self.stats["events_drawn"] += drawn
             self.stats["events_decimated"] += seen - drawn
-            self.rec.set_time(S.TIME, duration=(end - self.origin_us) / 1e6)
-            img = _jpeg(self._image.render(bgr=True), self.jpeg_quality)
-            pts = None
+            self._set_time(end, self._window_seq)
+            self.rec.log(S.EVENTS, _jpeg(self._image.render(bgr=True), self.jpeg_quality))
             if self.raw_points and self._parts:
                 pts = np.concatenate([p[::stride] for p in self._parts])[: self.raw_points]
-            for lane in self.event_lanes:
-                self.rec.log(S.path(lane, S.EVENTS), img)
-                self._series[S.path(lane, S.EVENT_RATE)].append((end, rate))
-                if pts is not None and len(pts):
+                if len(pts):
                     colors = np.where(pts["p"][:, None] > 0, [[80, 170, 255]], [[255, 70, 60]]).astype(np.uint8)
-                    self.rec.log(S.path(lane, S.EVENT_POINTS),
+                    self.rec.log(S.EVENT_POINTS,
                                  rr.Points2D(np.stack([pts["x"], pts["y"]], axis=1).astype(np.float32) + 0.5,
                                              colors=colors, radii=0.5))
             self.rec.reset_time()
@@ -279,44 +329,31 @@ class RerunSink:
         self._window_end = end + self.event_window_us
         self._drawing = self._decide_drawing()
 
-    def _log_frame(self, lane: str, frame: Frame, over: float, under: float) -> None:
-        t = frame.exposure_start_us
-        self.rec.set_time(S.TIME, duration=(t - self.origin_us) / 1e6)
-        self.rec.set_time(S.FRAME, sequence=frame.sequence)
+    def _set_time(self, t_us: int, seq: int) -> None:
+        self.rec.set_time(S.TIME, duration=(t_us - self.origin_us) / 1e6)
+        self.rec.set_time(S.FRAME, sequence=int(seq))
+
+    def _log_frame(self, lane: str, frame: Frame) -> None:
+        self._set_time(frame.exposure_start_us, frame.sequence)
         self.rec.log(S.path(lane, S.FRAME_IMAGE), _jpeg(frame.image, self.jpeg_quality))
-        worst = max(over, under)
-        if worst > SATURATED_FRACTION:
-            kind = "over" if over >= under else "under"
-            self.rec.log(S.path(lane, S.SATURATED), rr.Scalars(worst))
-            self.rec.log(S.path(lane, S.LOG), rr.TextLog(f"frame {frame.sequence}: {worst:.0%} {kind}-exposed",
-                                                         level=rr.TextLogLevel.WARN))
         self.rec.reset_time()
         self.stats["frames_logged"] += 1
 
     def _flush_series(self) -> None:
         q = self._scalar_q
         for _ in range(len(q)):  # what is queued now; later values wait for the next flush
-            path, t, value, seq = q.popleft()
-            if seq is None:
-                self._series[path].append((t, value))
-            else:
-                self._frame_series[path].append((t, seq, value))
+            path, t, seq, value = q.popleft()
+            self._series[path].append((t, seq, value))
         series, self._series = self._series, defaultdict(list)
-        fseries, self._frame_series = self._frame_series, defaultdict(list)
         texts = [self._text_q.popleft() for _ in range(len(self._text_q))]
         for p, pts in series.items():
-            arr = np.asarray(pts, dtype=np.float64)
-            self.rec.send_columns(p, indexes=[rr.TimeColumn(S.TIME, duration=(arr[:, 0] - self.origin_us) / 1e6)],
-                                  columns=rr.Scalars.columns(scalars=arr[:, 1]))
-            self.stats["scalars"] += len(arr)
-        for p, pts in fseries.items():
             arr = np.asarray(pts, dtype=np.float64)
             self.rec.send_columns(p, indexes=[rr.TimeColumn(S.TIME, duration=(arr[:, 0] - self.origin_us) / 1e6),
                                               rr.TimeColumn(S.FRAME, sequence=arr[:, 1].astype(np.int64))],
                                   columns=rr.Scalars.columns(scalars=arr[:, 2]))
             self.stats["scalars"] += len(arr)
-        for entity, t_us, msg, level in texts:
-            self.rec.set_time(S.TIME, duration=(t_us - self.origin_us) / 1e6)
+        for entity, t_us, seq, msg, level in texts:
+            self._set_time(t_us, seq)
             self.rec.log(entity, rr.TextLog(msg, level=level))
         if texts:
             self.rec.reset_time()
@@ -328,6 +365,8 @@ class RerunSink:
             self._stop = True
             self._thread.join()
             self.rec.flush()
+            if self.on_close is not None:
+                self.on_close()
         if self._error is not None:
             err, self._error = self._error, None
             raise err
@@ -341,3 +380,31 @@ class RerunSink:
         s["events_seen"] += self.dropped["events"]
         s["events_decimated"] += self.dropped["events"]
         return s
+
+
+def open_file_sink(path, lanes, sensor, layout: str, name: str, properties: dict, **options) -> RerunSink:
+    """A lossless sink writing a recording file (with ``layout`` as its blueprint) and nothing else.
+
+    The file is written as :mod:`necviz.outputs` says (check the path first with
+    :func:`~necviz.outputs.check_output`); closing the sink closes and completes the file.
+    """
+    import uuid
+
+    from .layouts import make_blueprint, style_series
+    from .outputs import commit_recording, recording_target
+
+    rec = rr.RecordingStream("necviz", recording_id=str(uuid.uuid4()))
+    target = recording_target(path)
+    rec.set_sinks(rr.FileSink(str(target)), default_blueprint=make_blueprint(layout, list(lanes), sensor.width,
+                                                                            sensor.height))
+    rec.send_recording_name(name)
+    rec.send_property("run", rr.AnyValues(**{k: str(v) for k, v in properties.items()}, layout=layout))
+    style_series(rec, list(lanes))
+    sink = RerunSink(rec, lanes, sensor.height, sensor.width, lossless=True, **options)
+
+    def finish():
+        rr.disconnect(rec)
+        commit_recording(target, path)
+
+    sink.on_close = finish
+    return sink

@@ -1,210 +1,226 @@
-"""Live tuning: change controller parameters while ``demo`` or ``live`` runs, without restarting.
+"""Live tuning: change parameters while ``demo`` or ``live`` runs, without restarting.
 
 Two ways in, same language:
 
-* a prompt on the terminal (lines typed while the run goes on), and
-* a watched file (``--tune-file FILE``): whenever it is saved, every ``key = value`` line that
-  changed is applied.
+* a prompt on the terminal (:class:`TuningConsole`): the input line stays apart from the live
+  status line (shown below it), with history (up/down) and completion (Tab) of keys, lane and
+  controller names — built on ``prompt_toolkit``; without a terminal, lines are read as they come;
+* a watched file (``--tune-file FILE``, :class:`TuningFile`): whenever it is saved, every
+  ``key = value`` line that changed is applied.
 
-Language (``help`` prints it)::
+Language (``help`` prints it with every key's unit and meaning)::
 
     [LANE.]KEY = VALUE      e.g.  goal = 100      nec.dead_band = 0.05
     set [LANE.]KEY VALUE
-    drive NAME              which controller drives the camera (live only)
+    drive NAME [LANE]       switch the controller that drives the lane's camera
     status                  current settings
     help
 
-Keys: ``c_on``, ``c_off``, ``c`` (both; P-TEDI contrast thresholds, ln units), ``dead_band``,
-``full_band`` (NEC's f_w corners on |ln(H_opt/H_i)|), ``goal`` (NEC's goal intensity, DN),
-``exposure_min``, ``exposure_max`` (µs), ``gain_max`` (linear). Without ``LANE.`` a key applies to
-every lane where it means something. A change runs on the streaming thread between two packets;
-it is logged to the recording (``tuning`` entity) and to the native recording as an annotation,
-so a replay shows when it happened. Bad values are rejected with a one-line reason.
+Keys are what the lanes declare: every controller's tunable parameters
+(:meth:`~necviz.core.control.Controller.tunables`: the camera limits ``exposure_min``,
+``exposure_max``, ``gain_max`` and its own, e.g. NEC's ``dead_band``, ``full_band``, ``goal``)
+and the P-TEDI thresholds ``c_on``, ``c_off`` and ``c`` (both). Without ``LANE.`` a key applies to
+every lane that has it. Changes run on the streaming thread between two packets
+(:meth:`~necviz.pipeline.Pipeline.tune`, :meth:`~necviz.pipeline.Pipeline.drive`), are logged to
+the recording (``tuning``) and to the native recording, and bad values are refused with a reason.
 """
 
 from __future__ import annotations
 
-import math
 import os
 import re
 import sys
 import threading
-from dataclasses import replace
+from dataclasses import dataclass
 from pathlib import Path
 
-from . import schema as S
-from .core.control import NECController
-from .core.errors import ParameterError
+from .core.control import CONTROLLERS
+from .core.errors import NecvizError, ParameterError
+from .pipeline import THRESHOLD_KEYS
 
-KEYS = ("c_on", "c_off", "c", "dead_band", "full_band", "goal", "exposure_min", "exposure_max", "gain_max")
-HELP = ("commands: [LANE.]KEY = VALUE | set [LANE.]KEY VALUE | drive NAME | status | help;  keys: "
-        + ", ".join(KEYS))
+SYNTAX = "[LANE.]KEY = VALUE | set [LANE.]KEY VALUE | drive NAME [LANE] | status | help"
 
-_ASSIGN = re.compile(r"^\s*(?:set\s+)?(?:(?P<lane>[A-Za-z_][\w-]*)\.)?(?P<key>[a-z_]+)\s*(?:=|\s)\s*(?P<value>\S+)\s*$")
-
-
-class Change:
-    """A parsed command; calling it on the pipeline (streaming thread) applies it."""
-
-    def __init__(self, text: str, fn, reply=None):
-        self.text = text
-        self._fn = fn
-        self._reply = reply
-
-    def __call__(self, pipeline):
-        return self._fn(pipeline)
-
-    def reply(self, message: str) -> None:
-        if self._reply is not None:
-            self._reply(message)
+_ASSIGN = re.compile(r"^(?:set\s+)?(?:(?P<lane>[A-Za-z_][\w-]*)\.)?(?P<key>[A-Za-z_]\w*)\s*(?:=|\s)\s*(?P<value>\S+)$")
+_DRIVE = re.compile(r"^drive\s+(?P<name>[\w-]+)(?:\s+(?P<lane>[\w-]+))?$")
 
 
-def _number(key: str, value: str) -> float:
-    try:
-        v = float(value)
-    except ValueError:
-        raise ParameterError(f"{key}: {value!r} is not a number") from None
-    if not math.isfinite(v):
-        raise ParameterError(f"{key} must be finite, got {value}")
-    return v
+@dataclass(frozen=True)
+class Command:
+    """One parsed line: ``kind`` is ``set``, ``drive``, ``status`` or ``help``."""
+
+    kind: str
+    key: str | None = None
+    value: float | None = None
+    lane: str | None = None
+    text: str = ""
 
 
-def _targets(pipeline, lane: str | None):
-    if lane is None:
-        return list(pipeline.lanes.values())
-    if lane not in pipeline.lanes:
-        raise ParameterError(f"no lane {lane!r}; lanes: {', '.join(pipeline.lanes)}")
-    return [pipeline.lanes[lane]]
+def parse(line: str) -> Command | None:
+    """One line -> a :class:`Command` (``None`` for blank lines and ``#`` comments).
 
-
-def _set(lane_name: str | None, key: str, v: float):
-    def apply(pipeline):
-        lanes = _targets(pipeline, lane_name)
-        touched = []
-        if key in ("c_on", "c_off", "c"):
-            for lane in lanes:
-                p = lane.estimator.params
-                new = replace(p, c_on=v, c_off=v) if key == "c" else replace(p, **{key: v})
-                lane.estimator.set_params(new)
-                touched.append(lane.name)
-        elif key in ("dead_band", "full_band", "goal"):
-            necs = [lane for lane in lanes if isinstance(lane.controller, NECController)]
-            if not necs:
-                raise ParameterError(f"{key} is a NEC parameter and no NEC lane is selected")
-            for lane in necs:
-                c = lane.controller
-                if key == "goal":
-                    crf = c.estimator.crf
-                    if not crf.valid_min < v < crf.valid_max:
-                        raise ParameterError(f"goal must lie inside the valid range {crf.valid_min}..{crf.valid_max} DN, got {v:g}")
-                    c.goal_log_exposure = float(crf.log_exposure(v))
-                else:
-                    dead = v if key == "dead_band" else c.dead_band
-                    full = v if key == "full_band" else c.full_band
-                    if dead < 0 or full <= dead:
-                        raise ParameterError(f"need 0 <= dead_band < full_band, got {dead:g} and {full:g}")
-                    c.dead_band, c.full_band = dead, full
-                touched.append(lane.name)
-        else:
-            hw = getattr(pipeline.source, "limits", None)  # what the camera itself can do, if it says
-            if hw is not None:
-                lo, hi = (1.0, hw.gain_max) if key == "gain_max" else (hw.exposure_min_us, hw.exposure_max_us)
-                if not lo <= v <= hi:
-                    raise ParameterError(f"{key} = {v:g} is outside what the camera accepts ({lo:g}..{hi:g})")
-            for lane in lanes:
-                lim = lane.controller.limits
-                fields = {"exposure_min": "exposure_min_us", "exposure_max": "exposure_max_us", "gain_max": "gain_max"}
-                lane.controller.limits = replace(lim, **{fields[key]: v})  # CameraLimits validates
-                touched.append(lane.name)
-        msg = f"{key} = {v:g} on {', '.join(touched)}"
-        return msg, {"tuning": {"key": key, "value": v, "lanes": touched}}
-
-    return apply
-
-
-def _drive(name: str):
-    def apply(pipeline):
-        factory = getattr(pipeline, "controller_factory", None)
-        if factory is None:
-            raise ParameterError("drive: every controller drives its own camera here (use it with necviz live)")
-        lane = next(iter(pipeline.lanes.values()))
-        old = lane.controller.name
-        lane.controller = factory(name, lane.controller)
-        if isinstance(lane.controller, NECController):
-            lane.estimator, lane.passive_estimator = lane.controller.estimator, False
-        else:
-            lane.passive_estimator = True
-        if pipeline.sink is not None:
-            pipeline.sink.text(S.path(lane.name, S.LOG), pipeline.now_us or 0, f"controller: {old} -> {name}")
-        return f"{name} now drives {lane.name} (was {old})", {"tuning": {"key": "drive", "value": name}}
-
-    return apply
-
-
-def status(pipeline) -> str:
-    parts = []
-    for lane in pipeline.lanes.values():
-        c, p, lim = lane.controller, lane.estimator.params, lane.controller.limits
-        s = (f"{lane.name}: {c.name}, c_on={p.c_on:g} c_off={p.c_off:g}, exposure {lim.exposure_min_us:g}.."
-             f"{lim.exposure_max_us:g} µs, gain_max={lim.gain_max:g}")
-        if isinstance(c, NECController):
-            goal = float(c.estimator.crf.intensity(c.goal_log_exposure))
-            s += f", dead_band={c.dead_band:g} full_band={c.full_band:g} goal={goal:.0f} DN"
-        parts.append(s)
-    return "; ".join(parts)
-
-
-def parse(line: str, reply=None) -> Change | None:
-    """One command line -> a :class:`Change` (``None`` for blank lines and comments).
-
-    Raises :class:`ParameterError` for lines that are not commands.
+    Raises :class:`ParameterError` (one line) for anything else.
     """
     text = line.split("#", 1)[0].strip()
     if not text:
         return None
-    if text == "help":
-        return Change(text, lambda p: (HELP, None), reply)
+    if text in ("help", "?"):
+        return Command("help", text=text)
     if text == "status":
-        return Change(text, lambda p: (status(p), None), reply)
-    m = re.fullmatch(r"drive\s+(\w+)", text)
+        return Command("status", text=text)
+    m = _DRIVE.match(text)
     if m:
-        from .core.control import CONTROLLERS
-
-        if m.group(1) not in CONTROLLERS:
-            raise ParameterError(f"unknown controller {m.group(1)!r}; available: {', '.join(sorted(CONTROLLERS))}")
-        return Change(text, _drive(m.group(1)), reply)
+        if m.group("name") not in CONTROLLERS:
+            raise ParameterError(f"unknown controller {m.group('name')!r}; available: {', '.join(sorted(CONTROLLERS))}")
+        return Command("drive", m.group("name"), None, m.group("lane"), text)
     m = _ASSIGN.match(text)
-    if not m or m.group("key") not in KEYS:
-        raise ParameterError(f"cannot read {text!r}; {HELP}")
-    key = m.group("key")
-    return Change(text, _set(m.group("lane"), key, _number(key, m.group("value"))), reply)
+    if not m:
+        raise ParameterError(f"cannot read {text!r}; commands: {SYNTAX}")
+    from .core.checks import parse_number
+
+    return Command("set", m.group("key"), parse_number(m.group("key"), m.group("value")), m.group("lane"), text)
+
+
+def keys(pipeline) -> dict[str, str]:
+    """Every tunable key of the pipeline's lanes -> "unit: meaning" (for help and completion)."""
+    out = {"c_on": "ln: P-TEDI ON threshold", "c_off": "ln: P-TEDI OFF threshold", "c": "ln: both thresholds"}
+    for lane in pipeline.lanes.values():
+        for name, t in lane.controller.tunables().items():
+            out.setdefault(name, f"{t.unit}: {t.doc}")
+    return out
+
+
+def help_text(pipeline) -> str:
+    lines = [f"commands: {SYNTAX}", "keys:"]
+    lines += [f"  {k:18s} {v}" for k, v in keys(pipeline).items()]
+    lines.append(f"controllers: {', '.join(sorted(CONTROLLERS))}; lanes: {', '.join(pipeline.lanes)}")
+    return "\n".join(lines)
+
+
+def execute(pipeline, command: Command, timeout: float | None = 5.0) -> str:
+    """Carry out ``command`` on ``pipeline``; returns the reply (raises NecvizError when refused).
+
+    Waits up to ``timeout`` s for the streaming thread to apply a change; a change still queued
+    then is reported as pending (it applies at the next packet).
+    """
+    if command.kind == "help":
+        return help_text(pipeline)
+    if command.kind == "status":
+        return pipeline.status()
+    if command.kind == "set":
+        lanes = pipeline.lanes if command.lane is None else {command.lane: pipeline.lanes.get(command.lane)}
+        if command.lane is not None and lanes[command.lane] is None:
+            raise ParameterError(f"no lane {command.lane!r}; lanes: {', '.join(pipeline.lanes)}")
+        if not any(command.key in ln.tunables() for ln in lanes.values()):
+            raise ParameterError(f"unknown key {command.key!r}; keys: {', '.join(keys(pipeline))}")
+        fut = pipeline.tune(command.key, command.value, command.lane)
+    else:
+        fut = pipeline.drive(command.key, command.lane)
+    try:
+        return fut.result(timeout)
+    except TimeoutError:
+        return f"{command.text}: queued (applies at the next packet)"
+
+
+class _Reader:
+    """Shared by the console and the file: run a line, report the reply or the refusal."""
+
+    def __init__(self, pipeline, say):
+        self.pipeline = pipeline
+        self.say = say
+
+    def line(self, text: str) -> None:
+        try:
+            command = parse(text)
+            if command is None:
+                return
+            self.say(execute(self.pipeline, command))
+        except NecvizError as e:
+            self.say(f"error: {e}")
 
 
 class TuningConsole:
-    """Reads commands from a text stream (the terminal) on a daemon thread."""
+    """Reads tuning commands on a daemon thread.
 
-    def __init__(self, pipeline, stream=None, out=None):
+    On a terminal (``interactive``), a ``prompt_toolkit`` prompt keeps the typed line apart from
+    the live status line (``status()``, refreshed twice a second below the prompt) and offers
+    history and Tab completion; Ctrl-C stops the run (``on_interrupt``), Ctrl-D closes the prompt.
+    Otherwise (a pipe, a test) each line of ``stream`` is read as it comes.
+    """
+
+    def __init__(self, pipeline, stream=None, out=None, status=None, on_interrupt=None, interactive: bool | None = None,
+                 pt_input=None, pt_output=None):
         self.pipeline = pipeline
         self.stream = stream if stream is not None else sys.stdin
-        self.out = out if out is not None else sys.stderr
+        self.out = out if out is not None else sys.stdout
+        self.status = status
+        self.on_interrupt = on_interrupt
+        if interactive is None:
+            interactive = pt_input is not None or (hasattr(self.stream, "isatty") and self.stream.isatty()
+                                                   and sys.stdout.isatty())
+        self.interactive = bool(interactive)
+        self._pt_input, self._pt_output = pt_input, pt_output
+        self._session = None
+        self._closed = threading.Event()
         self._thread = threading.Thread(target=self._run, name="necviz-tuning", daemon=True)
 
     def start(self) -> "TuningConsole":
         self._thread.start()
         return self
 
-    def _say(self, msg: str) -> None:
+    def close(self, timeout: float = 2.0) -> None:
+        """End the prompt (the run is over)."""
+        self._closed.set()
+        app = getattr(self._session, "app", None)
+        if app is not None and app.is_running and app.loop is not None:
+            app.loop.call_soon_threadsafe(lambda: app.exit() if app.is_running else None)
+        self._thread.join(timeout)
+
+    def _say_plain(self, msg: str) -> None:
         print(f"\n  tune: {msg}", file=self.out, flush=True)
 
     def _run(self) -> None:
-        for line in self.stream:
+        if self.interactive:
+            self._run_prompt()
+        else:
+            reader = _Reader(self.pipeline, self._say_plain)
+            for line in self.stream:
+                if self._closed.is_set():
+                    break
+                reader.line(line)
+
+    def completer(self):
+        from prompt_toolkit.completion import WordCompleter
+
+        words = ["help", "status", "set", "drive", *sorted(CONTROLLERS), *keys(self.pipeline)]
+        words += [f"{lane}.{k}" for lane, ln in self.pipeline.lanes.items() for k in ln.tunables()]
+        words += list(self.pipeline.lanes)
+        return WordCompleter(sorted(set(words), key=words.index), WORD=True)
+
+    def _run_prompt(self) -> None:
+        from prompt_toolkit import PromptSession
+        from prompt_toolkit.history import InMemoryHistory
+        from prompt_toolkit.shortcuts import print_formatted_text
+
+        def say(msg: str) -> None:
+            print_formatted_text(f"  tune: {msg}", output=self._pt_output)
+
+        reader = _Reader(self.pipeline, say)
+        self._session = PromptSession(
+            history=InMemoryHistory(), completer=self.completer(), complete_while_typing=False,
+            bottom_toolbar=(lambda: self.status()) if self.status is not None else None, refresh_interval=0.5,
+            input=self._pt_input, output=self._pt_output)
+        while not self._closed.is_set():
             try:
-                change = parse(line, reply=self._say)
-            except ParameterError as e:
-                self._say(f"error: {e}")
-                continue
-            if change is not None:
-                self.pipeline.submit(change)
+                text = self._session.prompt("tune> ")
+            except KeyboardInterrupt:
+                if self.on_interrupt is not None:
+                    self.on_interrupt()
+                break
+            except EOFError:
+                break
+            if text is None or self._closed.is_set():
+                break
+            reader.line(text)
 
 
 class TuningFile:
@@ -231,7 +247,7 @@ class TuningFile:
         self._stop.set()
 
     def check(self) -> int:
-        """Apply changed lines if the file changed since the last check; returns how many."""
+        """Submit the lines that changed since the last check (if the file changed); returns how many."""
         try:
             mtime = os.stat(self.path).st_mtime_ns
         except OSError:
@@ -249,18 +265,26 @@ class TuningFile:
                 continue
             self._seen[key] = text
             try:
-                change = parse(text, reply=lambda m: print(f"\n  tune: {m}", file=self.out, flush=True))
+                command = parse(text)
             except ParameterError as e:
                 print(f"\n  tune: {self.path.name}: error: {e}", file=self.out, flush=True)
                 continue
-            if change is not None:
-                self.pipeline.submit(change)
-                n += 1
+            if command is None:
+                continue
+            n += 1
+            if command.kind in ("set", "drive"):
+                fut = (self.pipeline.tune(command.key, command.value, command.lane) if command.kind == "set"
+                       else self.pipeline.drive(command.key, command.lane))
+                fut.add_done_callback(self._report)
         return n
+
+    def _report(self, fut) -> None:
+        e = fut.exception()
+        print(f"\n  tune: {self.path.name}: {('error: ' + str(e)) if e else fut.result()}", file=self.out, flush=True)
 
     def _run(self) -> None:
         while not self._stop.wait(self.poll_s):
             self.check()
 
 
-__all__ = ["HELP", "KEYS", "Change", "TuningConsole", "TuningFile", "parse", "status"]
+__all__ = ["Command", "SYNTAX", "THRESHOLD_KEYS", "TuningConsole", "TuningFile", "execute", "help_text", "keys", "parse"]

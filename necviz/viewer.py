@@ -1,16 +1,26 @@
-"""Where a command's Rerun data goes: the viewer flags every dashboard command shares.
+"""Where a command's Rerun data goes: the viewer options every dashboard command shares.
 
-As in Rerun's own examples: ``--spawn`` starts a native viewer (the default when a display
-exists), ``--serve`` runs a gRPC server and the web viewer on localhost and prints the URL,
-``--connect URL`` streams to a running viewer, ``--save FILE.rrd`` writes a file. Flags combine
-(``--serve --save run.rrd``). Headless with no flag, the run is saved to
-``necviz-<command>-<time>.rrd`` and the command says how to open it.
+As in Rerun's own examples: ``spawn`` starts a native viewer (the default when a display exists),
+``serve`` runs the web viewer and its gRPC data port and prints the URL, ``connect URL`` streams
+to a running viewer, ``save FILE.rrd`` writes a file; they combine (``--serve --save run.rrd``).
+Headless with nothing set, the run is saved to ``necviz-<command>-<time>.rrd`` and the command
+says how to open it.
+
+``serve`` listens on 127.0.0.1 only, for the web page and for the data: it runs the ``rerun``
+program that ships with the SDK (``rerun --serve-web --bind ADDR``), because the SDK's own web
+server has no bind address and listens on every interface. Another address takes an explicit
+``bind`` (``--bind 0.0.0.0``), and the command warns that the recording is then visible to the
+network.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import shutil
+import socket
+import subprocess
+import sys
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -19,17 +29,23 @@ from pathlib import Path
 import rerun as rr
 
 from .core.errors import ParameterError
+from .options import LAYOUT_NAMES, ViewerOptions
+from .outputs import check_output, commit_recording, recording_target
 
 DEFAULT_GRPC_PORT = 9876
 DEFAULT_WEB_PORT = 9090
 DEFAULT_CONNECT = f"rerun+http://127.0.0.1:{DEFAULT_GRPC_PORT}/proxy"
+LOOPBACK = ("127.0.0.1", "::1", "localhost")
 
 
-def add_viewer_args(parser: argparse.ArgumentParser, layouts: tuple[str, ...]) -> None:
+def add_viewer_args(parser: argparse.ArgumentParser, layouts: tuple[str, ...] = LAYOUT_NAMES) -> None:
     g = parser.add_argument_group("viewer (combine freely; headless default: save to a file)")
     g.add_argument("--spawn", action="store_true", help="spawn a native Rerun viewer (default when a display exists)")
     g.add_argument("--serve", action="store_true",
-                   help=f"serve gRPC (:{DEFAULT_GRPC_PORT}) and the web viewer (:{DEFAULT_WEB_PORT}) on localhost")
+                   help=f"serve the web viewer (:{DEFAULT_WEB_PORT}) and its data (:{DEFAULT_GRPC_PORT}) on 127.0.0.1")
+    g.add_argument("--bind", metavar="ADDR", default="127.0.0.1",
+                   help="with --serve: the address to listen on (default 127.0.0.1; anything else exposes the "
+                        "recording to the network)")
     g.add_argument("--connect", metavar="URL", nargs="?", const=DEFAULT_CONNECT,
                    help=f"stream to a running viewer (default URL {DEFAULT_CONNECT})")
     g.add_argument("--save", metavar="FILE.rrd", type=Path, help="write the recording to FILE.rrd")
@@ -39,23 +55,29 @@ def add_viewer_args(parser: argparse.ArgumentParser, layouts: tuple[str, ...]) -
     g.add_argument("--memory-limit", default="1GB", help="viewer / server memory limit (default 1GB)")
 
 
-def check_save_path(save) -> Path:
-    """``--save``: a ``.rrd`` name in a folder that exists and can be written."""
-    save = Path(save)
-    if save.suffix != ".rrd":
-        raise ParameterError(f"--save expects a .rrd file name, got {str(save)!r}")
-    if save.is_dir():
-        raise ParameterError(f"--save: {str(save)!r} is a folder")
-    parent = save.parent if str(save.parent) else Path(".")
-    if not parent.is_dir():
-        raise ParameterError(f"--save: folder {str(parent)!r} does not exist")
-    if not os.access(parent, os.W_OK):
-        raise ParameterError(f"--save: folder {str(parent)!r} is not writable")
-    return save
+def viewer_options(args: argparse.Namespace) -> ViewerOptions:
+    """The viewer flags of a parsed command line."""
+    return ViewerOptions(spawn=args.spawn, serve=args.serve, connect=args.connect, save=args.save,
+                         force=getattr(args, "force", False), layout=args.layout, memory_limit=args.memory_limit,
+                         bind=args.bind, grpc_port=args.grpc_port, web_port=args.web_port)
 
 
 def has_display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def resolve(options: ViewerOptions, command: str, inputs=()) -> ViewerOptions:
+    """Fill in the headless default (a file) and check the save path before anything starts."""
+    from dataclasses import replace
+
+    if not (options.spawn or options.serve or options.connect or options.save):
+        if has_display():
+            options = replace(options, spawn=True)
+        else:
+            options = replace(options, save=Path(f"necviz-{command}-{time.strftime('%Y%m%d-%H%M%S')}.rrd"))
+    if options.save is not None:
+        check_output(options.save, "--save", inputs=inputs, force=options.force, suffixes=(".rrd",))
+    return options
 
 
 @dataclass
@@ -66,58 +88,101 @@ class Viewer:
     messages: list[str] = field(default_factory=list)
     save_path: Path | None = None
     url: str | None = None
+    server: subprocess.Popen | None = None
+    target: Path | None = None  # where the file is written until it is complete (see necviz.outputs)
 
     def close(self) -> None:
-        """Flush what was logged. A served recording stays available until the process ends."""
+        """Flush what was logged. A served recording stays available until :meth:`stop_serving`."""
         self.rec.flush()
-        if self.url is None:
+        if self.server is None:
             rr.disconnect(self.rec)
+        if self.target is not None and self.save_path is not None:
+            commit_recording(self.target, self.save_path)
+
+    def stop_serving(self) -> None:
+        if self.server is not None:
+            rr.disconnect(self.rec)
+            self.server.terminate()
+            try:
+                self.server.wait(5)
+            except subprocess.TimeoutExpired:
+                self.server.kill()
+            self.server = None
 
 
-def open_viewer(args: argparse.Namespace, command: str, blueprint, name: str) -> Viewer:
-    """Create the recording and attach the sinks the flags ask for."""
-    save = getattr(args, "save", None)
-    if save is not None:
-        save = check_save_path(save)
-    spawn = getattr(args, "spawn", False)
-    serve = getattr(args, "serve", False)
-    connect = getattr(args, "connect", None)
+def open_viewer(options: ViewerOptions, command: str, blueprint, name: str) -> Viewer:
+    """Create the recording and attach the sinks ``options`` (already :func:`resolve` d) ask for."""
     messages: list[str] = []
-    if not (spawn or serve or connect or save):
-        if has_display():
-            spawn = True
-        else:
-            save = Path(f"necviz-{command}-{time.strftime('%Y%m%d-%H%M%S')}.rrd")
-            messages.append(f"no display: saving to {save} (open it with: rerun {save})")
+    if options.save is not None and not options.watched and not has_display():
+        messages.append(f"saving to {options.save} (open it with: rerun {options.save})")
     try:
-        return _open(args, blueprint, name, save, spawn, serve, connect, messages)
+        return _open(options, blueprint, name, messages)
     except RuntimeError as e:  # Rerun reports bad URLs, ports and memory limits this way
         raise ParameterError(f"viewer: {e}") from None
 
 
-def _open(args, blueprint, name, save, spawn, serve, connect, messages) -> Viewer:
+def _rerun_program() -> list[str]:
+    exe = Path(sys.executable).with_name("rerun")
+    if exe.exists():
+        return [str(exe)]
+    found = shutil.which("rerun")
+    return [found] if found else [sys.executable, "-m", "rerun"]
+
+
+def _wait_listening(host: str, port: int, proc: subprocess.Popen, timeout_s: float = 15.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    target = "127.0.0.1" if host in ("0.0.0.0", "localhost") else ("::1" if host == "::" else host)
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            err = (proc.stderr.read() or b"").decode(errors="replace").strip().splitlines()
+            raise ParameterError(f"viewer: the web viewer server did not start ({err[-1] if err else 'no message'})")
+        try:
+            with socket.create_connection((target, port), timeout=0.2):
+                return
+        except OSError:
+            time.sleep(0.05)
+    proc.kill()
+    raise ParameterError(f"viewer: the web viewer server did not listen on {host}:{port} within {timeout_s:g} s")
+
+
+def start_web_server(options: ViewerOptions) -> tuple[subprocess.Popen, str, str]:
+    """``rerun --serve-web`` bound to ``options.bind``; returns the process, the data URI and the page URL."""
+    cmd = [*_rerun_program(), "--serve-web", "--bind", options.bind, "--port", str(options.grpc_port),
+           "--web-viewer-port", str(options.web_port), "--server-memory-limit", options.memory_limit]
+    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _wait_listening(options.bind, options.grpc_port, proc)
+    _wait_listening(options.bind, options.web_port, proc)
+    host = "127.0.0.1" if options.bind in ("0.0.0.0", "::", "localhost") else options.bind
+    uri = f"rerun+http://{host}:{options.grpc_port}/proxy"
+    url = f"http://{host}:{options.web_port}/?url={uri.replace('+', '%2B')}"
+    return proc, uri, url
+
+
+def _open(options: ViewerOptions, blueprint, name, messages) -> Viewer:
     rec = rr.RecordingStream("necviz", recording_id=str(uuid.uuid4()))
     sinks = []
-    url = None
-    if spawn:
-        rr.spawn(port=args.grpc_port + 1 if serve else args.grpc_port, connect=False,
-                 memory_limit=args.memory_limit, hide_welcome_screen=True)
-        sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{args.grpc_port + 1 if serve else args.grpc_port}/proxy"))
+    url = server = None
+    port = options.grpc_port
+    if options.serve:
+        server, uri, url = start_web_server(options)
+        sinks.append(rr.GrpcSink(uri))
+        port = options.grpc_port + 1  # a spawned native viewer takes the next port
+        if options.bind not in LOOPBACK:
+            messages.append(f"warning: serving on {options.bind}: anyone who can reach this machine can watch")
+        messages.append(f"web viewer: {url}")
+    if options.spawn:
+        rr.spawn(port=port, connect=False, memory_limit=options.memory_limit, hide_welcome_screen=True)
+        sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{port}/proxy"))
         messages.append("streaming to a native viewer")
-    if serve:
-        server = rr.GrpcServerSink(bind_ip="127.0.0.1", port=args.grpc_port, server_memory_limit=args.memory_limit)
-        sinks.append(server)
-    if connect:
-        sinks.append(rr.GrpcSink(connect))
-        messages.append(f"streaming to {connect}")
-    if save:
-        sinks.append(rr.FileSink(str(save)))
-        if not any(m.startswith("no display") for m in messages):
-            messages.append(f"saving to {save} (open it with: rerun {save})")
+    if options.connect:
+        sinks.append(rr.GrpcSink(options.connect))
+        messages.append(f"streaming to {options.connect}")
+    target = None
+    if options.save:
+        target = recording_target(options.save)
+        sinks.append(rr.FileSink(str(target)))
+        if not any(m.startswith("saving to") for m in messages):
+            messages.append(f"saving to {options.save} (open it with: rerun {options.save})")
     rec.set_sinks(*sinks, default_blueprint=blueprint)
-    if serve:
-        rr.serve_web_viewer(web_port=args.web_port, open_browser=False, connect_to=server.uri)
-        url = f"http://127.0.0.1:{args.web_port}/?url={server.uri.replace('+', '%2B')}"
-        messages.append(f"web viewer: {url}  (gRPC {server.uri}; the web viewer listens on all interfaces)")
     rec.send_recording_name(name)
-    return Viewer(rec, messages, save, url)
+    return Viewer(rec, messages, Path(options.save) if options.save else None, url, server, target)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections import defaultdict
 
 import numpy as np
+import pyarrow as pa
 from rerun.chunk import RrdReader
 
 
@@ -25,14 +26,35 @@ class Rrd:
         self.components: dict[str, set] = defaultdict(set)
         self.rows: dict[str, int] = defaultdict(int)
         self._batches: dict[str, list] = defaultdict(list)
+        self.timelines: dict[str, set] = defaultdict(set)
+        self.kinds: dict[str, set] = defaultdict(set)  # entity -> archetypes logged on it (e.g. "Scalars")
+        self.properties: dict[str, dict] = defaultdict(dict)  # recording properties: name -> {key: value}
         for ch in RrdReader(str(path)).stream().to_chunks():
             ent = str(ch.entity_path).lstrip("/")
             rb = ch.to_record_batch()
+            if ent.startswith("__properties/"):
+                for n in rb.schema.names:
+                    if not n.startswith("rerun."):
+                        v = _flat(rb.column(n))
+                        self.properties[ent.split("/", 1)[1]][n] = v[-1] if v else None
             names = [n for n in rb.schema.names if ":" in n]
             self.components[ent].update(names)
+            self.kinds[ent].update(n.split(":", 1)[0] for n in names)
+            self.timelines[ent].update(ch.timeline_names or ())
             if ch.timeline_names:  # static style rows have no timeline
                 self.rows[ent] += ch.num_rows
                 self._batches[ent].append(rb)
+
+    def property(self, name: str, key: str):
+        """A recording property (``rr.send_property(name, rr.AnyValues(key=...))``)."""
+        return self.properties.get(name, {}).get(key)
+
+    def has_timeline(self, entity: str, timeline: str) -> bool:
+        return timeline in self.timelines.get(entity, ())
+
+    def schema(self) -> dict[str, frozenset]:
+        """Entity path -> the archetypes it holds (what two recordings must share to show alike)."""
+        return {e: frozenset(k) for e, k in self.kinds.items() if not e.startswith("__")}
 
     def has(self, entity: str, component: str) -> bool:
         return any(c == component or c.endswith(component) for c in self.components.get(entity, ()))
@@ -43,13 +65,30 @@ class Rrd:
         for rb in self._batches.get(entity, []):
             if "Scalars:scalars" not in rb.schema.names or timeline not in rb.schema.names:
                 continue
-            t = rb.column(timeline).to_pylist()
+            col = rb.column(timeline)
+            if pa.types.is_duration(col.type):  # nanoseconds, read exactly (timedelta has µs only)
+                t = (col.cast(pa.int64()).to_numpy(zero_copy_only=False) / 1e9).tolist()
+            else:
+                t = [float(x) for x in col.to_pylist()]
             v = _flat(rb.column("Scalars:scalars"))
-            for ti, vi in zip(t, v):
-                ts.append(ti.total_seconds() if hasattr(ti, "total_seconds") else float(ti))
-                vs.append(vi)
+            ts.extend(t)
+            vs.extend(v)
         order = np.argsort(ts, kind="stable")
         return np.asarray(ts, float)[order], np.asarray(vs, float)[order]
+
+    def times(self, entity: str, *timelines: str) -> np.ndarray:
+        """Rows x timelines: each row's value on every given timeline (durations in seconds), in time order."""
+        rows = []
+        for rb in self._batches.get(entity, []):
+            if not all(tl in rb.schema.names for tl in timelines):
+                continue
+            cols = []
+            for tl in timelines:
+                col = rb.column(tl)
+                cols.append(col.cast(pa.int64()).to_numpy(zero_copy_only=False) / (1e9 if pa.types.is_duration(col.type)
+                                                                                     else 1))
+            rows.extend(zip(*cols))
+        return np.asarray(sorted(rows), float).reshape(-1, len(timelines))
 
     def texts(self, entity: str) -> list[str]:
         out = []

@@ -96,7 +96,7 @@ def test_shim_raises_exposure_when_dark_and_lowers_it_when_bright(rule):
 def test_shim_2018_ratio_matches_the_published_values():
     assert nonlinear_ratio(1.0, 0.1) == pytest.approx(1.0, abs=1e-12)
     assert nonlinear_ratio(1 / 1.9, 0.1) == pytest.approx(1.084, abs=1e-3)
-    # baselines.md quotes R(1.9) ≈ 0.607; the formula gives 1 + 0.1·tan(−0.9·atan 10) = 0.6030
+    # R(1.9) ≈ 0.607 is the figure often quoted; the formula gives 1 + 0.1·tan(−0.9·atan 10) = 0.6030
     assert nonlinear_ratio(1.9, 0.1) == pytest.approx(0.607, abs=5e-3)
     assert nonlinear_ratio(1.9, 0.1) == pytest.approx(1 + 0.1 * math.tan(-0.9 * math.atan(10)), rel=1e-12)
     c = ShimController(LIMITS)  # 2018, Kp 1.6, α = 1 below γ̂ = 1, 1/2 above

@@ -137,7 +137,8 @@ def test_a_bad_flag_never_truncates_an_existing_recording(tmp_path, capsys):
     size = rec.stat().st_size
     for bad in (["--save", str(tmp_path / "a.txt")], ["--speed", "abc"], ["--speed", "1e-300"],
                 ["--tune-file", str(tmp_path / "missing")], ["--event-window-ms", "0"]):
-        args = ["demo", "--duration", "0.2", "--controllers", "nec", "--record", str(rec), "--no-prompt", *bad]
+        args = ["demo", "--duration", "0.2", "--controllers", "nec", "--record", str(rec), "--force", "--no-prompt",
+                *bad]
         if "--save" not in bad:
             args += ["--save", str(tmp_path / "b.rrd")]
         assert main(args) == 2, bad
@@ -169,14 +170,14 @@ def test_replay_range_past_the_end_is_an_error(tmp_path, capsys):
 
 def test_tuned_limits_must_fit_the_camera():
     from necviz.core.control import CameraLimits
-    from necviz.tuning import parse
     from test_pipeline import ListSource, nec_lane
     from necviz.pipeline import Pipeline
 
     src = ListSource([])
     src.limits = CameraLimits(10, 19_000, 8.0)
     pipe = Pipeline(src, [nec_lane()])
+    refused, ok = pipe.tune("exposure_max", 1_000_000), pipe.tune("exposure_max", 12_000)
+    pipe._apply_changes()
     with pytest.raises(Exception, match="outside what the camera accepts"):
-        parse("exposure_max = 1000000")(pipe)
-    msg, _ = parse("exposure_max = 12000")(pipe)
-    assert pipe.lanes["camera"].controller.limits.exposure_max_us == 12000
+        refused.result(0)
+    assert ok.result(0) and pipe.lanes["camera"].controller.limits.exposure_max_us == 12000

@@ -10,6 +10,7 @@ import pytest
 
 from necviz.cli import main
 from necviz.compare import run
+from necviz.options import CompareOptions, SceneOptions
 
 KEYS = {"frames", "saturated_frames_50", "saturated_frames_10", "mean_over_exposed_rate",
         "mean_under_exposed_rate", "recovery_ms", "sift_inliers_mean"}
@@ -48,19 +49,51 @@ def test_compare_writes_json_and_a_valid_recording(tmp_path, capsys):
     assert "/nec/exposure/commanded" in paths and "/nec/irradiance/predicted" in paths
 
 
-def test_seeds_report_mean_and_std(tmp_path):
-    res = run("static_lab", "nec,fixed", seed=1, seeds=2, duration_s=0.3, sift=False, out=None)
+def test_seeds_report_mean_and_a_confidence_interval(tmp_path):
+    res = run(CompareOptions(SceneOptions("static_lab", seed=1, duration_s=0.3), "nec,fixed", seeds=3, sift=False),
+              out=None)
     row = res["controllers"]["nec"]
-    assert res["seeds"] == 2 and "saturated_frames_50_std" in row and row["frames"] > 0
+    vals = row["frames_per_seed"]
+    assert res["seeds"] == 3 and len(vals) == 3 and row["frames"] == pytest.approx(sum(vals) / 3)
+    assert row["saturated_frames_50_ci95"] >= 0 and "saturated_frames_50_std" in row
 
 
 @pytest.mark.parametrize("argv, needle", [
-    (["compare", "--controllers", "nec,magic"], "unknown controller(s) magic"),
-    (["compare", "--scenario", "moon"], "unknown scenario 'moon'"),
-    (["compare", "--seeds", "0"], "--seeds must be a positive integer"),
-    (["compare", "--duration", "-1"], "--duration must lie in"),
+    (["compare", "--scenario", "moon"], "neither a preset"),
+    (["compare", "--seeds", "0"], "--seeds = 0 is out of range"),
+    (["compare", "--duration", "-1"], "--duration = -1 is out of range"),
+    (["compare", "--set", "step_db"], "--set expects KEY=VALUE"),
+    (["compare", "--set", "step_db=1", "--duration", "0.1"], "step_db = 1 is out of range"),
 ])
 def test_bad_arguments_give_one_line_errors(argv, needle, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("necviz: error:") and needle in err and "\n" not in err
+
+
+def test_an_unknown_controller_is_refused_by_the_parser(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["compare", "--controllers", "nec,magic"])
+    assert e.value.code == 2
+    assert "unknown controller(s) magic; available:" in capsys.readouterr().err
+
+
+def test_scenario_files_and_overrides_work_in_compare_demo_and_bench(tmp_path):
+    toml = tmp_path / "lab.toml"
+    toml.write_text('name = "static_lab"\nseed = 4\nduration_s = 0.3\n[params]\nramp_ms = 2.0\n')
+    sc = SceneOptions(str(toml))
+    assert (sc.name, sc.resolved_seed) == ("static_lab", 4)
+    a = sc.build()
+    b = SceneOptions(str(toml), seed=5, params={"ramp_ms": 3.0}).build()
+    assert a.duration_us == b.duration_us == 300_000
+    assert a.seed == 4 and b.seed == 5 and a.params["ramp_ms"] == 2 and b.params["ramp_ms"] == 3
+    js = tmp_path / "r.json"
+    assert main(["compare", "--scenario", str(toml), "--set", "ramp_ms=3", "--controllers", "nec,fixed",
+                 "--no-sift", "--json", str(js)]) == 0
+    data = json.loads(js.read_text())
+    assert data["scenario"] == "static_lab" and data["seed"] == 4 and data["scenario_params"] == {"ramp_ms": 3}
+    assert main(["bench", "sim", "--scenario", str(toml), "--cameras", "2", "--json", str(tmp_path / "s.json")]) == 0
+    assert json.loads((tmp_path / "s.json").read_text())["scenario"] == "static_lab"
+    bad = tmp_path / "bad.toml"
+    bad.write_text('name = "static_lab"\n[params]\nramp_ms = "loud"\n')
+    assert main(["compare", "--scenario", str(bad), "--no-sift"]) == 2

@@ -33,9 +33,27 @@ def test_every_entity_present_for_every_controller(demo):
     for name in CONTROLLERS:
         for leaf in S.LANE_ENTITIES:
             assert rrd.rows.get(S.path(name, leaf), 0) > 0, f"{name}/{leaf} missing"
-    assert rrd.has("nec/frame", "EncodedImage:blob") and rrd.has("nec/events", "EncodedImage:blob")
+    for leaf in S.SHARED_ENTITIES:
+        assert rrd.rows.get(leaf, 0) > 0, f"{leaf} missing"
+    assert rrd.has("nec/frame", "EncodedImage:blob") and rrd.has(S.EVENTS, "EncodedImage:blob")
+    assert not any(e.endswith("/events") for e in rrd.rows), "events are shared: logged once, not per lane"
     assert rrd.rows[S.path("nec", S.LATENCY)] > 0
     assert "__properties/run" in rrd.components
+
+
+def test_every_view_has_data_on_both_timelines(demo):
+    """Events, predictions and commands are on the `frame` timeline too: no view goes blank on it."""
+    rrd, _, _ = demo
+    for entity in (S.EVENT_RATE, S.path("nec", S.IRRADIANCE_PREDICTED), S.path("nec", S.EXPOSURE_COMMANDED),
+                   S.path("navid", S.OVER_EXPOSED)):
+        t, _ = rrd.series(entity, "t")
+        f, _ = rrd.series(entity, "frame")
+        assert len(t) == len(f) > 0 and f.min() >= 0
+        if entity != S.path("nec", S.EXPOSURE_COMMANDED):  # commands come in bursts; the rest spans the run
+            assert f.max() >= 40  # frame numbers over a 1 s run at 50 fps
+        tf = rrd.times(entity, "t", "frame")
+        assert len(tf) == len(t) and np.all(np.diff(tf[:, 1]) >= 0)  # frame numbers never go back in time
+    assert rrd.has_timeline(S.EVENTS, "frame") and rrd.has_timeline(S.path("nec", S.FRAME_IMAGE), "frame")
 
 
 def test_exposure_series_as_long_as_the_frames_and_rates_in_range(demo):

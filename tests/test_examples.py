@@ -21,7 +21,8 @@ def run_example(name: str, *args: str, cwd: Path, expect_rc: int = 0) -> str:
     return proc.stdout + proc.stderr
 
 
-TESTED = {"offline_nec.py", "ptedi_ramp.py", "custom_scenario.py", "custom_controller.py", "replay_summary.py"}
+TESTED = {"offline_nec.py", "ptedi_ramp.py", "custom_scenario.py", "custom_controller.py", "replay_summary.py",
+          "demo_from_python.py"}
 
 
 def test_every_example_is_listed_and_runs(tmp_path):
@@ -98,3 +99,13 @@ def test_replay_summary(tmp_path):
 def test_replay_summary_missing_file(tmp_path):
     out = run_example("replay_summary.py", str(tmp_path / "absent.aedat4"), cwd=tmp_path, expect_rc=1)
     assert "not found" in out and "Traceback" not in out
+
+
+def test_demo_from_python(tmp_path):
+    out = run_example("demo_from_python.py", "--scenario", "flicker", "--duration-s", "0.3", "--out", "py.rrd",
+                      cwd=tmp_path)
+    lanes = re.findall(r"^\s+(nec|navid|fixed)\s+(\d+) frames", out, re.M)
+    assert [n for n, _ in lanes] == ["nec", "navid", "fixed"] and all(int(f) >= 14 for _, f in lanes)
+    assert (tmp_path / "py.rrd").stat().st_size > 10_000 and "rerun py.rrd" in out
+    bad = run_example("demo_from_python.py", "--scenario", "moon", cwd=tmp_path, expect_rc=1)
+    assert "error: --scenario: 'moon' is neither a preset" in bad and "Traceback" not in bad

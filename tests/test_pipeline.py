@@ -18,7 +18,8 @@ from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import IMU_DTYPE, ImuBatch
 from necviz.core.sensor import SensorGeometry
 from necviz.drivers.replay import Recorder, open_recording
-from necviz.pipeline import Lane, Pipeline
+from necviz.drivers.source import route
+from necviz.pipeline import Lane, Pipeline, RecorderObserver, packet_time_us
 from necviz.sink import RerunSink
 from rrd_read import Rrd
 
@@ -28,8 +29,11 @@ SENSOR = SensorGeometry(32, 24, "test")
 class ListSource:
     """A single-camera source over a packet list; records commands; may fail after ``fail_after`` packets."""
 
+    cameras = ("camera",)
+
     def __init__(self, packets, fail_after=None):
         self.sensor = SENSOR
+        self.now_us = 0
         self.packets_ = packets
         self.fail_after = fail_after
         self.commands = []
@@ -39,10 +43,15 @@ class ListSource:
         for i, p in enumerate(self.packets_):
             if self.fail_after is not None and i == self.fail_after:
                 raise NecvizError("camera unplugged (test)")
+            self.now_us = packet_time_us(p) or self.now_us
             yield p
 
-    def set_exposure(self, exposure_us, gain=1.0, issue_time_us=None):
-        self.commands.append((issue_time_us, exposure_us, gain))
+    def packets(self):
+        return route("camera", self)
+
+    def set_exposure(self, camera, exposure_us, gain=1.0, *, issue_time_us=None):
+        assert camera == "camera"
+        self.commands.append((self.now_us if issue_time_us is None else issue_time_us, exposure_us, gain))
 
     def close(self):
         self.closed = True
@@ -73,7 +82,7 @@ def stream(n_frames=10, period_us=10_000, exposure_us=2_000, level=120, brighten
 
 def nec_lane(drives=True, name="camera"):
     ctrl = make_controller("nec", sensor=SENSOR, limits=CameraLimits(10, 8_000, 4.0), exposure_us=2_000)
-    return Lane.build(name, ctrl, SENSOR, drives=drives)
+    return Lane(name, ctrl, drives=drives)
 
 
 def open_rec(path):
@@ -89,18 +98,19 @@ def test_commands_go_back_to_the_source_between_frames(tmp_path):
     stats = pipe.run().finish()
     frame_ends = [p.exposure_end_us for p in src.packets_ if isinstance(p, Frame)]
     assert stats["frames"] == 12 and stats["events"] == 12 * 10 * 200
-    assert len(src.commands) == lane.commands + 1  # + the initial setting
+    tel = pipe.telemetry["camera"]
+    assert len(src.commands) == tel.commands + 1  # + the initial setting
     between = [t for t, _, _ in src.commands[1:] if t not in frame_ends]
     assert between, "NEC should command on event batches, not only on frames"
-    assert len(lane.latencies_ns) == lane.commands and stats["lanes"]["camera"]["latency_p50_us"] > 0
+    assert tel.latency.count == tel.commands and stats["lanes"]["camera"]["latency_p50_us"] > 0
     assert src.closed
 
 
 def test_open_loop_lane_never_commands_the_source():
     src = ListSource(stream(n_frames=6, brighten_at=20_000))
-    lane = nec_lane(drives=False)
-    Pipeline(src, [lane]).run().finish()
-    assert src.commands == [] and lane.commands > 0
+    pipe = Pipeline(src, [nec_lane(drives=False)])
+    pipe.run().finish()
+    assert src.commands == [] and pipe.telemetry["camera"].commands > 0
 
 
 def test_source_error_ends_the_run_and_everything_before_it_is_kept(tmp_path):
@@ -109,7 +119,7 @@ def test_source_error_ends_the_run_and_everything_before_it_is_kept(tmp_path):
     rec = open_rec(tmp_path / "run.rrd")
     sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, lossless=True)
     recorder = Recorder(tmp_path / "run.necrec", sensor=SENSOR, properties={})
-    pipe = Pipeline(src, [nec_lane()], sink, recorder).start()
+    pipe = Pipeline(src, [nec_lane()], observers=[sink, RecorderObserver(recorder, "camera")]).start()
     assert pipe.wait(30)
     with pytest.raises(NecvizError, match="unplugged"):
         pipe.finish()
@@ -151,7 +161,7 @@ def test_imu_packets_pass_through_to_the_recorder(tmp_path):
     imu["t"] = [1_500, 1_600, 1_700]
     packets.insert(2, ImuBatch(imu))
     recorder = Recorder(tmp_path / "imu.necrec", sensor=SENSOR, properties={})
-    Pipeline(ListSource(packets), [nec_lane()], None, recorder).run().finish()
+    Pipeline(ListSource(packets), [nec_lane()], observers=[RecorderObserver(recorder, "camera")]).run().finish()
     got = [p for p in open_recording(tmp_path / "imu.necrec") if isinstance(p, ImuBatch)]
     assert sum(len(p) for p in got) == 3
 
@@ -165,7 +175,7 @@ def test_a_slow_viewer_never_slows_the_control_path(tmp_path, monkeypatch):
     monkeypatch.setattr(sink, "_collect", lambda batches: release.wait(30))  # the viewer hangs
     src = ListSource(stream(n_frames=20))
     t0 = time.perf_counter()
-    Pipeline(src, [nec_lane()], sink).run()
+    Pipeline(src, [nec_lane()], observers=[sink]).run()
     elapsed = time.perf_counter() - t0
     summary = sink.summary()
     release.set()
@@ -181,7 +191,7 @@ def test_sink_decimates_by_stride_and_counts(tmp_path):
     sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, event_window_us=10_000,
                      max_events_per_window=500, lossless=True)
     src = ListSource(stream(n_frames=5))
-    Pipeline(src, [nec_lane()], sink).run()
+    Pipeline(src, [nec_lane()], observers=[sink]).run()
     s = sink.close()
     rr.disconnect(rec)
     assert s["events_seen"] == 5 * 10 * 200
@@ -189,7 +199,7 @@ def test_sink_decimates_by_stride_and_counts(tmp_path):
     assert s["events_drawn"] <= s["event_images"] * 500
     assert s["events_drawn"] >= s["events_seen"] // 5  # stride 4 at 2000 events per window, not more
     r = Rrd(tmp_path / "dec.rrd")
-    _, rate = r.series(S.path("camera", S.EVENT_RATE))
+    _, rate = r.series(S.EVENT_RATE)
     assert np.allclose(rate[1:-1], 200 * 1e6 / 1_000)  # 200 events per ms (the first window starts 1 ms late)
 
 
@@ -235,7 +245,7 @@ def test_a_gap_in_the_stream_costs_one_window_not_one_per_window(tmp_path):
     rec = open_rec(tmp_path / "gap.rrd")
     sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, lossless=True)
     t0 = time.perf_counter()
-    Pipeline(ListSource(a + later), [nec_lane()], sink).run().finish()
+    Pipeline(ListSource(a + later), [nec_lane()], observers=[sink]).run().finish()
     rr.disconnect(rec)
     assert time.perf_counter() - t0 < 10
     s = sink.summary()

@@ -8,7 +8,7 @@ import pytest
 from necviz.core.errors import ParameterError
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.drivers.sim.aps import ApsParams, expose, integrate_samples
-from necviz.drivers.sim.camera import SimRig, SimulatedCamera
+from necviz.drivers.sim.camera import SimRig
 from necviz.drivers.sim.dvs import DvsParams
 from necviz.drivers.sim.scene import FunctionScene
 from necviz.core.sensor import SensorGeometry
@@ -33,7 +33,7 @@ def step_scene(step_t=50_000, delta=3.0, duration_us=120_000):
 
 
 def frames_of(source):
-    return [p for p in source if isinstance(p, Frame)]
+    return [p for _, p in source.packets() if isinstance(p, Frame)]
 
 
 def test_integrate_samples_is_exact_for_piecewise_linear_light():
@@ -78,8 +78,8 @@ def test_over_exposure_happens_exactly_where_physics_says(crf):
 
 def test_light_changing_during_the_exposure_is_averaged(crf):
     """A +3 step half-way through a 4 ms exposure: the frame sees the mean irradiance, not either level."""
-    cam = SimulatedCamera(step_scene(step_t=3_000), exposure_us=4_000, aps=ApsParams(noise=False),
-                          dvs=DvsParams.ideal(), first_start_us=1_000, sample_us=250)
+    cam = SimRig(step_scene(step_t=3_000), {"camera": (4_000, 1.0)}, aps=ApsParams(noise=False),
+                 dvs=DvsParams.ideal(), first_start_us=1_000, sample_us=250)
     f0 = frames_of(cam)[0]
     assert (f0.exposure_start_us, f0.exposure_end_us) == (1_000, 5_000)
     log_h = np.log((np.exp(_field()) * (1 + math.exp(3.0)) / 2)) + math.log(4_000 / 1e6)
@@ -90,34 +90,34 @@ def test_light_changing_during_the_exposure_is_averaged(crf):
 def test_commands_apply_only_after_the_latency():
     """A command issued at time t changes only frames whose exposure starts at or after t + latency."""
     aps = ApsParams(latency_us=1_500, noise=False)
-    cam = SimulatedCamera(static_scene(), exposure_us=2_000, aps=aps, dvs=DvsParams.ideal())
-    assert isinstance(cam, Source)
+    cam = SimRig(static_scene(), {"camera": (2_000, 1.0)}, aps=aps, dvs=DvsParams.ideal())
+    assert isinstance(cam, Source) and cam.cameras == ("camera",)
     issue_at = {20_000: 21_000 - 1_500, 41_000: 41_000 - 1_499}  # exposure start -> issue time
     seen = []
-    for p in cam:
+    for _, p in cam.packets():
         if isinstance(p, Frame):
             seen.append(p)
         if isinstance(p, ExposureMarker) and p.kind == "end" and p.t_us == 3_000:
-            cam.set_exposure(500, 1.0, issue_time_us=issue_at[20_000])   # in time for the 21 ms frame
-            cam.set_exposure(700, 2.0, issue_time_us=issue_at[41_000])   # 1 µs late for the 41 ms frame
+            cam.set_exposure("camera", 500, 1.0, issue_time_us=issue_at[20_000])   # in time for the 21 ms frame
+            cam.set_exposure("camera", 700, 2.0, issue_time_us=issue_at[41_000])   # 1 µs late for the 41 ms frame
     starts = [f.exposure_start_us for f in seen]
     assert starts[:4] == [1_000, 21_000, 41_000, 61_000]
     assert [f.exposure_us for f in seen[:4]] == [2_000, 500, 500, 700]
     assert [f.gain for f in seen[:4]] == [1.0, 1.0, 1.0, 2.0]
-    recs = cam.commands
+    recs = cam.commands("camera")
     assert [r.applied_start_us for r in recs] == [21_000, 61_000]
 
 
 def test_commands_are_clamped_to_the_camera_limits():
     aps = ApsParams(exposure_min_us=10, exposure_max_us=15_000, gain_max=4.0, noise=False)
-    cam = SimulatedCamera(static_scene(60_000), exposure_us=2_000, aps=aps, dvs=DvsParams.ideal())
-    cam.set_exposure(1e9, 100.0, issue_time_us=0)
+    cam = SimRig(static_scene(60_000), {"camera": (2_000, 1.0)}, aps=aps, dvs=DvsParams.ideal())
+    cam.set_exposure("camera", 1e9, 100.0, issue_time_us=0)
     f = frames_of(cam)
     assert f[1].exposure_us == 15_000 and f[1].gain == 4.0
     with pytest.raises(ParameterError, match="exposure_us"):
-        cam.set_exposure(float("nan"))
+        cam.set_exposure("camera", float("nan"))
     with pytest.raises(ParameterError, match="gain"):
-        cam.set_exposure(100, 0.5)
+        cam.set_exposure("camera", 100, 0.5)
 
 
 def test_cameras_share_one_event_stream_but_not_their_exposures():
@@ -160,8 +160,8 @@ def test_stream_order_per_camera_is_what_the_estimator_needs():
 
 def test_same_seed_same_output_different_seed_different_noise():
     def run(seed):
-        cam = SimulatedCamera(static_scene(50_000), exposure_us=2_000, seed=seed)
-        return [(p.copy() if isinstance(p, np.ndarray) else p.image.copy()) for p in cam
+        cam = SimRig(static_scene(50_000), {"camera": (2_000, 1.0)}, seed=seed)
+        return [(p.copy() if isinstance(p, np.ndarray) else p.image.copy()) for _, p in cam.packets()
                 if isinstance(p, (np.ndarray, Frame))]
     a, b, c = run(1), run(1), run(2)
     assert len(a) == len(b) and all(np.array_equal(x, y) for x, y in zip(a, b))
@@ -191,3 +191,26 @@ def test_bad_rig_parameters():
     rig = SimRig(static_scene(), ["a"])
     with pytest.raises(ParameterError, match="no simulated camera named 'b'"):
         rig.set_exposure("b", 100)
+
+
+def test_a_long_closed_loop_keeps_the_command_list_bounded(monkeypatch):
+    """Commands issued on every batch for a long run: the rig keeps a bounded history, and the newest
+    old-enough command still applies at each exposure start."""
+    import necviz.drivers.sim.camera as cam_mod
+
+    monkeypatch.setattr(cam_mod, "COMMAND_HISTORY", 10)
+    rig = SimRig(static_scene(400_000), {"camera": (2_000, 1.0)}, dvs=DvsParams.ideal(), aps=ApsParams(noise=False))
+    rig.cams["camera"].history = cam_mod.deque(maxlen=10)
+    frames, issued = [], 0
+    for _, p in rig.packets():
+        if isinstance(p, ExposureMarker):
+            rig.set_exposure("camera", 1_000 + (issued % 7) * 100, 1.0)  # a new setting at every marker
+            issued += 1
+        elif isinstance(p, Frame):
+            frames.append(p)
+    cmds = rig.commands("camera")
+    assert issued >= 38 and len(cmds) <= 10 + 2
+    applied = [c for c in cmds if c.applied_start_us is not None]
+    by_start = {f.exposure_start_us: f for f in frames}
+    assert applied and all(by_start[c.applied_start_us].exposure_us == round(c.exposure_us) for c in applied
+                           if c.applied_start_us in by_start)

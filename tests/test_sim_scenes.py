@@ -1,5 +1,8 @@
-"""Scenario presets of the simulator (drivers/sim/scenes.py)."""
+"""Scenario presets of the simulator (drivers/sim/scenes/)."""
 
+import inspect
+import re
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -7,8 +10,12 @@ import pytest
 
 from necviz.core.errors import ParameterError, ProfileError
 from necviz.core.sensor import DAVIS240, DAVIS346
+from necviz.drivers.sim.aps import ApsParams
+from necviz.drivers.sim.camera import SimRig
 from necviz.drivers.sim.scene import FunctionScene, LightingChange, Scene, db_to_log
-from necviz.drivers.sim.scenes import SCENARIOS, make_scenario, scenario_from_toml, scenario_params
+from necviz.drivers.sim.scenes import (COMMON_PARAMS, SCENARIOS, make_scenario, scenario_from_toml, scenario_params,
+                                       scenario_params_markdown)
+from necviz.drivers.sim.scenes.static_lab import FIRST_START_US, FRAME_INTERVAL_US
 
 NAMES = sorted(SCENARIOS)
 
@@ -204,6 +211,124 @@ def test_static_lab_levels_and_no_motion():
         make_scenario("static_lab", duration_us=1_000_000, steps=[(2.0, 20.0)])
 
 
+def default_frame_clock():
+    """(first exposure start, frame interval, command latency) of SimRig/ApsParams defaults, in µs."""
+    return (inspect.signature(SimRig).parameters["first_start_us"].default, ApsParams().frame_interval_us,
+            ApsParams().latency_us)
+
+
+def meets_frame_clock(t0_us, t1_us, duration_us) -> bool:
+    """Whether [t0, t1] (a change and its ramp) meets [start - latency, start + 1 ms] of an exposure start."""
+    first, period, latency = default_frame_clock()
+    starts = np.arange(first, duration_us + period, period)
+    return bool(np.any((t0_us <= starts + 1000) & (t1_us >= starts - latency)))
+
+
+OLD_STEPS = [(1.0, 20.0), (2.0, -20.0), (3.0, 40.0), (4.0, 0.0)]  # the round times used before
+
+
+def test_frame_clock_constants_match_the_simulator():
+    first, period, _ = default_frame_clock()
+    assert (FIRST_START_US, FRAME_INTERVAL_US) == (first, period)
+
+
+@pytest.mark.parametrize("duration_us", [None, 1_200_000, 300_000])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_static_lab_default_steps_avoid_the_frame_clock(duration_us, seed):
+    s = make_scenario("static_lab", duration_us=duration_us, seed=seed)
+    first, period, _ = default_frame_clock()
+    d = s.duration_us
+    assert [c.delta_log for c in s.changes] == [db_to_log(x) for x in (20, -40, 60, -40)]
+    for c, frac in zip(s.changes, (0.2, 0.4, 0.6, 0.8)):
+        assert not meets_frame_clock(c.t_us, c.t_us + s.ramp_us, d), c
+        assert (c.t_us - first) % period == period // 2  # half-way between two exposure starts
+        assert 0 <= c.t_us - frac * d < period  # the first such point at or after the nominal fraction
+        # the level really changes there (not only the documented time)
+        before = float(s.log_irradiance(c.t_us - 1).mean())
+        after = float(s.log_irradiance(c.t_us + s.ramp_us + 1).mean())
+        assert after - before == pytest.approx(c.delta_log, abs=1e-4)
+
+
+def test_static_lab_round_times_met_the_clock_and_only_timing_changed():
+    old = make_scenario("static_lab", seed=0, steps=OLD_STEPS)
+    assert all(meets_frame_clock(c.t_us, c.t_us + old.ramp_us, old.duration_us) for c in old.changes)
+    new = make_scenario("static_lab", seed=0)
+    assert [c.t_us for c in new.changes] == [1_011_000, 2_011_000, 3_011_000, 4_011_000]
+    for t in (0.5e6, 1.5e6, 2.5e6, 3.5e6, 4.5e6):  # same texture and levels away from the steps
+        np.testing.assert_array_equal(new.log_irradiance(t), old.log_irradiance(t))
+
+
+def test_static_lab_jitter_moves_changes_within_the_bound():
+    nominal = [c.t_us for c in make_scenario("static_lab", seed=0).changes]
+    bound = 10_000
+    times = {}
+    for seed in range(6):
+        s = make_scenario("static_lab", seed=seed, change_jitter_ms=10)
+        times[seed] = [c.t_us for c in s.changes]
+        assert times[seed] == [c.t_us for c in make_scenario("static_lab", seed=seed, change_jitter_ms=10).changes]
+        assert s.params["steps"] == make_scenario("static_lab", seed=seed).params["steps"]  # nominal kept
+    off = np.array([np.subtract(t, nominal) for t in times.values()])
+    assert np.abs(off).max() <= bound
+    assert len({tuple(t) for t in times.values()}) == len(times), "seeds must give different times"
+    assert off.min() < -bound / 2 and off.max() > bound / 2 and len(set(off.ravel())) == off.size
+    # the light follows the moved times; the texture is the unjittered one
+    s, ref = make_scenario("static_lab", seed=2, change_jitter_ms=10), make_scenario("static_lab", seed=2)
+    np.testing.assert_array_equal(s.log_irradiance(0.5e6), ref.log_irradiance(0.5e6))
+    for c in s.changes:
+        step = float(s.log_irradiance(c.t_us + s.ramp_us + 1).mean() - s.log_irradiance(c.t_us - 1).mean())
+        assert step == pytest.approx(c.delta_log, abs=1e-4)
+    # zero jitter is the nominal scene
+    zero = make_scenario("static_lab", seed=2, change_jitter_ms=0)
+    assert zero.changes == ref.changes
+
+
+@pytest.mark.parametrize("name", ["tunnel_exit", "indoor_outdoor", "flicker"])
+def test_change_jitter_other_presets(name):
+    ref = make_scenario(name, sensor=DAVIS240, seed=3)
+    jit = make_scenario(name, sensor=DAVIS240, seed=3, change_jitter_ms=5)
+    shift = [a.t_us - b.t_us for a, b in zip(jit.changes, ref.changes)]
+    assert len(shift) == len(ref.changes) >= 1
+    assert all(abs(x) <= 5000 for x in shift) and any(x != 0 for x in shift)
+    assert jit.params == {**ref.params, "change_jitter_ms": 5.0}
+    assert make_scenario(name, sensor=DAVIS240, seed=3, change_jitter_ms=0).changes == ref.changes
+
+
+def test_change_jitter_handheld_scan_and_errors():
+    ref = make_scenario("handheld_scan", sensor=DAVIS240, seed=0, duration_us=1_500_000)
+    jit = make_scenario("handheld_scan", sensor=DAVIS240, seed=0, duration_us=1_500_000, change_jitter_ms=100)
+    np.testing.assert_array_equal(jit.tex, ref.tex)  # same facade, later shadows
+    assert [c.t_us for c in jit.changes] != [c.t_us for c in ref.changes]
+    with pytest.raises(ParameterError, match="change_jitter_ms = 10 could reorder switch_times_s"):
+        make_scenario("flicker", switch_times_s=[0.5, 0.51], change_jitter_ms=10)
+    with pytest.raises(ParameterError, match="change_jitter_ms = -1 is out of range"):
+        make_scenario("static_lab", change_jitter_ms=-1)
+
+
+# -- generated parameter tables ------------------------------------------------------------------
+@pytest.mark.parametrize("name", NAMES)
+def test_parameter_table_in_docstring(name, scenes):
+    cls = SCENARIOS[name]
+    assert cls.PARAMS["change_jitter_ms"] is COMMON_PARAMS["change_jitter_ms"]
+    table = cls.__doc__[cls.__doc__.index("Parameters (generated from ``PARAMS``"):].splitlines()
+    rules = [line for line in table if line.startswith("===")]
+    assert len(rules) == 3
+    for key, p in cls.PARAMS.items():
+        row = next(line for line in table if line.startswith(f"``{key}`` "))
+        assert p.default_cell() in row and p.range_cell() in row and row.endswith(p.doc)
+        if p.kind == "float":  # the table shows the value the preset really uses
+            assert float(p.default_cell()) == scenes[name].params[key]
+
+
+def test_readme_scenario_section_is_generated():
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    head = "### Simulator scenarios and their parameters\n\n"
+    assert text.count(head) == 1
+    start = text.index(head) + len(head)
+    end = start + re.search(r"^#{1,3} ", text[start:], re.M).start()
+    assert text[start:end] == scenario_params_markdown() + "\n", (
+        "README section out of date: paste necviz.drivers.sim.scenes.scenario_params_markdown()")
+
+
 # -- handheld_scan -------------------------------------------------------------------------------
 def test_handheld_scan_shadow_edges(scenes):
     s = scenes["handheld_scan"]
@@ -272,6 +397,8 @@ def test_toml_text_and_file(tmp_path):
     ('seed = 1\n', ProfileError, 'missing key "name"'),
     ('name = "tunnel_exit"\ncolour = 1\n', ProfileError, "unknown key.*colour"),
     ('name = "tunnel_exit"\nduration_s = -1\n', ProfileError, "duration_s"),
+    ('name = "tunnel_exit"\nduration_us = 1.5\n', ProfileError, "duration_us.*whole number"),
+    ('name = "tunnel_exit"\nseed = -1\n', ProfileError, "seed"),
     ('name = "tunnel_exit"\nduration_s = 1\nduration_us = 5\n', ProfileError, "not both"),
     ('name = "tunnel_exit"\nsensor = "DAVIS999"\n', ProfileError, "unknown sensor"),
     ('name = "nope"\n', ParameterError, "unknown scenario 'nope'"),

@@ -89,3 +89,21 @@ def test_web_viewer_shows_recording_in_headless_chromium(recording, tmp_path):
     shown = {(v.get("name"), v.get("origin")) for v in ev["state"]["views"]}
     assert set(expected) <= shown, f"missing views {set(expected) - shown}; shown {sorted(shown)}"
     assert ev["stable"] and vc.looks_drawn(ev["image"]), ev["image"]
+
+
+@pytest.mark.parametrize("command", ["compare", "demo"])
+def test_compare_and_demo_recordings_open_with_the_compare_layout(command, tmp_path):
+    """One writer: a comparison's recording and a demo's open in the same blueprint, with no view errors."""
+    rrd = tmp_path / f"{command}.rrd"
+    extra = ["--no-sift"] if command == "compare" else ["--no-prompt"]
+    assert main([command, "--scenario", "indoor_outdoor", "--duration", "0.2", "--controllers", "nec,navid",
+                 "--save", str(rrd), *extra]) == 0
+    expected = _views(make_blueprint("compare", ["nec", "navid"], 346, 260).root_container)
+    try:
+        ev = vc.native_screenshot(rrd, tmp_path / "native.png", frame=1, timeout_s=60)
+    except vc.ViewerUnavailable as e:
+        pytest.skip(f"native viewer cannot run headless here: {e}")
+    shown = {(v["name"], v["origin"]) for v in ev["views"]}
+    assert set(expected) <= shown, f"missing views {set(expected) - shown}; shown {sorted(shown)}"
+    assert ev["view_errors"] == {}, f"views report errors: {ev['view_errors']}"
+    assert ev["view_images"]["events (all cameras)"]["distinct_colours"] >= 3  # the shared event image is drawn

@@ -1,7 +1,7 @@
 """Bégin & Hunter (Sensors 2022): CRF-predicted gradient-optimal exposure with motion-aware gain.
 
-Algorithm, per frame (baselines.md §2.3; the ROS node's default mode
-``GRADINFO_SCORE, EV_CORRECTIONS, OPTIFLOW_ESTIM``):
+Algorithm, per frame (summary in docs/baselines.md; the default mode of the ROS node in the public
+implementation github.com/MIT-Bilab/vo-autoexpose, ``GRADINFO_SCORE, EV_CORRECTIONS, OPTIFLOW_ESTIM``):
 
 1. Resize the frame to the working size 360×270 (``work_size``; linear interpolation; the
    original's median blur is overwritten in its code, so there is none here either).
@@ -56,10 +56,12 @@ from collections import deque
 import cv2
 import numpy as np
 
+from ..checks import check_number as _num
 from ..crf import CameraResponse, default_davis346
 from ..errors import ParameterError
 from ..frames import Frame
-from .base import CameraLimits, Controller, ExposureCommand, check_number as _num
+from .base import CameraLimits, Controller, ExposureCommand
+from .base import Tunable
 
 #: The published ΔEV corrections (larger EV = darker).
 DELTA_EVS = np.array([-2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 2.0])
@@ -146,6 +148,10 @@ class BeginController(Controller):
     """
 
     name = "begin"
+    TUNABLE = (
+        Tunable("feedback_gain", "1", "saturation feedback strength", 1.0, 4.0),
+        Tunable("w", "1", "weight of the flow term in the exposure/gain split", 0.0, lo_open=True),
+    )
 
     def __init__(
         self,

@@ -1,6 +1,7 @@
 """The DAVIS host-side auto-exposure of libcaer (``autoexposure.c``), image only.
 
-Algorithm, per frame (baselines.md §2.4; constants from libcaer's ``autoexposure.h``):
+Algorithm, per frame (libcaer, github.com/inivation/libcaer, ``src/autoexposure.c``; constants from
+its ``autoexposure.h``; summary in docs/baselines.md):
 
 0. **Runs only when the frame's exposure equals the last value it set** (libcaer compares the
    frame's exposure with ``exposureLastSetValue`` and returns "no change" otherwise), so it

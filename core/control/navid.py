@@ -1,6 +1,6 @@
 """Nourani-Vatani & Roberts, "Automatic Camera Exposure Control" (ACRA 2007), image only.
 
-Algorithm, per frame (baselines.md §2.1):
+Algorithm, per frame (summary in docs/baselines.md):
 
 1. Histogram of the (optionally weighted) 8-bit image in **5 equal regions** (region of Z is
    ``(5·Z) // 256``: 0..51, 52..102, 103..153, 154..204, 205..255); ``x_i`` = (weighted) pixel
@@ -54,24 +54,15 @@ import math
 
 import numpy as np
 
+from ..checks import check_number as _num
 from ..errors import ParameterError
 from ..frames import Frame
 from .base import CameraLimits, Controller, ExposureCommand
+from .base import Tunable
 
 N_REGIONS = 5
 TARGET_MSV = 2.5
 _REGION = (np.arange(256) * N_REGIONS) // 256  # region index of each 8-bit value
-
-
-def _num(name: str, v, lo: float | None = None, hi: float | None = None, lo_open=False, hi_open=False) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v):
-        raise ParameterError(f"{name} must be a finite number, got {v!r}")
-    v = float(v)
-    if lo is not None and (v < lo or (lo_open and v == lo)):
-        raise ParameterError(f"{name} must be {'>' if lo_open else '>='} {lo}, got {v}")
-    if hi is not None and (v > hi or (hi_open and v == hi)):
-        raise ParameterError(f"{name} must be {'<' if hi_open else '<='} {hi}, got {v}")
-    return v
 
 
 def mean_sample_value(image: np.ndarray, weights: np.ndarray | None = None) -> float:
@@ -110,6 +101,13 @@ class NavidController(Controller):
     """
 
     name = "navid"
+    TUNABLE = (
+        Tunable("target_msv", "MSV", "mean sample value the histogram is driven to (1..5, mid-grey 2.5)", 1.0, 5.0, True, True),
+        Tunable("dead_band", "MSV", "no correction while |MSV error| is below this", 0.0, 1.0, hi_open=True),
+        Tunable("k_exposure", "1", "proportional gain of the exposure loop", 0.0, lo_open=True),
+        Tunable("k_gain", "1", "proportional gain of the gain loop", 0.0, lo_open=True),
+        Tunable("ev_per_unit", "EV", "exposure change per published PI output unit", 0.0, 0.1, lo_open=True),
+    )
 
     def __init__(
         self,

@@ -1,6 +1,6 @@
 """Shim et al.: gradient-based exposure control (IROS 2014; IEEE TCSVT 2018), image only.
 
-Algorithm, per frame (baselines.md §2.2):
+Algorithm, per frame (summary in docs/baselines.md):
 
 1. Gamma-synthesised images ``I_γ = I^γ`` on ``I = Z / 255 ∈ [0, 1]`` for
    ``γ ∈ {1/1.9, 1/1.5, 1/1.2, 1, 1.2, 1.5, 1.9}``. **Convention: γ < 1 brightens** (I^γ > I),
@@ -20,8 +20,8 @@ Algorithm, per frame (baselines.md §2.2):
 
    * ``rule="2018"`` (default, nonlinear): ``R = d·tan{(2 − γ̂)·atan(1/d) − atan(1/d)} + 1``,
      ``T ← (1 + α·Kp·(R − 1))·T``, ``d = 0.1`` (so ``R(1) = 1``, ``R(1/1.9) ≈ 1.084``,
-     ``R(1.9) ≈ 0.607``). **Kp default 1.6** for this rule: the value the public 2018
-     re-implementation (vo-autoexpose) pairs with ``d = 0.1`` (baselines.md). With the 2014
+     ``R(1.9) ≈ 0.603``). **Kp default 1.6** for this rule: the value the public 2018
+     re-implementation (github.com/MIT-Bilab/vo-autoexpose) pairs with ``d = 0.1``. With the 2014
      gain 0.2 the brightening step would be at most 1.7 % per frame (R − 1 ≤ 0.084), which
      cannot follow any real lighting change.
    * ``rule="2014"`` (linear): ``T ← (1 + α·Kp·(1 − γ̂))·T``, **Kp default 0.2** (uzh, norlab
@@ -49,9 +49,11 @@ import math
 import cv2
 import numpy as np
 
+from ..checks import check_number as _num
 from ..errors import ParameterError
 from ..frames import Frame
-from .base import CameraLimits, Controller, ExposureCommand, check_number as _num
+from .base import CameraLimits, Controller, ExposureCommand
+from .base import Tunable
 
 #: The published gamma set (Shim 2014/2018), convention I_γ = I^γ (γ < 1 brightens).
 GAMMAS = np.array([1 / 1.9, 1 / 1.5, 1 / 1.2, 1.0, 1.2, 1.5, 1.9])
@@ -133,6 +135,10 @@ class ShimController(Controller):
     """
 
     name = "shim"
+    TUNABLE = (
+        Tunable("kp", "1", "proportional gain of the exposure update", 0.0, 10.0, True, True),
+        Tunable("d", "1", "damping of the 2018 update rule", 0.0, lo_open=True),
+    )
 
     def __init__(
         self,

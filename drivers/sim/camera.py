@@ -2,14 +2,23 @@
 
 :class:`SimRig` renders the scene at sample times (every ``sample_us``, refined where the light
 changes fast), turns consecutive samples into DVS events once, and runs one APS exposure schedule
-per camera. It yields ``(camera, packet)`` pairs in time order; ``camera`` is ``None`` for the
-shared event batches. :class:`SimulatedCamera` is the single-camera view implementing the
-:class:`~necviz.drivers.source.Source` interface.
+per camera. It is a :class:`~necviz.drivers.source.Source`: :meth:`SimRig.packets` yields
+``(camera, packet)`` pairs in time order, ``camera`` being ``None`` for the shared event batches.
+A single simulated camera is a rig of one (``SimRig(scene, ["camera"])``).
 
 Closed loop: ``set_exposure(name, exposure_us, gain)`` records a command at the time of the last
 packet delivered (or ``issue_time_us``); it takes effect at the first exposure that starts at
-least ``latency_us`` after it was issued. Both the commanded values (``commands[name]``) and the
+least ``latency_us`` after it was issued. Both the commanded values (``commands(name)``, the last
+:data:`COMMAND_HISTORY` of them) and the
 applied ones (every :class:`Frame`) are kept.
+
+Ground truth: every frame carries ``frame.truth``, a :class:`~necviz.core.metrics.GroundTruth` with
+what a camera cannot know — the exposure-averaged irradiance of each pixel the frame was formed
+from, the scene's lighting trace (mean ``ln L`` at every rendered sample) from ``2 frame
+intervals + latency`` before the exposure to its end, the camera's limits and command latency,
+the scene's lighting changes and, where the scene has one, the pedestrian's box. Attaching it
+reads the simulation and changes nothing in it: the frames and events are the same with
+``truth=False``.
 """
 
 from __future__ import annotations
@@ -26,10 +35,14 @@ from ...core.crf import CameraResponse, default_davis346
 from ...core.errors import ParameterError
 from ...core.events import EVENT_DTYPE
 from ...core.frames import ExposureMarker, Frame
+from ...core.metrics import TRACE_STEP, GroundTruth
 from ..source import CommandRecord
 from .aps import ApsParams, expose, integrate_samples
 from .dvs import DvsParams, EventSimulator
 from .scene import Scene
+
+#: commands kept per camera once applied or superseded (``SimRig.commands``); older ones are forgotten
+COMMAND_HISTORY = 4096
 
 # at equal times: an exposure ends, then a frame is read out, then the next exposure starts
 _END, _FRAME, _START = 0, 1, 2
@@ -41,7 +54,8 @@ class _CamState:
     exposure_us: float
     gain: float
     rng: np.random.Generator
-    commands: list = field(default_factory=list)
+    pending: list = field(default_factory=list)  # commands not yet old enough to apply (a few at most)
+    history: deque = field(default_factory=lambda: deque(maxlen=COMMAND_HISTORY))  # applied or superseded
     seq: int = 0
     frames: int = 0
 
@@ -59,12 +73,13 @@ class SimRig:
         down to ``min_sample_us`` (ESIM-style adaptive sampling).
     batch_us : event batches are delivered at least this often.
     first_start_us : start of every camera's first exposure.
+    truth : attach :class:`~necviz.core.metrics.GroundTruth` to every frame (``frame.truth``).
     """
 
     def __init__(self, scene: Scene, cameras, dvs: DvsParams | None = None, aps: ApsParams | None = None,
                  crf: CameraResponse | None = None, seed: int = 0, sample_us: int = 2_000,
                  refine_log: float = 0.12, min_sample_us: int = 60, batch_us: int = 1_000,
-                 first_start_us: int = 1_000):
+                 first_start_us: int = 1_000, truth: bool = True):
         if not isinstance(scene, Scene):
             raise ParameterError("SimRig needs a Scene (see necviz.drivers.sim.scenes)")
         if isinstance(cameras, (list, tuple)):
@@ -85,6 +100,12 @@ class SimRig:
         self.sample_us, self.refine_log, self.min_sample_us = sample_us, float(refine_log), min_sample_us
         self.batch_us = batch_us
         self.first_start_us = int(first_start_us)
+        self.truth = bool(truth)
+        # the lighting trace kept for ground truth: (sample time, mean ln L on the TRACE_STEP grid)
+        self._trace_t: deque = deque()
+        self._trace_l: deque = deque()
+        self._changes = tuple(scene.changes)
+        self._pedestrian = getattr(scene, "pedestrian_box", None)
         self.cams: dict[str, _CamState] = {}
         for i, (name, init) in enumerate(cameras.items()):
             exp_us, gain = init if init is not None else (self._default_exposure(), 1.0)
@@ -109,31 +130,46 @@ class SimRig:
         if gain < 1.0:
             raise ParameterError(f"camera {name!r}: gain must be >= 1, got {gain}")
 
+    @property
+    def cameras(self) -> tuple[str, ...]:
+        return tuple(self.cams)
+
     # -- commands -------------------------------------------------------------------------------
-    def set_exposure(self, name: str, exposure_us: float, gain: float = 1.0, issue_time_us: int | None = None) -> None:
-        """Command camera ``name``; applied at its first exposure starting >= issue time + latency."""
+    def set_exposure(self, name: str, exposure_us: float, gain: float = 1.0, *, issue_time_us: int | None = None) -> None:
+        """Command camera ``name``; applied at its first exposure starting >= issue time + latency.
+
+        The issue time is the time of the last packet delivered (``issue_time_us`` overrides it).
+        """
         if name not in self.cams:
             raise ParameterError(f"no simulated camera named {name!r} (have {', '.join(self.cams)})")
         self._check_setting(name, exposure_us, gain)
         t = self.now_us if issue_time_us is None else int(issue_time_us)
-        self.cams[name].commands.append(CommandRecord(t, float(exposure_us), float(gain)))
+        self.cams[name].pending.append(CommandRecord(t, float(exposure_us), float(gain)))
 
     def commands(self, name: str) -> list[CommandRecord]:
-        return list(self.cams[name].commands)
+        """The camera's commands, oldest first: the last :data:`COMMAND_HISTORY` applied or
+        superseded ones (``applied_start_us`` set on those that took effect), then those pending."""
+        cam = self.cams[name]
+        return [*cam.history, *cam.pending]
 
     def _apply_pending(self, cam: _CamState, start_us: int) -> None:
-        """The setting for an exposure starting now: the newest command old enough (latency)."""
+        """The setting for an exposure starting now: the newest command old enough (latency).
+
+        The chosen command and every one before it leave the pending list (a later exposure can
+        only choose a newer one), so the work and memory per exposure stay constant.
+        """
+        pending = cam.pending
         chosen = None
-        for i in range(len(cam.commands) - 1, -1, -1):
-            c = cam.commands[i]
-            if c.issue_time_us + self.aps.latency_us <= start_us:
+        for i in range(len(pending) - 1, -1, -1):
+            if pending[i].issue_time_us + self.aps.latency_us <= start_us:
                 chosen = i
                 break
         if chosen is None:
             return
-        c = cam.commands[chosen]
-        if c.applied_start_us is None:
-            cam.commands[chosen] = replace(c, applied_start_us=int(start_us))
+        c = pending[chosen]
+        cam.history.extend(pending[:chosen])  # superseded before they could apply
+        cam.history.append(replace(c, applied_start_us=int(start_us)))
+        del pending[: chosen + 1]
         cam.exposure_us = float(min(max(c.exposure_us, self.aps.exposure_min_us), self.aps.exposure_max_us))
         cam.gain = float(min(max(c.gain, 1.0), self.aps.gain_max))
 
@@ -158,9 +194,32 @@ class SimRig:
         """Exposure ``[s, e]`` of one camera, from the scene samples covering it."""
         lbar = integrate_samples(times, values, s, e)
         img = expose(lbar, e - s, gain, self.crf, self.aps, cam.rng)
-        frame = Frame(img, int(s), int(e), float(gain), cam.seq)
+        frame = Frame(img, int(s), int(e), float(gain), cam.seq, self._truth(lbar, s, e) if self.truth else None)
         cam.seq += 1
         return frame
+
+    @property
+    def truth_lookback_us(self) -> int:
+        """How far before an exposure start the lighting trace attached to a frame reaches."""
+        return 2 * self.aps.frame_interval_us + self.aps.latency_us
+
+    def _trace(self, t_us: int, log_l: np.ndarray) -> None:
+        if self.truth:
+            self._trace_t.append(int(t_us))
+            self._trace_l.append(float(log_l[::TRACE_STEP, ::TRACE_STEP].mean(dtype=np.float64)))
+
+    def _truth(self, lbar: np.ndarray, s: int, e: int) -> GroundTruth:
+        """The frame's ground truth (reads the simulation, changes nothing)."""
+        tt = np.fromiter(self._trace_t, np.int64, len(self._trace_t))
+        ll = np.fromiter(self._trace_l, np.float64, len(self._trace_l))
+        i0 = max(int(np.searchsorted(tt, s - self.truth_lookback_us, side="right")) - 1, 0)
+        i1 = int(np.searchsorted(tt, e, side="left")) + 1
+        box = None
+        if self._pedestrian is not None:
+            box = self._pedestrian((s + e) / 2)
+        a = self.aps
+        return GroundTruth(lbar, self.crf, tt[i0:i1], ll[i0:i1], float(a.latency_us), float(a.exposure_min_us),
+                           float(a.exposure_max_us), float(a.gain_max), float(a.readout_us), self._changes, box)
 
     def packets(self):
         """Yield ``(camera name or None, packet)`` in time order until the scene ends."""
@@ -168,6 +227,9 @@ class SimRig:
         l_prev = self.scene.log_irradiance(0)
         self.samples_rendered += 1
         dvs.reset(l_prev, 0)
+        self._trace_t.clear()
+        self._trace_l.clear()
+        self._trace(0, l_prev)
         buf_t: deque = deque([0])
         buf_l: deque = deque([np.exp(l_prev)])
         held = np.zeros(0, EVENT_DTYPE)
@@ -190,6 +252,7 @@ class SimRig:
                     samples: list = []
                     l_prev = self._sample(t_rendered, l_prev, target, samples)
                     for ts, ls in samples:
+                        self._trace(ts, ls)
                         pending.append((ts, pool.submit(dvs.step, ls, ts)))
                         buf_t.append(ts)
                         buf_l.append(np.exp(ls))
@@ -240,29 +303,13 @@ class SimRig:
                 while len(buf_t) > 2 and buf_t[1] <= oldest:
                     buf_t.popleft()
                     buf_l.popleft()
+                keep = oldest - self.truth_lookback_us  # the trace reaches a look-back further
+                while len(self._trace_t) > 2 and self._trace_t[1] <= keep:
+                    self._trace_t.popleft()
+                    self._trace_l.popleft()
                 t0 = t1
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
 
-
-class SimulatedCamera:
-    """One simulated camera: the :class:`~necviz.drivers.source.Source` interface over a :class:`SimRig`."""
-
-    def __init__(self, scene: Scene, exposure_us: float | None = None, gain: float = 1.0, **rig_kwargs):
-        init = None if exposure_us is None else (exposure_us, gain)
-        self.rig = SimRig(scene, {"camera": init}, **rig_kwargs)
-        self.sensor = scene.sensor
-
-    def __iter__(self):
-        for _, packet in self.rig.packets():
-            yield packet
-
-    def set_exposure(self, exposure_us: float, gain: float = 1.0, issue_time_us: int | None = None) -> None:
-        self.rig.set_exposure("camera", exposure_us, gain, issue_time_us)
-
-    @property
-    def commands(self) -> list[CommandRecord]:
-        return self.rig.commands("camera")
-
     def close(self) -> None:
-        pass
+        """Nothing to release: the simulation ends with its generator."""

@@ -63,6 +63,7 @@ from dataclasses import dataclass, fields, replace
 import numba as nb
 import numpy as np
 
+from ...core.checks import check_number
 from ...core.errors import ParameterError
 from ...core.events import EVENT_DTYPE
 from ...core.sensor import SensorGeometry
@@ -72,19 +73,6 @@ DARK_FLOOR = 20.0 / 255.0  # v2e's (I + 20) / 275: bandwidth floor 20/275 = 0.07
 SHOT_BRIGHT_FACTOR = 0.25  # v2e SHOT_NOISE_INTEN_FACTOR: shot rate at full intensity / dark rate
 SNAP = 1e-7  # the low-pass output snaps to its input within this (ln units)
 BLOCK = 256  # pixels per block of the static fast-path scan
-
-
-def _check_number(name, v, *, minimum=0.0, strict=False, allow_none=False):
-    if v is None and allow_none:
-        return
-    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
-        raise ParameterError(f"DvsParams.{name} must be a number, got {v!r}")
-    v = float(v)
-    if not math.isfinite(v):
-        raise ParameterError(f"DvsParams.{name} must be finite, got {v}")
-    if minimum is not None and (v <= minimum if strict else v < minimum):
-        op = ">" if strict else ">="
-        raise ParameterError(f"DvsParams.{name} must be {op} {minimum:g}, got {v:g}")
 
 
 @dataclass(frozen=True)
@@ -123,23 +111,26 @@ class DvsParams:
     max_event_rate: float | None = 12e6
 
     def __post_init__(self) -> None:
-        _check_number("c_on", self.c_on, minimum=THRESHOLD_MIN)
-        _check_number("c_off", self.c_off, minimum=THRESHOLD_MIN)
-        _check_number("sigma_threshold", self.sigma_threshold)
-        _check_number("refractory_us", self.refractory_us)
-        _check_number("cutoff_hz", self.cutoff_hz, allow_none=True)
-        _check_number("bandwidth_ref_log", self.bandwidth_ref_log, minimum=None)
-        _check_number("leak_hz", self.leak_hz)
-        _check_number("leak_cov_decades", self.leak_cov_decades)
-        _check_number("shot_noise_hz", self.shot_noise_hz)
-        _check_number("max_event_rate", self.max_event_rate, strict=True, allow_none=True)
+        def check(name, lo=None, hi=None, **kw):
+            check_number(f"DvsParams.{name}", getattr(self, name), lo, hi, **kw)
+
+        check("c_on", THRESHOLD_MIN)
+        check("c_off", THRESHOLD_MIN)
+        check("sigma_threshold", 0.0)
+        check("refractory_us", 0.0)
+        if self.cutoff_hz is not None:  # None: no low-pass filter
+            check("cutoff_hz", 0.0)
+        check("bandwidth_ref_log")
+        check("leak_hz", 0.0)
+        check("leak_cov_decades", 0.0, 2.0)
+        check("shot_noise_hz", 0.0)
+        if self.max_event_rate is not None:  # None: no ceiling
+            check("max_event_rate", 0.0, lo_open=True)
         if self.sigma_threshold > 0.5 * max(self.c_on, self.c_off) + 0.1:
             raise ParameterError(
                 f"DvsParams.sigma_threshold = {self.sigma_threshold:g} is not a mismatch of thresholds "
                 f"{self.c_on:g}/{self.c_off:g} (expected a few hundredths)"
             )
-        if self.leak_cov_decades > 2.0:
-            raise ParameterError(f"DvsParams.leak_cov_decades must be <= 2 decades, got {self.leak_cov_decades:g}")
 
     @classmethod
     def ideal(cls, c_on: float = 0.26, c_off: float = 0.24, **overrides) -> "DvsParams":

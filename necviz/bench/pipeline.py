@@ -32,6 +32,7 @@ from ..core.errors import ParameterError
 from ..core.events import EVENT_DTYPE
 from ..core.frames import ExposureMarker, Frame
 from ..core.sensor import DAVIS346
+from ..drivers.source import route
 
 C_ON, C_OFF = 0.26, 0.24
 RISE_US = 200_000  # half period of the triangle wave
@@ -68,6 +69,8 @@ class SyntheticStream:
     Exposure commands apply at the next exposure start (at most the frame period minus 1 ms).
     """
 
+    cameras = ("camera",)
+
     def __init__(self, events: np.ndarray, duration_s: float, fps: float = 50.0, batch_us: int = 1_000,
                  exposure_us: float = 2_000.0):
         self.sensor = DAVIS346
@@ -86,9 +89,13 @@ class SyntheticStream:
         grid = np.arange(0, self.duration_us + self.batch_us, self.batch_us, dtype=np.int64)
         self._cuts = np.searchsorted(events["t"], grid, side="left")
 
-    def set_exposure(self, exposure_us: float, gain: float = 1.0, issue_time_us: int | None = None) -> None:
+    def set_exposure(self, camera: str, exposure_us: float, gain: float = 1.0, *,
+                     issue_time_us: int | None = None) -> None:
         self._pending = (float(exposure_us), float(gain))
         self.commands += 1
+
+    def packets(self):
+        return route("camera", self)
 
     def close(self) -> None:
         pass
@@ -147,37 +154,35 @@ def _run_once(events, duration_s, fps, batch_us, sink_dir: Path | None, seed: in
     src = SyntheticStream(events, duration_s, fps, batch_us)
     limits = CameraLimits(10.0, src.period_us - 1_000, 8.0)
     ctrl = make_controller("nec", sensor=DAVIS346, limits=limits, exposure_us=src.exposure_us)
-    lane = Lane.build("camera", ctrl, DAVIS346)
-    sink = viewer = None
+    observers = []
+    rrd = None
     if sink_dir is not None:
         import rerun as rr
 
         from ..layouts import make_blueprint, style_series
         from ..sink import RerunSink
 
+        rrd = sink_dir / f"bench-{time.perf_counter_ns()}.rrd"
         rec = rr.RecordingStream("necviz-bench", recording_id=f"bench-{seed}")
-        rec.set_sinks(rr.FileSink(str(sink_dir / "bench.rrd")), default_blueprint=make_blueprint(
+        rec.set_sinks(rr.FileSink(str(rrd)), default_blueprint=make_blueprint(
             "live", ["camera"], DAVIS346.width, DAVIS346.height))
         style_series(rec, ["camera"])
-        sink = RerunSink(rec, ["camera"], DAVIS346.height, DAVIS346.width)
-        viewer = rec
-    pipe = Pipeline(src, [lane], sink)
+        sink = RerunSink(rec, ["camera"], DAVIS346.height, DAVIS346.width)  # the live defaults: decimated
+        sink.on_close = lambda: rr.disconnect(rec)
+        observers.append(sink)
+    pipe = Pipeline(src, [Lane("camera", ctrl)], observers=observers)
     t0 = time.perf_counter()
     pipe.run()
     stats = pipe.finish()
     wall = time.perf_counter() - t0  # includes draining the sink's queue and flushing the file
-    if viewer is not None:
-        import rerun as rr
-
-        rr.disconnect(viewer)
     lat = stats["lanes"]["camera"]
     out = {"wall_s": wall, "realtime_factor": duration_s / wall, "commands": lat["commands"],
            "frames": stats["frames"], "events": stats["events"],
            "latency_p50_us": lat["latency_p50_us"], "latency_p99_us": lat["latency_p99_us"],
-           "latency_max_us": max(lane.latencies_ns) / 1e3 if lane.latencies_ns else math.nan}
+           "latency_max_us": lat["latency_max_us"]}
     if "sink" in stats:
         out["sink"] = stats["sink"]
-        out["rrd_bytes"] = (sink_dir / "bench.rrd").stat().st_size
+        out["rrd_bytes"] = rrd.stat().st_size
     return out
 
 

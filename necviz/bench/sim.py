@@ -1,6 +1,6 @@
 """``necviz bench sim``: how fast the closed-loop simulator runs on this machine.
 
-Simulates ``tunnel_exit`` (default 5 s at 346x260) with several cameras sharing one scene and one
+Simulates a scenario (a preset or a TOML file; default ``tunnel_exit``, 5 s at 346x260) with several cameras sharing one scene and one
 event stream, each at its own fixed exposure, consuming every packet. Reports the real-time factor
 (simulated seconds per wall second; >= 1 is faster than real time), events generated, scene
 samples rendered and frames per camera. Prints a live progress line while it runs.
@@ -18,15 +18,23 @@ from ..core.errors import ParameterError
 from ..core.frames import Frame
 
 
-def run(duration_s=5.0, cameras=6, scenario="tunnel_exit", seed=0, json_path=None, out=...) -> dict:
-    """Run the simulator benchmark, print progress and a summary, optionally write JSON."""
+def run(duration_s=5.0, cameras=6, scene=None, json_path=None, out=...) -> dict:
+    """Run the simulator benchmark on ``scene`` (:class:`~necviz.options.SceneOptions`; its duration
+    defaults to ``duration_s``), print progress and a summary, optionally write JSON."""
     out = sys.stdout if out is ... else out
+    from dataclasses import replace
+
     from ..drivers.sim.camera import SimRig
-    from ..drivers.sim.scenes import make_scenario
+    from ..options import SceneOptions
 
     if not (0 < duration_s <= 600) or not (1 <= cameras <= 32):
         raise ParameterError("bench sim needs 0 < duration <= 600 s and 1..32 cameras")
-    scene = make_scenario(scenario, duration_us=int(duration_s * 1e6), seed=seed)
+    scene_options = scene or SceneOptions()
+    if scene_options.duration_s is None:
+        scene_options = replace(scene_options, duration_s=duration_s)
+    duration_s = scene_options.duration_s
+    scenario, seed = scene_options.name, scene_options.resolved_seed
+    scene = scene_options.build()
     exposures = np.geomspace(20, 15_000, cameras)
     rig = SimRig(scene, {f"cam{i}": (float(e), 1.0) for i, e in enumerate(exposures)}, seed=seed)
     frames = 0

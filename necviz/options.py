@@ -1,0 +1,313 @@
+"""Option objects for the library calls behind every command (:mod:`necviz.app`).
+
+A script or notebook builds one of these and calls a function (``necviz.run_demo(DemoOptions(...),
+ViewerOptions(save="demo.rrd"))``); the command line only maps its flags onto them. Every object
+checks its values when it is made (one-line :class:`~necviz.core.errors.ParameterError`); files
+are checked when a run starts, before anything is opened.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .core.checks import check_number
+from .core.control import CONTROLLERS
+from .core.errors import ParameterError
+
+#: NEC and the five baselines, as the demo shows them side by side.
+DEFAULT_CONTROLLERS = ("nec", "navid", "shim", "begin", "builtin", "fixed")
+#: What a comparison runs by default: NEC with and without its compensation, and the five baselines.
+COMPARE_CONTROLLERS = ("nec", "nec-raw", "navid", "shim", "begin", "builtin", "fixed")
+LAYOUT_NAMES = ("live", "inspect", "compare")
+
+
+def controller_kind(name: str) -> str:
+    """The registered controller behind a lane name: ``"nec@median"`` -> ``"nec"`` (a labelled variant)."""
+    return str(name).split("@", 1)[0]
+
+
+def parse_controllers(text) -> tuple[str, ...]:
+    """``"nec,navid"`` (or a sequence of names) -> checked names, each registered and given once.
+
+    A name may carry a label, ``KIND@LABEL`` (``nec@median``), to run several variants of one
+    controller side by side (each configured with ``--param nec@median.metering=median``).
+    """
+    names = [n.strip() for n in text.split(",") if n.strip()] if isinstance(text, str) else [str(n) for n in text]
+    unknown = [n for n in names if controller_kind(n) not in CONTROLLERS
+               or ("@" in n and not n.split("@", 1)[1].replace("-", "_").isidentifier())]
+    if not names or unknown:
+        raise ParameterError(f"unknown controller(s) {', '.join(unknown) or '(none given)'}; "
+                             f"available: {', '.join(sorted(CONTROLLERS))} (a variant: KIND@LABEL)")
+    if len(set(names)) != len(names):
+        raise ParameterError("each controller may appear once in --controllers")
+    return tuple(names)
+
+
+def parse_speed(text) -> float | None:
+    """``max`` (as fast as possible) -> None; ``1`` / ``x1`` real time; ``x4`` or ``4`` four times."""
+    if text is None or str(text).lower() in ("max", "fast", "0"):
+        return None
+    if isinstance(text, (int, float)) and not isinstance(text, bool):
+        v = float(text)
+    else:
+        try:
+            v = float(str(text).lower().removeprefix("x"))
+        except ValueError:
+            raise ParameterError(f"--speed must be 'max', a factor like 1 or x4, got {text!r}") from None
+    if not (math.isfinite(v) and 1e-3 <= v <= 1e4):
+        raise ParameterError(f"--speed must lie between x0.001 and x10000, got {text!r}")
+    return v
+
+
+def parse_setting(text: str, flag: str = "--set", dotted: bool = False) -> tuple[str, object]:
+    """``key=value`` (``--set``): the value read as TOML (``90``, ``[1.0, 2.5]``, ``"x"``), else as text.
+
+    ``dotted`` accepts ``name.key`` (``--param nec.goal=110``, ``--sim dvs.c_on=0.3``).
+    """
+    key, sep, value = str(text).partition("=")
+    key = key.strip()
+    ok = re.fullmatch(r"[A-Za-z_][\w-]*(@[\w-]+)?\.[A-Za-z_]\w*", key) is not None if dotted else key.isidentifier()
+    if not sep or not ok:
+        raise ParameterError(f"{flag} expects {'NAME.KEY' if dotted else 'KEY'}=VALUE, got {text!r}")
+    try:
+        return key, tomllib.loads(f"v = {value.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        return key, value.strip()
+
+
+def parse_params(items, flag: str = "--param") -> dict:
+    """``["nec.goal=110", "navid.target_msv=3"]`` -> ``{"nec": {"goal": 110}, "navid": {"target_msv": 3}}``."""
+    out: dict = {}
+    for text in items or ():
+        key, value = parse_setting(text, flag, dotted=True)
+        name, _, param = key.partition(".")
+        if not param:
+            raise ParameterError(f"{flag} expects NAME.KEY=VALUE, got {text!r}")
+        out.setdefault(name, {})[param] = value
+    return out
+
+
+@dataclass
+class SceneOptions:
+    """A simulated scene: a preset name or a TOML scenario file, a seed, a duration, overrides.
+
+    ``seed`` and ``duration_s`` ``None`` take the scenario file's values (or 0 and the preset's
+    own duration); ``params`` override the preset's parameters (``--set key=value``).
+    """
+
+    scenario: str = "tunnel_exit"
+    seed: int | None = None
+    duration_s: float | None = None
+    params: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        from .drivers.sim.scenes import SCENARIOS
+
+        self.scenario = str(self.scenario)
+        if self.scenario not in SCENARIOS and not self.is_file:
+            raise ParameterError(f"--scenario: {self.scenario!r} is neither a preset ({', '.join(sorted(SCENARIOS))}) "
+                                 "nor a .toml scenario file")
+        if self.seed is not None:
+            self.seed = check_number("--seed", self.seed, 0, 2**32 - 1, integer=True)
+        if self.duration_s is not None:
+            self.duration_s = check_number("--duration", self.duration_s, 0.0, 600.0, lo_open=True)
+        self.params = dict(self.params)
+
+    @property
+    def is_file(self) -> bool:
+        return self.scenario.endswith(".toml") or os.sep in self.scenario
+
+    def spec(self) -> dict:
+        """``{name, seed, duration_us, sensor, params}``: the file's (read and checked) or the preset's."""
+        if self.is_file:
+            from .drivers.sim.scenes import load_scenario_spec
+
+            return load_scenario_spec(self.scenario)
+        return {"name": self.scenario, "seed": None, "duration_us": None, "sensor": None, "params": {},
+                "source": self.scenario}
+
+    @property
+    def name(self) -> str:
+        return self.spec()["name"] if self.is_file else self.scenario
+
+    @property
+    def resolved_seed(self) -> int:
+        if self.seed is not None:
+            return self.seed
+        seed = self.spec()["seed"]
+        return 0 if seed is None else int(seed)
+
+    def build(self):
+        """The :class:`~necviz.drivers.sim.scene.Scene` these options describe."""
+        from .drivers.sim.scenes import make_scenario
+
+        spec = self.spec()
+        kw = {"sensor": spec["sensor"]} if spec["sensor"] is not None else {}
+        duration_us = int(round(self.duration_s * 1e6)) if self.duration_s is not None else spec["duration_us"]
+        try:
+            return make_scenario(spec["name"], duration_us=duration_us, seed=self.resolved_seed, **kw,
+                                 **{**spec["params"], **self.params})
+        except ParameterError as e:
+            raise ParameterError(f"{self.scenario}: {e}" if self.is_file else str(e)) from None
+
+
+@dataclass
+class ViewerOptions:
+    """Where the Rerun data goes (as the flags of Rerun's own examples); combine freely.
+
+    With nothing set: a native viewer when a display exists, else a file
+    ``necviz-<command>-<time>.rrd``. ``serve`` binds the web viewer and its data port to ``bind``
+    (127.0.0.1 unless the user asks otherwise). ``force`` lets ``save`` replace an existing file.
+    """
+
+    spawn: bool = False
+    serve: bool = False
+    connect: str | None = None
+    save: str | os.PathLike | None = None
+    force: bool = False
+    layout: str | None = None
+    memory_limit: str = "1GB"
+    bind: str = "127.0.0.1"
+    grpc_port: int = 9876
+    web_port: int = 9090
+
+    def __post_init__(self):
+        if self.layout is not None and self.layout not in LAYOUT_NAMES:
+            raise ParameterError(f"unknown layout {self.layout!r}; available: {', '.join(LAYOUT_NAMES)}")
+        for label in ("grpc_port", "web_port"):
+            setattr(self, label, check_number(label, getattr(self, label), 1, 65535, integer=True))
+
+    @property
+    def watched(self) -> bool:
+        return bool(self.spawn or self.serve or self.connect)
+
+
+@dataclass
+class ShowOptions:
+    """How a dashboard run paces and draws (shared by demo, replay and live)."""
+
+    speed: object = "auto"  # "auto": real time when a viewer watches, as fast as possible into a file
+    event_window_ms: float = 33.3
+    event_points: int = 0
+
+    def __post_init__(self):
+        if self.speed != "auto":
+            self.speed = parse_speed(self.speed)
+        self.event_window_ms = check_number("--event-window-ms", self.event_window_ms, 0.1, 10_000)
+        self.event_points = check_number("--event-points", self.event_points, 0, 10_000_000, integer=True)
+
+
+@dataclass
+class TuneOptions:
+    """Live tuning: a prompt on the terminal and/or a watched file."""
+
+    prompt: bool = True
+    file: str | os.PathLike | None = None
+
+
+@dataclass
+class DemoOptions:
+    """``necviz demo``: every controller drives its own simulated camera; one scene, side by side."""
+
+    scene: SceneOptions = field(default_factory=SceneOptions)
+    controllers: tuple = DEFAULT_CONTROLLERS
+    record: str | os.PathLike | None = None
+    force: bool = False
+    profile: str | os.PathLike | None = None
+    show: ShowOptions = field(default_factory=ShowOptions)
+    tune: TuneOptions = field(default_factory=TuneOptions)
+
+    def __post_init__(self):
+        self.controllers = parse_controllers(self.controllers)
+
+
+@dataclass
+class ReplayOptions:
+    """``necviz replay FILE``: a recording through P-TEDI and a controller in open loop."""
+
+    file: str | os.PathLike = ""
+    start_s: float | None = None
+    end_s: float | None = None
+    exposure_us: float | None = None
+    format: str | None = None
+    controller: str = "nec"
+    json: str | os.PathLike | None = None
+    force: bool = False
+    profile: str | os.PathLike | None = None
+    show: ShowOptions = field(default_factory=ShowOptions)
+
+    def __post_init__(self):
+        if not str(self.file):
+            raise ParameterError("replay needs a recording file")
+        (self.controller,) = parse_controllers([self.controller])
+        for label, v in (("--start", self.start_s), ("--end", self.end_s)):
+            if v is not None:
+                check_number(label, v, 0.0)
+        if self.start_s is not None and self.end_s is not None and self.end_s <= self.start_s:
+            raise ParameterError(f"--end ({self.end_s} s) must come after --start ({self.start_s} s)")
+        if self.exposure_us is not None:
+            self.exposure_us = check_number("--exposure-us", self.exposure_us, 0.0, lo_open=True)
+
+
+@dataclass
+class LiveOptions:
+    """``necviz live``: a DAVIS camera (USB or emulated) with a controller closing the loop."""
+
+    device: str = "usb"
+    serial: str | None = None
+    reconnect: bool = False
+    controller: str = "nec"
+    duration_s: float | None = None
+    scene: SceneOptions = field(default_factory=SceneOptions)  # the emulated device's scene
+    emulate_unplug_s: float | None = None
+    record: str | os.PathLike | None = None
+    force: bool = False
+    profile: str | os.PathLike | None = None
+    history: int = 3_000  # frames of per-frame telemetry kept (a live run may last hours)
+    show: ShowOptions = field(default_factory=ShowOptions)
+    tune: TuneOptions = field(default_factory=TuneOptions)
+
+    def __post_init__(self):
+        if self.device not in ("usb", "emulated"):
+            raise ParameterError(f"--device must be usb or emulated, got {self.device!r}")
+        (self.controller,) = parse_controllers([self.controller])
+        if self.duration_s is not None:
+            self.duration_s = check_number("--duration", self.duration_s, 0.0, 24 * 3600, lo_open=True)
+        if self.emulate_unplug_s is not None:
+            self.emulate_unplug_s = check_number("--emulate-unplug", self.emulate_unplug_s, 0.0, lo_open=True)
+        self.history = check_number("history", self.history, 1, integer=True)
+
+
+@dataclass
+class CompareOptions:
+    """``necviz compare``: every controller in closed loop on one simulated scene, over seeds."""
+
+    scene: SceneOptions = field(default_factory=SceneOptions)
+    controllers: tuple = COMPARE_CONTROLLERS
+    seeds: int = 1
+    sift: bool = True
+    json: str | os.PathLike | None = None
+    save: str | os.PathLike | None = None
+    force: bool = False
+    profile: str | os.PathLike | None = None
+    controller_params: dict = field(default_factory=dict)  # {controller: {param: value}} (--param NAME.KEY=VALUE)
+    sim: dict = field(default_factory=dict)  # simulator overrides {"dvs.c_on": 0.3, ...} (--sim KEY=VALUE)
+
+    def __post_init__(self):
+        self.controllers = parse_controllers(self.controllers)
+        self.seeds = check_number("--seeds", self.seeds, 1, 10_000, integer=True)
+        self.controller_params = {k: dict(v) for k, v in (self.controller_params or {}).items()}
+        unknown = set(self.controller_params) - set(self.controllers)
+        if unknown:
+            raise ParameterError(f"--param names {', '.join(sorted(unknown))}, which is not among --controllers")
+        self.sim = dict(self.sim or {})
+
+
+__all__ = ["controller_kind", "COMPARE_CONTROLLERS", "CompareOptions", "DEFAULT_CONTROLLERS", "DemoOptions", "LAYOUT_NAMES", "LiveOptions", "ReplayOptions",
+           "SceneOptions", "ShowOptions", "TuneOptions", "ViewerOptions", "parse_controllers", "parse_setting",
+           "parse_speed"]

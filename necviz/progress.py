@@ -1,0 +1,50 @@
+"""A live progress line for long work: rewritten in place on a terminal, a line now and then otherwise.
+
+On a terminal the line is redrawn (``\\r``) every ``interval_s``; when the output is a file or a
+pipe (a log, CI) a complete line is written every ``log_interval_s`` instead, so logs stay readable.
+"""
+
+from __future__ import annotations
+
+import time
+
+
+class LiveLine:
+    def __init__(self, out, interval_s: float = 0.5, log_interval_s: float = 10.0):
+        self.out = out
+        self.tty = bool(out is not None and hasattr(out, "isatty") and out.isatty())
+        self.interval = interval_s if self.tty else log_interval_s
+        self._next = time.perf_counter() + (0 if self.tty else self.interval)
+        self._width = 0
+
+    def show(self, text: str, force: bool = False) -> None:
+        """Show ``text`` if it is time (or ``force``)."""
+        if self.out is None:
+            return
+        now = time.perf_counter()
+        if not force and now < self._next:
+            return
+        self._next = now + self.interval
+        if self.tty:
+            pad = max(0, self._width - len(text))
+            print("\r" + text + " " * pad, end="", file=self.out, flush=True)
+            self._width = len(text)
+        else:
+            print(text, file=self.out, flush=True)
+
+    def clear(self) -> None:
+        """Remove the in-place line (terminal only)."""
+        if self.tty and self._width:
+            print("\r" + " " * self._width + "\r", end="", file=self.out, flush=True)
+            self._width = 0
+
+    def done(self, text: str) -> None:
+        """The final state, as a complete line."""
+        if self.out is None:
+            return
+        if self.tty:
+            self.show(text, force=True)
+            print(file=self.out, flush=True)
+            self._width = 0
+        else:
+            print(text, file=self.out, flush=True)

@@ -1,0 +1,188 @@
+"""The package and its docs stand on their own: no citation of the team's private notes, no broken links.
+
+* Nothing under ``core/``, ``drivers/``, ``necviz/``, ``layouts/``, ``docs/``, ``examples/`` or in
+  ``README.md`` mentions the private ``shared/reference`` folder or one of its note files by name
+  (a user who clones or installs necviz does not have them). A name that is also a page of
+  ``docs/`` (``docs/baselines.md``, ``docs/file-formats.md``) is fine when it points at that page.
+* Every relative link in ``docs/*.md`` and ``README.md`` resolves to a file or folder inside the
+  repository, and every ``#anchor`` into a Markdown file names one of its headings (GitHub's slug
+  rule).
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs"
+SCOPE = ("core", "drivers", "necviz", "layouts", "docs", "examples", "README.md")
+NOTE_FILES = ("nec-method.md", "davis-usb.md", "baselines.md", "file-formats.md", "simulation.md", "rerun.md")
+PRIVATE_FOLDER = "shared/reference"
+_NOTE_RE = re.compile(r"[\w./-]*(?:" + "|".join(re.escape(n) for n in NOTE_FILES) + r")")
+_LINK_RE = re.compile(r"\[[^\]\n]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
+_SKIP_DIRS = {"__pycache__", ".pytest_cache"}
+
+
+def scanned_files() -> list[Path]:
+    out = []
+    for name in SCOPE:
+        p = ROOT / name
+        if p.is_file():
+            out.append(p)
+        elif p.is_dir():
+            out += [f for f in sorted(p.rglob("*"))
+                    if f.is_file() and not _SKIP_DIRS.intersection(f.relative_to(ROOT).parts)]
+    return out
+
+
+def _is_docs_page(token: str, where: Path) -> bool:
+    """``token`` (a path ending in a note's file name) names an existing page of ``docs/``."""
+    for base in (where.parent, ROOT):
+        target = (base / token).resolve()
+        if target.is_file() and target.is_relative_to(DOCS):
+            return True
+    return False
+
+
+def private_citations(text: str, where: Path) -> list[str]:
+    """Mentions of the private folder or of a note file that is not a ``docs/`` page, one per hit."""
+    hits = []
+    for lineno, line in enumerate(text.splitlines(), 1):
+        if PRIVATE_FOLDER in line:
+            hits.append(f"{lineno}: {line.strip()}")
+            continue
+        for m in _NOTE_RE.finditer(line):
+            token = m.group(0)
+            if Path(token).name in NOTE_FILES and not _is_docs_page(token, where):
+                hits.append(f"{lineno}: {line.strip()}")
+                break
+    return hits
+
+
+def _unfenced(text: str) -> list[str]:
+    """Lines of a Markdown text, blank inside fenced code blocks."""
+    out, fenced = [], False
+    for line in text.splitlines():
+        if line.lstrip().startswith("```"):
+            fenced = not fenced
+            out.append("")
+            continue
+        out.append("" if fenced else line)
+    return out
+
+
+def slug(heading: str) -> str:
+    """GitHub's anchor for a heading: lower case, punctuation dropped, spaces to hyphens."""
+    h = re.sub(r"`", "", heading.strip().lower())
+    h = re.sub(r"[^\w\- ]", "", h)
+    return h.replace(" ", "-")
+
+
+def anchors(md: Path) -> set[str]:
+    seen: dict[str, int] = {}
+    out = set()
+    for line in _unfenced(md.read_text(encoding="utf-8")):
+        m = re.match(r"^(#{1,6})\s+(.*?)\s*#*\s*$", line)
+        if not m:
+            continue
+        s = slug(m.group(2))
+        n = seen.get(s, 0)
+        seen[s] = n + 1
+        out.add(s if n == 0 else f"{s}-{n}")
+    return out
+
+
+def relative_links(md: Path) -> list[str]:
+    links = []
+    for line in _unfenced(md.read_text(encoding="utf-8")):
+        for m in _LINK_RE.finditer(re.sub(r"`[^`]*`", "", line)):  # not inside inline code
+            target = m.group(1)
+            if not re.match(r"^[a-z][a-z0-9+.-]*:", target, re.I):  # not http:, mailto:, ...
+                links.append(target)
+    return links
+
+
+def broken_links(md: Path, root: Path = ROOT) -> list[str]:
+    bad = []
+    for target in relative_links(md):
+        path, _, frag = target.partition("#")
+        dest = (md.parent / path).resolve() if path else md
+        if not dest.is_relative_to(root):
+            bad.append(f"{target}: points outside the repository")
+        elif not dest.exists():
+            bad.append(f"{target}: no such file")
+        elif frag and dest.suffix == ".md" and frag not in anchors(dest):
+            bad.append(f"{target}: no heading #{frag} in {dest.relative_to(root)}")
+    return bad
+
+
+def link_sources() -> list[Path]:
+    return [ROOT / "README.md", *sorted(DOCS.glob("*.md"))]
+
+
+# -- the checker itself ------------------------------------------------------------------------------
+
+
+def test_checker_flags_private_citations_and_accepts_docs_pages():
+    here = ROOT / "core" / "x.py"
+    assert private_citations("Facts from ``../shared/reference/davis-usb.md`` §2.", here)
+    assert private_citations("see shared/reference for details", here)
+    assert private_citations("sign per nec-method.md", here)
+    assert private_citations("(baselines.md §2.3)", here)  # the note, not the docs page
+    assert private_citations("layout: ../shared/reference/file-formats.md", here)
+    assert not private_citations("summary in docs/baselines.md and docs/file-formats.md", here)
+    assert not private_citations("see docs/method.md; simulation results", here)
+    assert not private_citations("[file formats](file-formats.md)", DOCS / "README.md")
+
+
+def test_checker_finds_broken_links(tmp_path):
+    root = tmp_path.resolve()
+    (root / "docs").mkdir()
+    (root / "docs" / "a.md").write_text("# Title\n\n## The sign (Eq. 5)\n", encoding="utf-8")
+    md = root / "docs" / "index.md"
+    md.write_text("[ok](a.md) [ok](a.md#the-sign-eq-5) [web](https://example.org/x.md) [self](#top)\n"
+                  "# Top\n```\n[not a link](nowhere.md)\n```\n`[code](nowhere.md)`\n", encoding="utf-8")
+    assert broken_links(md, root) == []
+    md.write_text("[gone](b.md) [anchor](a.md#no-such) [out](../../x.md)\n", encoding="utf-8")
+    assert [b.split(":")[0] for b in broken_links(md, root)] == ["b.md", "a.md#no-such", "../../x.md"]
+
+
+def test_slugs_follow_github():
+    assert slug("TEDI (Eq. 5–6) and its calibration (Eq. 7)") == "tedi-eq-56-and-its-calibration-eq-7"
+    assert slug("Image forms: `paper` or `mean_log`") == "image-forms-paper-or-mean_log"
+
+
+# -- the repository -----------------------------------------------------------------------------------
+
+
+def test_scope_is_scanned():
+    files = {f.relative_to(ROOT).as_posix() for f in scanned_files()}
+    for must in ("README.md", "core/ptedi.py", "drivers/davis/protocol.py", "docs/method.md"):
+        assert must in files
+
+
+@pytest.mark.parametrize("path", scanned_files(), ids=lambda p: p.relative_to(ROOT).as_posix())
+def test_no_citation_of_the_private_reference_notes(path):
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        pytest.skip("binary file")
+    hits = private_citations(text, path)
+    assert not hits, f"{path.relative_to(ROOT)} cites the private reference notes:\n" + "\n".join(hits)
+
+
+def test_docs_pages_exist_and_the_index_links_every_page():
+    pages = {p.name for p in DOCS.glob("*.md")}
+    assert {"README.md", "method.md", "baselines.md", "davis-protocol.md", "file-formats.md",
+            "simulator.md"} <= pages
+    linked = {t.partition("#")[0] for t in relative_links(DOCS / "README.md")}
+    assert pages - {"README.md"} <= linked
+    assert any(t.startswith("docs/") for t in relative_links(ROOT / "README.md"))
+
+
+@pytest.mark.parametrize("md", link_sources(), ids=lambda p: p.relative_to(ROOT).as_posix())
+def test_relative_links_resolve(md):
+    assert not broken_links(md), f"{md.relative_to(ROOT)}: " + "; ".join(broken_links(md))

@@ -1,0 +1,56 @@
+"""``--serve`` listens on 127.0.0.1 only (web page and data port) unless ``--bind`` says otherwise."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+
+import psutil
+import pytest
+
+from viewer_check import free_port
+
+
+def listening(proc: psutil.Process) -> set[tuple[str, int]]:
+    pids = {proc.pid, *(c.pid for c in proc.children(recursive=True))}
+    return {(c.laddr.ip, c.laddr.port) for c in psutil.net_connections(kind="inet")
+            if c.status == psutil.CONN_LISTEN and c.pid in pids}
+
+
+def serve(tmp_path, *extra) -> tuple[subprocess.Popen, set, str]:
+    grpc, web = free_port(), free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "necviz", "demo", "--duration", "0.2", "--controllers", "nec",
+                             "--serve", "--grpc-port", str(grpc), "--web-port", str(web), "--no-prompt", *extra],
+                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines = []
+    deadline = time.time() + 120
+    while time.time() < deadline:
+        line = proc.stdout.readline()
+        if not line:
+            break
+        lines.append(line)
+        if "still serving" in line:
+            break
+    text = "".join(lines)
+    assert "still serving" in text, text
+    socks = listening(psutil.Process(proc.pid))
+    proc.send_signal(signal.SIGINT)
+    proc.wait(30)
+    assert {grpc, web} <= {port for _, port in socks}, (socks, grpc, web)
+    return proc, socks, text
+
+
+def test_serve_listens_on_loopback_only(tmp_path):
+    proc, socks, text = serve(tmp_path)
+    assert socks and all(ip in ("127.0.0.1", "::1") for ip, _ in socks), socks
+    assert "http://127.0.0.1:" in text and "warning" not in text
+    assert proc.returncode == 0
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="reads the listening sockets of the process tree")
+def test_bind_exposes_it_on_purpose_and_warns(tmp_path):
+    _, socks, text = serve(tmp_path, "--bind", "0.0.0.0")
+    assert any(ip == "0.0.0.0" for ip, _ in socks), socks
+    assert "warning: serving on 0.0.0.0" in text
