@@ -353,7 +353,7 @@ def _add_optional(sub) -> None:
     """Commands that live in their own modules and bring their own parsers."""
     import importlib
 
-    for module in ("necviz.calibrate", "necviz.sweep.cli"):
+    for module in ("necviz.calibrate", "necviz.repair", "necviz.sweep.cli"):
         try:
             mod = importlib.import_module(module)
         except ModuleNotFoundError as e:

@@ -27,6 +27,7 @@ from .options import CompareOptions
 from .outputs import check_distinct, check_output, write_json
 from .pipeline import Pipeline
 from .runs import run_once
+from .progress import output
 
 METRICS = ("frames", "saturated_frames_50", "saturated_frames_10", "mean_over_exposed_rate",
            "mean_under_exposed_rate", "recovery_ms", "sift_inliers_mean", "sift_inliers_normalised_mean",
@@ -73,7 +74,7 @@ def _fmt(v, ci=None, digits=1):
 
 def run(options: CompareOptions | None = None, out=...) -> dict:
     """Run the comparison (``options.seeds`` runs from the scene's seed); print a table; write JSON / .rrd."""
-    out = sys.stdout if out is ... else out
+    out = output(out)
     options = options or CompareOptions()
     outputs = {"--json": options.json, "--save": options.save}
     check_distinct(outputs)

@@ -23,6 +23,7 @@ from .sink import RerunSink
 from .telemetry import Telemetry
 from .tuning import TuningConsole, TuningFile
 from .viewer import open_viewer
+from .progress import output
 
 
 @dataclass
@@ -81,7 +82,7 @@ def run_session(session: Session, out=..., stdin=None) -> dict:
     On any failure before the pipeline takes over, the source and the recorder are closed, so a
     recording stays readable and a camera does not keep streaming.
     """
-    out = sys.stdout if out is ... else out
+    out = output(out)
     try:
         return _run(session, out, stdin)
     except BaseException:
@@ -159,6 +160,9 @@ def _run(ss: Session, out, stdin) -> dict:
             raise
         finally:
             viewer.close()
+    source_stats = getattr(ss.source, "stats", None)
+    if isinstance(source_stats, dict) and "dropped_events" in source_stats:  # a camera: what the device lost
+        stats["source"] = {k: v for k, v in source_stats.items() if isinstance(v, (int, float))}
     print_summary(out, stats)
     if viewer.save_path is not None:
         print(f"  recording: {viewer.save_path} (open it with: rerun {viewer.save_path})", file=out)
@@ -196,6 +200,12 @@ def print_summary(out, stats: dict) -> None:
     for name, s in stats["lanes"].items():
         print(f"  {name:8s} {s['frames']:4d} frames, {s['saturated_frames_50']:3d} saturated, {s['commands']:5d} "
               f"commands, latency p50 {_us(s['latency_p50_us'])} p99 {_us(s['latency_p99_us'])}", file=out)
+    src = stats.get("source")
+    if src:
+        lost = src.get("dropped_events", 0)
+        print(f"  camera: {lost:,} events dropped by the device" + (" (its FIFO overflowed while the host was not "
+              "reading, or its bus was saturated)" if lost else "") + f"; {src.get('skipped_words', 0):,} stream "
+              f"words skipped; {src.get('reconnects', 0)} reconnects", file=out)
     sk = stats.get("sink")
     if sk:
         print(f"  viewer: {sk['frames_logged']} frames, {sk['event_images']} event images; dropped "

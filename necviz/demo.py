@@ -17,11 +17,12 @@ from .runs import build_rig
 from .dashboard import Session, preflight, run_session
 from .options import DemoOptions, ViewerOptions
 from .recorders import open_recorder
+from .progress import output
 
 
 def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None, out=..., stdin=None) -> dict:
     """Run the demo; returns the run's summary (see :func:`necviz.dashboard.run_session`)."""
-    out = sys.stdout if out is ... else out
+    out = output(out)
     options = options or DemoOptions()
     viewer, profile = preflight("demo", viewer, {"--record": options.record}, options.force,
                                 profile=options.profile)  # before anything starts

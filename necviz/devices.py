@@ -7,6 +7,7 @@ import sys
 from .core.errors import NecvizError
 from .drivers.davis import protocol as P
 from .drivers.davis.device import DeviceInfo, describe, usb_backend
+from .progress import output
 
 
 def list_devices(include_emulated: bool = True) -> list[DeviceInfo]:
@@ -29,7 +30,7 @@ def list_devices(include_emulated: bool = True) -> list[DeviceInfo]:
 
 def run(include_emulated: bool = True, out=...) -> int:
     """Print the table; return 0 if a real camera is usable, 1 if none is (the hint is printed)."""
-    out = sys.stdout if out is ... else out
+    out = output(out)
     try:
         usb_backend()
         libusb_error = ""

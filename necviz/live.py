@@ -20,12 +20,13 @@ from .dashboard import Session, preflight, run_session
 from .options import LiveOptions, ViewerOptions
 from .pipeline import Lane
 from .recorders import open_recorder
+from .progress import output
 
 LANE = "camera"
 
 
 def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None, out=..., stdin=None) -> dict:
-    out = sys.stdout if out is ... else out
+    out = output(out)
     options = options or LiveOptions()
     viewer, profile = preflight("live", viewer, {"--record": options.record}, options.force,
                                 profile=options.profile)  # before the camera is opened

@@ -6,12 +6,28 @@ pipe (a log, CI) a complete line is written every ``log_interval_s`` instead, so
 
 from __future__ import annotations
 
+import io
+import sys
 import time
+
+
+class _Silent(io.TextIOBase):
+    """Where ``out=None`` sends text: nowhere (``print(file=None)`` would go to the terminal)."""
+
+    def write(self, text: str) -> int:
+        return len(text)
+
+
+def output(out):
+    """The stream a command writes to: ``...`` (the default) is standard output, ``None`` silence."""
+    if out is ...:
+        return sys.stdout
+    return _Silent() if out is None else out
 
 
 class LiveLine:
     def __init__(self, out, interval_s: float = 0.5, log_interval_s: float = 10.0):
-        self.out = out
+        self.out = None if isinstance(out, _Silent) else out
         self.tty = bool(out is not None and hasattr(out, "isatty") and out.isatty())
         self.interval = interval_s if self.tty else log_interval_s
         self._next = time.perf_counter() + (0 if self.tty else self.interval)

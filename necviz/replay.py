@@ -24,6 +24,7 @@ from .dashboard import Session, preflight, run_session
 from .options import ReplayOptions, ViewerOptions
 from .outputs import write_json
 from .pipeline import Lane, packet_time_us
+from .progress import output
 
 LANE = "camera"
 
@@ -70,7 +71,7 @@ def summarise(stats: dict, lane: str = LANE) -> dict:
 
 
 def run(options: ReplayOptions, viewer: ViewerOptions | None = None, out=...) -> dict:
-    out = sys.stdout if out is ... else out
+    out = output(out)
     path = Path(options.file)
     viewer, profile = preflight("replay", viewer, {"--json": options.json}, options.force, inputs=[path],
                                 profile=options.profile)  # before anything is opened

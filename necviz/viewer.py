@@ -102,12 +102,25 @@ class Viewer:
     def stop_serving(self) -> None:
         if self.server is not None:
             rr.disconnect(self.rec)
-            self.server.terminate()
-            try:
-                self.server.wait(5)
-            except subprocess.TimeoutExpired:
-                self.server.kill()
+            stop_process_group(self.server)
             self.server = None
+
+
+def stop_process_group(proc: subprocess.Popen, timeout_s: float = 5.0) -> None:
+    """Stop a server started in its own session, and everything it started (the ``rerun`` wrapper
+    script runs the viewer binary as a child)."""
+    import signal
+
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        try:
+            os.killpg(proc.pid, sig)
+        except ProcessLookupError:
+            return
+        try:
+            proc.wait(timeout_s)
+            return
+        except subprocess.TimeoutExpired:
+            continue
 
 
 def open_viewer(options: ViewerOptions, command: str, blueprint, name: str) -> Viewer:
@@ -135,13 +148,14 @@ def _wait_listening(host: str, port: int, proc: subprocess.Popen, timeout_s: flo
     while time.monotonic() < deadline:
         if proc.poll() is not None:
             err = (proc.stderr.read() or b"").decode(errors="replace").strip().splitlines()
+            stop_process_group(proc)
             raise ParameterError(f"viewer: the web viewer server did not start ({err[-1] if err else 'no message'})")
         try:
             with socket.create_connection((target, port), timeout=0.2):
                 return
         except OSError:
             time.sleep(0.05)
-    proc.kill()
+    stop_process_group(proc)
     raise ParameterError(f"viewer: the web viewer server did not listen on {host}:{port} within {timeout_s:g} s")
 
 
@@ -149,7 +163,10 @@ def start_web_server(options: ViewerOptions) -> tuple[subprocess.Popen, str, str
     """``rerun --serve-web`` bound to ``options.bind``; returns the process, the data URI and the page URL."""
     cmd = [*_rerun_program(), "--serve-web", "--bind", options.bind, "--port", str(options.grpc_port),
            "--web-viewer-port", str(options.web_port), "--server-memory-limit", options.memory_limit]
-    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    # its own session: a Ctrl-C at the terminal stops necviz, which then disconnects and stops the server
+    # in that order (a server killed first makes the SDK's last flush fail loudly)
+    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            start_new_session=True)
     _wait_listening(options.bind, options.grpc_port, proc)
     _wait_listening(options.bind, options.web_port, proc)
     host = "127.0.0.1" if options.bind in ("0.0.0.0", "::", "localhost") else options.bind

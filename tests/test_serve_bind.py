@@ -35,9 +35,13 @@ def serve(tmp_path, *extra) -> tuple[subprocess.Popen, set, str]:
             break
     text = "".join(lines)
     assert "still serving" in text, text
-    socks = listening(psutil.Process(proc.pid))
+    parent = psutil.Process(proc.pid)
+    socks = listening(parent)
+    servers = parent.children(recursive=True)
     proc.send_signal(signal.SIGINT)
     proc.wait(30)
+    gone, alive = psutil.wait_procs(servers, timeout=10)
+    assert not alive, f"the web viewer server outlived necviz: {alive}"
     assert {grpc, web} <= {port for _, port in socks}, (socks, grpc, web)
     return proc, socks, text
 

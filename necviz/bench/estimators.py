@@ -30,6 +30,7 @@ from ..core.frames import ExposureMarker, Frame
 from ..core.ptedi import PeripheralEstimator
 from ..core.sensor import DAVIS346
 from ..core.stream import interleave
+from ..progress import output
 
 METHODS = ("EDI", "mEDI", "Fast-EDI", "TEDI", "P-TEDI", "floor")
 
@@ -91,7 +92,7 @@ def ptedi_task(packets, predict_at, crf, params):
 def run(events=10_000_000, duration_s=2.0, fps=50.0, exposure_us=5_000, repeats=3, edi_samples=64, seed=0,
         json_path=None, methods=METHODS, out=...) -> dict:
     """Run the benchmark, print a table, optionally write JSON; returns the result dict."""
-    out = sys.stdout if out is ... else out
+    out = output(out)
     if events < 1000 or duration_s <= 0 or not (1 <= fps <= 1000) or repeats < 1 or edi_samples < 1:
         raise ParameterError("benchmark needs events >= 1000, duration > 0, fps in 1..1000, repeats >= 1, edi samples >= 1")
     if exposure_us <= 0 or exposure_us >= 1e6 / fps:

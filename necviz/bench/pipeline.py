@@ -33,6 +33,7 @@ from ..core.events import EVENT_DTYPE
 from ..core.frames import ExposureMarker, Frame
 from ..core.sensor import DAVIS346
 from ..drivers.source import route
+from ..progress import output
 
 C_ON, C_OFF = 0.26, 0.24
 RISE_US = 200_000  # half period of the triangle wave
@@ -189,7 +190,7 @@ def _run_once(events, duration_s, fps, batch_us, sink_dir: Path | None, seed: in
 def run(duration_s: float = 10.0, rate_mev_s: float = 12.0, fps: float = 50.0, batch_us: int = 1_000, seed: int = 0,
         repeats: int = 3, json_path=None, out=...) -> dict:
     """Run the benchmark; print a table; optionally write JSON."""
-    out = sys.stdout if out is ... else out
+    out = output(out)
     if not (0 < duration_s <= 60):
         raise ParameterError(f"--duration must lie in (0, 60] s, got {duration_s}")
     if not (0 < rate_mev_s <= 50):

@@ -16,12 +16,13 @@ import numpy as np
 from .common import machine, write_result
 from ..core.errors import ParameterError
 from ..core.frames import Frame
+from ..progress import output
 
 
 def run(duration_s=5.0, cameras=6, scene=None, json_path=None, out=...) -> dict:
     """Run the simulator benchmark on ``scene`` (:class:`~necviz.options.SceneOptions`; its duration
     defaults to ``duration_s``), print progress and a summary, optionally write JSON."""
-    out = sys.stdout if out is ... else out
+    out = output(out)
     from dataclasses import replace
 
     from ..drivers.sim.camera import SimRig

@@ -1,0 +1,113 @@
+#!/usr/bin/env python
+"""Soak: does a long live session's memory grow? ``necviz live --device emulated`` for an hour of
+sensor time (faster than real time), its resident memory sampled as it runs.
+
+The session runs as a user would start it (a subprocess, the DAVIS driver on the emulated camera,
+NEC closing the loop, the Rerun sink writing a file, telemetry keeping its last frames), on a
+scene with lighting steps so the controller keeps commanding. The process's RSS (with its
+children) is sampled every ``--every`` seconds against the sensor time the session reports; after
+a warm-up (the first ``--warmup`` fraction of the run: Numba compilation, Rerun's buffers, the
+telemetry ring filling) the growth is the least-squares slope of RSS against sensor time, in MB per
+hour. Target: < 50 MB per hour.
+
+usage: python benchmarks/soak.py [--hours 1.0] [--scenario static_lab] [--json benchmarks/results/soak.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import psutil
+
+PROGRESS = re.compile(r"live:\s+([\d.]+)(?:/[\d.]+)? s sensor time")
+
+
+def rss_mb(proc: psutil.Process) -> float:
+    total = 0
+    for p in [proc, *proc.children(recursive=True)]:
+        try:
+            total += p.memory_info().rss
+        except psutil.NoSuchProcess:
+            pass
+    return total / 1e6
+
+
+def soak(hours: float, scenario: str, every_s: float, warmup: float, out) -> dict:
+    duration_s = hours * 3600
+    with tempfile.TemporaryDirectory(prefix="necviz-soak-") as tmp:
+        rrd = Path(tmp) / "soak.rrd"
+        cmd = [sys.executable, "-m", "necviz", "live", "--device", "emulated", "--scenario", scenario,
+               "--duration", str(duration_s), "--save", str(rrd), "--no-prompt"]
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1)
+        ps = psutil.Process(proc.pid)
+        sensor_s = [0.0]
+        lines: list[str] = []
+
+        def read():
+            for line in proc.stdout:
+                lines.append(line)
+                m = PROGRESS.search(line)
+                if m:
+                    sensor_s[0] = float(m.group(1))
+
+        reader = threading.Thread(target=read, daemon=True)
+        reader.start()
+        samples = []  # (wall s, sensor s, RSS MB)
+        t0 = time.perf_counter()
+        while proc.poll() is None:
+            time.sleep(every_s)
+            try:
+                samples.append((time.perf_counter() - t0, sensor_s[0], rss_mb(ps)))
+            except psutil.NoSuchProcess:
+                break
+            w, s, m = samples[-1]
+            print(f"\r  {w:7.0f} s wall · {s:8.1f}/{duration_s:.0f} s sensor · RSS {m:7.1f} MB", end="", file=out,
+                  flush=True)
+        reader.join(5)
+        print(file=out)
+        rrd_mb = rrd.stat().st_size / 1e6 if rrd.exists() else None
+    if proc.returncode != 0:
+        raise SystemExit(f"necviz live failed ({proc.returncode}):\n{''.join(lines[-20:])}")
+    arr = np.asarray(samples, float)
+    keep = arr[arr[:, 1] >= warmup * duration_s]
+    slope = float(np.polyfit(keep[:, 1] / 3600, keep[:, 2], 1)[0]) if len(keep) >= 3 else float("nan")
+    wall = float(arr[-1, 0]) if len(arr) else float("nan")
+    return {"scenario": scenario, "sensor_hours": hours, "wall_s": wall, "speed_x_real_time": duration_s / wall,
+            "samples": len(arr), "warmup_fraction": warmup, "rss_start_mb": float(keep[0, 2]) if len(keep) else None,
+            "rss_end_mb": float(arr[-1, 2]) if len(arr) else None, "rss_max_mb": float(arr[:, 2].max()),
+            "growth_mb_per_hour": slope, "target_mb_per_hour": 50.0, "rrd_mb": rrd_mb,
+            "trace": [[round(w, 1), round(s, 2), round(m, 1)] for w, s, m in samples]}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--hours", type=float, default=1.0, help="sensor time in hours (default 1)")
+    ap.add_argument("--scenario", default="static_lab", help="the emulated camera's scene (default static_lab)")
+    ap.add_argument("--every", type=float, default=5.0, help="seconds between RSS samples (default 5)")
+    ap.add_argument("--warmup", type=float, default=0.1, help="fraction of the run left out of the fit (default 0.1)")
+    ap.add_argument("--json", default=None, help="write the result as JSON")
+    args = ap.parse_args()
+    from necviz.bench.common import machine
+
+    res = soak(args.hours, args.scenario, args.every, args.warmup, sys.stderr)
+    res["machine"] = machine()
+    print(f"{res['sensor_hours']:g} h of sensor time in {res['wall_s']:.0f} s wall ({res['speed_x_real_time']:.1f}x "
+          f"real time); RSS {res['rss_start_mb']:.0f} -> {res['rss_end_mb']:.0f} MB after warm-up (max "
+          f"{res['rss_max_mb']:.0f}); growth {res['growth_mb_per_hour']:.1f} MB per hour (target < 50)")
+    if args.json:
+        Path(args.json).write_text(json.dumps(res, indent=1) + "\n")
+        print(f"wrote {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
