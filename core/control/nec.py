@@ -1,20 +1,76 @@
 """Neuromorphic exposure control: the paper's Eq. 2-4 driven by the P-TEDI estimate.
 
-With ``H = T K`` the exposure-gain product (µs) and ``ln P(now)`` from P-TEDI::
+With ``H = T K`` the exposure-gain product (µs), ``M(now)`` the metered log irradiance and
+``g*`` the goal log exposure::
 
-    H_opt = exp(g(I_opt) - ln P(now))           (Eq. 2)
+    H_opt = exp(g* - M(now))                     (Eq. 2)
     H_err = H_opt - H_i                          (Eq. 3, sign corrected: the paper's T_i - T_opt
     H_set = H_i + f_w(H_err) H_err                moves away from the target)
     K = max(1, H_set / T_max),  T = H_set / K    (Eq. 4), then clamped to the camera limits
 
 ``H_i`` is the product the camera applied to the last frame (Eq. 3's ``T_i``), so commands
 issued at high rate between frames do not compound the partial step ``f_w``.
+
+Metering (``metering=``): what ``M`` is a statistic of. Every mode is a statistic of the last
+frame's per-pixel exposure-averaged log irradiance ``ln Lbar(x) = g(Z(x)) - ln T - ln K``
+(Eq. 1), measured at the frame and carried between frames by P-TEDI's event-driven change:
+
+* ``paper``: the paper's ``M = ln P(now)``, P-TEDI's own estimate, anchored on ``g(mean Z)``
+  (Eq. 15): the log of the frame's *arithmetic* mean exposure, so a bright minority (sun in a
+  shadowed scene) pulls the whole exposure down.
+* ``median``: the censored median of ``ln Lbar``. Quantiles commute with the increasing ``g``,
+  so it is ``g`` of the median digit (interpolated inside its bin from a 256-bin histogram);
+  pixels clipped at the top (``Z >= valid_max``) are only known to lie at or above
+  ``g(valid_max - 1/2)``, those at the bottom (``Z <= valid_min``) at or below
+  ``g(valid_min + 1/2)``. When the median rank falls among clipped pixels the frame only bounds
+  it (:func:`censored_quantiles`).
+* ``percentile``: the median with highlight protection,
+  ``M = min(max(q_50, q_p - (g(Z_hl) - g*)), q_50 + (g* - g(Z_floor)))``: the exposure that puts
+  the median at the goal, shortened if that would put the ``p``-quantile above the digit
+  ``Z_hl``, but never so far that the median falls below ``Z_floor``.
+* ``zones``: the weighted median, over a grid of P-TEDI zones (each its own "large pixel" with its
+  own event count), of the zones' censored medians; weights fall off from the image centre
+  (Gaussian, σ = half the half-size); each zone is propagated by its own events.
+
+Propagation (exact for a global change of the light; to first order otherwise): for a frame
+exposed over ``[s, e]`` P-TEDI gives ``ln E_p(s)`` (the exposure-mean irradiance relative to
+``s``) and its own level ``ln P(s)`` after the frame. The statistic at ``s`` is
+``M(s) = M(ln Lbar) - ln E_p(s)`` and its offset from P-TEDI is ``δ = M(s) - ln P(s)``; then
+
+    M(now) = ln P(now) + δ = M(s) + [ln P(now) - ln P(s)] = M(s) + c^T D_p(s, now)
+
+(Eq. 12: the event-measured change since ``s``). ``δ`` is re-measured at every frame where the
+statistic is determined; where the frame only bounds it (a censored median), ``δ`` is raised
+(lowered) just enough to respect the bound, else kept. ``paper`` is ``δ = 0``.
+
+Goal (``goal_mode=``): ``paper`` is the log mid-point ``(g(valid_min) + g(valid_max)) / 2``
+(≈ 72 DN); ``measured`` the digit chosen per metering mode by ``benchmarks/metering.py``
+(:data:`MEASURED_GOAL_DN`). The tunable ``goal`` (DN) overrides either.
+
+Escape rule at one-sided uncertainty (``escape=``): the prediction is only a *bound* when
+(a) events were lost at the sensor's event-rate ceiling since the last determined frame — the
+sensor-wide rate pinned at the bus maximum with one polarity dominant, so the true change in
+that direction is at least the counted one — or (b) the last frame was saturated (more than
+half clipped at one end: it proves the light lies beyond a bound, not where). In the direction
+``d`` of the bound the truth is ``M_true = M + e`` with unknown ``e >= 0``. Aiming ``M`` at the goal
+records the median pixel for ``e`` up to ``g(valid_max) - g*`` only; aiming it at the near edge
+of the valid range, ``g(valid_min) + m`` (``d = +1``; ``g(valid_max) - m`` for ``d = -1``),
+records it for every ``e`` in ``[0, W - m]``, ``W = g(valid_max) - g(valid_min)`` — the widest
+one-sided interval a single exposure can cover. ``m`` is ``edge_margin`` (ln). The rule ends
+at the first frame that determines the statistic with no ceiling-saturated batch since its
+exposure started. (Case (a) needs the ceiling, ``bus_event_rate``: 12 Mev/s for a DAVIS346.)
+
+Defaults, chosen by ``benchmarks/metering.py`` over every preset scenario x 10 seeds and checked
+on held-out scenes (README, "Metering, goal and the escape rule"): ``metering="median"``,
+``goal_mode="measured"`` (100 DN for the median), ``escape=True`` with ``edge_margin=0.4``.
+``metering="paper", goal_mode="paper", escape=False`` is the paper's controller exactly.
 """
 
 from __future__ import annotations
 
 import math
 
+import numba as nb
 import numpy as np
 
 from ..checks import check_number
@@ -23,6 +79,24 @@ from ..errors import ParameterError
 from ..frames import Frame
 from ..ptedi import FrameEstimate, PeripheralEstimator
 from .base import CameraLimits, Controller, ExposureCommand, Tunable
+
+#: metering statistics (module docstring)
+METERING = ("paper", "median", "percentile", "zones")
+#: goal modes: the paper's log mid-point, or the digit measured for the metering mode
+GOAL_MODES = ("paper", "measured")
+#: goal digit per metering mode for ``goal_mode="measured"`` (``None``: the log mid-point), chosen by
+#: ``benchmarks/metering.py`` (README, "Metering and goal")
+MEASURED_GOAL_DN: dict[str, float | None] = {"paper": None, "median": 100.0, "percentile": None, "zones": None}
+#: the DAVIS346's event bus ceiling (events per second; the simulator's default ``max_event_rate``)
+DAVIS346_BUS_RATE = 12e6
+#: a window of events is "at the ceiling" when its rate is at least this fraction of the bus maximum
+BUS_FRACTION = 0.9
+#: ... and one polarity dominates: |ON - OFF| at least this fraction of its events
+POLARITY_DOMINANCE = 0.6
+#: the event rate is judged over windows of at least this long (µs; shorter batches are pooled)
+BUS_WINDOW_US = 500
+#: default zone grid of ``metering="zones"`` (rows, columns)
+ZONE_GRID = (4, 4)
 
 
 def error_weight(relative_error: float, dead_band: float, full_band: float) -> float:
@@ -40,26 +114,144 @@ def error_weight(relative_error: float, dead_band: float, full_band: float) -> f
     return x * x * (3.0 - 2.0 * x)
 
 
+@nb.njit(cache=True)
+def digit_histograms(z, zones, num_zones):
+    """Per zone, the count of each digit 0..255 of an 8-bit image (``zones[i] < 0``: pixel ignored).
+    One pass, O(pixels); ``np.bincount`` would first widen the image to 64-bit integers."""
+    out = np.zeros((num_zones, 256), np.int64)
+    for i in range(z.shape[0]):
+        k = zones[i]
+        if k >= 0:
+            out[k, z[i]] += 1
+    return out
+
+
+@nb.njit(cache=True)
+def digit_histogram(z):
+    """:func:`digit_histograms` for one zone covering the image (four interleaved partial histograms,
+    so runs of equal digits do not serialise on one counter)."""
+    part = np.zeros((4, 256), np.int64)
+    n = z.shape[0]
+    m = n - n % 4
+    for i in range(0, m, 4):
+        part[0, z[i]] += 1
+        part[1, z[i + 1]] += 1
+        part[2, z[i + 2]] += 1
+        part[3, z[i + 3]] += 1
+    for i in range(m, n):
+        part[0, z[i]] += 1
+    out = np.zeros((1, 256), np.int64)
+    for k in range(4):
+        for d in range(256):
+            out[0, d] += part[k, d]
+    return out
+
+
+def censored_quantiles(hist, q: float, g, valid_min: int, valid_max: int) -> tuple[np.ndarray, np.ndarray]:
+    """The ``q``-quantile of ``g(Z)`` per row of a digit histogram, with clipped pixels censored.
+
+    ``hist``: ``(..., 256)`` pixel counts per digit. Pixels at or above ``valid_max`` are only known
+    to lie at or above the continuous digit ``valid_max - 1/2``, those at or below ``valid_min`` at
+    or below ``valid_min + 1/2``. The quantile of rank ``r = q N`` is interpolated inside its bin
+    (a digit ``z`` stands for ``[z - 1/2, z + 1/2)``, pixels spread evenly) and mapped through
+    ``g`` (quantiles commute with an increasing ``g``).
+
+    Returns ``(value, side)``: ``side`` 0 where the quantile is determined, +1 where the rank falls
+    among top-clipped pixels (``value = g(valid_max - 1/2)`` is then a lower bound), -1 among
+    bottom-clipped ones (``value = g(valid_min + 1/2)``, an upper bound), 2 where nothing is known
+    (no pixels). O(256) per row.
+    """
+    h = np.asarray(hist, dtype=np.float64)
+    if h.shape[-1] != 256:
+        raise ParameterError(f"censored_quantiles needs 256-bin histograms, got shape {h.shape}")
+    if not 0.0 < q < 1.0:
+        raise ParameterError(f"quantile must lie in (0, 1), got {q!r}")
+    h = h.reshape(-1, 256)
+    g = np.asarray(g, dtype=np.float64)
+    cum = np.cumsum(h, axis=1)
+    n = cum[:, -1]
+    r = q * n
+    n_lo = cum[:, valid_min]  # Z <= valid_min
+    n_top = cum[:, valid_max - 1]  # Z < valid_max
+    below = r <= n_lo
+    above = r >= n_top
+    b = np.minimum(np.sum(cum < r[:, None], axis=1), 255)  # first bin whose cumulative count reaches r
+    rows = np.arange(h.shape[0])
+    prev = np.where(b > 0, cum[rows, np.maximum(b - 1, 0)], 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        pos = b - 0.5 + (r - prev) / h[rows, b]
+    pos = np.where(below, valid_min + 0.5, np.where(above, valid_max - 0.5, pos))
+    value = np.interp(pos, np.arange(256.0), g)
+    side = np.where(below & above, 2, np.where(above, 1, np.where(below, -1, 0))).astype(np.int8)
+    side[n <= 0] = 2
+    value[n <= 0] = np.nan
+    return value, side
+
+
+def weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+    """The weighted median of the finite ``values`` (lower median at an exact half); NaN if none."""
+    ok = np.isfinite(values)
+    if not ok.any():
+        return math.nan
+    v, w = values[ok], weights[ok]
+    order = np.argsort(v)
+    cw = np.cumsum(w[order])
+    return float(v[order][np.searchsorted(cw, 0.5 * cw[-1])])
+
+
+def zone_weights(estimator: PeripheralEstimator, sigma: float = 0.5) -> np.ndarray:
+    """Centre weights of the estimator's zones: ``exp(-r^2 / 2σ^2)``, ``r`` the distance of the zone's
+    centroid from the image centre in units of the half width/height."""
+    zmap = estimator.zmap
+    h, w = zmap.shape
+    yy, xx = np.mgrid[0:h, 0:w]
+    zf = zmap.ravel()
+    sel = zf >= 0
+    k = estimator.num_zones
+    n = np.bincount(zf[sel], minlength=k).astype(np.float64)
+    cx = np.bincount(zf[sel], weights=xx.ravel()[sel] + 0.5, minlength=k) / n
+    cy = np.bincount(zf[sel], weights=yy.ravel()[sel] + 0.5, minlength=k) / n
+    r2 = ((cx - w / 2) / (w / 2)) ** 2 + ((cy - h / 2) / (h / 2)) ** 2
+    return np.exp(-r2 / (2 * sigma * sigma))
+
+
 class NECController(Controller):
     """NEC: P-TEDI irradiance prediction -> exposure and gain, on every event batch and frame.
 
     Parameters
     ----------
-    estimator : the P-TEDI estimator (owned: the controller feeds it).
+    estimator : the P-TEDI estimator (owned: the controller feeds it). ``metering="zones"`` needs
+        one with several zones (a grid, see :func:`necviz.core.control.make_controller`).
     limits : camera exposure/gain limits.
     dead_band, full_band : ``f_w`` corners on the relative error ``|ln(H_opt/H_i)|``
         (defaults: no change below ~10 %, a full jump from ~65 % on).
-    goal_log_exposure : ``g(I_opt)``; default the log mid-point of the CRF's valid range.
+    goal_log_exposure : ``g*`` directly (overrides ``goal_mode``).
     min_command_change : a new command is only issued if it differs from the last one by
         more than this relative amount (avoids re-sending the same setting every batch).
+    metering : ``"paper"``, ``"median"``, ``"percentile"`` or ``"zones"`` (module docstring).
+    goal_mode : ``"paper"`` (log mid-point) or ``"measured"`` (:data:`MEASURED_GOAL_DN`).
+    percentile, highlight, floor : ``p``, ``Z_hl`` and ``Z_floor`` of ``metering="percentile"``.
+    escape : apply the escape rule at one-sided uncertainty (module docstring).
+    edge_margin : ``m`` of the escape rule (ln): how far inside the valid range's edge it aims.
+    bus_event_rate : the sensor's event-rate ceiling (events/s) for the escape rule's case (a);
+        ``None`` never suspects lost events.
+
+    ``metering="paper", goal_mode="paper", escape=False`` is the paper's controller exactly.
     """
 
     name = "nec"
     TUNABLE = (
         Tunable("dead_band", "ln", "f_w is 0 while |ln(H_opt/H_i)| is at most this (no flicker from tiny corrections)", 0.0),
         Tunable("full_band", "ln", "f_w is 1 from this |ln(H_opt/H_i)| on (one-shot jumps on big changes)", 0.0, lo_open=True),
-        Tunable("goal", "DN", "goal intensity I_opt: the digit the mean exposure aims at", 0.0, 255.0, True, True),
+        Tunable("goal", "DN", "goal intensity I_opt: the digit the metered statistic aims at", 0.0, 255.0, True, True),
         Tunable("min_command_change", "ln", "a new command must differ from the last by more than this", 0.0),
+        Tunable("edge_margin", "ln", "escape rule: aim this far inside the valid range's edge when the prediction "
+                "is only a one-sided bound", 0.0),
+        Tunable("percentile", "fraction", "percentile metering: the highlight quantile p", 0.5, 1.0, True, True),
+        Tunable("highlight", "DN", "percentile metering: the p-quantile is kept at or below this digit", 0.0, 255.0,
+                True, True),
+        Tunable("floor", "DN", "percentile metering: highlight protection never puts the median below this digit",
+                0.0, 255.0, True, True),
     )
 
     def __init__(
@@ -72,22 +264,76 @@ class NECController(Controller):
         full_band: float = 0.5,
         goal_log_exposure: float | None = None,
         min_command_change: float = 0.01,
+        metering: str = "median",
+        goal_mode: str = "measured",
+        percentile: float = 0.95,
+        highlight: float = 235.0,
+        floor: float = 30.0,
+        escape: bool = True,
+        edge_margin: float = 0.4,
+        bus_event_rate: float | None = DAVIS346_BUS_RATE,
     ):
         super().__init__(limits, exposure_us, gain)
         if not isinstance(estimator, PeripheralEstimator):
             raise ParameterError("NECController needs a PeripheralEstimator")
-        for label, v in (("dead_band", dead_band), ("full_band", full_band), ("min_command_change", min_command_change)):
+        for label, v in (("dead_band", dead_band), ("full_band", full_band), ("min_command_change", min_command_change),
+                         ("edge_margin", edge_margin)):
             check_number(label, v, 0.0)
         if full_band <= dead_band:
             raise ParameterError(f"full_band ({full_band}) must exceed dead_band ({dead_band})")
+        if metering not in METERING:
+            raise ParameterError(f"metering must be one of {', '.join(METERING)}, got {metering!r}")
+        if goal_mode not in GOAL_MODES:
+            raise ParameterError(f"goal_mode must be one of {', '.join(GOAL_MODES)}, got {goal_mode!r}")
+        if metering == "zones" and estimator.num_zones < 2:
+            raise ParameterError("metering='zones' needs a P-TEDI estimator with a zone grid (make_controller builds one)")
+        if not isinstance(escape, bool):
+            raise ParameterError(f"escape must be true or false, got {escape!r}")
+        if bus_event_rate is not None:
+            check_number("bus_event_rate", bus_event_rate, 0.0, lo_open=True)
         self.estimator = estimator
+        crf = estimator.crf
         self.dead_band = float(dead_band)
         self.full_band = float(full_band)
-        goal = estimator.crf.goal_log_exposure if goal_log_exposure is None else goal_log_exposure
-        self.goal_log_exposure = check_number("goal_log_exposure", goal)
+        self.metering = metering
+        self.goal_mode = goal_mode
+        if goal_log_exposure is None:
+            dn = MEASURED_GOAL_DN.get(metering) if goal_mode == "measured" else None
+            goal_log_exposure = crf.goal_log_exposure if dn is None else float(crf.log_exposure(float(dn)))
+        self.goal_log_exposure = check_number("goal_log_exposure", goal_log_exposure)
         self.min_command_change = float(min_command_change)
-        self.last_log_irradiance = math.nan
+        self._check_percentile(percentile, highlight, floor)
+        self.percentile, self.highlight, self.floor = float(percentile), float(highlight), float(floor)
+        self.escape = escape
+        self.edge_margin = float(edge_margin)
+        self.bus_event_rate = None if bus_event_rate is None else float(bus_event_rate)
+        self.last_log_irradiance = math.nan  # P-TEDI's ln P at the last command decision
+        self.last_metered = math.nan  # the metered statistic M at the last command decision
         self.last_frame_estimate: FrameEstimate | None = None
+        # metering state: offsets delta per zone (NaN until a frame measured one)
+        self._offset = np.full(estimator.num_zones, np.nan)
+        self._offset0 = math.nan  # whole-sensor modes: the scalar used on the hot path
+        self._weights = zone_weights(estimator) if metering == "zones" else None
+        # escape state
+        self.escape_direction = 0  # +1 / -1 while the prediction is a lower / upper bound, else 0
+        self._frame_dir = 0  # the last frame: +1 more than half over-exposed, -1 under, 0 neither
+        self._determined_s = np.iinfo(np.int64).min  # exposure start of the last frame that determined M
+        self._sat_t = np.iinfo(np.int64).min  # last event time of the last ceiling-saturated window
+        self._sat_dir = 0
+        self._win_t0 = None
+        self._win_n = 0
+        self._win_on = 0
+        self._counts_seen = (0, 0)
+        self.saturated_windows = 0  # windows of events found at the bus ceiling (diagnostics)
+
+    def _check_percentile(self, p, highlight, floor) -> None:
+        check_number("percentile", p, 0.5, 1.0, lo_open=True, hi_open=True)
+        crf = self.estimator.crf
+        for label, v in (("highlight", highlight), ("floor", floor)):
+            check_number(label, v, crf.valid_min, crf.valid_max, lo_open=True, hi_open=True)
+        if not floor < crf.intensity(self.goal_log_exposure) < highlight:
+            raise ParameterError(f"percentile metering needs floor < goal < highlight, got {floor:g}, "
+                                 f"{crf.intensity(self.goal_log_exposure):.1f}, {highlight:g} DN")
 
     # -- tunable parameters --------------------------------------------------------------------
     def _get_param(self, name: str) -> float:
@@ -108,22 +354,28 @@ class NECController(Controller):
         if not crf.valid_min < params["goal"] < crf.valid_max:
             raise ParameterError(f"goal must lie inside the valid range {crf.valid_min}..{crf.valid_max} DN, "
                                  f"got {params['goal']:g}")
+        if self.metering == "percentile" and not params["floor"] < params["goal"] < params["highlight"]:
+            raise ParameterError(f"percentile metering needs floor < goal < highlight, got {params['floor']:g}, "
+                                 f"{params['goal']:g}, {params['highlight']:g} DN")
 
     # -- the control law ----------------------------------------------------------------------
-    def command_for(self, log_irradiance: float, t_us: int) -> ExposureCommand | None:
-        """Eq. 2-4 for a given mean log irradiance; ``None`` inside the dead band.
+    def command_for(self, log_irradiance: float, t_us: int, goal_log_exposure: float | None = None
+                    ) -> ExposureCommand | None:
+        """Eq. 2-4 for a metered log irradiance ``M``; ``None`` inside the dead band.
 
-        Inside the dead band of the applied setting ``H_i`` nothing needs to change, but the
-        camera applies the newest command it received at its next exposure start: a command
-        issued for a transient that has passed would still take effect. So when the outstanding
-        command (:attr:`last_command`) differs from ``H_i`` by more than ``min_command_change``
-        and lies outside the dead band of ``H_opt`` itself, the applied setting is commanded
-        again (which cancels the stale one); otherwise ``None``.
+        ``goal_log_exposure`` replaces ``g*`` (the escape rule's aim). Inside the dead band of the
+        applied setting ``H_i`` nothing needs to change, but the camera applies the newest command
+        it received at its next exposure start: a command issued for a transient that has passed
+        would still take effect. So when the outstanding command (:attr:`last_command`) differs
+        from ``H_i`` by more than ``min_command_change`` and lies outside the dead band of
+        ``H_opt`` itself, the applied setting is commanded again (which cancels the stale one);
+        otherwise ``None``.
         """
         if not math.isfinite(log_irradiance):
             return None
+        goal = self.goal_log_exposure if goal_log_exposure is None else goal_log_exposure
         h_i = self.exposure_us * self.gain
-        h_opt = math.exp(self.goal_log_exposure - log_irradiance) * US_PER_S
+        h_opt = math.exp(goal - log_irradiance) * US_PER_S
         w = error_weight(math.log(h_opt / h_i), self.dead_band, self.full_band)
         if w == 0.0:
             last = self.last_command
@@ -144,25 +396,136 @@ class NECController(Controller):
             return None
         return ExposureCommand(exposure, gain, int(t_us), self.name)
 
+    # -- metering -----------------------------------------------------------------------------
+    def metered(self, t_us: int | None = None) -> float:
+        """``M(t)``: the metered log irradiance (module docstring) from P-TEDI's state now."""
+        est = self.estimator
+        if self.metering == "zones":
+            z = est.predict_zones(t_us)
+            ok = np.isfinite(z)
+            if ok.any():
+                self.last_log_irradiance = float(np.dot(z[ok], est.sizes[ok]) / est.sizes[ok].sum())
+            off = np.where(np.isfinite(self._offset), self._offset, 0.0)
+            return weighted_median(z + off, self._weights)
+        lp = est.predict(t_us)
+        self.last_log_irradiance = lp
+        if self.metering == "paper":
+            return lp
+        off = self._offset0
+        return lp + off if off == off else lp  # before the first measured offset: P-TEDI's level
+
+    def frame_statistic(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
+        """The metering statistic of a frame's ``g(Z)`` per zone (log exposure, before ``- ln T K``)
+        and its censoring side (0 determined, +1 lower bound, -1 upper bound, 2 unknown); see
+        :func:`censored_quantiles`. Not used by ``paper``. One 256-bin histogram per zone."""
+        est, crf = self.estimator, self.estimator.crf
+        z = frame.image.ravel()
+        if self.metering == "zones":
+            hist = digit_histograms(z, est._zone_flat, est.num_zones)
+        else:
+            hist = digit_histogram(z)
+        med, s50 = censored_quantiles(hist, 0.5, crf.g, crf.valid_min, crf.valid_max)
+        if self.metering != "percentile":
+            return med, s50
+        qp, sp = censored_quantiles(hist, self.percentile, crf.g, crf.valid_min, crf.valid_max)
+        goal = self.goal_log_exposure
+        cap = med + (goal - crf.log_exposure(self.floor))
+        m = np.minimum(np.maximum(med, qp - (crf.log_exposure(self.highlight) - goal)), cap)
+        side = np.where(s50 == 2, 2, np.where(s50 == 1, 1, np.where(s50 == -1, np.where(sp == 1, 2, -1),
+                                                                     np.where((sp == 1) & (m < cap), 1, 0))))
+        return m, side.astype(np.int8)
+
+    def _update_offsets(self, frame: Frame, fe: FrameEstimate) -> bool:
+        """Re-measure ``δ`` per zone from the frame (module docstring); True if the statistic was
+        determined (over the zones' weights for ``zones``)."""
+        stat, side = self.frame_statistic(frame)
+        log_tk = math.log(frame.exposure_us / US_PER_S) + math.log(frame.gain)
+        start = fe.log_start if fe.log_start is not None else fe.log_anchor
+        cand = stat - log_tk - fe.log_e - start
+        old = self._offset
+        with np.errstate(invalid="ignore"):
+            new = np.where(~np.isfinite(old) | (side == 0), cand,
+                           np.where(side == 1, np.fmax(old, cand), np.where(side == -1, np.fmin(old, cand), old)))
+        new = np.where(np.isfinite(cand), new, old)
+        self._offset = new
+        self._offset0 = float(new[0])
+        if self._weights is None:
+            return bool(side[0] == 0)
+        return float(self._weights[side == 0].sum()) >= 0.5 * float(self._weights.sum())
+
+    # -- the escape rule ------------------------------------------------------------------------
+    def _watch_bus(self, n: int, t_last: int) -> None:
+        """Pool event windows of at least :data:`BUS_WINDOW_US`; flag one at the bus ceiling with a
+        dominant polarity (case (a) of the escape rule)."""
+        est = self.estimator
+        on, off = int(est.counts_on.sum()), int(est.counts_off.sum())
+        d_on = on - self._counts_seen[0]
+        d_off = off - self._counts_seen[1]
+        self._counts_seen = (on, off)
+        if self._win_t0 is None:
+            self._win_t0 = t_last
+            return
+        self._win_n += n
+        self._win_on += d_on - d_off  # net polarity of the region's events
+        span = t_last - self._win_t0
+        if span < BUS_WINDOW_US:
+            return
+        if self._win_n >= BUS_FRACTION * self.bus_event_rate * span / US_PER_S \
+                and abs(self._win_on) >= POLARITY_DOMINANCE * self._win_n:
+            self._sat_t = t_last
+            self._sat_dir = 1 if self._win_on > 0 else -1
+            self.saturated_windows += 1
+        self._win_t0 = t_last
+        self._win_n = 0
+        self._win_on = 0
+
+    def _escape_direction(self) -> int:
+        """+1 / -1 while the metered level is only a lower / upper bound, else 0 (module docstring)."""
+        d = self._frame_dir
+        if self._sat_t >= self._determined_s:
+            if d == 0:
+                d = self._sat_dir
+            elif d != self._sat_dir:
+                d = 0  # the frame bounds it one way, lost events the other: nothing one-sided is known
+        return d
+
+    def _aim(self) -> float | None:
+        """The goal to aim at now: ``None`` (``g*``) unless the escape rule applies."""
+        if not self.escape:
+            return None
+        d = self._escape_direction()
+        self.escape_direction = d
+        if d == 0:
+            return None
+        crf = self.estimator.crf
+        if d > 0:
+            return min(self.goal_log_exposure, crf.g[crf.valid_min] + self.edge_margin)
+        return max(self.goal_log_exposure, crf.g[crf.valid_max] - self.edge_margin)
+
+    # -- packets ------------------------------------------------------------------------------
     def _command_now(self) -> ExposureCommand | None:
         if not self.estimator.ready:
             return None
         t = max(self.now_us, self.estimator.last_event_us)
-        self.last_log_irradiance = self.estimator.predict(t)
-        return self.command_for(self.last_log_irradiance, t)
+        m = self.metered(t)
+        self.last_metered = m
+        return self.command_for(m, t, self._aim())
 
-    # -- packets ------------------------------------------------------------------------------
     def on_events(self, events: np.ndarray) -> ExposureCommand | None:
         est = self.estimator  # the hot path (every event batch): kept short
         est.update(events)
         t = est.last_event_us
         if t > self.now_us:
             self.now_us = t
+        if self.escape and self.bus_event_rate is not None and events.size:
+            self._watch_bus(events.size, t)
         if not est.ready:
             return None
         t = self.now_us
-        self.last_log_irradiance = lp = est.predict(t)
-        return self.command_for(lp, t)
+        if self.metering == "paper" and not self.escape:  # the paper's controller, as it always was
+            self.last_log_irradiance = lp = est.predict(t)
+            return self.command_for(lp, t)
+        return self._command_now()
 
     def on_exposure_start(self, t_us: int) -> ExposureCommand | None:
         super().on_exposure_start(t_us)
@@ -176,5 +539,17 @@ class NECController(Controller):
 
     def on_frame(self, frame: Frame) -> ExposureCommand | None:
         super().on_frame(frame)
-        self.last_frame_estimate = self.estimator.add_frame(frame)
+        fe = self.estimator.add_frame(frame)
+        self.last_frame_estimate = fe
+        determined = bool(fe.anchored.any())
+        if self.metering != "paper":
+            determined = self._update_offsets(frame, fe)
+        if self.escape:
+            valid = float(np.dot(fe.valid_fraction, self.estimator.sizes)) / float(self.estimator.sizes.sum())
+            over = (float(np.dot(fe.over_fraction, self.estimator.sizes)) / float(self.estimator.sizes.sum())
+                    if fe.over_fraction is not None else 0.0)
+            under = 1.0 - valid - over
+            self._frame_dir = 1 if over > 0.5 else (-1 if under > 0.5 else 0)
+            if determined and self._frame_dir == 0:
+                self._determined_s = int(frame.exposure_start_us)
         return self._command_now()
