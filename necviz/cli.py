@@ -51,11 +51,14 @@ def add_scene_args(parser, emulated: bool = False) -> None:
                    help="override a scenario parameter (repeatable), e.g. --set step_db=90")
 
 
-def scene_options(args, duration_s=None):
+def scene_options(args, duration_s=None, *, scene_duration: bool = True):
+    """The scene flags as :class:`SceneOptions`; ``scene_duration=False`` (``live``): ``--duration`` is the
+    session's length, not the simulated scene's (an emulated camera streams as long as the session)."""
     from .options import SceneOptions, parse_setting
 
     params = dict(parse_setting(s) for s in args.set)
-    return SceneOptions(args.scenario, args.seed, getattr(args, "duration", duration_s), params)
+    duration = getattr(args, "duration", duration_s) if scene_duration else None
+    return SceneOptions(args.scenario, args.seed, duration, params)
 
 
 def add_show_args(parser, tuning: bool = True) -> None:
@@ -157,7 +160,8 @@ def _cmd_live(args) -> int:
     from .options import LiveOptions
     from .viewer import viewer_options
 
-    run(LiveOptions(args.device, args.serial, args.reconnect, args.controller, args.duration, scene_options(args),
+    run(LiveOptions(args.device, args.serial, args.reconnect, args.controller, args.duration,
+                    scene_options(args, scene_duration=False),
                     args.emulate_unplug, args.record, args.force, args.profile, show=_show(args), tune=_tune(args)),
         viewer_options(args))
     return 0

@@ -25,7 +25,14 @@ path                              archetype                      meaning
 ``NAME/latency_us``               Scalars                        processing latency of each
                                                                  command (packet in -> command out)
 ``NAME/prediction_error``         Scalars                        predicted − measured ln Pbar
-``NAME/log``                      TextLog                        saturated frames, controller switches
+``NAME/truth/valid_fraction``     Scalars                        simulated frames only: fraction of
+                                                                 pixels whose true irradiance was
+                                                                 recorded inside 10..249 DN
+``NAME/truth/rank_correlation``   Scalars                        simulated frames only: Spearman's ρ
+                                                                 of the digits against the true
+                                                                 irradiance on valid pixels
+``NAME/log``                      TextLog                        saturated frames (with the diagnosed
+                                                                 cause), controller switches
 ``tuning``                        TextLog                        every live parameter change
 ================================  =============================  ================================
 
@@ -61,6 +68,9 @@ SATURATED = "saturated"
 LATENCY = "latency_us"
 PREDICTION_ERROR = "prediction_error"
 LOG = "log"
+# ground truth of simulated frames (see necviz.core.metrics); absent for cameras and recordings
+TRUE_VALID = "truth/valid_fraction"
+RANK_CORRELATION = "truth/rank_correlation"
 
 #: Root entities of every recording that has seen an event window.
 SHARED_ENTITIES = (EVENTS, EVENT_RATE)

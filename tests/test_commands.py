@@ -62,6 +62,15 @@ def test_unplugged_camera_flushes_everything_and_exits_nonzero(tmp_path):
     assert len(r.series("camera/exposure/applied")[1]) == len(frames)
 
 
+def test_a_live_session_may_outlast_any_simulated_scene(tmp_path, capsys):
+    """``--duration`` of ``live`` is the session's length (hours for a soak), not the scene's (<= 600 s):
+    a one-hour emulated session starts; the emulated unplug ends it at once."""
+    code = main(["live", "--device", "emulated", "--duration", "3600", "--emulate-unplug", "0.1",
+                 "--save", str(tmp_path / "l.rrd"), "--no-prompt"])
+    err = capsys.readouterr().err
+    assert code == 2 and "unplugged" in err and "out of range" not in err
+
+
 def test_no_camera_is_a_clear_error(capsys):
     if os.path.exists("/dev/bus/usb"):
         pytest.skip("a USB bus is present; a camera might be attached")

@@ -133,3 +133,17 @@ def test_unknown_layout_is_a_one_line_error(capsys, tmp_path):
         main(["demo", "--duration", "0.1", "--save", str(tmp_path / "x.rrd"), "--layout", "nope"])
     assert e.value.code == 2
     assert "invalid choice: 'nope'" in capsys.readouterr().err
+
+
+def test_ground_truth_of_simulated_frames_is_logged(demo):
+    """The simulator knows the true irradiance: each lane's truth scalars are there and say what the
+    metrics say (NEC records more of the scene than a fixed exposure through the tunnel exit)."""
+    rrd, _, _ = demo
+    valid = {}
+    for name in ("nec", "fixed"):
+        _, v = rrd.series(S.path(name, S.TRUE_VALID))
+        _, rho = rrd.series(S.path(name, S.RANK_CORRELATION))
+        assert len(v) > 10 and np.all((v >= 0) & (v <= 1))
+        assert len(rho) > 0 and np.all(np.abs(rho) <= 1)
+        valid[name] = float(np.mean(v))
+    assert valid["nec"] > valid["fixed"] + 0.2
