@@ -6,11 +6,11 @@ What every lane of a source shares is logged once, at the root; each camera/cont
 ================================  =============================  ================================
 path                              archetype                      meaning
 ================================  =============================  ================================
-``events``                        Image (JPEG, RGB)              events of the last window, ON blue,
-                                                                 OFF red (shared by all lanes)
+``events``                        EncodedImage (paletted PNG,    events of the last window, ON blue,
+                                  lossless)                      OFF red (shared by all lanes)
 ``events/points``                 Points2D (optional, capped)    raw events of the window
 ``event_rate``                    Scalars                        events/s over the event window
-``NAME/frame``                    Image (JPEG, grey)             the APS frame, at exposure start
+``NAME/frame``                    EncodedImage (JPEG, grey)      the APS frame, at exposure start
 ``NAME/irradiance/predicted``     Scalars                        P-TEDI ln P(t), every few ms
 ``NAME/irradiance/frame``         Scalars                        frame-measured ln Pbar, per frame
 ``NAME/exposure/commanded``       Scalars                        commanded exposure, µs (from the

@@ -10,6 +10,20 @@ append to memory:
   columns every ``flush_period_s`` (a handful of ``send_columns`` calls instead of one
   ``rr.log`` per value); they are never dropped.
 
+Encodings. Frames are JPEG with a near-flat quantisation table (:data:`FRAME_QTABLE`, chosen by
+SSIM; see there). Event images hold at most ``2K + 1`` colours (5 by default), so they are logged
+as paletted PNG built straight from the per-pixel net counts (:class:`EventPalette`): lossless,
+about a third of the bytes of the JPEG they replaced.
+
+Chunking. A live sink logs every image as it comes and sends the series every
+``flush_period_s`` (0.1 s), so the viewer stays current. A ``lossless`` sink (a file nobody
+watches live) writes fewer, larger chunks, since every chunk carries its own Arrow schema
+(~1 KB): a series is sent when it holds ``chunk_rows`` values, an entity's encoded images when
+they reach ``image_chunk_bytes``, and everything left at :meth:`close` (memory stays bounded by
+those sizes per entity; the chunking depends only on the data, not on wall time, so two runs of
+the same simulation give the same chunks: their files differ by a few hundred bytes of ids and
+log times).
+
 Events are shared by every lane of a source, so they are logged once (``events``, ``event_rate``)
 as event images (:mod:`necviz.core.event_image`) over windows of ``event_window_us`` sensor time.
 At most ``max_events_per_window`` are drawn per window: above that every k-th event is drawn; and
@@ -27,33 +41,97 @@ Entity paths follow :mod:`necviz.schema`.
 from __future__ import annotations
 
 import bisect
+import io
 import math
+import struct
 import threading
 import time
+import zlib
 from collections import defaultdict, deque
 
-import cv2
 import numpy as np
 import rerun as rr
 
 from . import schema as S
-from .core.event_image import EventImage
+from .core.event_image import BACKGROUND_RGB, OFF_RGB, ON_RGB, EventImage, colour_table
 from .core.frames import Frame
 from .pipeline import Observer
 from .telemetry import SATURATED, FrameRecord
 
-#: Ground-truth scalars of simulated frames (``NAME/truth/...``), logged when a frame has them:
-#: the fraction of pixels whose true irradiance was recorded in 10..249 DN, and Spearman's ρ of the
-#: digits against the true irradiance on valid pixels (see :mod:`necviz.core.metrics`).
-TRUE_VALID = "truth/valid_fraction"
-RANK_CORRELATION = "truth/rank_correlation"
 
 
-def _jpeg(image: np.ndarray, quality: int) -> rr.EncodedImage:
-    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
-    if not ok:  # pragma: no cover - OpenCV encodes any uint8 image
-        raise RuntimeError("JPEG encoding failed")
-    return rr.EncodedImage(contents=buf.tobytes(), media_type="image/jpeg")
+def _ramp_table(base: int, slope: float) -> list[int]:
+    """An 8 x 8 JPEG quantisation table in natural (row-major) order: ``base + slope (u + v)`` for
+    DCT frequency indices ``u, v`` in 0..7, rounded, clipped to 1..255."""
+    u = np.add.outer(np.arange(8), np.arange(8))
+    return np.clip(np.round(base + slope * u), 1, 255).astype(int).ravel().tolist()
+
+
+#: Quantisation table of the frames' JPEG: a gentle ramp (10 at DC to 24 at the highest frequency)
+#: instead of the scaled table of the JPEG standard (ITU-T T.81 Annex K), which quantises the
+#: highest frequencies up to ~10x coarser than the lowest. APS frames carry sensor noise at every
+#: frequency; the standard table smooths it away, which lowers SSIM (Wang, Bovik, Sheikh &
+#: Simoncelli, IEEE Trans. Image Processing 13(4), 2004) more per byte saved than a near-flat
+#: table does. Measured on the 2 s six-controller demo (all 600 frames,
+#: ``benchmarks/recording_size.py``): 11.7 KB a frame at mean SSIM 0.970 (5th percentile 0.951),
+#: where the standard table needs quality 80 (13.5 KB) for the same mean and gives a 5th
+#: percentile of 0.924 (quality 75: 11.8 KB, mean 0.964).
+FRAME_QTABLE = _ramp_table(10, 1.0)
+#: Smallest SSIM (mean over a recording's frames) the frame encoding is chosen to keep: 0.97.
+FRAME_SSIM_FLOOR = 0.97
+
+
+def encode_frame(image: np.ndarray, qtable=None, quality: int | None = None) -> bytes:
+    """An APS frame (H x W uint8 grey, :class:`~necviz.core.frames.Frame`) as a baseline JPEG with
+    optimised Huffman tables (Pillow/libjpeg): quantisation table ``qtable`` (default
+    :data:`FRAME_QTABLE`), or the standard table at ``quality`` (1..95) if given."""
+    from PIL import Image  # Pillow: a dependency of matplotlib; OpenCV cannot set quantisation tables
+
+    buf = io.BytesIO()
+    opts = {"quality": int(quality)} if quality is not None else {"qtables": [qtable or FRAME_QTABLE]}
+    Image.fromarray(np.ascontiguousarray(image)).save(buf, "JPEG", optimize=True, **opts)
+    return buf.getvalue()
+
+
+def encode_indexed_png(indices: np.ndarray, palette: np.ndarray, level: int = 6) -> bytes:
+    """A paletted PNG (ISO/IEC 15948: colour type 3, filter 0 on every row) of ``indices`` (H x W
+    uint8, each < ``len(palette)``) with ``palette`` (N x 3 uint8 RGB, N <= 256); 4 bits a pixel when
+    N <= 16, else 8. Lossless: decodes to exactly ``palette[indices]``. ``level``: zlib level."""
+    h, w = indices.shape
+    n = len(palette)
+    if not 1 <= n <= 256:
+        raise ValueError(f"a PNG palette holds 1..256 colours, not {n}")
+    if n <= 16:
+        bits = 4
+        p = indices if w % 2 == 0 else np.pad(indices, ((0, 0), (0, 1)))
+        rows = (p[:, 0::2] << 4) | p[:, 1::2]
+    else:
+        bits, rows = 8, indices
+    raw = np.empty((h, rows.shape[1] + 1), np.uint8)
+    raw[:, 0] = 0  # filter type 0 (None): paletted images gain nothing from prediction
+    raw[:, 1:] = rows
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, bits, 3, 0, 0, 0))
+            + chunk(b"PLTE", np.ascontiguousarray(palette, np.uint8).tobytes())
+            + chunk(b"IDAT", zlib.compress(raw.tobytes(), level)) + chunk(b"IEND", b""))
+
+
+class EventPalette:
+    """What an :class:`~necviz.core.event_image.EventImage` renders, as a palette index per pixel:
+    ``clip(on - off, -K, K) + K`` into the table of :func:`~necviz.core.event_image.colour_table`
+    (5 colours at the default ``saturate_at = 2``), so ``palette[indices(img)] == img.render()``."""
+
+    def __init__(self, image: EventImage):
+        self.palette, self.k = colour_table(ON_RGB, OFF_RGB, BACKGROUND_RGB, image.saturate_at)
+
+    def indices(self, image: EventImage) -> np.ndarray:
+        d = image.counts_on - image.counts_off
+        np.clip(d, -self.k, self.k, out=d)
+        d += self.k
+        return d.astype(np.uint8)
 
 
 class RateLimit:
@@ -97,7 +175,13 @@ class RerunSink(Observer):
         absolute clock start at their first timestamp).
     lossless : never drop or skip anything; the streaming thread waits when a queue is full.
         For runs written to a file where no camera waits for a command (simulations, replays).
-    jpeg_quality : frames and event images are JPEG-compressed.
+    flush_period_s : seconds of wall time between sends of the scalar series (default: 0.1 s for a
+        live sink; none for a lossless one, which sends by size, see ``chunk_rows``).
+    chunk_rows, image_chunk_bytes : lossless sinks only: send a series once it holds this many
+        values, an entity's images once their encoded bytes reach this (and everything at close).
+    jpeg_quality : ``None`` (default): frames use :data:`FRAME_QTABLE`; else the JPEG standard's
+        table at this quality (1..95).
+    png_level : zlib level of the event images (default 6 lossless, 1 live: ~4x faster, ~11 % larger).
     """
 
     name = "sink"
@@ -105,20 +189,26 @@ class RerunSink(Observer):
     def __init__(self, rec: rr.RecordingStream, lanes, height: int, width: int,
                  event_window_us: int = 33_333, max_events_per_window: int = 60_000, max_backlog: int = 64,
                  raw_points: int = 0, queue_size: int = 8192, frame_queue_size: int = 16, lossless: bool = False,
-                 max_rate_hz: float = 60.0, burst_s: float = 0.02, origin_us: int = 0, flush_period_s: float = 0.1,
-                 jpeg_quality: int = 85):
+                 max_rate_hz: float = 60.0, burst_s: float = 0.02, origin_us: int = 0,
+                 flush_period_s: float | None = None, chunk_rows: int = 4096, image_chunk_bytes: int = 1 << 20,
+                 jpeg_quality: int | None = None, png_level: int | None = None):
         self.rec = rec
         self.lanes = list(lanes)
         self.event_window_us = int(event_window_us)
         self.max_events_per_window = int(max_events_per_window)
         self.max_backlog = int(max_backlog)
         self.raw_points = int(raw_points)
+        self.lossless = bool(lossless)
+        if flush_period_s is None:
+            flush_period_s = math.inf if self.lossless else 0.1
         self.flush_period_s = float(flush_period_s)
-        self.jpeg_quality = int(jpeg_quality)
+        self.chunk_rows = max(1, int(chunk_rows))
+        self.image_chunk_bytes = max(1, int(image_chunk_bytes))
+        self.jpeg_quality = None if jpeg_quality is None else int(jpeg_quality)
+        self.png_level = int(png_level) if png_level is not None else (6 if self.lossless else 1)
         self._events: deque = deque()
         self._frames: deque = deque()
         self._event_queue_size = int(queue_size)
-        self.lossless = bool(lossless)
         self.origin_us = int(origin_us)
         self.burst_s = float(burst_s)
         self._frame_rate: dict[str, RateLimit] = defaultdict(lambda: RateLimit(max_rate_hz))
@@ -131,7 +221,12 @@ class RerunSink(Observer):
         self._first_lane = self.lanes[0] if self.lanes else None
         # owned by the worker
         self._series: dict[str, list] = defaultdict(list)  # path -> [(t_us, seq, value)]
+        self._texts: dict[str, list] = defaultdict(list)  # path -> [(t_us, seq, text, level)]
+        self._images: dict[str, list] = defaultdict(list)  # path -> [(t_us, seq, blob)] (lossless: batched)
+        self._image_bytes: dict[str, int] = defaultdict(int)
+        self._media: dict[str, str] = {}
         self._image = EventImage(height, width)
+        self._palette = EventPalette(self._image)
         self._window_end: int | None = None
         self._window_seen = 0
         self._window_seq = 0
@@ -192,9 +287,9 @@ class RerunSink(Observer):
         if math.isfinite(record.prediction_error):
             self._scalar(lane, S.PREDICTION_ERROR, t, record.prediction_error)
         if math.isfinite(record.true_valid_fraction):
-            self._scalar(lane, TRUE_VALID, t, record.true_valid_fraction)
+            self._scalar(lane, S.TRUE_VALID, t, record.true_valid_fraction)
         if math.isfinite(record.rank_correlation):
-            self._scalar(lane, RANK_CORRELATION, t, record.rank_correlation)
+            self._scalar(lane, S.RANK_CORRELATION, t, record.rank_correlation)
         if record.saturated:
             worst = max(record.over_exposed_rate, record.under_exposed_rate)
             kind = "over" if record.over_exposed_rate >= record.under_exposed_rate else "under"
@@ -223,6 +318,7 @@ class RerunSink(Observer):
         """Work in bursts: drain what is queued, then sleep ``burst_s``. A worker that polled
         continuously would fight the streaming thread for the GIL on every packet."""
         next_flush = time.perf_counter() + self.flush_period_s
+        by_size = self.lossless and not math.isfinite(self.flush_period_s)
         try:
             while True:
                 stopping = self._stop
@@ -235,7 +331,9 @@ class RerunSink(Observer):
                         self._collect(batches)
                     if fr:
                         self._log_frame(*fr.popleft())
-                if time.perf_counter() >= next_flush:
+                if by_size:
+                    self._flush_series(min_rows=self.chunk_rows)
+                elif time.perf_counter() >= next_flush:
                     self._flush_series()
                     next_flush = time.perf_counter() + self.flush_period_s
                 if stopping:
@@ -243,6 +341,8 @@ class RerunSink(Observer):
                 time.sleep(self.burst_s)
             self._close_window(final=True)
             self._flush_series()
+            for entity in list(self._images):
+                self._send_images(entity)
         except BaseException as e:  # report in close(); the control path must go on
             self._error = e
 
@@ -312,16 +412,17 @@ class RerunSink(Observer):
             drawn = sum(self._image.add(p, stride) for p in self._parts)  # no copy: the kernel strides
             self.stats["events_drawn"] += drawn
             self.stats["events_decimated"] += seen - drawn
-            self._set_time(end, self._window_seq)
-            self.rec.log(S.EVENTS, _jpeg(self._image.render(bgr=True), self.jpeg_quality))
+            png = encode_indexed_png(self._palette.indices(self._image), self._palette.palette, self.png_level)
+            self._log_image(S.EVENTS, end, self._window_seq, png, "image/png")
             if self.raw_points and self._parts:
                 pts = np.concatenate([p[::stride] for p in self._parts])[: self.raw_points]
                 if len(pts):
                     colors = np.where(pts["p"][:, None] > 0, [[80, 170, 255]], [[255, 70, 60]]).astype(np.uint8)
+                    self._set_time(end, self._window_seq)
                     self.rec.log(S.EVENT_POINTS,
                                  rr.Points2D(np.stack([pts["x"], pts["y"]], axis=1).astype(np.float32) + 0.5,
                                              colors=colors, radii=0.5))
-            self.rec.reset_time()
+                    self.rec.reset_time()
             self.stats["event_images"] += 1
             self._image.clear()
         self._parts = []
@@ -330,33 +431,62 @@ class RerunSink(Observer):
         self._drawing = self._decide_drawing()
 
     def _set_time(self, t_us: int, seq: int) -> None:
-        self.rec.set_time(S.TIME, duration=(t_us - self.origin_us) / 1e6)
+        self.rec.set_time(S.TIME, duration=np.timedelta64(int(t_us) - self.origin_us, "us"))
         self.rec.set_time(S.FRAME, sequence=int(seq))
 
     def _log_frame(self, lane: str, frame: Frame) -> None:
-        self._set_time(frame.exposure_start_us, frame.sequence)
-        self.rec.log(S.path(lane, S.FRAME_IMAGE), _jpeg(frame.image, self.jpeg_quality))
-        self.rec.reset_time()
+        blob = encode_frame(frame.image, quality=self.jpeg_quality)
+        self._log_image(S.path(lane, S.FRAME_IMAGE), frame.exposure_start_us, frame.sequence, blob, "image/jpeg")
         self.stats["frames_logged"] += 1
 
-    def _flush_series(self) -> None:
+    def _log_image(self, entity: str, t_us: int, seq: int, blob: bytes, media_type: str) -> None:
+        """Log an encoded image now (live), or batch it with the entity's others (lossless)."""
+        if not self.lossless:
+            self._set_time(t_us, seq)
+            self.rec.log(entity, rr.EncodedImage(contents=blob, media_type=media_type))
+            self.rec.reset_time()
+            return
+        self._images[entity].append((t_us, seq, blob))
+        self._media[entity] = media_type
+        self._image_bytes[entity] += len(blob)
+        if self._image_bytes[entity] >= self.image_chunk_bytes:
+            self._send_images(entity)
+
+    def _index(self, t_us, seq) -> list:
+        t = np.asarray(t_us, dtype=np.int64)
+        # exact: whole µs as timedelta64 (seconds as float64 would be truncated to the ns below)
+        return [rr.TimeColumn(S.TIME, duration=(t - self.origin_us).astype("timedelta64[us]")),
+                rr.TimeColumn(S.FRAME, sequence=np.asarray(seq, dtype=np.int64))]
+
+    def _send_images(self, entity: str) -> None:
+        rows = self._images.pop(entity, None)
+        self._image_bytes.pop(entity, None)
+        if rows:
+            t, seq, blobs = zip(*rows)
+            self.rec.send_columns(entity, indexes=self._index(t, seq),
+                                  columns=rr.EncodedImage.columns(blob=list(blobs),
+                                                                  media_type=[self._media[entity]] * len(blobs)))
+
+    def _flush_series(self, min_rows: int = 1) -> None:
+        """Send every series (and text log) holding at least ``min_rows`` values as one chunk each."""
         q = self._scalar_q
         for _ in range(len(q)):  # what is queued now; later values wait for the next flush
             path, t, seq, value = q.popleft()
             self._series[path].append((t, seq, value))
-        series, self._series = self._series, defaultdict(list)
-        texts = [self._text_q.popleft() for _ in range(len(self._text_q))]
-        for p, pts in series.items():
-            arr = np.asarray(pts, dtype=np.float64)
-            self.rec.send_columns(p, indexes=[rr.TimeColumn(S.TIME, duration=(arr[:, 0] - self.origin_us) / 1e6),
-                                              rr.TimeColumn(S.FRAME, sequence=arr[:, 1].astype(np.int64))],
-                                  columns=rr.Scalars.columns(scalars=arr[:, 2]))
-            self.stats["scalars"] += len(arr)
-        for entity, t_us, seq, msg, level in texts:
-            self._set_time(t_us, seq)
-            self.rec.log(entity, rr.TextLog(msg, level=level))
-        if texts:
-            self.rec.reset_time()
+        for _ in range(len(self._text_q)):
+            entity, t_us, seq, msg, level = self._text_q.popleft()
+            self._texts[entity].append((t_us, seq, msg, level))
+        for p in [p for p, pts in self._series.items() if len(pts) >= min_rows]:
+            pts = self._series.pop(p)
+            t = np.fromiter((r[0] for r in pts), np.int64, len(pts))  # exact µs (no float64 round trip)
+            seq = np.fromiter((r[1] for r in pts), np.int64, len(pts))
+            values = np.fromiter((r[2] for r in pts), np.float64, len(pts))
+            self.rec.send_columns(p, indexes=self._index(t, seq), columns=rr.Scalars.columns(scalars=values))
+            self.stats["scalars"] += len(pts)
+        for entity in [e for e, rows in self._texts.items() if len(rows) >= min_rows]:
+            t, seq, msgs, levels = zip(*self._texts.pop(entity))
+            self.rec.send_columns(entity, indexes=self._index(t, seq),
+                                  columns=rr.TextLog.columns(text=list(msgs), level=list(levels)))
 
     # -- shutdown -------------------------------------------------------------------------------
     def close(self) -> dict:
@@ -393,7 +523,9 @@ def open_file_sink(path, lanes, sensor, layout: str, name: str, properties: dict
     from .layouts import make_blueprint, style_series
     from .outputs import commit_recording, recording_target
 
-    rec = rr.RecordingStream("necviz", recording_id=str(uuid.uuid4()))
+    from .viewer import file_batching
+
+    rec = rr.RecordingStream("necviz", recording_id=str(uuid.uuid4()), batcher_config=file_batching())
     target = recording_target(path)
     rec.set_sinks(rr.FileSink(str(target)), default_blueprint=make_blueprint(layout, list(lanes), sensor.width,
                                                                             sensor.height))
