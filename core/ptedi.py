@@ -427,6 +427,205 @@ def ptedi_update_comp(
     return stop, code, prev
 
 
+@nb.njit(cache=True, inline="always")
+def _one_advance(h, lv, k, s, r, hi):
+    """One polarity of :func:`_comp_window_integral`'s level bookkeeping for a zone held in locals:
+    skip empty levels up to ``hi``; returns ``(level, next breakpoint or inf)``."""
+    if k == 0:
+        nl = comp_level(hi, r)
+        if nl > lv:
+            lv = nl
+        return lv, math.inf
+    while (lv + 1) * r <= hi and h[lv + 1] == 0:
+        lv += 1
+    if (lv + 1) * r <= hi:
+        return lv, (lv + 1) * r
+    return lv, math.inf
+
+
+@nb.njit(cache=True, inline="always")
+def _one_window_integral(lo, hi, m_on, m_off, inv, h_on, h_off, l_on, k_on, s_on, l_off, k_off, s_off,
+                         c_on, c_off, a_on, b_on, a_off, b_off, r_on, r_off):
+    """:func:`_comp_window_integral` for a zone whose levels and sums are locals (same operations in
+    the same order, so the same result bit for bit); returns the integral and the updated
+    ``(level, K, S)`` of both polarities. O(1 + levels crossed)."""
+    total = 0.0
+    act_on = a_on > 0.0
+    act_off = a_off > 0.0
+    while True:
+        u_on = math.inf
+        if act_on and r_on < math.inf:
+            l_on, u_on = _one_advance(h_on, l_on, k_on, s_on, r_on, hi)
+        u_off = math.inf
+        if act_off and r_off < math.inf:
+            l_off, u_off = _one_advance(h_off, l_off, k_off, s_off, r_off, hi)
+        alpha = c_on * m_on - c_off * m_off
+        beta = 0.0
+        if act_on:
+            alpha += c_on * a_on * s_on * inv
+            beta -= c_on * b_on * k_on * inv
+        if act_off:
+            alpha -= c_off * a_off * s_off * inv
+            beta += c_off * b_off * k_off * inv
+        end = min(hi, u_on, u_off)
+        if end > lo:
+            total += exp_linear_integral(alpha + beta * lo, beta, end - lo)
+            lo = end
+        if u_on == math.inf and u_off == math.inf:
+            return total, l_on, k_on, s_on, l_off, k_off, s_off
+        if u_on == end:  # the pixels with count level + 1 stop being compensated here
+            l_on += 1
+            hk = h_on[l_on]
+            k_on -= hk
+            s_on -= l_on * hk
+        if u_off == end:
+            l_off += 1
+            hk = h_off[l_off]
+            k_off -= hk
+            s_off -= l_off * hk
+
+
+@nb.njit(cache=True)
+def ptedi_update_comp_one(
+    t, x, y, p, zflat, width, height, last_t, counts_on, counts_off, inv_n,
+    pc, hist, lev, kk, ss, anchor_t, anchor_log,
+    w, w_start, c0_on, c0_off, w_last, w_int,
+    c_on, c_off, a_on, b_on, a_off, b_off,
+):
+    """:func:`ptedi_update_comp` for a single zone (``zflat`` 0 or -1): same arguments, same
+    equations and the same floating-point operations in the same order, so the same state bit for
+    bit — but the zone's counts, the levels and sums ``K``, ``S`` of both references and the open
+    window's integral are kept in local variables (registers) during the batch and written back
+    at its end, instead of being loaded and stored through arrays at every event (which the
+    compiler cannot keep in registers, not knowing that the arrays do not overlap). Per event:
+    O(1) plus the levels crossed, as :func:`ptedi_update_comp`; returns what it returns.
+    """
+    r_on = a_on / b_on if b_on > 0.0 else math.inf
+    r_off = a_off / b_off if b_off > 0.0 else math.inf
+    cap = hist.shape[3]
+    h0_on = hist[0, 0, 0]
+    h0_off = hist[0, 1, 0]
+    h1_on = hist[1, 0, 0]
+    h1_off = hist[1, 1, 0]
+    n_on = counts_on[0]
+    n_off = counts_off[0]
+    inv = inv_n[0]
+    l0_on, l0_off, l1_on, l1_off = lev[0, 0, 0], lev[0, 1, 0], lev[1, 0, 0], lev[1, 1, 0]
+    k0_on, k0_off, k1_on, k1_off = kk[0, 0, 0], kk[0, 1, 0], kk[1, 0, 0], kk[1, 1, 0]
+    s0_on, s0_off, s1_on, s1_off = ss[0, 0, 0], ss[0, 1, 0], ss[1, 0, 0], ss[1, 1, 0]
+    wl = np.int64(0)
+    wi = 0.0
+    b_on0 = np.int64(0)
+    b_off0 = np.int64(0)
+    if w >= 0:
+        wl = w_last[w, 0]
+        wi = w_int[w, 0]
+        b_on0 = c0_on[w, 0]
+        b_off0 = c0_off[w, 0]
+    live_on = a_on > 0.0
+    live_off = a_off > 0.0
+    prev = last_t
+    stop = -1
+    code = 0
+    for i in range(t.shape[0]):
+        ti = t[i]
+        if ti < prev:
+            stop = i
+            code = 1
+            break
+        xi = np.int64(x[i])
+        yi = np.int64(y[i])
+        if xi >= width or yi >= height:
+            stop = i
+            code = 2
+            break
+        pix = yi * width + xi
+        if zflat[pix] < 0:
+            prev = ti
+            continue
+        on = p[i] > 0
+        q = 0 if on else 1
+        cnt = pc[pix, q]
+        na = cnt - pc[pix, 2 + q]
+        nw = cnt - pc[pix, 4 + q]
+        if na + 2 > cap or (w >= 0 and nw + 2 > cap):
+            stop = i
+            code = 3
+            break
+        prev = ti
+        if w >= 0:
+            if ti > wl:
+                m_on = (n_on - b_on0) * inv
+                m_off = (n_off - b_off0) * inv
+                if (k1_on == 0 or not live_on) and (k1_off == 0 or not live_off):
+                    # no pixel compensated (at the kept level, hence at the current one): constant exponent
+                    wi += math.exp(c_on * m_on - c_off * m_off) * float(ti - wl)
+                else:
+                    piece, l1_on, k1_on, s1_on, l1_off, k1_off, s1_off = _one_window_integral(
+                        float(wl - w_start), float(ti - w_start), m_on, m_off, inv, h1_on, h1_off,
+                        l1_on, k1_on, s1_on, l1_off, k1_off, s1_off, c_on, c_off, a_on, b_on, a_off, b_off,
+                        r_on, r_off,
+                    )
+                    wi += piece
+                wl = ti
+            # the pixel moves from count nw to nw + 1 in the window's histogram
+            if on:
+                h1_on[nw] -= 1
+                h1_on[nw + 1] += 1
+                if nw + 1 > l1_on:
+                    if nw > l1_on:
+                        s1_on += 1
+                    else:
+                        k1_on += 1
+                        s1_on += nw + 1
+            else:
+                h1_off[nw] -= 1
+                h1_off[nw + 1] += 1
+                if nw + 1 > l1_off:
+                    if nw > l1_off:
+                        s1_off += 1
+                    else:
+                        k1_off += 1
+                        s1_off += nw + 1
+        # and from na to na + 1 in the anchor's
+        if on:
+            h0_on[na] -= 1
+            h0_on[na + 1] += 1
+            if na + 1 > l0_on:
+                if na > l0_on:
+                    s0_on += 1
+                else:
+                    k0_on += 1
+                    s0_on += na + 1
+            n_on += 1
+        else:
+            h0_off[na] -= 1
+            h0_off[na + 1] += 1
+            if na + 1 > l0_off:
+                if na > l0_off:
+                    s0_off += 1
+                else:
+                    k0_off += 1
+                    s0_off += na + 1
+            n_off += 1
+        pc[pix, q] = cnt + 1
+    counts_on[0] = n_on
+    counts_off[0] = n_off
+    lev[0, 0, 0], lev[0, 1, 0], lev[1, 0, 0], lev[1, 1, 0] = l0_on, l0_off, l1_on, l1_off
+    kk[0, 0, 0], kk[0, 1, 0], kk[1, 0, 0], kk[1, 1, 0] = k0_on, k0_off, k1_on, k1_off
+    ss[0, 0, 0], ss[0, 1, 0], ss[1, 0, 0], ss[1, 1, 0] = s0_on, s0_off, s1_on, s1_off
+    if w >= 0:
+        w_last[w, 0] = wl
+        w_int[w, 0] = wi
+    if math.isfinite(anchor_log[0]) and prev >= anchor_t[0]:  # the anchor's levels follow time, once per batch
+        u = float(prev - anchor_t[0])
+        if a_on > 0.0:
+            _comp_sweep(hist, 0, 0, 0, lev, kk, ss, r_on, u)
+        if a_off > 0.0:
+            _comp_sweep(hist, 0, 1, 0, lev, kk, ss, r_off, u)
+    return stop, code, prev
+
+
 @nb.njit(cache=True)
 def ptedi_close_comp(
     t_end, counts_on, counts_off, inv_n, hist, lev, kk, ss,
@@ -502,6 +701,23 @@ def comp_rebase(pc, snap, zflat, zones, sizes, hist):
                     others += hist[0, q, z, n]
                 hist[0, q, z, 0] = sizes[z] - others
     return need
+
+
+@nb.njit(cache=True)
+def comp_between(pc, snap, zflat, u, a_on, b_on, a_off, b_off, out):
+    """``out[q, z] = Σ_{x in z} max(0, a_q n_x - b_q u[z])`` with ``n_x`` = the pixel's counts between the
+    anchor (``pc[:, 2:4]``) and the snapshot ``snap`` (a window's start), added in pixel order (the
+    order of the ``np.bincount`` it replaced, so the same sums bit for bit). O(pixels)."""
+    out[:] = 0.0
+    for i in range(pc.shape[0]):
+        z = zflat[i]
+        if z < 0:
+            continue
+        uz = u[z]
+        v = a_on * float(snap[i, 0] - pc[i, 2]) - b_on * uz
+        out[0, z] += v if (v > 0.0 or v != v) else 0.0  # np.maximum(0, v): NaN stays NaN
+        v = a_off * float(snap[i, 1] - pc[i, 3]) - b_off * uz
+        out[1, z] += v if (v > 0.0 or v != v) else 0.0
 
 
 @nb.njit(cache=True)
@@ -793,16 +1009,12 @@ class PeripheralEstimator:
 
     def _comp_between(self, w: int, u: np.ndarray) -> np.ndarray:
         """Per zone ``Σ_x max(0, a± n±_x - b± u)`` for the counts between the anchor and window ``w``'s
-        start (brute force over the pixels, O(pixels); used only for the saturation bound)."""
-        sel = self._in_region
-        n = (self._wsnap[w][sel] - self._pc[sel, 2:4]).astype(np.float64)
-        zf = self._zone_flat[sel]
-        uz = u[zf]
+        start (brute force over the pixels, O(pixels), :func:`comp_between`; used only for the saturation bound)."""
         c_on, c_off, a_on, b_on, a_off, b_off = self._kp
-        k = self.num_zones
-        on = np.bincount(zf, weights=np.maximum(0.0, a_on * n[:, 0] - b_on * uz), minlength=k)
-        off = np.bincount(zf, weights=np.maximum(0.0, a_off * n[:, 1] - b_off * uz), minlength=k)
-        return np.stack([on, off])
+        out = np.empty((2, self.num_zones))
+        comp_between(self._pc, self._wsnap[w], self._zone_flat, np.asarray(u, np.float64), a_on, b_on, a_off, b_off,
+                     out)
+        return out
 
     # -- stream input -------------------------------------------------------------------------
     def update(self, events: np.ndarray) -> None:
@@ -844,12 +1056,14 @@ class PeripheralEstimator:
         self.last_event_us = int(events["t"][-1])
 
     def _update_comp(self, events: np.ndarray, w: int) -> int:
-        """The batch through :func:`ptedi_update_comp`, widening the histograms when needed."""
+        """The batch through :func:`ptedi_update_comp` (:func:`ptedi_update_comp_one` for a single zone),
+        widening the histograms when needed."""
         t, x, y, p = events["t"], events["x"], events["y"], events["p"]
         ws = int(self._wstart[w]) if w >= 0 else 0
         pos, last = 0, self.last_event_us
+        kernel = ptedi_update_comp_one if self.num_zones == 1 else ptedi_update_comp
         while True:
-            stop, code, last = ptedi_update_comp(
+            stop, code, last = kernel(
                 t[pos:], x[pos:], y[pos:], p[pos:], self._zone_flat, self.sensor.width, self.sensor.height, last,
                 self.counts_on, self.counts_off, self._inv_n, self._pc, self._hist, self._lev, self._kk, self._ss,
                 self.anchor_t, self.anchor_log, w, ws, self._c0_on, self._c0_off, self._wlast, self._wint, *self._kp,

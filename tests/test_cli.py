@@ -31,7 +31,7 @@ def test_bench_estimators_writes_the_documented_json(tmp_path, capsys):
     assert rc == 0
     data = json.loads(path.read_text())
     names = [r["method"] for r in data["rows"]]
-    assert names == ["EDI", "mEDI", "Fast-EDI", "TEDI", "P-TEDI", "floor"]
+    assert names == ["EDI", "mEDI", "Fast-EDI", "TEDI", "P-TEDI", "P-TEDI a=0", "floor"]
     for r in data["rows"]:
         assert r["mev_per_s"] > 0 and r["realtime_factor"] > 0
     # consistency of the two figures: rate / real-time factor = the stream's event rate

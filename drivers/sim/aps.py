@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
+import numba as nb
 import numpy as np
 
 from ...core.crf import US_PER_S, CameraResponse
@@ -88,6 +89,49 @@ class DigitLut:
 _LUTS: dict = {}
 
 
+@nb.njit(cache=True, nogil=True)
+def _electrons(lin, scale, read_var, noise, out):
+    """``out = max(N_e', 1e-30)`` with ``N_e = scale · Lbar`` and ``N_e' = N_e + sqrt(max(N_e, 0) + σ²) · n``
+    (``noise`` = the standard normal draws ``n``, or an empty array for no noise), in float32.
+
+    The same float32 operations, in the same order, as the NumPy expression it replaces (every
+    intermediate is rounded to float32), so the result is bit for bit that expression's: one
+    pass instead of six. O(pixels).
+    """
+    tiny = np.float32(1e-30)
+    zero = np.float32(0.0)
+    if noise.size == 0:
+        for i in range(lin.size):
+            e = np.float32(lin[i] * scale)
+            out[i] = tiny if e < tiny else e  # NaN stays NaN, as np.maximum
+    else:
+        for i in range(lin.size):
+            e = np.float32(lin[i] * scale)
+            v = np.float32((zero if e < zero else e) + read_var)
+            sigma = np.float32(math.sqrt(v))
+            e = np.float32(e + np.float32(sigma * noise[i]))
+            out[i] = tiny if e < tiny else e
+
+
+@nb.njit(cache=True, nogil=True)
+def _digits(log_e, offset, scale, table, out):
+    """``out = table[int(clip((ln N_e' + offset) · scale, 0, len - 1))]`` in float32 (the lookup of
+    :class:`DigitLut`); returns False, leaving the rest undone, at a NaN (the caller then takes the
+    NumPy path, which reports it). O(pixels)."""
+    top = np.float32(table.size - 1)
+    zero = np.float32(0.0)
+    for i in range(log_e.size):
+        v = np.float32(np.float32(log_e[i] + offset) * scale)
+        if v != v:
+            return False
+        if v < zero:
+            v = zero
+        elif v > top:
+            v = top
+        out[i] = table[np.int32(v)]
+    return True
+
+
 def expose(mean_irradiance: np.ndarray, exposure_us: float, gain: float, crf: CameraResponse,
            params: ApsParams, rng: np.random.Generator | None) -> np.ndarray:
     """One 8-bit frame from the exposure-averaged irradiance ``Lbar`` (float array, linear units)."""
@@ -96,16 +140,24 @@ def expose(mean_irradiance: np.ndarray, exposure_us: float, gain: float, crf: Ca
         lut = _LUTS[id(crf)] = (crf, DigitLut(crf))
     lut = lut[1]
     q = params.electrons_at_mid
-    electrons = np.asarray(mean_irradiance, dtype=np.float32) * np.float32(q * exposure_us / US_PER_S)
+    lin = np.ascontiguousarray(mean_irradiance, dtype=np.float32)
+    shape = lin.shape
+    lin = lin.reshape(-1)
     if params.noise and rng is not None:
-        sigma = np.sqrt(np.maximum(electrons, 0.0) + np.float32(params.read_noise_e**2))
-        electrons += sigma * rng.standard_normal(electrons.shape, dtype=np.float32)
-    np.maximum(electrons, np.float32(1e-30), out=electrons)
+        noise = rng.standard_normal(lin.size, dtype=np.float32)  # the same draws as one of ``shape``
+    else:
+        noise = np.empty(0, np.float32)
+    electrons = np.empty(lin.size, np.float32)
+    _electrons(lin, np.float32(q * exposure_us / US_PER_S), np.float32(params.read_noise_e**2), noise, electrons)
+    # the logarithm stays NumPy's (a compiled log may round differently in the last bit)
     log_h = np.log(electrons, out=electrons)
-    log_h += np.float32(math.log(gain / q) - lut.lo)
-    log_h *= np.float32(lut.scale)
-    idx = np.clip(log_h, 0, lut.BINS - 1).astype(np.int32)
-    return lut.table[idx]
+    offset, scale = np.float32(math.log(gain / q) - lut.lo), np.float32(lut.scale)
+    img = np.empty(lin.size, np.uint8)
+    if not _digits(log_h, offset, scale, lut.table, img):
+        log_h += offset
+        log_h *= scale
+        img = lut.table[np.clip(log_h, 0, lut.BINS - 1).astype(np.int32)]
+    return img.reshape(shape)
 
 
 def integrate_samples(times: np.ndarray, values: list[np.ndarray], s: float, e: float) -> np.ndarray:

@@ -19,6 +19,16 @@ intervals + latency`` before the exposure to its end, the camera's limits and co
 the scene's lighting changes and, where the scene has one, the pedestrian's box. Attaching it
 reads the simulation and changes nothing in it: the frames and events are the same with
 ``truth=False``.
+
+Threads: with ``threads=True`` (the default, :attr:`SimRig.THREADS`) the work that does not depend
+on the consumer runs beside it — scene rendering up to :attr:`SimRig.RENDER_AHEAD` sample periods
+ahead on one worker thread (:attr:`SimRig.RENDER_CHUNK` periods per job), the DVS steps of each
+rendered chunk on a second, and every frame's formation (integration and noise) on a third,
+started when its exposure ends, so it overlaps the readout delay. Each worker runs its jobs in
+submission order and every camera has its own noise generator, so the packets are exactly those
+of ``threads=False``, which does everything on the caller's thread (the reference the tests
+compare against). ``samples_rendered`` then also counts samples rendered ahead of a consumer that
+stopped early.
 """
 
 from __future__ import annotations
@@ -60,6 +70,11 @@ class _CamState:
     frames: int = 0
 
 
+def _steps(dvs: EventSimulator, samples: list) -> list:
+    """``dvs.step`` through ``samples`` (``(ln L, t)`` each), in order: their events."""
+    return [dvs.step(ls, ts) for ls, ts in samples]
+
+
 class SimRig:
     """Several simulated cameras sharing one scene and one event stream.
 
@@ -74,12 +89,21 @@ class SimRig:
     batch_us : event batches are delivered at least this often.
     first_start_us : start of every camera's first exposure.
     truth : attach :class:`~necviz.core.metrics.GroundTruth` to every frame (``frame.truth``).
+    threads : render, simulate events and form frames on worker threads (``None``: :attr:`THREADS`);
+        ``False`` runs everything on the consumer's thread. The packets are identical either way.
     """
+
+    #: default of ``threads``: worker threads for rendering, events and frames
+    THREADS = True
+    #: scene sample periods rendered ahead of the consumer with threads (bounded memory: one image each)
+    RENDER_AHEAD = 8
+    #: sample periods per job of the render worker (and per DVS job it passes on): fewer hand-overs between threads
+    RENDER_CHUNK = 4
 
     def __init__(self, scene: Scene, cameras, dvs: DvsParams | None = None, aps: ApsParams | None = None,
                  crf: CameraResponse | None = None, seed: int = 0, sample_us: int = 2_000,
                  refine_log: float = 0.12, min_sample_us: int = 60, batch_us: int = 1_000,
-                 first_start_us: int = 1_000, truth: bool = True):
+                 first_start_us: int = 1_000, truth: bool = True, threads: bool | None = None):
         if not isinstance(scene, Scene):
             raise ParameterError("SimRig needs a Scene (see necviz.drivers.sim.scenes)")
         if isinstance(cameras, (list, tuple)):
@@ -101,6 +125,7 @@ class SimRig:
         self.batch_us = batch_us
         self.first_start_us = int(first_start_us)
         self.truth = bool(truth)
+        self.threads = self.THREADS if threads is None else bool(threads)
         # the lighting trace kept for ground truth: (sample time, mean ln L on the TRACE_STEP grid)
         self._trace_t: deque = deque()
         self._trace_l: deque = deque()
@@ -190,10 +215,46 @@ class SimRig:
         out.append((t1, l1))
         return l1
 
-    def _form_frame(self, cam: _CamState, times, values, s: int, e: int, gain: float) -> Frame:
-        """Exposure ``[s, e]`` of one camera, from the scene samples covering it."""
+    def _render_periods(self, state: list, periods: int, dvs, pool) -> list:
+        """The scene samples of the next ``periods`` sample periods (``state = [t_rendered, ln L there]``,
+        advanced), one list per period.
+
+        Each sample is ``(t, L, trace value, events)``: ``L = exp(ln L)`` for frame integration, the
+        lighting-trace value (``None`` without truth) and the sample's DVS events — with ``pool``,
+        ``(future, k)``: the ``k``-th result of one job that steps the simulator through every sample of
+        these periods (jobs run in submission order).
+        """
+        out, steps = [], []
+        for _ in range(periods):
+            t0, l_prev = state
+            target = t0 + self.sample_us
+            samples: list = []
+            state[1] = self._sample(t0, l_prev, target, samples)
+            state[0] = target
+            period = []
+            for ts, ls in samples:
+                trace = float(ls[::TRACE_STEP, ::TRACE_STEP].mean(dtype=np.float64)) if self.truth else None
+                if pool is None:
+                    ev = dvs.step(ls, ts)
+                else:
+                    ev = len(steps)
+                    steps.append((ls, ts))
+                period.append((ts, np.exp(ls), trace, ev))
+            out.append(period)
+        if pool is not None:
+            job = pool.submit(_steps, dvs, steps)
+            out = [[(ts, lin, trace, (job, k)) for ts, lin, trace, k in period] for period in out]
+        return out
+
+    def _expose_frame(self, cam: _CamState, times, values, s: int, e: int, gain: float):
+        """Exposure ``[s, e]`` of one camera from the scene samples covering it: ``(image, Lbar)``.
+        Draws the camera's noise, so a camera's exposures are formed in the order they end."""
         lbar = integrate_samples(times, values, s, e)
-        img = expose(lbar, e - s, gain, self.crf, self.aps, cam.rng)
+        return expose(lbar, e - s, gain, self.crf, self.aps, cam.rng), lbar
+
+    def _form_frame(self, cam: _CamState, formed, s: int, e: int, gain: float) -> Frame:
+        """The :class:`Frame` of exposure ``[s, e]`` from its ``(image, Lbar)``."""
+        img, lbar = formed
         frame = Frame(img, int(s), int(e), float(gain), cam.seq, self._truth(lbar, s, e) if self.truth else None)
         cam.seq += 1
         return frame
@@ -203,10 +264,12 @@ class SimRig:
         """How far before an exposure start the lighting trace attached to a frame reaches."""
         return 2 * self.aps.frame_interval_us + self.aps.latency_us
 
-    def _trace(self, t_us: int, log_l: np.ndarray) -> None:
+    def _trace(self, t_us: int, log_l: np.ndarray | None = None, value: float | None = None) -> None:
         if self.truth:
             self._trace_t.append(int(t_us))
-            self._trace_l.append(float(log_l[::TRACE_STEP, ::TRACE_STEP].mean(dtype=np.float64)))
+            if value is None:
+                value = float(log_l[::TRACE_STEP, ::TRACE_STEP].mean(dtype=np.float64))
+            self._trace_l.append(value)
 
     def _truth(self, lbar: np.ndarray, s: int, e: int) -> GroundTruth:
         """The frame's ground truth (reads the simulation, changes nothing)."""
@@ -235,44 +298,63 @@ class SimRig:
         held = np.zeros(0, EVENT_DTYPE)
         pending: deque = deque()
         t_rendered = t_gathered = 0
-        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="necviz-dvs")
+        end = self.scene.duration_us
+        render_state = [0, l_prev]
+        # with threads: [render worker, DVS worker, frame worker]; each runs its jobs in submission order
+        pools = [ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"necviz-{n}") for n in ("render", "dvs", "aps")] \
+            if self.threads else []
+        renders: deque = deque()  # futures of the periods rendered ahead (threads), a chunk of periods each
+        ready: deque = deque()  # rendered periods not yet taken
+        t_submitted = 0
+        last_target = -(-(end + 2 * self.sample_us) // self.sample_us) * self.sample_us  # as the serial loop
+        forming: dict = {}  # (camera index, exposure start) -> future of (image, Lbar) (threads)
         heap: list = []
         for i, name in enumerate(self.cams):
             heapq.heappush(heap, (self.first_start_us, _START, i, name, None))
         try:
             t0 = 0
-            end = self.scene.duration_us
             while t0 < end:
                 t1 = min(t0 + self.batch_us, end)
-                # Scene samples run on their own grid, rendered up to two periods ahead; each sample's DVS
-                # step runs on the worker thread (in order, so results are deterministic) while this
-                # thread renders and forms frames. Events past t1 wait for the next batch.
+                # Scene samples run on their own grid, rendered up to two periods past the batch (with
+                # threads, RENDER_AHEAD periods ahead on the render worker, whose samples go on to the DVS
+                # worker). Events past t1 wait for the next batch.
                 while t_rendered < t1 + 2 * self.sample_us:
-                    target = t_rendered + self.sample_us
-                    samples: list = []
-                    l_prev = self._sample(t_rendered, l_prev, target, samples)
-                    for ts, ls in samples:
-                        self._trace(ts, ls)
-                        pending.append((ts, pool.submit(dvs.step, ls, ts)))
+                    if pools:
+                        ahead = len(ready) + sum(f[1] for f in renders)
+                        while t_submitted < last_target and ahead < self.RENDER_AHEAD:
+                            k = min(self.RENDER_CHUNK, (last_target - t_submitted) // self.sample_us)
+                            renders.append((pools[0].submit(self._render_periods, render_state, k, dvs, pools[1]), k))
+                            t_submitted += k * self.sample_us
+                            ahead += k
+                        if not ready:
+                            ready.extend(renders.popleft()[0].result())
+                        samples = ready.popleft()
+                    else:
+                        samples = self._render_periods(render_state, 1, dvs, None)[0]
+                    for ts, lin, trace, ev in samples:
+                        self._trace(ts, value=trace)
+                        pending.append((ts, ev))
                         buf_t.append(ts)
-                        buf_l.append(np.exp(ls))
-                    t_rendered = target
+                        buf_l.append(lin)
+                    t_rendered += self.sample_us
                 chunks = [held] if held.size else []
                 while t_gathered < t1:
-                    t_gathered, fut = pending.popleft()
-                    ev = fut.result()
+                    t_gathered, ev = pending.popleft()
+                    if pools:
+                        ev = ev[0].result()[ev[1]]
                     if ev.size:
                         chunks.append(ev)
                 events = np.concatenate(chunks) if len(chunks) > 1 else (chunks[0] if chunks else held)
-                split = int(np.searchsorted(events["t"], t1, side="left"))
+                times = np.ascontiguousarray(events["t"])  # searched once per camera item: one copy, not one each
+                split = int(times.searchsorted(t1, side="left"))
                 events, held = events[:split], events[split:]
+                times = times[:split]
                 self.events_generated += events.size
-                times = events["t"]
                 pos = 0
                 # camera items due before t1 (an item may schedule another within the same batch)
                 while heap and heap[0][0] < t1:
                     t_item, kind, ci, name, data = heapq.heappop(heap)
-                    cut = int(np.searchsorted(times, t_item, side="left"))
+                    cut = int(times.searchsorted(t_item, side="left"))
                     if cut > pos:
                         self.now_us = int(times[cut - 1])
                         yield None, events[pos:cut]
@@ -288,10 +370,17 @@ class SimRig:
                         s, exp_us, gain = data
                         heapq.heappush(heap, (t_item + self.aps.readout_us, _FRAME, ci, name, (s, t_item, gain)))
                         heapq.heappush(heap, (s + self.aps.frame_interval_us, _START, ci, name, None))
+                        if pools:  # the samples covering [s, e] are all here: form it during the readout
+                            forming[ci, s] = pools[2].submit(self._expose_frame, cam, np.asarray(buf_t, dtype=np.float64),
+                                                             list(buf_l), s, t_item, gain)
                         yield name, ExposureMarker(int(t_item), "end")
                     else:
                         s, e, gain = data
-                        frame = self._form_frame(cam, np.asarray(buf_t, dtype=np.float64), list(buf_l), s, e, gain)
+                        if pools:
+                            formed = forming.pop((ci, s)).result()
+                        else:
+                            formed = self._expose_frame(cam, np.asarray(buf_t, dtype=np.float64), list(buf_l), s, e, gain)
+                        frame = self._form_frame(cam, formed, s, e, gain)
                         cam.frames += 1
                         yield name, frame
                 if pos < events.size:
@@ -309,7 +398,8 @@ class SimRig:
                     self._trace_l.popleft()
                 t0 = t1
         finally:
-            pool.shutdown(wait=True, cancel_futures=True)
+            for pool in pools:  # the render worker first: it feeds the DVS worker
+                pool.shutdown(wait=True, cancel_futures=True)
 
     def close(self) -> None:
         """Nothing to release: the simulation ends with its generator."""
