@@ -1,0 +1,332 @@
+"""The least-squares fit of a camera profile on collected pairs, and its result with the residual statistics.
+
+**Fit** (:func:`calibrate_collected`): thresholds on the pairs that stayed below the sensor's bus
+ceiling, then the compensation with the thresholds fixed on all pairs, its knee ``b/a`` bounded
+below by ``slow_rate``.
+
+:func:`calibrate_collected` fits (Debevec & Malik, 1997, for the response when brackets were
+found; Eq. 7 of Lin et al. with SciPy least squares for the TEDI parameters, :mod:`necviz.core.tedi`)
+and returns a :class:`CalibrationResult` (the profile, standard errors, RMS residuals before and
+after, per pair and for the unsaturated / saturated pairs).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..core.control import CameraLimits
+from ..core.crf import CameraResponse, debevec_malik
+from ..core.errors import ParameterError
+from ..core.event_model import TediParams
+from ..core.profile import CameraProfile
+from ..core.sensor import SensorGeometry
+from ..core.tedi import PARAM_NAMES, TediCalibration, fit_tedi_pairs, pair_residuals
+from .pairs import PairCollector
+
+FIT_CHOICES = {"all": PARAM_NAMES, "c": ("c_on", "c_off")}
+
+#: Lower bound of the compensation knee b/a (events per pixel per second): below it a pixel's events
+#: are taken at face value. A third of the DAVIS346's whole-array bus ceiling (12 Mev/s / 89,960
+#: pixels = 133 ev/s per pixel), far below its refractory limit (~10 kev/s).
+DEFAULT_SLOW_RATE = 50.0
+
+#: Loss of the least-squares fit (SciPy ``least_squares``): see :func:`calibrate_collected`.
+DEFAULT_LOSS = "linear"
+DEFAULT_F_SCALE = 0.25
+
+
+@dataclass
+class CalibrationResult:
+    """What a calibration produced and from what.
+
+    ``profile``: the fitted camera profile (``params`` are its TEDI parameters); ``stderr``: the
+    standard error of each fitted parameter (Gauss-Newton, independent residuals assumed; NaN when
+    not fitted or at a bound, listed in ``at_bound``); ``rms_before``/``rms_after``: RMS Eq. 7
+    residual (ln units) over all used pairs at ``init`` and at ``params``; ``plain``: thresholds
+    only with ``a = b = 0`` fitted on all pairs (what the data give without compensation; ``None``
+    when no compensation term was fitted); ``method``/``stages``: how the fit ran;
+    ``crf_fitted``/``crf_info``: the response; ``data``: inputs and selection; ``pairs``: per-pair
+    statistics with their RMS residual before and after; ``groups``: RMS before/after for the
+    unsaturated and the saturated pairs (see :func:`calibrate_collected`).
+    """
+
+    profile: CameraProfile
+    params: TediParams
+    init: TediParams
+    stderr: dict
+    at_bound: list
+    rms_before: float
+    rms_after: float
+    num_residuals: int
+    plain: TediCalibration | None
+    method: str
+    stages: list
+    crf_fitted: bool
+    crf_info: dict
+    data: dict
+    pairs: list = field(default_factory=list)
+    groups: dict = field(default_factory=dict)
+    inactive: tuple = ()
+
+    @property
+    def inactive_names(self) -> tuple:
+        return tuple(f"{k}_{pol}" for pol in self.inactive for k in ("a", "b"))
+
+    def to_dict(self) -> dict:
+        return {
+            "profile": self.profile.to_dict(),
+            "init": _params_dict(self.init),
+            "fit": {"params": _params_dict(self.params), "stderr": {k: _num(v) for k, v in self.stderr.items()},
+                    "at_bound": list(self.at_bound), "rms_before": self.rms_before, "rms_after": self.rms_after,
+                    "residuals": self.num_residuals, "method": self.method, "stages": self.stages,
+                    "inactive_compensation": list(self.inactive),
+                    "groups": self.groups},
+            "plain": None if self.plain is None else {
+                "params": _params_dict(self.plain.params), "rms_after": self.plain.rms_after},
+            "crf": {"fitted": self.crf_fitted, **self.crf_info},
+            "data": self.data,
+            "pairs": self.pairs,
+        }
+
+    def summary(self) -> str:
+        p, se = self.params, self.stderr
+        d = self.data
+        lines = [f"data: {d.get('frames', '?')} frames, {d.get('pairs_considered', '?')} pairs considered, "
+                 f"{len(self.pairs)} used ({self.num_residuals:,} pixel residuals; "
+                 f"{self.groups.get('saturated', {}).get('pairs', 0)} reached the sensor's bus ceiling)",
+                 f"fit: {self.method}", "fitted TEDI parameters (± standard error):"]
+        for name in PARAM_NAMES:
+            unit = " ev/s" if name.startswith("b_") else ""
+            v, s = getattr(p, name), se.get(name, math.nan)
+            if name in self.inactive_names:
+                extra = " (inactive: no pixel of the data changed faster than the knee)"
+            elif name in self.at_bound and name.startswith("b_") and getattr(p, "a_" + name[2:]) > 0:
+                extra = f" (knee b/a = {v / getattr(p, 'a_' + name[2:]):.4g} ev/s: at its lower bound)"
+            elif name in self.at_bound:
+                extra = " (at bound)"
+            elif s == math.inf:
+                extra = " (not determined by these data)"
+            elif math.isnan(s):
+                extra = " (not fitted)"
+            else:
+                extra = ""
+            lines.append(f"  {name:6s} {v:10.4g}{unit}" + (f" ± {s:.2g}" if math.isfinite(s) else "") + extra)
+        lines.append(f"RMS residual (ln units), all pairs: {self.rms_before:.4f} at the start -> {self.rms_after:.4f} fitted")
+        for key in ("unsaturated", "saturated"):
+            g = self.groups.get(key)
+            if g and g["pairs"]:
+                lines.append(f"  {key} pairs ({g['pairs']}): {g['rms_before']:.4f} -> {g['rms_after']:.4f}"
+                             + (f" (without compensation: {g['rms_plain']:.4f})" if g.get("rms_plain") is not None else ""))
+        if self.plain is not None:
+            lines.append(f"  without compensation (c± only, a = b = 0, all pairs): {self.plain.rms_after:.4f} "
+                         f"(c_on {self.plain.params.c_on:.4f}, c_off {self.plain.params.c_off:.4f})")
+        if self.crf_fitted:
+            lines.append(f"camera response: fitted (Debevec-Malik) from {self.crf_info['frames']} bracketed frames, "
+                         f"max |change| {self.crf_info['max_abs_change_ln']:.3f} ln over the valid range")
+        else:
+            lines.append(f"camera response: {self.crf_info.get('reason', 'kept')}")
+        return "\n".join(lines)
+
+
+def _num(v):
+    if v is None or math.isnan(v):
+        return None
+    return "inf" if math.isinf(v) else float(v)
+
+
+def _params_dict(p: TediParams) -> dict:
+    return {n: float(getattr(p, n)) for n in PARAM_NAMES}
+
+
+
+def _resolve_fit(fit) -> tuple[str, ...]:
+    if isinstance(fit, str):
+        if fit in FIT_CHOICES:
+            return FIT_CHOICES[fit]
+        fit = [f.strip() for f in fit.split(",") if f.strip()]
+    fit = tuple(fit)
+    bad = [f for f in fit if f not in PARAM_NAMES]
+    if not fit or bad or len(set(fit)) != len(fit):
+        raise ParameterError(f"--fit must be 'all', 'c' or distinct names among {', '.join(PARAM_NAMES)}; "
+                             f"got {','.join(fit) or 'nothing'}")
+    return fit
+
+
+def _fit_crf(collector: PairCollector, base: CameraResponse, mode: str) -> tuple[CameraResponse, bool, dict]:
+    if mode == "keep":
+        return base, False, {"reason": "kept the starting response (--crf keep)"}
+    group = collector.best_brackets
+    if not group:
+        return base, False, {"reason": "kept the starting response (no exposure brackets of a static scene found)"}
+    images = np.stack([im for im, _ in group])
+    products = np.array([p for _, p in group], dtype=np.float64)
+    fitted = debevec_malik(images, products)
+    crf = CameraResponse(fitted.g, base.valid_min, base.valid_max)
+    z = np.arange(base.valid_min, base.valid_max + 1)
+    change = float(np.max(np.abs(crf.g[z] - base.g[z])))
+    # consistency of the bracket: per pixel, g(Z) - ln(T K) should agree across the frames
+    lh = crf.g[images.astype(np.int64)] - np.log(products / 1e6)[:, None, None]
+    ok = (images >= crf.valid_min) & (images <= crf.valid_max)
+    cnt = ok.sum(axis=0)
+    mean = np.where(cnt > 0, (lh * ok).sum(axis=0) / np.maximum(cnt, 1), 0.0)
+    dev = (lh - mean)[ok & (cnt >= 2)[None]]
+    rms = float(np.sqrt(np.mean(dev ** 2))) if dev.size else math.nan
+    return crf, True, {"frames": len(group), "exposure_gain_us": [float(p) for p in sorted(products)],
+                       "max_abs_change_ln": change, "bracket_rms_ln": _num(rms)}
+
+
+def _report(progress, text: str) -> None:
+    if progress is not None:
+        progress(text)
+
+
+def _rms(parts) -> float:
+    parts = [r for r in parts if r.size]
+    if not parts:
+        return math.nan
+    r = np.concatenate(parts)
+    return float(np.sqrt(np.mean(r ** 2)))
+
+
+def _stage(name: str, pairs, res: TediCalibration) -> dict:
+    return {"stage": name, "pairs": len(pairs), "fitted": [k for k, v in res.stderr.items() if math.isfinite(v)]
+            + list(res.at_bound), "rms_before": res.rms_before, "rms_after": res.rms_after,
+            "evaluations": res.evaluations, "success": res.success, "message": res.message}
+
+
+def calibrate_collected(collector: PairCollector, *, base: CameraProfile | None = None, init: TediParams | None = None,
+                        fit="all", crf_mode: str = "auto", name: str | None = None, limits: CameraLimits | None = None,
+                        max_event_rate: float | None = None, slow_rate: float = DEFAULT_SLOW_RATE,
+                        loss: str = DEFAULT_LOSS, f_scale: float = DEFAULT_F_SCALE, extra: dict | None = None,
+                        progress=None, max_nfev: int = 200) -> CalibrationResult:
+    """Fit response (if brackets) and TEDI parameters on what ``collector`` kept; build the profile.
+
+    **Saturated pairs.** ``max_event_rate`` (events/s) is the sensor's bus ceiling: a pair whose
+    sensor-wide event rate reached 90 % of it in any 1 ms bin is *saturated* — the sensor dropped
+    events there, so its counts are incomplete whatever the thresholds are (``None``: unknown, no
+    pair counts as saturated).
+
+    **Stages.** When thresholds and compensation are both fitted and at least 3 pairs are not
+    saturated, the fit runs in two stages:
+
+    1. ``c±`` (with ``a = b = 0``) on the unsaturated pairs, where the counts are complete;
+    2. the compensation ``a±, b±`` with ``c±`` fixed, on all pairs (it is there to credit what the
+       sensor missed, at its bus ceiling or in refractory/slow pixels).
+
+    Fitting them jointly lets the saturated pairs inflate the thresholds instead (measured on the
+    simulated DAVIS346: c± +25-45 %), since a larger ``c`` credits more change to every event,
+    which the least-squares fit prefers to a compensation that acts only above its knee. Otherwise
+    (only one kind fitted, or too few unsaturated pairs) the named parameters are fitted jointly on
+    all pairs. When ``a±`` and ``b±`` of a polarity are both fitted, the knee ``b±/a±`` is bounded
+    below by ``slow_rate`` events per pixel per second: with a knee of zero the compensation
+    ``a m`` is a mere rescaling of ``c``.
+    """
+    base = base or CameraProfile()
+    init = init or base.tedi
+    fit = _resolve_fit(fit)
+    if crf_mode not in ("auto", "keep"):
+        raise ParameterError(f"--crf must be auto or keep, got {crf_mode!r}")
+    if isinstance(slow_rate, bool) or not isinstance(slow_rate, (int, float)) or not (math.isfinite(slow_rate)
+                                                                                     and slow_rate > 0):
+        raise ParameterError(f"slow_rate must be a positive number of events per pixel per second, got {slow_rate!r}")
+    if max_event_rate is not None and (isinstance(max_event_rate, bool) or not isinstance(max_event_rate, (int, float))
+                                       or not (math.isfinite(max_event_rate) and max_event_rate > 0)):
+        raise ParameterError(f"max_event_rate must be a positive number of events per second, got {max_event_rate!r}")
+    if not collector.pairs:
+        d = collector
+        if d.frames < 2:
+            raise ParameterError(f"calibration needs frames with their exposures: the input held {d.frames} frame(s) "
+                                 f"(formats without stored exposure need --exposure-us)")
+        raise ParameterError(
+            f"no frame pair qualifies: {d.considered} frames tried against up to {d.max_lag} earlier ones, none with "
+            f"{d.min_pixels} pixels valid in both, changed by >= {d.min_change:g} ln"
+            + (" and continuing their last event's direction" if d.continuation else "")
+            + "; record lighting changes or motion, or lower --min-change / --min-pixels")
+    crf, crf_fitted, crf_info = _fit_crf(collector, base.crf, crf_mode)
+    pairs = collector.pairs
+    t_fit = time.perf_counter()
+    last = [0.0]
+    label = [""]
+
+    def cb(n, rms):
+        now = time.perf_counter()
+        if now - last[0] > 0.5:
+            last[0] = now
+            _report(progress, f"fitting {label[0]}: evaluation {n}, RMS residual {rms:.4f} ln ({now - t_fit:.0f} s)")
+
+    c_names = tuple(n for n in fit if n.startswith("c_"))
+    comp_names = tuple(n for n in fit if not n.startswith("c_"))
+    knee = slow_rate if any(f"a_{p}" in fit and f"b_{p}" in fit for p in ("on", "off")) else 0.0
+    limit = None if max_event_rate is None else 0.9 * float(max_event_rate)
+    saturated = [limit is not None and pr.bus_peak_rate >= limit for pr in pairs]
+    complete = [pr for pr, sat in zip(pairs, saturated) if not sat]
+    robust = f", loss {loss}" + (f" (f_scale {f_scale:g} ln)" if loss != "linear" else "")
+    knee_text = f", knee b/a >= {knee:g} ev/s per pixel" if knee else ""
+    if c_names and comp_names and len(complete) >= 3:
+        label[0] = f"thresholds on {len(complete)} unsaturated pairs"
+        s1 = fit_tedi_pairs(complete, crf, TediParams(init.c_on, init.c_off), c_names, cb, max_nfev=max_nfev,
+                            loss=loss, f_scale=f_scale)
+        start = TediParams(s1.params.c_on, s1.params.c_off, init.a_on, init.b_on, init.a_off, init.b_off)
+        label[0] = f"compensation on {len(pairs)} pairs"
+        res = fit_tedi_pairs(pairs, crf, start, comp_names, cb, max_nfev=max_nfev, knee_min=knee, loss=loss,
+                             f_scale=f_scale)
+        stages = [_stage(f"{', '.join(c_names)} (a = b = 0) on the unsaturated pairs", complete, s1),
+                  _stage(f"{', '.join(comp_names)} (c fixed) on all pairs", pairs, res)]
+        stderr = {k: (s1.stderr[k] if k in c_names else res.stderr[k]) for k in PARAM_NAMES}
+        at_bound = list(s1.at_bound) + list(res.at_bound)
+        method = (f"two stages: {', '.join(c_names)} on the {len(complete)} unsaturated pairs, then "
+                  f"{', '.join(comp_names)} on all {len(pairs)} pairs{robust}{knee_text}")
+    else:
+        label[0] = f"{len(pairs)} pairs"
+        res = fit_tedi_pairs(pairs, crf, init, fit, cb, max_nfev=max_nfev, knee_min=knee, loss=loss, f_scale=f_scale)
+        stages = [_stage(", ".join(fit) + " on all pairs", pairs, res)]
+        stderr, at_bound = dict(res.stderr), list(res.at_bound)
+        method = f"{', '.join(fit)} jointly on all {len(pairs)} pairs{robust}{knee_text}"
+        if c_names and comp_names:
+            method += f" (only {len(complete)} unsaturated pairs: too few for two stages)"
+    params = res.params
+    plain = None
+    if comp_names:
+        label[0] = "thresholds without compensation"
+        plain = fit_tedi_pairs(pairs, crf, TediParams(params.c_on, params.c_off), ("c_on", "c_off"), cb,
+                               max_nfev=max_nfev, loss=loss, f_scale=f_scale)
+    r_before = pair_residuals(pairs, crf, init)
+    r_after = pair_residuals(pairs, crf, params)
+    r_plain = pair_residuals(pairs, crf, plain.params) if plain is not None else None
+    groups = {}
+    for key, want in (("unsaturated", False), ("saturated", True)):
+        idx = [i for i, v in enumerate(saturated) if v == want]
+        groups[key] = {"pairs": len(idx), "rms_before": _num(_rms([r_before[i] for i in idx])),
+                       "rms_after": _num(_rms([r_after[i] for i in idx])),
+                       "rms_plain": None if r_plain is None else _num(_rms([r_plain[i] for i in idx]))}
+    groups["max_event_rate"] = max_event_rate
+    per_pair = []
+    for pr, rb, ra, sat in zip(pairs, r_before, r_after, saturated):
+        per_pair.append({**pr.stats(), "saturated": sat, "rms_before": float(np.sqrt(np.mean(rb ** 2))),
+                         "rms_after": float(np.sqrt(np.mean(ra ** 2)))})
+    rms_before, rms_after = _rms(r_before), _rms(r_after)
+    num_res = int(sum(pr.n for pr in pairs))
+    h, w = collector.shape
+    sensor = base.sensor if (base.sensor.width, base.sensor.height) == (w, h) else SensorGeometry(w, h, f"{w}x{h}")
+    data = {**collector.describe(), **(extra or {})}
+    calib = {
+        "method": "Eq. 7 frame-to-frame consistency, squared residuals, SciPy least squares (trf); " + method,
+        "data": {k: data[k] for k in ("sources", "frames", "pairs_used", "pairs_considered") if k in data}
+        | ({"simulation": extra["simulation"]} if extra and "simulation" in extra else {}),
+        "selection": {**data["selection"], "slow_rate": slow_rate, "max_event_rate": max_event_rate},
+        "fitted": list(fit), "init": _params_dict(init),
+        "rms_before": rms_before, "rms_after": rms_after,
+        "rms_without_compensation": None if plain is None else plain.rms_after,
+        "pairs_saturated": int(sum(saturated)),
+        "stderr": {k: _num(v) for k, v in stderr.items() if k in fit},
+        "crf": "fitted (Debevec-Malik)" if crf_fitted else crf_info.get("reason", "kept"),
+    }
+    profile = CameraProfile(name=name or base.name, sensor=sensor, crf=crf, tedi=params,
+                            limits=limits or base.limits, calibration=calib)
+    return CalibrationResult(profile, params, init, stderr, at_bound, rms_before, rms_after, num_res, plain, method,
+                             stages, crf_fitted, crf_info, data, per_pair, groups, tuple(res.inactive))
+
