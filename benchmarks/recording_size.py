@@ -43,27 +43,11 @@ import numpy as np
 import necviz.sink as sink_mod
 from necviz.cli import main
 from necviz.core.event_image import EventImage
+from necviz.core.metrics import ssim
 
 GROUPS = ("frames", "event_images", "scalars", "other", "rest")
 DEMO = ["demo", "--duration", "2", "--no-prompt"]
 COMPARE = ["compare", "--duration", "2", "--no-sift"]
-
-
-def ssim(a: np.ndarray, b: np.ndarray) -> float:
-    """Mean SSIM of two grey uint8 images (Wang, Bovik, Sheikh & Simoncelli 2004, Eq. 13: Gaussian
-    window sigma 1.5 truncated at 11x11, C1 = (0.01 * 255)^2, C2 = (0.03 * 255)^2; the 5-pixel
-    border, where the window leaves the image, is not averaged)."""
-    a = a.astype(np.float64)
-    b = b.astype(np.float64)
-    c1, c2 = (0.01 * 255) ** 2, (0.03 * 255) ** 2
-
-    def g(x):
-        return cv2.GaussianBlur(x, (11, 11), 1.5, borderType=cv2.BORDER_REFLECT)
-
-    ma, mb = g(a), g(b)
-    va, vb, cov = g(a * a) - ma * ma, g(b * b) - mb * mb, g(a * b) - ma * mb
-    m = ((2 * ma * mb + c1) * (2 * cov + c2)) / ((ma * ma + mb * mb + c1) * (va + vb + c2))
-    return float(m[5:-5, 5:-5].mean())
 
 
 def _group(entity: str, kinds: set) -> str:

@@ -77,6 +77,26 @@ def recovery_times_ms(starts_us, saturated_rate, step_times_us, threshold: float
     return out
 
 
+def ssim(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean structural similarity of two grey 8-bit images (Wang, Bovik, Sheikh & Simoncelli 2004,
+    Eq. 13): Gaussian window σ = 1.5 truncated at 11x11, C1 = (0.01·255)², C2 = (0.03·255)²; the
+    5-pixel border, where the window leaves the image, is not averaged. 1.0 for identical images.
+    Used to choose the recordings' JPEG table (:mod:`necviz.sink`). O(pixels)."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    if a.shape != b.shape or a.ndim != 2:
+        raise ParameterError(f"ssim needs two grey images of one shape, got {a.shape} and {b.shape}")
+    c1, c2 = (0.01 * 255) ** 2, (0.03 * 255) ** 2
+
+    def g(x):
+        return cv2.GaussianBlur(x, (11, 11), 1.5, borderType=cv2.BORDER_REFLECT)
+
+    ma, mb = g(a), g(b)
+    va, vb, cov = g(a * a) - ma * ma, g(b * b) - mb * mb, g(a * b) - ma * mb
+    m = ((2 * ma * mb + c1) * (2 * cov + c2)) / ((ma * ma + mb * mb + c1) * (va + vb + c2))
+    return float(m[5:-5, 5:-5].mean())
+
+
 def normalise_brightness(image: np.ndarray, target: float = 128.0) -> np.ndarray:
     """The frame scaled so its mean digit is ``target`` (clipped to 0..255, rounded): ``Z' = Z · target / mean Z``.
 

@@ -1,5 +1,6 @@
 """Metrics on hand-made frames with known answers."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -65,3 +66,15 @@ def test_sift_inliers_high_for_a_shifted_copy_zero_for_a_blank_frame():
     other = SiftMatcher()
     other.next(img)
     assert other.next(_textured(seed=5)) < good / 3  # unrelated texture matches far less
+
+
+def test_ssim_is_one_for_identical_images_and_falls_with_noise():
+    from necviz.core.metrics import ssim
+
+    rng = np.random.default_rng(0)
+    img = cv2.GaussianBlur((rng.random((60, 80)) * 255).astype(np.uint8), (5, 5), 2)
+    assert ssim(img, img) == pytest.approx(1.0)
+    scores = [ssim(img, np.clip(img + rng.normal(0, s, img.shape), 0, 255).astype(np.uint8)) for s in (2, 8, 32)]
+    assert 1.0 > scores[0] > scores[1] > scores[2]
+    with pytest.raises(ParameterError):
+        ssim(img, img[:-1])

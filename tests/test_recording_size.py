@@ -24,26 +24,13 @@ from necviz.cli import main
 from necviz.core.event_image import EventImage
 from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import Frame
+from necviz.core.metrics import ssim
 from necviz.sink import EventPalette, RerunSink, encode_indexed_png
 from necviz.telemetry import FrameRecord
 from rrd_read import Rrd
 
 LANES = ("nec", "fixed")
 DURATION_S = 0.6
-
-
-def ssim(a: np.ndarray, b: np.ndarray) -> float:
-    """Mean SSIM (Wang et al. 2004: Gaussian window sigma 1.5, 11x11, K1 0.01, K2 0.03, L 255)."""
-    a, b = a.astype(np.float64), b.astype(np.float64)
-    c1, c2 = (0.01 * 255) ** 2, (0.03 * 255) ** 2
-
-    def g(x):
-        return cv2.GaussianBlur(x, (11, 11), 1.5, borderType=cv2.BORDER_REFLECT)
-
-    ma, mb = g(a), g(b)
-    va, vb, cov = g(a * a) - ma * ma, g(b * b) - mb * mb, g(a * b) - ma * mb
-    m = ((2 * ma * mb + c1) * (2 * cov + c2)) / ((ma * ma + mb * mb + c1) * (va + vb + c2))
-    return float(m[5:-5, 5:-5].mean())
 
 
 def images(path, entity: str) -> list[tuple[int, bytes]]:

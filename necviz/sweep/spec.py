@@ -242,6 +242,20 @@ def spec_columns(spec: dict, scenario_label: str, profile_label: str | None) -> 
 
 
 # -- reading a sweep file --------------------------------------------------------------------------
+def _entry(item, where: str, what: str, keys: set) -> dict:
+    """A ``controllers`` / ``scenarios`` entry as a table: a bare name becomes ``{name = …}``; anything
+    else but a table, or a key outside ``keys``, is a one-line error naming ``where``."""
+    if isinstance(item, str):
+        item = {"name": item}
+    if not isinstance(item, dict):
+        fields = ", ".join(k for k in ("name", "params", "zip", "sim") if k in keys)
+        raise SweepFileError(f"{where} must be a {what} name or a table with {fields}; got {item!r}")
+    bad = sorted(set(item) - keys)
+    if bad:
+        raise SweepFileError(f"{where}: unknown key(s) {', '.join(bad)}; accepted: {', '.join(sorted(keys))}")
+    return item
+
+
 def load_plan(path, *, check: bool = True) -> Plan:
     """Read, check and expand a sweep file (see the module docstring)."""
     p = Path(path)
@@ -330,13 +344,7 @@ def expand(data: dict, base: Path = Path("."), source: str = "sweep", text: str 
     ctrl_entries = []  # (name, params dict)
     for i, c in enumerate(_list_of(data, "controllers")):
         where = f"controllers[{i}]"
-        if isinstance(c, str):
-            c = {"name": c}
-        if not isinstance(c, dict):
-            raise SweepFileError(f"{where} must be a controller name or a table with name, params, zip; got {c!r}")
-        bad = sorted(set(c) - CONTROLLER_KEYS)
-        if bad:
-            raise SweepFileError(f"{where}: unknown key(s) {', '.join(bad)}; accepted: {', '.join(sorted(CONTROLLER_KEYS))}")
+        c = _entry(c, where, "controller", CONTROLLER_KEYS)
         name = c.get("name")
         if name not in CONTROLLERS:
             raise SweepFileError(f"{where}.name: unknown controller {name!r}; available: {', '.join(sorted(CONTROLLERS))}")
@@ -347,13 +355,7 @@ def expand(data: dict, base: Path = Path("."), source: str = "sweep", text: str 
     scen_entries = []  # (spec scenario value, label, preset name, params, sim, duration)
     for i, s in enumerate(_list_of(data, "scenarios")):
         where = f"scenarios[{i}]"
-        if isinstance(s, str):
-            s = {"name": s}
-        if not isinstance(s, dict):
-            raise SweepFileError(f"{where} must be a scenario name or a table with name, params, zip, sim; got {s!r}")
-        bad = sorted(set(s) - SCENARIO_KEYS)
-        if bad:
-            raise SweepFileError(f"{where}: unknown key(s) {', '.join(bad)}; accepted: {', '.join(sorted(SCENARIO_KEYS))}")
+        s = _entry(s, where, "scenario", SCENARIO_KEYS)
         name = s.get("name")
         if not isinstance(name, str) or not name:
             raise SweepFileError(f"{where}.name: a preset ({', '.join(sorted(SCENARIOS))}) or a scenario file")
