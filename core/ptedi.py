@@ -48,6 +48,11 @@ the zone re-anchors at a bound the event-propagated prediction breaks
 (:meth:`PeripheralEstimator.frame_bounds`, :meth:`PeripheralEstimator.add_frame`). The frame's
 own ``g(mean Z)`` is *not* a bound when it is clipped at both ends (its mean is lowered at one
 end and raised at the other), so it is never used as one.
+
+Layout: this module holds the estimator (exposure windows, anchors, prediction); its frame side
+(``ln Pbar`` per zone, the saturation bounds) is in :mod:`necviz.core.ptedi_frame`, its Numba kernels
+in :mod:`necviz.core.ptedi_kernels` (no compensation; the frame pass) and :mod:`necviz.core.ptedi_comp`
+(the per-pixel compensation); the kernels are re-exported here.
 """
 
 from __future__ import annotations
@@ -57,7 +62,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .crf import US_PER_S, CameraResponse, default_davis346
+from .crf import CameraResponse, default_davis346
 from .errors import EventFormatError, FrameFormatError, NotAnchoredError, ParameterError, StreamError
 from .event_model import TediParams, direct_integral
 from .events import EVENT_DTYPE
@@ -66,6 +71,12 @@ from .imu import ImuBatch, TriggerBatch
 from .regions import zone_map, zone_sizes
 from .sensor import SensorGeometry
 
+__all__ = ["FrameEstimate", "IMAGE_FORMS", "PeripheralEstimator",
+           # the Numba kernels, re-exported from ptedi_kernels and ptedi_comp
+           "BLOCK", "comp_between", "comp_rebase", "comp_restate", "comp_snapshot", "comp_sums", "image_stats",
+           "ptedi_close", "ptedi_close_comp", "ptedi_update", "ptedi_update_comp", "ptedi_update_comp_one",
+           "ptedi_update_whole"]
+
 IMAGE_FORMS = ("paper", "mean_log")
 _FREE, _OPEN, _CLOSED = 0, 1, 2
 
@@ -73,6 +84,7 @@ from .ptedi_comp import (
     comp_between, comp_rebase, comp_restate, comp_snapshot, comp_sums, ptedi_close_comp, ptedi_update_comp,
     ptedi_update_comp_one,
 )
+from .ptedi_frame import FrameSideMixin
 from .ptedi_kernels import BLOCK, image_stats, ptedi_close, ptedi_update, ptedi_update_whole
 
 #: the integral of Eq. 12 in plain Python (a scalar prediction is cheaper without a Numba dispatch)
@@ -102,7 +114,7 @@ class FrameEstimate:
     bound_side: np.ndarray | None = None
 
 
-class PeripheralEstimator:
+class PeripheralEstimator(FrameSideMixin):
     """Streaming P-TEDI estimate of the mean log irradiance of one or more peripheral zones.
 
     Feed it, in stream order: event batches (:meth:`update`), exposure markers
@@ -420,67 +432,6 @@ class PeripheralEstimator:
         self._wend[w] = t_us
         self._open = -1
 
-    def frame_log_irradiance(self, frame: Frame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(ln Pbar, valid fraction, over-exposed fraction)`` per zone from the image alone
-        (Eq. 15 or the mean-log form)."""
-        if self.whole:
-            lp, frac, over = self._whole_frame_log_irradiance(frame)
-            return np.array([lp]), np.array([frac]), np.array([over])
-        z = frame.image.ravel()
-        log_tk = math.log(frame.exposure_us / US_PER_S) + math.log(frame.gain)
-        zf, inr = self._zone_flat, self._in_region
-        valid = (z >= self.crf.valid_min) & (z <= self.crf.valid_max)
-        k = self.num_zones
-        nvalid = np.bincount(zf[inr & valid], minlength=k).astype(np.float64)
-        frac = nvalid / self.sizes
-        over = np.bincount(zf[inr & (z > self.crf.valid_max)], minlength=k) / self.sizes
-        if self.image_form == "paper":
-            mean_z = np.bincount(zf[inr], weights=z[inr].astype(np.float64), minlength=k) / self.sizes
-            return np.asarray(self.crf.log_exposure(mean_z), dtype=np.float64) - log_tk, frac, over
-        sel = inr & valid
-        gsum = np.bincount(zf[sel], weights=self.crf.g[z[sel]], minlength=k)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return gsum / nvalid - log_tk, frac, over
-
-    def frame_bounds(self, frame: Frame, log_pbar=None, frac=None, over=None) -> tuple[np.ndarray, np.ndarray]:
-        """Per zone, what a frame proves about its ``ln Pbar`` even when too many pixels are clipped:
-        ``(lower, upper)`` bounds, NaN where it proves nothing.
-
-        Clipping hides how far beyond the valid range a pixel's irradiance lies, but not on which side.
-        With the paper's image form (``g(mean Z)``: the log of the zone's mean exposure), a lower bound
-        always exists: count every under-exposed pixel as receiving nothing and every over-exposed one
-        as exactly at the top of the valid range, ``ln((Σ_valid E(Z) + N_over E(250)) / N) - ln T K``
-        with ``E = exp(g)``; this holds for frames clipped at both ends too. An upper bound exists only
-        when (essentially) nothing is over-exposed — at most ``one_sided_clip`` of the zone, a few hot
-        pixels — with under-exposed pixels counted at the bottom of the valid range. With the
-        ``mean_log`` form a clipped pixel's log is unbounded, so only a frame clipped at one end
-        (the other end at most ``one_sided_clip``) bounds it, from that side. O(pixels).
-        """
-        if log_pbar is None:
-            log_pbar, frac, over = self.frame_log_irradiance(frame)
-        under = 1.0 - frac - over
-        nan = np.full(self.num_zones, np.nan)
-        if self.image_form == "mean_log":
-            lower = np.where((over > under) & (under <= self.one_sided_clip), log_pbar, nan)
-            upper = np.where((under > over) & (over <= self.one_sided_clip), log_pbar, nan)
-            return lower, upper
-        crf = self.crf
-        z = frame.image.ravel()
-        log_tk = math.log(frame.exposure_us / US_PER_S) + math.log(frame.gain)
-        e_valid = np.where((np.arange(256) >= crf.valid_min) & (np.arange(256) <= crf.valid_max), np.exp(crf.g), 0.0)
-        if self.whole:
-            sums = np.array([float(np.bincount(z, minlength=256) @ e_valid)])
-        else:
-            inr = self._in_region
-            sums = np.bincount(self._zone_flat[inr], weights=e_valid[z[inr]], minlength=self.num_zones)
-        e_top, e_bottom = math.exp(crf.g[crf.valid_max]), math.exp(crf.g[crf.valid_min])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lower = np.log((sums / self.sizes) + over * e_top) - log_tk
-            upper = np.log((sums / self.sizes) + under * e_bottom + over * e_top) - log_tk
-        lower = np.where(np.isfinite(lower), lower, nan)
-        upper = np.where((over <= self.one_sided_clip) & np.isfinite(upper), upper, nan)
-        return lower, upper
-
     def add_frame(self, frame: Frame) -> FrameEstimate:
         """A frame arrived (after its announced exposure); re-anchor the zones where it is usable."""
         if frame.shape != self.sensor.shape:
@@ -569,28 +520,6 @@ class PeripheralEstimator:
             comp = self._comp_between(w, u)
             pred = pred + (self._kp[0] * comp[0] - self._kp[1] * comp[1]) * self._inv_n
         return pred
-
-    def _whole_frame_log_irradiance(self, frame: Frame) -> tuple[float, float, float]:
-        """Scalar :meth:`frame_log_irradiance` for the single whole-sensor zone."""
-        crf = self.crf
-        z = frame.image.ravel()
-        log_tk = math.log(frame.exposure_us / US_PER_S) + math.log(frame.gain)
-        if self.image_form == "paper":
-            total, nv, no = image_stats(z, crf.valid_min, crf.valid_max)
-            mean = total / z.size
-            i = min(int(mean), 254)
-            g_mean = crf.g[i] + (crf.g[i + 1] - crf.g[i]) * (mean - i)
-            return float(g_mean) - log_tk, nv / z.size, no / z.size
-        full = np.bincount(z, minlength=256)
-        hist = full[crf.valid_min : crf.valid_max + 1]
-        nv = int(hist.sum())
-        over = int(full[crf.valid_max + 1 :].sum()) / z.size
-        if nv == 0:
-            # no valid pixel: the clipped mean still bounds the irradiance (see add_frame)
-            mean = float(z.mean())
-            i = min(int(mean), 254)
-            return float(crf.g[i] + (crf.g[i + 1] - crf.g[i]) * (mean - i)) - log_tk, 0.0, over
-        return float(np.dot(hist, crf.g[crf.valid_min : crf.valid_max + 1])) / nv - log_tk, nv / z.size, over
 
     def feed(self, packet) -> FrameEstimate | None:
         """Dispatch one stream packet: an event array, an :class:`ExposureMarker` or a :class:`Frame`."""

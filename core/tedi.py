@@ -11,7 +11,9 @@ The integral is exact: the counts are constant between two events of a pixel, so
 event-free stretch is integrated in closed form by
 :func:`~necviz.core.event_model.segment_integral` (split at ``g``; ``u = |t-g|``,
 ``σ = sign(t-g)``). Conventions as in :mod:`necviz.core.edi` (an event at ``τ`` has happened
-for ``t > τ``; ``g`` anywhere relative to the exposure).
+for ``t > τ``; ``g`` anywhere relative to the exposure). The Numba kernels that evaluate it
+(:func:`stretch_integral`, :func:`tedi_exposure_integral`, :func:`tedi_integral_compact`,
+:func:`update_last_polarity`) live in :mod:`necviz.core.tedi_kernels` and are re-exported here.
 
 Calibration (Eq. 7, with squared residuals; see docs/method.md): for consecutive frames
 ``i-1, i`` and a common reference ``g`` (default: the exposure start of frame ``i-1``),
@@ -37,7 +39,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numba as nb
 import numpy as np
 import scipy.optimize
 
@@ -51,75 +52,21 @@ from .edi import (
     event_window,
     exposure_inputs,
     log_mean_irradiance,
-    signed_counts_at,
     valid_mask,
 )
 from .errors import ParameterError
-from .event_model import TediParams, segment_integral
+from .event_model import TediParams
 from .frames import Frame
+from .tedi_kernels import stretch_integral, tedi_exposure_integral, tedi_integral_compact, update_last_polarity
 
 __all__ = ["CalibrationPair", "TediCalibration", "calibrate_tedi", "fit_tedi_pairs", "last_polarity_before",
-           "pair_residuals", "prepare_pair", "tedi_reconstruct", "valid_mask", "PARAM_NAMES", "REFERENCES"]
+           "pair_residuals", "prepare_pair", "tedi_reconstruct", "valid_mask", "PARAM_NAMES", "REFERENCES",
+           # the Numba kernels, re-exported from tedi_kernels
+           "stretch_integral", "tedi_exposure_integral", "tedi_integral_compact", "update_last_polarity"]
 
 PARAM_NAMES = ("c_on", "c_off", "a_on", "b_on", "a_off", "b_off")
 REFERENCES = ("previous_start", "previous_end", "current_start", "current_end")
 PEAK_BIN_US = 2_000  # bin of CalibrationPair.peak_rate
-
-
-@nb.njit(cache=True)
-def stretch_integral(t0, t1, g, n_on, n_off, c_on, c_off, a_on, b_on, a_off, b_off):
-    """``∫_{t0}^{t1} exp(c^T D(g,t)) dt`` with constant signed counts ``n±`` (Eq. 5-6 integrand).
-
-    Splits the stretch at ``g`` and hands each side to :func:`segment_integral` with
-    ``u = |t - g|`` and ``σ = sign(t - g)``. ``b±`` per µs. O(1).
-    """
-    if t1 <= t0:
-        return 0.0
-    m_on = float(abs(n_on))
-    m_off = float(abs(n_off))
-    if t0 >= g:
-        return segment_integral(float(t0 - g), float(t1 - g), 1.0, m_on, m_off, c_on, c_off, a_on, b_on, a_off, b_off)
-    if t1 <= g:
-        return segment_integral(float(g - t1), float(g - t0), -1.0, m_on, m_off, c_on, c_off, a_on, b_on, a_off, b_off)
-    return (segment_integral(0.0, float(g - t0), -1.0, m_on, m_off, c_on, c_off, a_on, b_on, a_off, b_off)
-            + segment_integral(0.0, float(t1 - g), 1.0, m_on, m_off, c_on, c_off, a_on, b_on, a_off, b_off))
-
-
-@nb.njit(cache=True)
-def tedi_exposure_integral(t, x, y, p, pixmap, width, npix, s, e, g, c_on, c_off, a_on, b_on, a_off, b_off):
-    """TEDI: ``∫_s^e exp(c^T D(g,t,x)) dt`` per pixel, exact (Eq. 5 with the Eq. 6 compensation).
-
-    One pass gives the signed counts at ``s`` (events between ``g`` and ``s``); then a
-    time-ordered sweep over the events in ``[s, e)`` keeps per-pixel state (signed counts,
-    time of the last event, accumulated integral): at each event the pixel's event-free
-    stretch since its last event is integrated in closed form (:func:`stretch_integral`) and
-    its count updated; finally every pixel's last stretch up to ``e`` is added. No buffers.
-    ``pixmap[y*width + x]`` maps a pixel to its output index (``-1``: ignore its events).
-    Events must be sorted by time and may extend beyond ``[min(g,s), max(g,e))``.
-    O(events + pixels) time, O(pixels) memory. ``b±`` per µs.
-    """
-    n_on, n_off = signed_counts_at(t, x, y, p, pixmap, width, npix, g, s)
-    last = np.full(npix, s, np.int64)
-    acc = np.zeros(npix)
-    for i in range(t.shape[0]):
-        ti = t[i]
-        if ti < s:
-            continue
-        if ti >= e:
-            break
-        k = pixmap[np.int64(y[i]) * width + np.int64(x[i])]
-        if k < 0:
-            continue
-        if ti > last[k]:
-            acc[k] += stretch_integral(last[k], ti, g, n_on[k], n_off[k], c_on, c_off, a_on, b_on, a_off, b_off)
-            last[k] = ti
-        if p[i] > 0:
-            n_on[k] += 1
-        else:
-            n_off[k] += 1
-    for k in range(npix):
-        acc[k] += stretch_integral(last[k], e, g, n_on[k], n_off[k], c_on, c_off, a_on, b_on, a_off, b_off)
-    return acc
 
 
 def tedi_reconstruct(events: np.ndarray, frame: Frame, g_us: int, params: TediParams,
@@ -138,50 +85,6 @@ def tedi_reconstruct(events: np.ndarray, frame: Frame, g_us: int, params: TediPa
 
 
 # -- calibration (Eq. 7) ----------------------------------------------------------------------------
-
-
-@nb.njit(cache=True)
-def tedi_integral_compact(t, k, p, npix, s, e, g, c_on, c_off, a_on, b_on, a_off, b_off):
-    """:func:`tedi_exposure_integral` for events already mapped to compact pixel indices.
-
-    ``k[i]`` in ``0..npix-1`` is the output index of event ``i``'s pixel (the calibration keeps
-    only the pixels it uses, so no sensor-sized map is stored per frame pair). Same conventions:
-    events sorted by time, possibly extending beyond ``[min(g,s), max(g,e))``; ``b±`` per µs.
-    Returns ``∫_s^e exp(c^T D(g,t,x)) dt`` per pixel (Eq. 5-6). O(events + pixels).
-    """
-    n_on = np.zeros(npix, np.int64)
-    n_off = np.zeros(npix, np.int64)
-    for i in range(t.shape[0]):  # signed counts between g and s
-        ti = t[i]
-        if g <= ti and ti < s:
-            sgn = 1
-        elif s <= ti and ti < g:
-            sgn = -1
-        else:
-            continue
-        if p[i] > 0:
-            n_on[k[i]] += sgn
-        else:
-            n_off[k[i]] += sgn
-    last = np.full(npix, s, np.int64)
-    acc = np.zeros(npix)
-    for i in range(t.shape[0]):
-        ti = t[i]
-        if ti < s:
-            continue
-        if ti >= e:
-            break
-        j = k[i]
-        if ti > last[j]:
-            acc[j] += stretch_integral(last[j], ti, g, n_on[j], n_off[j], c_on, c_off, a_on, b_on, a_off, b_off)
-            last[j] = ti
-        if p[i] > 0:
-            n_on[j] += 1
-        else:
-            n_off[j] += 1
-    for j in range(npix):
-        acc[j] += stretch_integral(last[j], e, g, n_on[j], n_off[j], c_on, c_off, a_on, b_on, a_off, b_off)
-    return acc
 
 
 @dataclass(frozen=True)
@@ -377,13 +280,6 @@ def prepare_pair(events: np.ndarray, prev: Frame, cur: Frame, crf: CameraRespons
         events_per_pixel=float(ev.size) / sel.size, mean_abs_change=float(np.mean(change)), peak_rate=peak,
         source=source,
     )
-
-
-@nb.njit(cache=True)
-def update_last_polarity(x, y, p, width, last):
-    """``last[y*width + x] = ±1``: the polarity of each pixel's latest event, events in time order. O(events)."""
-    for i in range(x.shape[0]):
-        last[np.int64(y[i]) * width + np.int64(x[i])] = 1 if p[i] > 0 else -1
 
 
 def last_polarity_before(events: np.ndarray, t_us: int, shape: tuple[int, int]) -> np.ndarray:

@@ -22,7 +22,6 @@ of the driver path: on a shared machine other processes only ever slow a run dow
 
 from __future__ import annotations
 
-import sys
 import time
 
 import numba as nb
@@ -32,7 +31,8 @@ from .common import machine, write_result
 from ..core.errors import ParameterError
 from ..core.events import EVENT_DTYPE
 from ..core.sensor import DAVIS346
-from ..drivers.davis.decoder import C_IMU_MODEL, C_SIZE, S_LAST_Y, S_NEV, S_RTYPE, S_SIZE, DavisDecoder, decode_words
+from ..drivers.davis.decoder import DavisDecoder
+from ..drivers.davis.decoder_kernels import C_IMU_MODEL, C_SIZE, S_LAST_Y, S_NEV, S_RTYPE, S_SIZE, decode_words
 from ..drivers.davis.encoder import StreamEncoder, cds_pair
 from ..progress import output
 

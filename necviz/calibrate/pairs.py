@@ -41,7 +41,8 @@ from ..core.errors import EventFormatError, ParameterError
 from ..core.events import EVENT_DTYPE
 from ..core.frames import ExposureMarker, Frame
 from ..core.profile import CameraProfile
-from ..core.tedi import REFERENCES, CalibrationPair, prepare_pair, update_last_polarity
+from ..core.tedi import REFERENCES, CalibrationPair, prepare_pair
+from ..core.tedi_kernels import update_last_polarity
 
 DEFAULTS = {"min_change": 0.5, "min_pixels": 200, "max_pixels": 5_000, "max_pairs": 200,
             "max_bytes": 400_000_000, "max_gap_us": 1_000_000, "max_lag": 8, "static_events": 0.05,
