@@ -22,7 +22,7 @@ from .progress import LiveLine
 from .sink import RerunSink
 from .telemetry import Telemetry
 from .tuning import TuningConsole, TuningFile
-from .viewer import open_viewer
+from .viewer import FILE_FLUSH_S, open_viewer
 from .progress import output
 
 
@@ -107,9 +107,11 @@ def _run(ss: Session, out, stdin) -> dict:
     rec = viewer.rec
     rec.send_property("run", rr.AnyValues(**{k: str(val) for k, val in ss.properties.items()}, layout=layout))
     style_series(rec, names)
+    lossless = ss.lossless and speed is None and not v.watched
+    # a live session only saved to a file: series in 2 s chunks (Rerun's file sink indexes every chunk)
+    flush = FILE_FLUSH_S if not (lossless or v.watched) else None
     sink = RerunSink(rec, names, sensor.height, sensor.width, event_window_us=int(ss.show.event_window_ms * 1000),
-                     raw_points=ss.show.event_points, origin_us=ss.origin_us,
-                     lossless=ss.lossless and speed is None and not v.watched)
+                     raw_points=ss.show.event_points, origin_us=ss.origin_us, lossless=lossless, flush_period_s=flush)
     observers = [sink]
     if ss.recorder is not None:
         cam = ss.record_camera or ss.lanes[0].camera or ss.lanes[0].name

@@ -419,10 +419,8 @@ class EventSimulator:
         self._t_last = np.zeros(n, np.int64)
         self._wake = np.full(n, np.inf, np.float32)
         self._stats = np.zeros(2, np.int64)
-        cap = max(4096, n // 4)
-        self._buf_t = np.empty(cap, np.int64)
-        self._buf_pix = np.empty(cap, np.int32)
-        self._buf_p = np.empty(cap, np.int8)
+        self._base_cap = max(4096, n // 4)
+        self._shrink()
         self.t_us: int | None = None
         self.t_reset_us: int | None = None
         self.events_generated = 0
@@ -495,6 +493,13 @@ class EventSimulator:
         self.t_us = t
         self.t_reset_us = t
 
+    def _shrink(self) -> None:
+        """Scratch buffers for a step's events at their base size (``n / 4`` events)."""
+        cap = self._base_cap
+        self._buf_t = np.empty(cap, np.int64)
+        self._buf_pix = np.empty(cap, np.int32)
+        self._buf_p = np.empty(cap, np.int8)
+
     def _grow(self, need: int) -> None:
         cap = max(2 * self._buf_t.shape[0], need)
         for name, dt in (("_buf_t", np.int64), ("_buf_pix", np.int32), ("_buf_p", np.int8)):
@@ -566,4 +571,6 @@ class EventSimulator:
         self.events_emitted += n
         self.t_us = t1
         self.steps += 1
+        if self._buf_t.shape[0] > 4 * self._base_cap and n <= self._base_cap:
+            self._shrink()  # a burst (a lighting step) is over: do not hold its buffers for the rest of the run
         return ev
