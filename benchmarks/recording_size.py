@@ -11,7 +11,7 @@ reads each file back (``rerun.chunk.RrdReader``) and reports:
   those of its chunks written alone with ``LazyChunkStream.write_rrd`` (LZ4, as the SDK writes
   them), minus the bytes of an empty file;
 * the sink's encode time (every call of :func:`necviz.sink.encode_frame` and
-  :func:`necviz.sink.encode_indexed_png` during the demo, wall time on the sink's thread);
+  :meth:`necviz.sink.EventPalette.png` during the demo, wall time on the sink's thread);
 * frame fidelity: the SSIM (Wang et al. 2004: 11x11 Gaussian window, sigma 1.5, K1 0.01, K2 0.03;
   mean over the image) of every frame decoded from the file against the frame the simulator
   produced; event images: how many decode to exactly the rendered colours;
@@ -106,7 +106,7 @@ class Capture:
     def __init__(self):
         self.frames, self.frame_bytes, self.frame_s, self.by_blob = [], 0, 0.0, {}
         self.events, self.event_bytes, self.event_s = [], 0, 0.0
-        self._f, self._e = sink_mod.encode_frame, sink_mod.encode_indexed_png
+        self._f, self._e = sink_mod.encode_frame, sink_mod.EventPalette.png
 
     def __enter__(self):
         def frame(image, *a, **k):
@@ -118,19 +118,19 @@ class Capture:
             self.frame_bytes += len(out)
             return out
 
-        def events(indices, palette, *a, **k):
+        def events(palette, image, *a, **k):
             t = time.perf_counter()
-            out = self._e(indices, palette, *a, **k)
+            out = self._e(palette, image, *a, **k)
             self.event_s += time.perf_counter() - t
-            self.events.append(palette[indices])
+            self.events.append(image.render())
             self.event_bytes += len(out)
             return out
 
-        sink_mod.encode_frame, sink_mod.encode_indexed_png = frame, events
+        sink_mod.encode_frame, sink_mod.EventPalette.png = frame, events
         return self
 
     def __exit__(self, *exc):
-        sink_mod.encode_frame, sink_mod.encode_indexed_png = self._f, self._e
+        sink_mod.encode_frame, sink_mod.EventPalette.png = self._f, self._e
 
 
 def _run(argv: list[str]) -> float:

@@ -66,6 +66,31 @@ def render_event_image(counts_on, counts_off, table, k, out):
     return out
 
 
+@nb.njit(cache=True, nogil=True)
+def palette_rows(counts_on, counts_off, k, bits, out):
+    """The rows of a paletted PNG (ISO/IEC 15948, filter type 0) of the window: pixel index
+    ``clip(on - off, -k, k) + k`` into :func:`colour_table`, ``bits`` (4 or 8) per pixel, two
+    4-bit pixels per byte high nibble first (an odd last pixel padded with 0). ``out``:
+    ``H x (1 + ceil(W bits / 8))`` uint8, column 0 the filter byte. O(H W); releases the GIL."""
+    h, w = counts_on.shape
+    for r in range(h):
+        out[r, 0] = 0
+        for c in range(w):
+            d = counts_on[r, c] - counts_off[r, c]
+            if d > k:
+                d = k
+            elif d < -k:
+                d = -k
+            i = d + k
+            if bits == 8:
+                out[r, 1 + c] = i
+            elif c % 2 == 0:
+                out[r, 1 + c // 2] = i << 4
+            else:
+                out[r, 1 + c // 2] |= i
+    return out
+
+
 class EventImage:
     """Accumulates events for one window and renders it as an RGB uint8 image (H x W x 3)."""
 

@@ -541,6 +541,13 @@ class PeripheralEstimator(FrameSideMixin):
             return math.isfinite(self.anchor_log[0])
         return bool(np.isfinite(self.anchor_log).any())
 
+    def event_totals(self) -> tuple[int, int]:
+        """ON and OFF events counted in the region so far (every zone)."""
+        if self.num_zones == 1:
+            on, off = self.counts_on[0], self.counts_off[0]
+            return int(on), int(off)
+        return int(self.counts_on.sum()), int(self.counts_off.sum())
+
     def predict_zones(self, t_us: int | None = None) -> np.ndarray:
         """``ln P(t)`` per zone (Eq. 12 with the compensation); NaN for zones never anchored.
 

@@ -3,8 +3,8 @@
 :class:`FrameSideMixin` holds the image computations of :class:`necviz.core.ptedi.PeripheralEstimator`:
 ``ln Pbar`` per zone from the image alone (Eq. 15, ``g(mean_R Z) - ln T - ln K``, or the mean-log
 form: the mean over valid pixels of ``g(Z)``), with the valid and over-exposed fractions the anchor
-rule reads (:meth:`~FrameSideMixin.frame_log_irradiance`, and its scalar whole-sensor form using
-:func:`~necviz.core.ptedi_kernels.image_stats`), and the saturation bounds a clipped frame still
+rule reads (:meth:`~FrameSideMixin.frame_log_irradiance`, and its scalar whole-sensor form from
+the frame's digit histogram, :meth:`~FrameSideMixin.digit_histogram_of`), and the saturation bounds a clipped frame still
 proves (:meth:`~FrameSideMixin.frame_bounds`). The anchor rule that uses them is
 :meth:`PeripheralEstimator.add_frame <necviz.core.ptedi.PeripheralEstimator.add_frame>`.
 """
@@ -17,7 +17,9 @@ import numpy as np
 
 from .crf import US_PER_S
 from .frames import Frame
-from .ptedi_kernels import image_stats
+from .ptedi_kernels import digit_histogram
+
+_DIGITS = np.arange(256, dtype=np.int64)
 
 
 class FrameSideMixin:
@@ -71,9 +73,9 @@ class FrameSideMixin:
         crf = self.crf
         z = frame.image.ravel()
         log_tk = math.log(frame.exposure_us / US_PER_S) + math.log(frame.gain)
-        e_valid = np.where((np.arange(256) >= crf.valid_min) & (np.arange(256) <= crf.valid_max), np.exp(crf.g), 0.0)
+        e_valid = self._valid_exposures(crf)
         if self.whole:
-            sums = np.array([float(np.bincount(z, minlength=256) @ e_valid)])
+            sums = np.array([float(self.digit_histogram_of(frame)[0] @ e_valid)])
         else:
             inr = self._in_region
             sums = np.bincount(self._zone_flat[inr], weights=e_valid[z[inr]], minlength=self.num_zones)
@@ -85,13 +87,34 @@ class FrameSideMixin:
         upper = np.where((over <= self.one_sided_clip) & np.isfinite(upper), upper, nan)
         return lower, upper
 
+    def digit_histogram_of(self, frame: Frame) -> np.ndarray:
+        """The frame's whole-image digit histogram (1 x 256 int64,
+        :func:`~necviz.core.ptedi_kernels.digit_histogram`), computed once per frame: the anchor, the
+        saturation bounds and a controller's metering all read it."""
+        memo = getattr(self, "_hist_memo", None)
+        if memo is None or memo[0] is not frame.image:
+            memo = (frame.image, digit_histogram(frame.image.ravel()))
+            self._hist_memo = memo
+        return memo[1]
+
+    def _valid_exposures(self, crf) -> np.ndarray:
+        """``exp(g(Z))`` for valid digits, 0 for clipped ones (256 values; kept per response curve)."""
+        cached = getattr(self, "_e_valid", None)
+        if cached is None or cached[0] is not crf:
+            d = np.arange(256)
+            cached = (crf, np.where((d >= crf.valid_min) & (d <= crf.valid_max), np.exp(crf.g), 0.0))
+            self._e_valid = cached
+        return cached[1]
+
     def _whole_frame_log_irradiance(self, frame: Frame) -> tuple[float, float, float]:
         """Scalar :meth:`frame_log_irradiance` for the single whole-sensor zone."""
         crf = self.crf
         z = frame.image.ravel()
         log_tk = math.log(frame.exposure_us / US_PER_S) + math.log(frame.gain)
         if self.image_form == "paper":
-            total, nv, no = image_stats(z, crf.valid_min, crf.valid_max)
+            h = self.digit_histogram_of(frame)[0]  # one pass over the image, shared with the bounds and metering
+            total = int(h @ _DIGITS)
+            nv, no = int(h[crf.valid_min:crf.valid_max + 1].sum()), int(h[crf.valid_max + 1:].sum())
             mean = total / z.size
             i = min(int(mean), 254)
             g_mean = crf.g[i] + (crf.g[i + 1] - crf.g[i]) * (mean - i)

@@ -156,3 +156,36 @@ def image_stats(z, vmin, vmax):
         nvalid += (np.uint8(v - vmin) <= span)
         nover += v > vmax
     return total, nvalid, nover
+
+
+@nb.njit(cache=True)
+def digit_histograms(z, zones, num_zones):
+    """Per zone, the count of each digit 0..255 of an 8-bit image (``zones[i] < 0``: pixel ignored).
+    One pass, O(pixels); ``np.bincount`` would first widen the image to 64-bit integers."""
+    out = np.zeros((num_zones, 256), np.int64)
+    for i in range(z.shape[0]):
+        k = zones[i]
+        if k >= 0:
+            out[k, z[i]] += 1
+    return out
+
+
+@nb.njit(cache=True)
+def digit_histogram(z):
+    """:func:`digit_histograms` for one zone covering the image (four interleaved partial histograms,
+    so runs of equal digits do not serialise on one counter)."""
+    part = np.zeros((4, 256), np.int64)
+    n = z.shape[0]
+    m = n - n % 4
+    for i in range(0, m, 4):
+        part[0, z[i]] += 1
+        part[1, z[i + 1]] += 1
+        part[2, z[i + 2]] += 1
+        part[3, z[i + 3]] += 1
+    for i in range(m, n):
+        part[0, z[i]] += 1
+    out = np.zeros((1, 256), np.int64)
+    for k in range(4):
+        for d in range(256):
+            out[0, d] += part[k, d]
+    return out

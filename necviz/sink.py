@@ -56,10 +56,10 @@ import numpy as np
 import rerun as rr
 
 from . import schema as S
-from .core.event_image import BACKGROUND_RGB, OFF_RGB, ON_RGB, EventImage, colour_table
+from .core.event_image import BACKGROUND_RGB, OFF_RGB, ON_RGB, EventImage, colour_table, palette_rows
 from .core.frames import Frame
 from .pipeline import Observer
-from .telemetry import SATURATED, FrameRecord
+from .telemetry import FrameRecord
 
 
 
@@ -101,23 +101,30 @@ def encode_indexed_png(indices: np.ndarray, palette: np.ndarray, level: int = 6)
     uint8, each < ``len(palette)``) with ``palette`` (N x 3 uint8 RGB, N <= 256); 4 bits a pixel when
     N <= 16, else 8. Lossless: decodes to exactly ``palette[indices]``. ``level``: zlib level."""
     h, w = indices.shape
-    n = len(palette)
-    if not 1 <= n <= 256:
-        raise ValueError(f"a PNG palette holds 1..256 colours, not {n}")
-    if n <= 16:
-        bits = 4
+    bits = _palette_bits(len(palette))
+    if bits == 4:
         p = indices if w % 2 == 0 else np.pad(indices, ((0, 0), (0, 1)))
         rows = (p[:, 0::2] << 4) | p[:, 1::2]
     else:
-        bits, rows = 8, indices
+        rows = indices
     raw = np.empty((h, rows.shape[1] + 1), np.uint8)
     raw[:, 0] = 0  # filter type 0 (None): paletted images gain nothing from prediction
     raw[:, 1:] = rows
+    return png_from_rows(raw, w, bits, palette, level)
 
+
+def _palette_bits(n: int) -> int:
+    if not 1 <= n <= 256:
+        raise ValueError(f"a PNG palette holds 1..256 colours, not {n}")
+    return 4 if n <= 16 else 8
+
+
+def png_from_rows(raw: np.ndarray, width: int, bits: int, palette: np.ndarray, level: int = 6) -> bytes:
+    """A paletted PNG from its filtered rows ``raw`` (H x (1 + row bytes) uint8, filter byte first)."""
     def chunk(kind: bytes, data: bytes) -> bytes:
         return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
 
-    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, bits, 3, 0, 0, 0))
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, raw.shape[0], bits, 3, 0, 0, 0))
             + chunk(b"PLTE", np.ascontiguousarray(palette, np.uint8).tobytes())
             + chunk(b"IDAT", zlib.compress(raw.tobytes(), level)) + chunk(b"IEND", b""))
 
@@ -129,12 +136,23 @@ class EventPalette:
 
     def __init__(self, image: EventImage):
         self.palette, self.k = colour_table(ON_RGB, OFF_RGB, BACKGROUND_RGB, image.saturate_at)
+        self._raw: np.ndarray | None = None
 
     def indices(self, image: EventImage) -> np.ndarray:
         d = image.counts_on - image.counts_off
         np.clip(d, -self.k, self.k, out=d)
         d += self.k
         return d.astype(np.uint8)
+
+    def png(self, image: EventImage, level: int = 6) -> bytes:
+        """``encode_indexed_png(self.indices(image), self.palette, level)`` in one pass over the
+        counts (:func:`~necviz.core.event_image.palette_rows`, without the GIL)."""
+        h, w = image.counts_on.shape
+        bits = _palette_bits(len(self.palette))
+        if self._raw is None or self._raw.shape != (h, 1 + (w * bits + 7) // 8):
+            self._raw = np.empty((h, 1 + (w * bits + 7) // 8), np.uint8)
+        palette_rows(image.counts_on, image.counts_off, self.k, bits, self._raw)
+        return png_from_rows(self._raw, w, bits, self.palette, level)
 
 
 class RateLimit:
@@ -415,7 +433,7 @@ class RerunSink(Observer):
             drawn = sum(self._image.add(p, stride) for p in self._parts)  # no copy: the kernel strides
             self.stats["events_drawn"] += drawn
             self.stats["events_decimated"] += seen - drawn
-            png = encode_indexed_png(self._palette.indices(self._image), self._palette.palette, self.png_level)
+            png = self._palette.png(self._image, self.png_level)
             self._log_image(S.EVENTS, end, self._window_seq, png, "image/png")
             if self.raw_points and self._parts:
                 pts = np.concatenate([p[::stride] for p in self._parts])[: self.raw_points]

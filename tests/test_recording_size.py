@@ -71,23 +71,23 @@ def demo(tmp_path_factory):
     """A short demo (tunnel_exit: the dark, noisy tunnel frames), with what the sink was given to encode."""
     path = tmp_path_factory.mktemp("size") / "demo.rrd"
     sources, palettes = {}, []
-    f_enc, e_enc = sink_mod.encode_frame, sink_mod.encode_indexed_png
+    f_enc, e_enc = sink_mod.encode_frame, sink_mod.EventPalette.png
 
     def frame(image, *a, **k):
         out = f_enc(image, *a, **k)
         sources[out] = image.copy()
         return out
 
-    def events(indices, palette, *a, **k):
-        palettes.append(palette[indices])
-        return e_enc(indices, palette, *a, **k)
+    def events(self, image, *a, **k):
+        palettes.append(image.render())  # the colours the event image's own renderer gives
+        return e_enc(self, image, *a, **k)
 
-    sink_mod.encode_frame, sink_mod.encode_indexed_png = frame, events
+    sink_mod.encode_frame, sink_mod.EventPalette.png = frame, events
     try:
         assert main(["demo", "--duration", str(DURATION_S), "--controllers", ",".join(LANES), "--save", str(path),
                      "--no-prompt"]) == 0
     finally:
-        sink_mod.encode_frame, sink_mod.encode_indexed_png = f_enc, e_enc
+        sink_mod.encode_frame, sink_mod.EventPalette.png = f_enc, e_enc
     return path, sources, palettes
 
 
@@ -159,6 +159,7 @@ def test_paletted_png_is_lossless_for_any_window(h, w, saturate_at, n, seed):
     img.add(ev)
     pal = EventPalette(img)
     png = encode_indexed_png(pal.indices(img), pal.palette)
+    assert pal.png(img) == png  # the sink's one-pass kernel writes the same bytes
     rgb = img.render()
     assert np.array_equal(cv2.cvtColor(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR),
                                        cv2.COLOR_BGR2RGB), rgb)

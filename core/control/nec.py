@@ -78,6 +78,7 @@ from ..crf import US_PER_S
 from ..errors import ParameterError
 from ..frames import Frame
 from ..ptedi import FrameEstimate, PeripheralEstimator
+from ..ptedi_kernels import digit_histograms
 from .base import CameraLimits, Controller, ExposureCommand, Tunable
 
 #: metering statistics (module docstring)
@@ -114,39 +115,6 @@ def error_weight(relative_error: float, dead_band: float, full_band: float) -> f
     return x * x * (3.0 - 2.0 * x)
 
 
-@nb.njit(cache=True)
-def digit_histograms(z, zones, num_zones):
-    """Per zone, the count of each digit 0..255 of an 8-bit image (``zones[i] < 0``: pixel ignored).
-    One pass, O(pixels); ``np.bincount`` would first widen the image to 64-bit integers."""
-    out = np.zeros((num_zones, 256), np.int64)
-    for i in range(z.shape[0]):
-        k = zones[i]
-        if k >= 0:
-            out[k, z[i]] += 1
-    return out
-
-
-@nb.njit(cache=True)
-def digit_histogram(z):
-    """:func:`digit_histograms` for one zone covering the image (four interleaved partial histograms,
-    so runs of equal digits do not serialise on one counter)."""
-    part = np.zeros((4, 256), np.int64)
-    n = z.shape[0]
-    m = n - n % 4
-    for i in range(0, m, 4):
-        part[0, z[i]] += 1
-        part[1, z[i + 1]] += 1
-        part[2, z[i + 2]] += 1
-        part[3, z[i + 3]] += 1
-    for i in range(m, n):
-        part[0, z[i]] += 1
-    out = np.zeros((1, 256), np.int64)
-    for k in range(4):
-        for d in range(256):
-            out[0, d] += part[k, d]
-    return out
-
-
 def censored_quantiles(hist, q: float, g, valid_min: int, valid_max: int) -> tuple[np.ndarray, np.ndarray]:
     """The ``q``-quantile of ``g(Z)`` per row of a digit histogram, with clipped pixels censored.
 
@@ -161,31 +129,59 @@ def censored_quantiles(hist, q: float, g, valid_min: int, valid_max: int) -> tup
     bottom-clipped ones (``value = g(valid_min + 1/2)``, an upper bound), 2 where nothing is known
     (no pixels). O(256) per row.
     """
-    h = np.asarray(hist, dtype=np.float64)
+    h = np.asarray(hist)
     if h.shape[-1] != 256:
         raise ParameterError(f"censored_quantiles needs 256-bin histograms, got shape {h.shape}")
     if not 0.0 < q < 1.0:
         raise ParameterError(f"quantile must lie in (0, 1), got {q!r}")
-    h = h.reshape(-1, 256)
-    g = np.asarray(g, dtype=np.float64)
-    cum = np.cumsum(h, axis=1)
-    n = cum[:, -1]
-    r = q * n
-    n_lo = cum[:, valid_min]  # Z <= valid_min
-    n_top = cum[:, valid_max - 1]  # Z < valid_max
-    below = r <= n_lo
-    above = r >= n_top
-    b = np.minimum(np.sum(cum < r[:, None], axis=1), 255)  # first bin whose cumulative count reaches r
-    rows = np.arange(h.shape[0])
-    prev = np.where(b > 0, cum[rows, np.maximum(b - 1, 0)], 0.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        pos = b - 0.5 + (r - prev) / h[rows, b]
-    pos = np.where(below, valid_min + 0.5, np.where(above, valid_max - 0.5, pos))
-    value = np.interp(pos, np.arange(256.0), g)
-    side = np.where(below & above, 2, np.where(above, 1, np.where(below, -1, 0))).astype(np.int8)
-    side[n <= 0] = 2
-    value[n <= 0] = np.nan
-    return value, side
+    h = np.ascontiguousarray(h.reshape(-1, 256), dtype=np.float64)
+    pos = np.empty(h.shape[0])
+    side = np.empty(h.shape[0], np.int8)
+    _quantile_positions(h, float(q), int(valid_min), int(valid_max), pos, side)
+    return np.interp(pos, _DIGITS, np.asarray(g, dtype=np.float64)), side
+
+
+_DIGITS = np.arange(256.0)
+
+
+@nb.njit(cache=True, nogil=True)
+def _quantile_positions(h, q, valid_min, valid_max, pos, side):
+    """:func:`censored_quantiles` before ``g``: per row of ``h`` (float64 counts, 256 bins) the
+    continuous digit of rank ``r = q N`` and its censoring side; NaN and side 2 for an empty row.
+    The first bin whose cumulative count reaches ``r`` is ``b``; inside it, pixels are spread
+    evenly: ``b - 1/2 + (r - cum[b-1]) / h[b]``. O(256) per row."""
+    for i in range(h.shape[0]):
+        cum = np.empty(256)
+        acc = 0.0
+        for d in range(256):
+            acc += h[i, d]
+            cum[d] = acc
+        n = cum[255]
+        if n <= 0.0:
+            pos[i] = np.nan
+            side[i] = 2
+            continue
+        r = q * n
+        below = r <= cum[valid_min]  # Z <= valid_min
+        above = r >= cum[valid_max - 1]  # Z < valid_max
+        if below and above:
+            side[i] = 2
+        elif above:
+            side[i] = 1
+        elif below:
+            side[i] = -1
+        else:
+            side[i] = 0
+        if below:
+            pos[i] = valid_min + 0.5
+        elif above:
+            pos[i] = valid_max - 0.5
+        else:
+            b = 0
+            while b < 255 and cum[b] < r:
+                b += 1
+            prev = cum[b - 1] if b > 0 else 0.0
+            pos[i] = (b - 0.5) + (r - prev) / h[i, b]
 
 
 def weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
@@ -423,7 +419,7 @@ class NECController(Controller):
         if self.metering == "zones":
             hist = digit_histograms(z, est._zone_flat, est.num_zones)
         else:
-            hist = digit_histogram(z)
+            hist = est.digit_histogram_of(frame)  # shared with P-TEDI's anchor (one pass per frame)
         med, s50 = censored_quantiles(hist, 0.5, crf.g, crf.valid_min, crf.valid_max)
         if self.metering != "percentile":
             return med, s50
@@ -458,7 +454,7 @@ class NECController(Controller):
         """Pool event windows of at least :data:`BUS_WINDOW_US`; flag one at the bus ceiling with a
         dominant polarity (case (a) of the escape rule)."""
         est = self.estimator
-        on, off = int(est.counts_on.sum()), int(est.counts_off.sum())
+        on, off = est.event_totals()
         d_on = on - self._counts_seen[0]
         d_off = off - self._counts_seen[1]
         self._counts_seen = (on, off)
