@@ -270,3 +270,13 @@ def test_an_unwatched_live_session_sends_its_series_in_few_chunks(tmp_path):
             rows += ch.to_record_batch().num_rows
     assert rows >= 100  # 3 s of 50 fps frames, each with its applied exposure
     assert 1 <= chunks <= wall / FILE_FLUSH_S + 2
+
+
+def test_live_frames_skip_huffman_optimisation_but_decode_to_the_same_pixels():
+    """Optimised Huffman tables change only the entropy coding: the live sink's faster frames decode
+    exactly as the file sink's do, and cost more bytes."""
+    rng = np.random.default_rng(3)
+    img = np.clip(rng.normal(120, 12, (26, 34)) + np.linspace(0, 60, 34), 0, 255).astype(np.uint8)
+    fast, small = sink_mod.encode_frame(img, optimize=False), sink_mod.encode_frame(img)
+    assert len(fast) > len(small)
+    assert np.array_equal(np.asarray(Image.open(io.BytesIO(fast))), np.asarray(Image.open(io.BytesIO(small))))
