@@ -428,3 +428,19 @@ def test_static_step_is_fast_on_a_davis346():
         sim.step(base, t)
         times.append(time.perf_counter() - a)
     assert np.median(times) < 1e-3, f"static step took {np.median(times) * 1e3:.2f} ms"
+
+
+def test_a_bursts_scratch_buffers_are_let_go_once_it_is_over():
+    """A lighting step's burst grows the event buffers; a few hundred quiet steps later they are back
+    near their base size (a long live session must not hold every burst's memory). That the events
+    do not depend on the buffers is pinned by tests/test_speed_invariance.py."""
+    from necviz.drivers.sim.dvs import SHRINK_EVERY
+
+    sim = EventSimulator(DAVIS346, DvsParams(shot_noise_hz=0.0, leak_hz=0.0), seed=1)
+    base = np.zeros(DAVIS346.shape)
+    sim.reset(base, 0)
+    sim.step(base + 3.0, 1_000)  # every pixel crosses its threshold ~10 times (the bus ceiling keeps 12k)
+    assert sim.events_generated > 4 * sim._base_cap and sim._buf_t.shape[0] >= sim.events_generated
+    for k in range(2 * SHRINK_EVERY):  # the photoreceptor settles at the new level: few events a step
+        sim.step(base + 3.0, 2_000 + 1_000 * k)
+    assert sim._buf_t.shape[0] <= 4 * sim._base_cap

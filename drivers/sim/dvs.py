@@ -171,6 +171,10 @@ def lowpass_table(dt_us: float, omega_per_us: float, ref_log: float):
     return np.exp(-dt_us * omega_per_us * inten01(grid, ref_log)), lo, (TAB_SIZE - 1) / TAB_SPAN
 
 
+#: Steps between checks of the scratch buffers: they shrink to twice the largest step seen since the
+#: last check when they are more than 4x that (so a burst's buffers are let go, a busy scene keeps them).
+SHRINK_EVERY = 256
+
 @nb.njit(cache=True, nogil=True)
 def dvs_pixels(lnew, lp, ref, th_on, th_off, leak_k, t_last, wake,
                t0, t1, e0, e1, omega_s, a_tab, tab_lo, tab_inv_h, refractory, start,
@@ -420,7 +424,8 @@ class EventSimulator:
         self._wake = np.full(n, np.inf, np.float32)
         self._stats = np.zeros(2, np.int64)
         self._base_cap = max(4096, n // 4)
-        self._shrink()
+        self._shrink(self._base_cap)
+        self._peak = self._since = 0  # the largest step's events over the last SHRINK_EVERY steps
         self.t_us: int | None = None
         self.t_reset_us: int | None = None
         self.events_generated = 0
@@ -493,9 +498,8 @@ class EventSimulator:
         self.t_us = t
         self.t_reset_us = t
 
-    def _shrink(self) -> None:
-        """Scratch buffers for a step's events at their base size (``n / 4`` events)."""
-        cap = self._base_cap
+    def _shrink(self, cap: int) -> None:
+        """Scratch buffers for ``cap`` events (fresh: nothing in them is kept between steps)."""
         self._buf_t = np.empty(cap, np.int64)
         self._buf_pix = np.empty(cap, np.int32)
         self._buf_p = np.empty(cap, np.int8)
@@ -571,6 +575,11 @@ class EventSimulator:
         self.events_emitted += n
         self.t_us = t1
         self.steps += 1
-        if self._buf_t.shape[0] > 4 * self._base_cap and n <= self._base_cap:
-            self._shrink()  # a burst (a lighting step) is over: do not hold its buffers for the rest of the run
+        self._peak = max(self._peak, n)
+        self._since += 1
+        if self._since >= SHRINK_EVERY:  # a burst (a lighting step) is over: do not hold its buffers all run
+            want = max(self._base_cap, 2 * self._peak)
+            if self._buf_t.shape[0] > 4 * want:
+                self._shrink(want)
+            self._peak = self._since = 0
         return ev
