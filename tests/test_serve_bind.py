@@ -23,7 +23,10 @@ def serve(tmp_path, *extra) -> tuple[subprocess.Popen, set, str]:
     grpc, web = free_port(), free_port()
     proc = subprocess.Popen([sys.executable, "-m", "necviz", "demo", "--duration", "0.2", "--controllers", "nec",
                              "--serve", "--grpc-port", str(grpc), "--web-port", str(web), "--no-prompt", *extra],
-                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            # Ctrl-C must reach it even when the suite itself runs in the background (a shell's
+                            # `cmd &` ignores SIGINT, and children inherit that, so Python would not catch it)
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     lines = []
     deadline = time.time() + 120
     while time.time() < deadline:
