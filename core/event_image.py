@@ -47,6 +47,17 @@ def colour_table(on_rgb, off_rgb, background_rgb, saturate_at: float) -> tuple[n
     return (bg + a * (target - bg)).astype(np.uint8), k
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def net_index(on, off, k):
+    """A pixel's colour index: its net polarity ``on - off`` clipped to ``[-k, k]``, plus ``k``."""
+    d = on - off
+    if d > k:
+        d = k
+    elif d < -k:
+        d = -k
+    return d + k
+
+
 @nb.njit(cache=True, nogil=True)
 def render_event_image(counts_on, counts_off, table, k, out):
     """``out[r, c] = table[clip(on - off, -k, k) + k]``: each pixel coloured by its net polarity.
@@ -54,12 +65,7 @@ def render_event_image(counts_on, counts_off, table, k, out):
     h, w = counts_on.shape
     for r in range(h):
         for c in range(w):
-            d = counts_on[r, c] - counts_off[r, c]
-            if d > k:
-                d = k
-            elif d < -k:
-                d = -k
-            i = d + k
+            i = net_index(counts_on[r, c], counts_off[r, c], k)
             out[r, c, 0] = table[i, 0]
             out[r, c, 1] = table[i, 1]
             out[r, c, 2] = table[i, 2]
@@ -76,12 +82,7 @@ def palette_rows(counts_on, counts_off, k, bits, out):
     for r in range(h):
         out[r, 0] = 0
         for c in range(w):
-            d = counts_on[r, c] - counts_off[r, c]
-            if d > k:
-                d = k
-            elif d < -k:
-                d = -k
-            i = d + k
+            i = net_index(counts_on[r, c], counts_off[r, c], k)
             if bits == 8:
                 out[r, 1 + c] = i
             elif c % 2 == 0:
