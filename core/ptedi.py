@@ -73,7 +73,7 @@ from .sensor import SensorGeometry
 
 __all__ = ["FrameEstimate", "IMAGE_FORMS", "PeripheralEstimator",
            # the Numba kernels, re-exported from ptedi_kernels and ptedi_comp
-           "BLOCK", "comp_between", "comp_rebase", "comp_restate", "comp_snapshot", "comp_sums", "image_stats",
+           "BLOCK", "comp_between", "comp_rebase", "comp_restate", "comp_snapshot", "comp_sums",
            "ptedi_close", "ptedi_close_comp", "ptedi_update", "ptedi_update_comp", "ptedi_update_comp_one",
            "ptedi_update_whole"]
 
@@ -85,7 +85,7 @@ from .ptedi_comp import (
     ptedi_update_comp_one,
 )
 from .ptedi_frame import FrameSideMixin
-from .ptedi_kernels import BLOCK, image_stats, ptedi_close, ptedi_update, ptedi_update_whole
+from .ptedi_kernels import BLOCK, ptedi_close, ptedi_update, ptedi_update_whole
 
 #: the integral of Eq. 12 in plain Python (a scalar prediction is cheaper without a Numba dispatch)
 _direct_integral_py = direct_integral.py_func

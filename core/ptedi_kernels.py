@@ -3,7 +3,7 @@
 The streaming estimator (:class:`necviz.core.ptedi.PeripheralEstimator`, whose module docstring
 derives the equations) calls these Numba kernels: :func:`ptedi_update` for zones,
 :func:`ptedi_update_whole` for the whole-sensor region (coordinates not read),
-:func:`ptedi_close` at an exposure's end, :func:`image_stats` once per frame.
+:func:`ptedi_close` at an exposure's end, :func:`digit_histogram` once per frame.
 """
 
 from __future__ import annotations
@@ -139,24 +139,6 @@ def ptedi_close(t_end, counts_on, counts_off, inv_n, w, c0_on, c0_off, w_last, w
         m_off = (counts_off[k] - c0_off[w, k]) * inv_n[k]
         w_int[w, k] += math.exp(c_on * m_on - c_off * m_off) * float(t_end - w_last[w, k])
         w_last[w, k] = t_end
-
-@nb.njit(cache=True)
-def image_stats(z, vmin, vmax):
-    """One integer-only pass over an 8-bit image: ``(sum Z, pixels in vmin..vmax, pixels above vmax)``.
-
-    The image side of Eq. 15 (``mean_R Z``) and the valid/over-exposed fractions of the anchor
-    rule. O(pixels).
-    """
-    total = 0
-    nvalid = 0
-    nover = 0
-    span = vmax - vmin
-    for v in z:
-        total += v
-        nvalid += (np.uint8(v - vmin) <= span)
-        nover += v > vmax
-    return total, nvalid, nover
-
 
 @nb.njit(cache=True)
 def digit_histograms(z, zones, num_zones):
