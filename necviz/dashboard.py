@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import rerun as rr
 
 from .layouts import make_blueprint, style_series
+from .memory import bound_heap_retention
 from .options import ShowOptions, TuneOptions, ViewerOptions
 from .pipeline import Lane, Pipeline, RecorderObserver
 from .progress import LiveLine
@@ -83,6 +84,7 @@ def run_session(session: Session, out=..., stdin=None) -> dict:
     recording stays readable and a camera does not keep streaming.
     """
     out = output(out)
+    bound_heap_retention()  # a burst of events must not stay resident for the rest of a long session
     try:
         return _run(session, out, stdin)
     except BaseException:
