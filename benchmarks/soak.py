@@ -66,9 +66,12 @@ def soak(hours: float, scenario: str, every_s: float, warmup: float, out) -> dic
         while proc.poll() is None:
             time.sleep(every_s)
             try:
-                samples.append((time.perf_counter() - t0, sensor_s[0], rss_mb(ps)))
+                rss = rss_mb(ps)
             except psutil.NoSuchProcess:
                 break
+            if rss <= 0 or proc.poll() is not None:  # exited (a zombie has no memory to read)
+                break
+            samples.append((time.perf_counter() - t0, sensor_s[0], rss))
             w, s, m = samples[-1]
             print(f"\r  {w:7.0f} s wall · {s:8.1f}/{duration_s:.0f} s sensor · RSS {m:7.1f} MB", end="", file=out,
                   flush=True)
@@ -78,7 +81,9 @@ def soak(hours: float, scenario: str, every_s: float, warmup: float, out) -> dic
     if proc.returncode != 0:
         raise SystemExit(f"necviz live failed ({proc.returncode}):\n{''.join(lines[-20:])}")
     arr = np.asarray(samples, float)
-    keep = arr[arr[:, 1] >= warmup * duration_s]
+    # after warm-up, and before the end: once the sensor time is all played the session flushes and
+    # frees its buffers, which would pull the slope down
+    keep = arr[(arr[:, 1] >= warmup * duration_s) & (arr[:, 1] < duration_s)]
     slope = float(np.polyfit(keep[:, 1] / 3600, keep[:, 2], 1)[0]) if len(keep) >= 3 else float("nan")
     wall = float(arr[-1, 0]) if len(arr) else float("nan")
     return {"scenario": scenario, "sensor_hours": hours, "wall_s": wall, "speed_x_real_time": duration_s / wall,
