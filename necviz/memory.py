@@ -19,7 +19,6 @@ system call. Other C libraries (musl, macOS, Windows) are left as they are.
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import sys
 
 #: blocks of this size or more get their own mapping, returned to the OS when freed
