@@ -15,7 +15,7 @@ from necviz.cli import main
 
 def test_a_killed_run_is_repaired_into_a_copy(tmp_path, capsys):
     rrd = tmp_path / "cut.rrd"
-    proc = subprocess.Popen([sys.executable, "-m", "necviz", "demo", "--duration", "3", "--controllers", "nec,fixed",
+    proc = subprocess.Popen([sys.executable, "-m", "necviz", "demo", "--duration", "10", "--controllers", "nec,fixed",
                              "--save", str(rrd), "--speed", "1", "--no-prompt"], cwd=tmp_path,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 120
