@@ -8,7 +8,7 @@ usage: python benchmarks/estimators.py [necviz bench estimators options]
 import sys
 from pathlib import Path
 
-from necviz.cli import main
+from necviz.commands.cli import main
 
 if __name__ == "__main__":
     args = sys.argv[1:]

@@ -77,7 +77,7 @@ def _valid_stream(rng, w, h):
         parts.append(enc.events(ev))
 
     for _ in range(int(rng.integers(2, 8))):
-        kind = rng.choice(6, p=[.3, .35, .1, .1, .1, .05])
+        kind = rng.choice(6, p=[0.3, 0.35, 0.1, 0.1, 0.1, 0.05])
         if kind == 0:
             t1 = t + int(rng.integers(0, 40_000))
             events(t, t1, int(rng.integers(0, 150)))
@@ -89,8 +89,11 @@ def _valid_stream(rng, w, h):
             es = t + int(rng.integers(0, 30))
             ee = es + int(rng.choice([0, 1, int(rng.integers(2, 20_000))]))  # 0: sub-µs exposure
             fe = ee + int(rng.integers(0, 2000))
-            parts += [enc.frame_start(t, (c0, r0, c1, r1), int(rng.integers(0, 1 << 30))),
-                      enc.readout(rng.integers(300, 1024, (fh, fw)), False), enc.special(es, 14)]
+            parts += [
+                enc.frame_start(t, (c0, r0, c1, r1), int(rng.integers(0, 1 << 30))),
+                enc.readout(rng.integers(300, 1024, (fh, fw)), False),
+                enc.special(es, 14),
+            ]
             if ee == es:
                 parts.append(enc.special(ee, 15))
                 events(es, es, int(rng.integers(0, 4)))  # events in the same µs, after the end word
@@ -101,11 +104,32 @@ def _valid_stream(rng, w, h):
             parts += [enc.readout(rng.integers(0, 1024, (fh, fw)), True), enc.special(fe, 10)]
             t = fe
         elif kind == 2:
-            parts.append(enc.imu(t, [int(v) for v in rng.integers(-32768, 32768, 7)], int(rng.integers(0, 4)),
-                                 int(rng.integers(0, 4)), int(rng.integers(1, 8))))
+            parts.append(
+                enc.imu(
+                    t,
+                    [int(v) for v in rng.integers(-32768, 32768, 7)],
+                    int(rng.integers(0, 4)),
+                    int(rng.integers(0, 4)),
+                    int(rng.integers(1, 8)),
+                )
+            )
         elif kind == 3:
-            parts.append(enc.trigger(t, str(rng.choice(["external_rising", "external_falling", "external_pulse",
-                                                        "generator_rising", "generator_falling"]))))
+            parts.append(
+                enc.trigger(
+                    t,
+                    str(
+                        rng.choice(
+                            [
+                                "external_rising",
+                                "external_falling",
+                                "external_pulse",
+                                "generator_rising",
+                                "generator_falling",
+                            ]
+                        )
+                    ),
+                )
+            )
         elif kind == 4:
             t += int(rng.choice([32768, 65536 * 3, 4095 * 32768 + 5]))
         else:
@@ -140,11 +164,11 @@ def _damage(rng, words):
         i = int(rng.integers(0, n))
         if op == 0:
             k = rng.integers(0, n, int(rng.integers(1, 30)))
-            w[k] ^= (np.uint16(1) << rng.integers(0, 16, k.size).astype(np.uint16))
+            w[k] ^= np.uint16(1) << rng.integers(0, 16, k.size).astype(np.uint16)
         elif op == 1:
-            w[i:i + 20] = rng.integers(0, 1 << 16, w[i:i + 20].size).astype(np.uint16)
+            w[i : i + 20] = rng.integers(0, 1 << 16, w[i : i + 20].size).astype(np.uint16)
         elif op == 2:
-            w = np.concatenate([w[:i], w[i + int(rng.integers(1, 200)):]])
+            w = np.concatenate([w[:i], w[i + int(rng.integers(1, 200)) :]])
         elif op == 3:
             j = min(n, i + int(rng.integers(1, 200)))
             w = np.concatenate([w[:j], w[i:j], w[j:]])
@@ -250,7 +274,9 @@ class DecoderFuzz:
             b = self.pool[int(rng.integers(0, len(self.pool)))]
             w, h = a[0], a[1]
             wa, wb = a[2], b[2]
-            raw = np.concatenate([wa[: int(rng.integers(0, wa.size + 1))], wb[int(rng.integers(0, wb.size + 1)):]]).tobytes()
+            raw = np.concatenate(
+                [wa[: int(rng.integers(0, wa.size + 1))], wb[int(rng.integers(0, wb.size + 1)) :]]
+            ).tobytes()
         cuts = [int(c) for c in rng.integers(0, len(raw) + 1, int(rng.integers(0, 4)))]
         try:
             packets = self._decode(raw, w, h, cuts)
@@ -290,8 +316,17 @@ def _worker(conn, cur, cfg, part):
         if task is None:
             return
         part, start, stop = task
-        res = {"part": part, "start": start, "stop": stop, "outcomes": Counter(), "by": {}, "examples": [],
-               "max_seconds": 0.0, "max_memory": 0, "over_memory": 0}
+        res = {
+            "part": part,
+            "start": start,
+            "stop": stop,
+            "outcomes": Counter(),
+            "by": {},
+            "examples": [],
+            "max_seconds": 0.0,
+            "max_memory": 0,
+            "over_memory": 0,
+        }
         for i in range(start, stop):
             cur.value = i
             if (part, i) in cfg["inject"]:  # checking the harness itself: a hard crash / a hang here
@@ -316,11 +351,18 @@ def _worker(conn, cur, cfg, part):
                 res["max_memory"] = max(res["max_memory"], r["memory_bytes"])
                 by = res["by"].setdefault(fmt, Counter())
                 by[outcome] += 1
-                if (outcome == "traceback" or r["memory_bytes"] > cfg["memory_limit"]) \
-                        and len(res["examples"]) < EXAMPLES:
-                    res["examples"].append({"index": i, "format": fmt, "mutation": mutation,
-                                            "memory_mb": round(r["memory_bytes"] / 2**20, 1),
-                                            "problem": r["message"].strip().splitlines()[-1][:300]})
+                if (outcome == "traceback" or r["memory_bytes"] > cfg["memory_limit"]) and len(
+                    res["examples"]
+                ) < EXAMPLES:
+                    res["examples"].append(
+                        {
+                            "index": i,
+                            "format": fmt,
+                            "mutation": mutation,
+                            "memory_mb": round(r["memory_bytes"] / 2**20, 1),
+                            "problem": r["message"].strip().splitlines()[-1][:300],
+                        }
+                    )
                 remove(path)
             res["outcomes"][outcome] += 1
         cur.value = -2
@@ -341,8 +383,15 @@ class Pool:
         proc = self.ctx.Process(target=_worker, args=(child, cur, self.cfg, self.part), daemon=True)
         proc.start()
         child.close()
-        return {"proc": proc, "conn": parent, "cur": cur, "task": None, "seen": -1, "since": time.monotonic(),
-                "ready": False}
+        return {
+            "proc": proc,
+            "conn": parent,
+            "cur": cur,
+            "task": None,
+            "seen": -1,
+            "since": time.monotonic(),
+            "ready": False,
+        }
 
     def _kill(self, w) -> None:
         if w["proc"].is_alive():
@@ -423,8 +472,16 @@ class Pool:
 
 
 # =============================================================================== main
-def run(decoder_inputs: int, file_variants: int, seed: int, workers: int, time_limit: float,
-        memory_limit_mb: float, out=sys.stdout, inject: dict | None = None) -> dict:
+def run(
+    decoder_inputs: int,
+    file_variants: int,
+    seed: int,
+    workers: int,
+    time_limit: float,
+    memory_limit_mb: float,
+    out=sys.stdout,
+    inject: dict | None = None,
+) -> dict:
     """Run both parts (see the module docstring) and print the table; returns the JSON-ready result.
 
     ``inject`` maps ``(part, index)`` to ``"crash"`` or ``"hang"`` (to check that the harness counts them)."""
@@ -433,14 +490,28 @@ def run(decoder_inputs: int, file_variants: int, seed: int, workers: int, time_l
     tmp = tempfile.mkdtemp(prefix="necviz-fuzz-")
     try:
         seeds = build_seeds(Path(tmp) / "seeds", seed=seed)
-        cfg = {"seed": seed, "tmp": tmp, "memory_limit": memory_limit_mb * 2**20, "inject": dict(inject or {}),
-               "seeds": [{"format": s.format, "path": str(s.path), "members": list(s.members)} for s in seeds]}
+        cfg = {
+            "seed": seed,
+            "tmp": tmp,
+            "memory_limit": memory_limit_mb * 2**20,
+            "inject": dict(inject or {}),
+            "seeds": [{"format": s.format, "path": str(s.path), "members": list(s.members)} for s in seeds],
+        }
         parts = {}
         for part, n, size in (("decoder", decoder_inputs, DECODER_TASK), ("files", file_variants, FILE_TASK)):
             if n <= 0:
                 continue
-            acc = {"inputs": n, "outcomes": Counter(), "by": {}, "hangs": 0, "crashes": 0, "examples": [],
-                   "max_seconds": 0.0, "max_memory_mb": 0.0, "over_memory": 0}
+            acc = {
+                "inputs": n,
+                "outcomes": Counter(),
+                "by": {},
+                "hangs": 0,
+                "crashes": 0,
+                "examples": [],
+                "max_seconds": 0.0,
+                "max_memory_mb": 0.0,
+                "over_memory": 0,
+            }
 
             def merge(res, acc=acc):
                 acc["outcomes"].update(res["outcomes"])
@@ -462,8 +533,9 @@ def run(decoder_inputs: int, file_variants: int, seed: int, workers: int, time_l
             ntasks = (n + size - 1) // size
 
             def progress(done, part=part, ntasks=ntasks, t0=t0):
-                print(f"\r  {part}: {done}/{ntasks} tasks, {time.perf_counter() - t0:.0f} s", end="", file=out,
-                      flush=True)
+                print(
+                    f"\r  {part}: {done}/{ntasks} tasks, {time.perf_counter() - t0:.0f} s", end="", file=out, flush=True
+                )
 
             try:
                 pool.run([(part, a, min(a + size, n)) for a in range(0, n, size)], merge, fail, progress)
@@ -476,12 +548,17 @@ def run(decoder_inputs: int, file_variants: int, seed: int, workers: int, time_l
             parts[part] = acc
         result = {
             "command": "python benchmarks/fuzz.py " + " ".join(sys.argv[1:]),
-            "seed": seed, "workers": workers, "time_limit_s": time_limit, "memory_limit_mb": memory_limit_mb,
+            "seed": seed,
+            "workers": workers,
+            "time_limit_s": time_limit,
+            "memory_limit_mb": memory_limit_mb,
             "aedat4_sample": SAMPLE_AEDAT4.is_file(),
             "formats": sorted({s.format for s in seeds}),
             "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()},
-            "parts": {k: {**v, "outcomes": dict(v["outcomes"]), "by": {a: dict(b) for a, b in v["by"].items()}}
-                      for k, v in parts.items()},
+            "parts": {
+                k: {**v, "outcomes": dict(v["outcomes"]), "by": {a: dict(b) for a, b in v["by"].items()}}
+                for k, v in parts.items()
+            },
         }
         _table(result, out)
         return result
@@ -493,20 +570,35 @@ def _table(result: dict, out) -> None:
     rows = [("part", "inputs", "clean", "one-line errors", "tracebacks", "hangs", "crashes", "time")]
     for name, p in result["parts"].items():
         o = p["outcomes"]
-        rows.append((name, f"{p['inputs']:,}", f"{o.get('clean', 0):,}",
-                     "-" if name == "decoder" else f"{o.get('error', 0):,}", f"{o.get('traceback', 0):,}",
-                     f"{p['hangs']:,}", f"{p['crashes']:,}", f"{p['seconds']:.0f} s"))
+        rows.append(
+            (
+                name,
+                f"{p['inputs']:,}",
+                f"{o.get('clean', 0):,}",
+                "-" if name == "decoder" else f"{o.get('error', 0):,}",
+                f"{o.get('traceback', 0):,}",
+                f"{p['hangs']:,}",
+                f"{p['crashes']:,}",
+                f"{p['seconds']:.0f} s",
+            )
+        )
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     print(file=out)
     for r in rows:
         print("  " + "  ".join(c.rjust(w) if i else c.ljust(w) for i, (c, w) in enumerate(zip(r, widths))), file=out)
     files = result["parts"].get("files")
     if files:
-        print(f"\n  files: slowest read {files['max_seconds']:.2f} s, largest peak memory growth "
-              f"{files['max_memory_mb']:.0f} MB, {files['over_memory']} over the limit", file=out)
+        print(
+            f"\n  files: slowest read {files['max_seconds']:.2f} s, largest peak memory growth "
+            f"{files['max_memory_mb']:.0f} MB, {files['over_memory']} over the limit",
+            file=out,
+        )
         for fmt, c in sorted(files["by"].items()):
-            print(f"    {fmt:9s} {sum(c.values()):6,} variants: {c.get('clean', 0):6,} clean, "
-                  f"{c.get('error', 0):6,} one-line errors, {c.get('traceback', 0):,} tracebacks", file=out)
+            print(
+                f"    {fmt:9s} {sum(c.values()):6,} variants: {c.get('clean', 0):6,} clean, "
+                f"{c.get('error', 0):6,} one-line errors, {c.get('traceback', 0):,} tracebacks",
+                file=out,
+            )
     for name, p in result["parts"].items():
         for ex in p["examples"][:5]:
             print(f"  {name} example: {ex}", file=out)
@@ -521,8 +613,13 @@ def main(argv=None) -> int:
     ap.add_argument("--time-limit", type=float, default=5.0, help="seconds per input before it counts as a hang")
     ap.add_argument("--memory-limit-mb", type=float, default=200.0)
     ap.add_argument("--json", default=str(HERE / "results" / "fuzz.json"))
-    ap.add_argument("--inject", action="append", default=[], metavar="PART:INDEX:crash|hang",
-                    help="make input INDEX of PART (decoder/files) crash or hang, to check the harness")
+    ap.add_argument(
+        "--inject",
+        action="append",
+        default=[],
+        metavar="PART:INDEX:crash|hang",
+        help="make input INDEX of PART (decoder/files) crash or hang, to check the harness",
+    )
     a = ap.parse_args(argv)
     if a.decoder_inputs < 0 or a.file_variants < 0 or a.workers < 1 or a.time_limit <= 0:
         ap.error("counts must be >= 0, workers >= 1 and the time limit > 0")

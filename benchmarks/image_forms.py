@@ -64,7 +64,9 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     crf = default_davis346()
     rows = []
-    print(f"{'sigma':>5s} {'offset':>6s} | {'paper err':>9s} {'next':>6s} {'sat':>5s} | {'mean_log err':>12s} {'next':>6s} {'sat':>5s}")
+    print(
+        f"{'sigma':>5s} {'offset':>6s} | {'paper err':>9s} {'next':>6s} {'sat':>5s} | {'mean_log err':>12s} {'next':>6s} {'sat':>5s}"
+    )
     for sigma in (0.25, 0.5, 1.0):
         for offset in (-2.0, -1.0, 0.0, 1.0, 2.0):
             r = {"sigma": sigma, "offset": offset}
@@ -72,16 +74,23 @@ def main(argv=None) -> int:
                 r[form] = measure(sigma, offset, form, crf)
             rows.append(r)
             p, m = r["paper"], r["mean_log"]
-            print(f"{sigma:5.2f} {offset:6.1f} | {p['err']:9.3f} {p['next']:6.3f} {p['sat']:5.2f} | "
-                  f"{m['err']:12.3f} {m['next']:6.3f} {m['sat']:5.2f}")
+            print(
+                f"{sigma:5.2f} {offset:6.1f} | {p['err']:9.3f} {p['next']:6.3f} {p['sat']:5.2f} | "
+                f"{m['err']:12.3f} {m['next']:6.3f} {m['sat']:5.2f}"
+            )
     summary = {}
     for form in ("paper", "mean_log"):
         errs = np.array([r[form]["err"] for r in rows])
         nxt = np.array([r[form]["next"] for r in rows])
-        summary[form] = {"rmse_err": float(np.sqrt(np.mean(errs**2))), "rmse_next": float(np.sqrt(np.mean(nxt**2))),
-                         "mean_sat_next": float(np.mean([r[form]["sat"] for r in rows]))}
-        print(f"{form:8s}: RMSE vs mean ln L {summary[form]['rmse_err']:.3f}, next frame off goal (RMSE) "
-              f"{summary[form]['rmse_next']:.3f}, next frame saturated {summary[form]['mean_sat_next']:.3f}")
+        summary[form] = {
+            "rmse_err": float(np.sqrt(np.mean(errs**2))),
+            "rmse_next": float(np.sqrt(np.mean(nxt**2))),
+            "mean_sat_next": float(np.mean([r[form]["sat"] for r in rows])),
+        }
+        print(
+            f"{form:8s}: RMSE vs mean ln L {summary[form]['rmse_err']:.3f}, next frame off goal (RMSE) "
+            f"{summary[form]['rmse_next']:.3f}, next frame saturated {summary[form]['mean_sat_next']:.3f}"
+        )
     if args.json:
         Path(args.json).write_text(json.dumps({"rows": rows, "summary": summary}, indent=2) + "\n")
         print(f"wrote {args.json}")

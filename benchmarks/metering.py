@@ -37,8 +37,15 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 PRESETS = ["tunnel_exit", "indoor_outdoor", "flicker", "static_lab", "handheld_scan"]
 BASELINES = ["navid", "shim", "begin", "builtin", "fixed"]
-METRICS = ("saturated_frames_50", "saturated_frames_10", "true_valid_fraction_mean", "mean_over_exposed_rate",
-           "mean_under_exposed_rate", "sift_inliers_mean", "sift_inliers_normalised_mean")
+METRICS = (
+    "saturated_frames_50",
+    "saturated_frames_10",
+    "true_valid_fraction_mean",
+    "mean_over_exposed_rate",
+    "mean_under_exposed_rate",
+    "sift_inliers_mean",
+    "sift_inliers_normalised_mean",
+)
 
 #: the NEC candidates that also run with SIFT (SIFT on every frame costs ~5x the simulation)
 SIFT_LANES = ("paper_mid", "median_mid", "median_100", "median_mid_esc04", "median_100_esc04")
@@ -54,7 +61,9 @@ def candidates() -> dict[str, dict]:
     for esc in (None, 0.4):
         for metering in ("paper", "median", "percentile", "zones"):
             for goal in (None, 100, 128):
-                label = f"{metering}_{'mid' if goal is None else goal}" + ("" if esc is None else f"_esc{int(round(esc * 10)):02d}")
+                label = f"{metering}_{'mid' if goal is None else goal}" + (
+                    "" if esc is None else f"_esc{int(round(esc * 10)):02d}"
+                )
                 p = {"metering": metering, "goal_mode": "paper", "escape": esc is not None}
                 if esc is not None:
                     p["edge_margin"] = esc
@@ -92,29 +101,62 @@ def heldout_params(name: str, rng: np.random.Generator) -> dict:
     p = {"change_jitter_ms": u(0.0, 10.0)}
     if name == "tunnel_exit":
         inside = u(2.0, 7.0)
-        p.update(inside_log=inside, step_db=u(40.0, min(140.0, db(13.0 - inside))), transition_ms=u(5.0, 300.0),
-                 speed_kmh=u(20.0, 120.0), portal_frac=u(0.02, 0.3), texture_contrast=u(0.5, 2.0),
-                 pedestrian_delay_ms=u(50.0, 400.0), pedestrian_speed_px_s=u(20.0, 200.0), pedestrian_px=u(24.0, 120.0))
+        p.update(
+            inside_log=inside,
+            step_db=u(40.0, min(140.0, db(13.0 - inside))),
+            transition_ms=u(5.0, 300.0),
+            speed_kmh=u(20.0, 120.0),
+            portal_frac=u(0.02, 0.3),
+            texture_contrast=u(0.5, 2.0),
+            pedestrian_delay_ms=u(50.0, 400.0),
+            pedestrian_speed_px_s=u(20.0, 200.0),
+            pedestrian_px=u(24.0, 120.0),
+        )
     elif name == "indoor_outdoor":
         inside = u(2.0, 13.0 - 80.0 / db(1.0))
-        p.update(inside_log=inside, step_db=u(60.0, 80.0), transition_ms=u(50.0, 1500.0), walk_speed_mps=u(0.5, 2.5),
-                 door_frac=u(0.02, 0.4), shake_px=u(0.0, 8.0), shake_deg=u(0.0, 2.0))
+        p.update(
+            inside_log=inside,
+            step_db=u(60.0, 80.0),
+            transition_ms=u(50.0, 1500.0),
+            walk_speed_mps=u(0.5, 2.5),
+            door_frac=u(0.02, 0.4),
+            shake_px=u(0.0, 8.0),
+            shake_deg=u(0.0, 2.0),
+        )
     elif name == "flicker":
         base = u(2.0, 9.0)
-        p.update(base_log=base, mains_hz=u(50.0, 240.0), depth=u(0.0, 0.9), lamp_db=u(-10.0, 30.0),
-                 switch_db=u(0.0, min(60.0, db(12.0 - base))), switch_ms=u(0.5, 50.0))
+        p.update(
+            base_log=base,
+            mains_hz=u(50.0, 240.0),
+            depth=u(0.0, 0.9),
+            lamp_db=u(-10.0, 30.0),
+            switch_db=u(0.0, min(60.0, db(12.0 - base))),
+            switch_ms=u(0.5, 50.0),
+        )
     elif name == "static_lab":
         base = u(4.0, 8.0)
         n = int(rng.integers(2, 5))
         times = np.sort(rng.uniform(0.5, 4.5, n))
         levels = rng.uniform(db(2.0 - base), db(12.0 - base), n)
-        p.update(base_log=base, initial_db=0.0, ramp_ms=u(0.5, 100.0),
-                 steps=[[round(float(t), 3), round(float(v), 1)] for t, v in zip(times, levels)])
+        p.update(
+            base_log=base,
+            initial_db=0.0,
+            ramp_ms=u(0.5, 100.0),
+            steps=[[round(float(t), 3), round(float(v), 1)] for t, v in zip(times, levels)],
+        )
     elif name == "handheld_scan":
         base = u(2.0, 6.0)
-        p.update(base_log=base, shadow_db=u(10.0, min(100.0, db(13.0 - base))), shadow_speed_px_s=u(0.0, 400.0),
-                 shadow_period_px=u(200.0, 1500.0), shadow_soft_px=u(2.0, 60.0), shadow_angle_deg=u(-90.0, 90.0),
-                 scan_speed_px_s=u(0.0, 300.0), shake_px=u(0.0, 8.0), shake_deg=u(0.0, 2.0))
+        p.update(
+            base_log=base,
+            shadow_db=u(10.0, min(100.0, db(13.0 - base))),
+            shadow_speed_px_s=u(0.0, 400.0),
+            shadow_period_px=u(200.0, 1500.0),
+            shadow_soft_px=u(2.0, 60.0),
+            shadow_angle_deg=u(-90.0, 90.0),
+            scan_speed_px_s=u(0.0, 300.0),
+            shake_px=u(0.0, 8.0),
+            shake_deg=u(0.0, 2.0),
+        )
     else:
         raise ValueError(name)
     return p
@@ -137,8 +179,13 @@ def make_heldout(per_preset: int, directory: Path = HERE / "heldout") -> list[Pa
             if not path.exists():
                 rng = np.random.default_rng([seed, 20240601])
                 params = heldout_params(name, rng)
-                lines = [f"# held-out scene for benchmarks/metering.py: {name} with parameters drawn by heldout_params",
-                         f'name = "{name}"', f"seed = {seed}", "", "[params]"]
+                lines = [
+                    f"# held-out scene for benchmarks/metering.py: {name} with parameters drawn by heldout_params",
+                    f'name = "{name}"',
+                    f"seed = {seed}",
+                    "",
+                    "[params]",
+                ]
                 lines += [f"{k} = {toml_value(v)}" for k, v in params.items()]
                 path.write_text("\n".join(lines) + "\n", encoding="utf-8")
             paths.append(path)
@@ -158,8 +205,11 @@ def _job(spec: dict) -> dict:
     for lane, m in r["results"].items():
         keep[lane] = {k: m.get(k) for k in METRICS}
         keep[lane]["saturation_causes"] = {c: n for c, n in (m.get("saturation_causes") or {}).items() if n}
-    return {"spec": {k: v for k, v in spec.items() if k != "controller_params"}, "results": keep,
-            "seconds": time.perf_counter() - t0}
+    return {
+        "spec": {k: v for k, v in spec.items() if k != "controller_params"},
+        "results": keep,
+        "seconds": time.perf_counter() - t0,
+    }
 
 
 def run_all(specs: list[dict], jobs: int) -> list[dict]:
@@ -169,10 +219,13 @@ def run_all(specs: list[dict], jobs: int) -> list[dict]:
         for i, res in enumerate(pool.map(_job, specs)):
             out.append(res)
             sp = res["spec"]
-            print(f"  [{i + 1}/{len(specs)}] {Path(str(sp['scenario'])).stem} seed {sp['seed']}"
-                  f"{' (SIFT)' if sp.get('sift') else ''}: {res.get('seconds', 0):.0f} s"
-                  f"{'  ' + res['error'] if 'error' in res else ''} (elapsed {time.perf_counter() - t0:.0f} s)",
-                  file=sys.stderr, flush=True)
+            print(
+                f"  [{i + 1}/{len(specs)}] {Path(str(sp['scenario'])).stem} seed {sp['seed']}"
+                f"{' (SIFT)' if sp.get('sift') else ''}: {res.get('seconds', 0):.0f} s"
+                f"{'  ' + res['error'] if 'error' in res else ''} (elapsed {time.perf_counter() - t0:.0f} s)",
+                file=sys.stderr,
+                flush=True,
+            )
     return out
 
 
@@ -238,16 +291,22 @@ def _c(row, key, digits=1):
 
 def print_table(title: str, lanes: dict, out=sys.stdout) -> None:
     print(f"\n## {title}", file=out)
-    print(f"{'lane':26s} {'sat>50%':>13s} {'sat>10%':>13s} {'true valid':>15s} {'over':>7s} {'under':>7s} "
-          f"{'SIFT':>11s} {'SIFT norm':>11s}  causes (mean per run)", file=out)
+    print(
+        f"{'lane':26s} {'sat>50%':>13s} {'sat>10%':>13s} {'true valid':>15s} {'over':>7s} {'under':>7s} "
+        f"{'SIFT':>11s} {'SIFT norm':>11s}  causes (mean per run)",
+        file=out,
+    )
     for lane, row in lanes.items():
         causes = ", ".join(f"{c} {n:.1f}" for c, n in row["saturation_causes"].items() if n >= 0.05) or "—"
         ov, un = row.get("mean_over_exposed_rate"), row.get("mean_under_exposed_rate")
         s1, s2 = row.get("sift_inliers_mean"), row.get("sift_inliers_normalised_mean")
-        print(f"{lane:26s} {_c(row, 'saturated_frames_50'):>13s} {_c(row, 'saturated_frames_10'):>13s} "
-              f"{_c(row, 'true_valid_fraction_mean', 3):>15s} {ov['mean'] if ov else math.nan:7.3f} "
-              f"{un['mean'] if un else math.nan:7.3f} {s1['mean'] if s1 else math.nan:11.0f} "
-              f"{s2['mean'] if s2 else math.nan:11.0f}  {causes}", file=out)
+        print(
+            f"{lane:26s} {_c(row, 'saturated_frames_50'):>13s} {_c(row, 'saturated_frames_10'):>13s} "
+            f"{_c(row, 'true_valid_fraction_mean', 3):>15s} {ov['mean'] if ov else math.nan:7.3f} "
+            f"{un['mean'] if un else math.nan:7.3f} {s1['mean'] if s1 else math.nan:11.0f} "
+            f"{s2['mean'] if s2 else math.nan:11.0f}  {causes}",
+            file=out,
+        )
 
 
 def main() -> int:
@@ -278,16 +337,23 @@ def main() -> int:
 
     def spec(scenario, seed, sift=False):
         ctrls = sift_controllers if sift else controllers
-        return {"scenario": scenario, "seed": seed, "controllers": ctrls, "sift": sift,
-                "controller_params": {k: v for k, v in params.items() if k in ctrls}}
+        return {
+            "scenario": scenario,
+            "seed": seed,
+            "controllers": ctrls,
+            "sift": sift,
+            "controller_params": {k: v for k, v in params.items() if k in ctrls},
+        }
 
     specs = [spec(s, k) for s in scenarios for k in range(args.seeds)]
     specs += [spec(s, k, True) for s in scenarios for k in range(args.sift_seeds)]
     heldout = make_heldout(args.heldout) if args.heldout > 0 else []
     heldout = [p for p in heldout if p.stem.rsplit("_", 1)[0] in scenarios]
     specs += [spec(str(p), None) for p in heldout]
-    print(f"{len(specs)} runs, {len(controllers)} lanes each (SIFT runs: {len(sift_controllers)}), {args.jobs} processes",
-          file=sys.stderr)
+    print(
+        f"{len(specs)} runs, {len(controllers)} lanes each (SIFT runs: {len(sift_controllers)}), {args.jobs} processes",
+        file=sys.stderr,
+    )
     t0 = time.perf_counter()
     runs = run_all(specs, args.jobs)
     errors = [r for r in runs if "error" in r]
@@ -313,18 +379,27 @@ def main() -> int:
         print(f"  {c:26s} regret {regret:6.2f}  sat>10% total {s10:6.1f}  true valid {-ntv:.3f}")
     if held:
         for g in sorted(held_by_preset):
-            print_table(f"held-out {g} ({len(heldout) // max(1, len(scenarios))} scenes, one seed each)",
-                        held_by_preset[g])
+            print_table(
+                f"held-out {g} ({len(heldout) // max(1, len(scenarios))} scenes, one seed each)", held_by_preset[g]
+            )
         hranking = choose(held_by_preset, labels)
         print("\n## the same ranking on the held-out scenes (by preset family)")
         for regret, s10, ntv, c in hranking:
             print(f"  {c:26s} regret {regret:6.2f}  sat>10% total {s10:6.1f}  true valid {-ntv:.3f}")
-    result = {"command": "python benchmarks/metering.py " + " ".join(sys.argv[1:]),
-              "seeds": args.seeds, "sift_seeds": args.sift_seeds, "candidates": {c: cands[c] for c in labels},
-              "baselines": baselines, "presets": presets, "choice": [list(r) for r in ranking],
-              "heldout_scenes": [str(p.relative_to(HERE.parent)) for p in heldout], "heldout": held,
-              "heldout_by_preset": held_by_preset, "errors": [r["error"] for r in errors],
-              "seconds": time.perf_counter() - t0}
+    result = {
+        "command": "python benchmarks/metering.py " + " ".join(sys.argv[1:]),
+        "seeds": args.seeds,
+        "sift_seeds": args.sift_seeds,
+        "candidates": {c: cands[c] for c in labels},
+        "baselines": baselines,
+        "presets": presets,
+        "choice": [list(r) for r in ranking],
+        "heldout_scenes": [str(p.relative_to(HERE.parent)) for p in heldout],
+        "heldout": held,
+        "heldout_by_preset": held_by_preset,
+        "errors": [r["error"] for r in errors],
+        "seconds": time.perf_counter() - t0,
+    }
     if held:
         result["heldout_choice"] = [list(r) for r in choose(held_by_preset, labels)]
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)

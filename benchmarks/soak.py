@@ -46,8 +46,21 @@ def soak(hours: float, scenario: str, every_s: float, warmup: float, out) -> dic
     duration_s = hours * 3600
     with tempfile.TemporaryDirectory(prefix="necviz-soak-") as tmp:
         rrd = Path(tmp) / "soak.rrd"
-        cmd = [sys.executable, "-m", "necviz", "live", "--device", "emulated", "--scenario", scenario,
-               "--duration", str(duration_s), "--save", str(rrd), "--no-prompt"]
+        cmd = [
+            sys.executable,
+            "-m",
+            "necviz",
+            "live",
+            "--device",
+            "emulated",
+            "--scenario",
+            scenario,
+            "--duration",
+            str(duration_s),
+            "--save",
+            str(rrd),
+            "--no-prompt",
+        ]
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1)
         ps = psutil.Process(proc.pid)
         sensor_s = [0.0]
@@ -74,8 +87,12 @@ def soak(hours: float, scenario: str, every_s: float, warmup: float, out) -> dic
                 break
             samples.append((time.perf_counter() - t0, sensor_s[0], rss))
             w, s, m = samples[-1]
-            print(f"\r  {w:7.0f} s wall · {s:8.1f}/{duration_s:.0f} s sensor · RSS {m:7.1f} MB", end="", file=out,
-                  flush=True)
+            print(
+                f"\r  {w:7.0f} s wall · {s:8.1f}/{duration_s:.0f} s sensor · RSS {m:7.1f} MB",
+                end="",
+                file=out,
+                flush=True,
+            )
         proc.wait()  # the loop may leave before the exit is reaped (a zombie reads as 0 MB)
         reader.join(5)
         print(file=out)
@@ -88,11 +105,21 @@ def soak(hours: float, scenario: str, every_s: float, warmup: float, out) -> dic
     keep = arr[(arr[:, 1] >= warmup * duration_s) & (arr[:, 1] < 0.99 * duration_s)]
     slope = float(np.polyfit(keep[:, 1] / 3600, keep[:, 2], 1)[0]) if len(keep) >= 3 else float("nan")
     wall = float(arr[-1, 0]) if len(arr) else float("nan")
-    return {"scenario": scenario, "sensor_hours": hours, "wall_s": wall, "speed_x_real_time": duration_s / wall,
-            "samples": len(arr), "warmup_fraction": warmup, "rss_start_mb": float(keep[0, 2]) if len(keep) else None,
-            "rss_end_mb": float(keep[-1, 2]) if len(keep) else None, "rss_max_mb": float(arr[:, 2].max()),
-            "growth_mb_per_hour": slope, "target_mb_per_hour": 50.0, "rrd_mb": rrd_mb,
-            "trace": [[round(w, 1), round(s, 2), round(m, 1)] for w, s, m in samples]}
+    return {
+        "scenario": scenario,
+        "sensor_hours": hours,
+        "wall_s": wall,
+        "speed_x_real_time": duration_s / wall,
+        "samples": len(arr),
+        "warmup_fraction": warmup,
+        "rss_start_mb": float(keep[0, 2]) if len(keep) else None,
+        "rss_end_mb": float(keep[-1, 2]) if len(keep) else None,
+        "rss_max_mb": float(arr[:, 2].max()),
+        "growth_mb_per_hour": slope,
+        "target_mb_per_hour": 50.0,
+        "rrd_mb": rrd_mb,
+        "trace": [[round(w, 1), round(s, 2), round(m, 1)] for w, s, m in samples],
+    }
 
 
 def main() -> int:
@@ -103,13 +130,15 @@ def main() -> int:
     ap.add_argument("--warmup", type=float, default=0.1, help="fraction of the run left out of the fit (default 0.1)")
     ap.add_argument("--json", default=None, help="write the result as JSON")
     args = ap.parse_args()
-    from necviz.bench.common import machine
+    from necviz.bench.timing import machine
 
     res = soak(args.hours, args.scenario, args.every, args.warmup, sys.stderr)
     res["machine"] = machine()
-    print(f"{res['sensor_hours']:g} h of sensor time in {res['wall_s']:.0f} s wall ({res['speed_x_real_time']:.1f}x "
-          f"real time); RSS {res['rss_start_mb']:.0f} -> {res['rss_end_mb']:.0f} MB after warm-up (max "
-          f"{res['rss_max_mb']:.0f}); growth {res['growth_mb_per_hour']:.1f} MB per hour (target < 50)")
+    print(
+        f"{res['sensor_hours']:g} h of sensor time in {res['wall_s']:.0f} s wall ({res['speed_x_real_time']:.1f}x "
+        f"real time); RSS {res['rss_start_mb']:.0f} -> {res['rss_end_mb']:.0f} MB after warm-up (max "
+        f"{res['rss_max_mb']:.0f}); growth {res['growth_mb_per_hour']:.1f} MB per hour (target < 50)"
+    )
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=1) + "\n")
         print(f"wrote {args.json}")

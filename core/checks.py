@@ -22,7 +22,7 @@ import numbers
 
 import numpy as np
 
-from .errors import ParameterError
+from necviz.core.errors import ParameterError
 
 __all__ = ["check_number", "parse_number", "format_number", "format_range"]
 
@@ -36,8 +36,9 @@ def format_number(v) -> str:
         return repr(v)
 
 
-def format_range(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False,
-                 hi_open: bool = False) -> str:
+def format_range(
+    lo: float | None = None, hi: float | None = None, *, lo_open: bool = False, hi_open: bool = False
+) -> str:
     """The accepted interval as text: ``[40, 140]``, ``(0, 1]``, ``must be > 0``, ``must be <= 5``."""
     if lo is not None and hi is not None:
         return f"{'(' if lo_open else '['}{format_number(lo)}, {format_number(hi)}{')' if hi_open else ']'}"
@@ -52,8 +53,17 @@ def _is_real(value) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
 
 
-def check_number(name: str, value, lo: float | None = None, hi: float | None = None, *,
-                 lo_open: bool = False, hi_open: bool = False, integer: bool = False, where: str = ""):
+def check_number(
+    name: str,
+    value,
+    lo: float | None = None,
+    hi: float | None = None,
+    *,
+    lo_open: bool = False,
+    hi_open: bool = False,
+    integer: bool = False,
+    where: str = "",
+):
     """``value`` as a finite ``float`` inside ``[lo, hi]``, else a one-line :class:`ParameterError`.
 
     ``lo``/``hi`` ``None`` leave that side unbounded; ``lo_open``/``hi_open`` exclude the bound
@@ -78,16 +88,25 @@ def check_number(name: str, value, lo: float | None = None, hi: float | None = N
         if not v.is_integer():
             raise ParameterError(f"{pre}{name} must be a whole number, got {value!r}")
         out = int(value) if isinstance(value, numbers.Integral) else int(v)
-    if ((lo is not None and (v < lo or (lo_open and v == lo)))
-            or (hi is not None and (v > hi or (hi_open and v == hi)))):
+    if (lo is not None and (v < lo or (lo_open and v == lo))) or (hi is not None and (v > hi or (hi_open and v == hi))):
         shown = format_number(out if integer else v)
-        raise ParameterError(f"{pre}{name} = {shown} is out of range "
-                             f"{format_range(lo, hi, lo_open=lo_open, hi_open=hi_open)}")
+        raise ParameterError(
+            f"{pre}{name} = {shown} is out of range {format_range(lo, hi, lo_open=lo_open, hi_open=hi_open)}"
+        )
     return out if integer else v
 
 
-def parse_number(name: str, text: str, lo: float | None = None, hi: float | None = None, *,
-                 lo_open: bool = False, hi_open: bool = False, integer: bool = False, where: str = ""):
+def parse_number(
+    name: str,
+    text: str,
+    lo: float | None = None,
+    hi: float | None = None,
+    *,
+    lo_open: bool = False,
+    hi_open: bool = False,
+    integer: bool = False,
+    where: str = "",
+):
     """A number typed by a user (``" 2.5 "``, ``"1e-3"``, ``"40"``), then :func:`check_number`.
 
     Text that is not a number (``"fast"``, ``""``), ``"nan"`` and ``"inf"`` give a one-line

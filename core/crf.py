@@ -16,7 +16,7 @@ import math
 import numpy as np
 import scipy.linalg
 
-from .errors import ParameterError
+from necviz.core.errors import ParameterError
 
 VALID_MIN = 9
 VALID_MAX = 250
@@ -88,7 +88,9 @@ class CameraResponse:
         )
 
     def __repr__(self) -> str:
-        return f"CameraResponse(g(9)={self.g[9]:.3f}, g(250)={self.g[250]:.3f}, valid={self.valid_min}..{self.valid_max})"
+        return (
+            f"CameraResponse(g(9)={self.g[9]:.3f}, g(250)={self.g[250]:.3f}, valid={self.valid_min}..{self.valid_max})"
+        )
 
 
 # Parameters of the default curve (see default_davis346).

@@ -28,7 +28,7 @@ to what the controller chose:
    what it knew (a metering statistic that loses a two-level scene, a controller that never
    reacts, a replayed camera's own exposure control).
 
-Timing evidence. With ground truth (simulated frames, :class:`~necviz.core.metrics.GroundTruth`)
+Timing evidence. With ground truth (simulated frames, :class:`~necviz.core.ground_truth.GroundTruth`)
 the rules use the *saturating light level* of the frame's setting. Modelling a change of the
 light as a global factor on the frame's true exposure-averaged irradiance ``Lbar(x)``, more than
 half of its pixels clip at the top when the scene's mean ``ln L`` exceeds ``Λ = μ - median(ln Lbar) + ln L_hi`` (``μ``
@@ -53,11 +53,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .metrics import TRACE_STEP, GroundTruth
+from necviz.core.ground_truth import TRACE_STEP, GroundTruth
 
 #: The causes, in the order the rules are applied (stable strings: JSON keys and recording text).
-CAUSES = ("change_during_exposure", "command_latency", "limit_reached", "prediction_undercount", "controller_lag",
-          "controller")
+CAUSES = (
+    "change_during_exposure",
+    "command_latency",
+    "limit_reached",
+    "prediction_undercount",
+    "controller_lag",
+    "controller",
+)
 
 #: A prediction "under-counts" when the frame proves it missed at least this much (ln units, ≈ 4.3 dB,
 #: a factor 1.65) of the change: the frame's estimate of ln P(s) is a one-sided bound when it is
@@ -202,12 +208,16 @@ def truth_timing(ev: Evidence) -> Timing | None:
     at_s = tr.light_at(ev.start_us)
     label = ""
     if onset is not None:
-        near = [c for c in tr.changes if abs(c.t_us - onset) <= max(ev.frame_interval_us or 0, ev.end_us - ev.start_us,
-                                                                         50_000)]
+        near = [
+            c
+            for c in tr.changes
+            if abs(c.t_us - onset) <= max(ev.frame_interval_us or 0, ev.end_us - ev.start_us, 50_000)
+        ]
         if near:
             label = min(near, key=lambda c: abs(c.t_us - onset)).label
-    return Timing(onset, tr.light_at(ev.end_us) - at_s, at_s - tr.light_at(ev.start_us - lat), "ground truth", label,
-                  state)
+    return Timing(
+        onset, tr.light_at(ev.end_us) - at_s, at_s - tr.light_at(ev.start_us - lat), "ground truth", label, state
+    )
 
 
 def _ms(us: float) -> str:
@@ -239,14 +249,18 @@ def rule_change_during_exposure(ev: Evidence, timing: Timing | None) -> str | No
     if timing is not None and timing.source == "ground truth":
         if timing.onset_us is not None and s < timing.onset_us <= e:
             what = f" ({timing.label})" if timing.label else ""
-            return (f"the light {_light(ev)} {_ln(timing.change_exposure)} during the "
-                    f"{_ms(e - s)} exposure{what}, crossing the level this exposure could hold "
-                    f"{_ms(timing.onset_us - s)} after it started")
+            return (
+                f"the light {_light(ev)} {_ln(timing.change_exposure)} during the "
+                f"{_ms(e - s)} exposure{what}, crossing the level this exposure could hold "
+                f"{_ms(timing.onset_us - s)} after it started"
+            )
         return None
     x = ev.exposure_log_change
     if math.isfinite(x) and ev.direction * x >= EXPOSURE_CHANGE_LN:
-        return (f"the events show the light {_light(ev)} during the {_ms(e - s)} "
-                f"exposure (exposure-mean irradiance {_ln(x)} from its start)")
+        return (
+            f"the events show the light {_light(ev)} during the {_ms(e - s)} "
+            f"exposure (exposure-mean irradiance {_ln(x)} from its start)"
+        )
     return None
 
 
@@ -268,19 +282,25 @@ def rule_command_latency(ev: Evidence, timing: Timing | None) -> str | None:
             return None
         what = f" ({timing.label})" if timing.label else ""
         if on > window:
-            msg = (f"the light {_light(ev)} {_ln(timing.change_latency)}{what} "
-                   f"{_ms(s - on)} before the exposure started; commands take effect {_ms(lat)} after they are issued")
+            msg = (
+                f"the light {_light(ev)} {_ln(timing.change_latency)}{what} "
+                f"{_ms(s - on)} before the exposure started; commands take effect {_ms(lat)} after they are issued"
+            )
         elif late and late[0].issue_us >= on and not any(on <= c.issue_us <= window for c in fixes):
-            msg = (f"the light {_light(ev)}{what} {_ms(s - on)} before the exposure started; the "
-                   f"controller's first correcting command came {_ms(late[0].issue_us - on)} after the change, "
-                   f"{_ms(s - late[0].issue_us)} before the exposure started; commands take effect {_ms(lat)} after "
-                   "they are issued")
+            msg = (
+                f"the light {_light(ev)}{what} {_ms(s - on)} before the exposure started; the "
+                f"controller's first correcting command came {_ms(late[0].issue_us - on)} after the change, "
+                f"{_ms(s - late[0].issue_us)} before the exposure started; commands take effect {_ms(lat)} after "
+                "they are issued"
+            )
             return msg + f" (it commanded {late[0].exposure_us:.0f} µs × {late[0].gain:.3g})"
         else:
             return None
     elif late:
-        msg = (f"a correcting command was issued {_ms(s - late[0].issue_us)} before the exposure "
-               f"started; commands take effect {_ms(lat)} after they are issued")
+        msg = (
+            f"a correcting command was issued {_ms(s - late[0].issue_us)} before the exposure "
+            f"started; commands take effect {_ms(lat)} after they are issued"
+        )
     else:
         return None
     if late:
@@ -292,7 +312,7 @@ def rule_command_latency(ev: Evidence, timing: Timing | None) -> str | None:
 def best_valid_fraction(truth: GroundTruth) -> float:
     """The largest fraction of the frame's pixels any single exposure would record valid: the most
     pixels whose ``ln Lbar`` fit in a window as wide as the sensor's valid range
-    (``g(249.5) - g(9.5)``), on the grid of :data:`~necviz.core.metrics.TRACE_STEP`."""
+    (``g(249.5) - g(9.5)``), on the grid of :data:`~necviz.core.ground_truth.TRACE_STEP`."""
     lo, hi = truth.bounds(1e6, 1.0)
     width = math.log(hi) - math.log(lo)
     v = np.sort(np.log(np.maximum(truth.mean_irradiance[::TRACE_STEP, ::TRACE_STEP].ravel(), 1e-30)))
@@ -310,13 +330,17 @@ def rule_limit_reached(ev: Evidence, timing: Timing | None = None) -> str | None
         lo = ev.exposure_min_us
         if lo is None or ev.exposure_us > lo * (1 + AT_LIMIT) + 0.5 or ev.gain > 1.0 + AT_LIMIT:
             return None
-        return (f"the exposure was at its minimum ({ev.exposure_us:.0f} µs, limit {lo:g} µs) at gain "
-                f"{ev.gain:.3g} and the frame still clipped {ev.over:.0%} of its pixels at the top")
+        return (
+            f"the exposure was at its minimum ({ev.exposure_us:.0f} µs, limit {lo:g} µs) at gain "
+            f"{ev.gain:.3g} and the frame still clipped {ev.over:.0%} of its pixels at the top"
+        )
     hi, gmax = ev.exposure_max_us, ev.gain_max
     if hi is None or gmax is None or ev.exposure_us < hi * (1 - AT_LIMIT) or ev.gain < gmax * (1 - AT_LIMIT):
         return None
-    return (f"the exposure was at its maximum ({ev.exposure_us:.0f} µs, limit {hi:g} µs) at the highest "
-            f"gain ({ev.gain:.3g}) and the frame still clipped {ev.under:.0%} of its pixels at the bottom")
+    return (
+        f"the exposure was at its maximum ({ev.exposure_us:.0f} µs, limit {hi:g} µs) at the highest "
+        f"gain ({ev.gain:.3g}) and the frame still clipped {ev.under:.0%} of its pixels at the bottom"
+    )
 
 
 def rule_prediction_undercount(ev: Evidence, timing: Timing | None = None) -> str | None:
@@ -333,10 +357,12 @@ def rule_prediction_undercount(ev: Evidence, timing: Timing | None = None) -> st
     if other > ONE_SIDED or d * f <= 0 or d * (f - p) < UNDERCOUNT_LN:
         return None
     bound = "at least " if d > 0 else "at most "
-    return (f"P-TEDI predicted a change of {_ln(p)} since its anchor, the frame shows "
-            f"{bound}{_ln(f)} (it missed at least {d * (f - p):.2f} ln of the change: events lost to the sensor's rate ceiling "
-            "or a compensation that does not match the sensor, which the saturation bound of each frame "
-            "recovers only in part)")
+    return (
+        f"P-TEDI predicted a change of {_ln(p)} since its anchor, the frame shows "
+        f"{bound}{_ln(f)} (it missed at least {d * (f - p):.2f} ln of the change: events lost to the sensor's rate ceiling "
+        "or a compensation that does not match the sensor, which the saturation bound of each frame "
+        "recovers only in part)"
+    )
 
 
 def rule_controller_lag(ev: Evidence, timing: Timing | None) -> str | None:
@@ -359,20 +385,25 @@ def rule_controller_lag(ev: Evidence, timing: Timing | None) -> str | None:
         seen = [f for f in ev.recent_frames if f[1] + readout <= deadline and f[0] >= on]
         if seen:
             return None
-        return (f"the light {_light(ev)} {_ms(s - on)} before the exposure started "
-                f"({timing.label or 'a lighting change'}); an image-only controller sees a change only in a frame "
-                f"exposed after it, and none had been read out {_ms(lat)} before this exposure (commands take "
-                "effect that long after they are issued)")
+        return (
+            f"the light {_light(ev)} {_ms(s - on)} before the exposure started "
+            f"({timing.label or 'a lighting change'}); an image-only controller sees a change only in a frame "
+            f"exposed after it, and none had been read out {_ms(lat)} before this exposure (commands take "
+            "effect that long after they are issued)"
+        )
     if ev.previous_saturated is False:
-        return ("the previous frame was not saturated; an image-only controller sees a change only in the frame "
-                "after it, one frame late")
+        return (
+            "the previous frame was not saturated; an image-only controller sees a change only in the frame "
+            "after it, one frame late"
+        )
     return None
 
 
 def rule_controller(ev: Evidence, timing: Timing | None) -> str:
     """The residual: the controller's own choice with what it knew (always holds)."""
-    parts = [f"{ev.over if ev.direction > 0 else ev.under:.0%} {ev.kind}-exposed at {ev.exposure_us:.0f} µs × "
-             f"{ev.gain:.3g}"]
+    parts = [
+        f"{ev.over if ev.direction > 0 else ev.under:.0%} {ev.kind}-exposed at {ev.exposure_us:.0f} µs × {ev.gain:.3g}"
+    ]
     if ev.drives is False:
         parts.append("open loop: the recorded camera's own exposure control chose this setting")
     other = ev.under if ev.direction > 0 else ev.over
@@ -384,11 +415,15 @@ def rule_controller(ev: Evidence, timing: Timing | None) -> str:
         if timing.state == "throughout":
             parts.append("the light had saturated this setting for longer than the trace's look-back")
         elif timing.state == "not_reached":
-            parts.append("the scene's mean light never reached this setting's saturating level (the scene's "
-                         "pattern, not its level, clipped the frame)")
+            parts.append(
+                "the scene's mean light never reached this setting's saturating level (the scene's "
+                "pattern, not its level, clipped the frame)"
+            )
         else:
-            parts.append(f"the light crossed the level this setting holds {_ms(ev.start_us - timing.onset_us)} "
-                         "before the exposure started")
+            parts.append(
+                f"the light crossed the level this setting holds {_ms(ev.start_us - timing.onset_us)} "
+                "before the exposure started"
+            )
     if ev.recent_frames and ev.drives is not False:
         step = math.log(ev.exposure_us * ev.gain) - math.log(ev.recent_frames[-1][2])
         if -ev.direction * step >= CORRECTION_LN:
@@ -424,7 +459,26 @@ def diagnose(ev: Evidence) -> tuple[str, str]:
     raise AssertionError("rule_controller always holds")  # pragma: no cover
 
 
-__all__ = ["AT_LIMIT", "CAUSES", "CORRECTION_LN", "Command", "EXPOSURE_CHANGE_LN", "Evidence", "ONE_SIDED", "RULES",
-           "Timing", "UNDERCOUNT_LN", "best_valid_fraction", "crossing_time", "diagnose", "rule_change_during_exposure", "rule_command_latency",
-           "rule_controller", "rule_controller_lag", "rule_limit_reached", "rule_prediction_undercount",
-           "saturating_level", "truth_timing"]
+__all__ = [
+    "AT_LIMIT",
+    "CAUSES",
+    "CORRECTION_LN",
+    "Command",
+    "EXPOSURE_CHANGE_LN",
+    "Evidence",
+    "ONE_SIDED",
+    "RULES",
+    "Timing",
+    "UNDERCOUNT_LN",
+    "best_valid_fraction",
+    "crossing_time",
+    "diagnose",
+    "rule_change_during_exposure",
+    "rule_command_latency",
+    "rule_controller",
+    "rule_controller_lag",
+    "rule_limit_reached",
+    "rule_prediction_undercount",
+    "saturating_level",
+    "truth_timing",
+]

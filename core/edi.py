@@ -29,11 +29,11 @@ import math
 import numba as nb
 import numpy as np
 
-from .crf import CameraResponse
-from .errors import EventFormatError, FrameFormatError, ParameterError
-from .event_model import TediParams
-from .events import EVENT_DTYPE
-from .frames import Frame
+from necviz.core.crf import CameraResponse
+from necviz.core.errors import EventFormatError, FrameFormatError, ParameterError
+from necviz.core.event_model import TediParams
+from necviz.core.events import EVENT_DTYPE
+from necviz.core.frames import Frame
 
 # -- kernels ----------------------------------------------------------------------------------
 
@@ -227,9 +227,7 @@ def check_events_fit(ev: np.ndarray, shape: tuple[int, int]) -> None:
     h, w = shape
     if int(ev["x"].max()) >= w or int(ev["y"].max()) >= h:
         i = int(np.flatnonzero((ev["x"] >= w) | (ev["y"] >= h))[0])
-        raise EventFormatError(
-            f"event at (x={int(ev['x'][i])}, y={int(ev['y'][i])}) lies outside the {w}x{h} frame"
-        )
+        raise EventFormatError(f"event at (x={int(ev['x'][i])}, y={int(ev['y'][i])}) lies outside the {w}x{h} frame")
 
 
 def event_window(events: np.ndarray, lo_us: int, hi_us: int, shape: tuple[int, int]) -> np.ndarray:
@@ -279,16 +277,16 @@ def _edi_log_e(events, frame, g, params, n_samples) -> np.ndarray:
     s, e = int(frame.exposure_start_us), int(frame.exposure_end_us)
     h, w = frame.shape
     ev = event_window(events, min(g, s), max(g, e), frame.shape)
-    mean = edi_exposure_mean(ev["t"], ev["x"], ev["y"], ev["p"], w, h, s, e, g, n_samples,
-                             params.c_on, params.c_off)
+    mean = edi_exposure_mean(ev["t"], ev["x"], ev["y"], ev["p"], w, h, s, e, g, n_samples, params.c_on, params.c_off)
     return np.log(mean).reshape(h, w)
 
 
 # -- public API ---------------------------------------------------------------------------------
 
 
-def edi_reconstruct(events: np.ndarray, frame: Frame, g_us: int, params: TediParams, crf: CameraResponse,
-                    n_samples: int = 64) -> np.ndarray:
+def edi_reconstruct(
+    events: np.ndarray, frame: Frame, g_us: int, params: TediParams, crf: CameraResponse, n_samples: int = 64
+) -> np.ndarray:
     """EDI: ``ln L(g,x) = ln Lbar(x) - ln E(g,x)`` with ``E`` by the midpoint rule (``n_samples``).
 
     Uses only ``params.c_on``/``c_off``. ``events`` (sorted) may extend beyond the needed
@@ -303,21 +301,22 @@ def edi_reconstruct(events: np.ndarray, frame: Frame, g_us: int, params: TediPar
     return log_mean_irradiance(frame, crf) - _edi_log_e(events, frame, g, params, n_samples)
 
 
-def fast_edi_reconstruct(events: np.ndarray, frame: Frame, g_us: int, params: TediParams,
-                         crf: CameraResponse) -> np.ndarray:
+def fast_edi_reconstruct(
+    events: np.ndarray, frame: Frame, g_us: int, params: TediParams, crf: CameraResponse
+) -> np.ndarray:
     """Fast-EDI: EDI with the exact integral from per-pixel event buffers. O(events + pixels).
 
     Uses only ``params.c_on``/``c_off``; returns ``ln L(g,x)`` float64 (H, W).
     """
     g, s, e, ev = exposure_inputs(events, frame, g_us, params, crf)
     h, w = frame.shape
-    integral = fast_edi_exposure_integral(ev["t"], ev["x"], ev["y"], ev["p"], w, h, s, e, g,
-                                          params.c_on, params.c_off)
+    integral = fast_edi_exposure_integral(ev["t"], ev["x"], ev["y"], ev["p"], w, h, s, e, g, params.c_on, params.c_off)
     return log_mean_irradiance(frame, crf) - np.log(integral / (e - s)).reshape(h, w)
 
 
-def medi_reconstruct(events: np.ndarray, frames, g_us: int, params: TediParams, crf: CameraResponse,
-                     n_samples: int = 64) -> np.ndarray:
+def medi_reconstruct(
+    events: np.ndarray, frames, g_us: int, params: TediParams, crf: CameraResponse, n_samples: int = 64
+) -> np.ndarray:
     """mEDI: one latent image at ``g`` shared by several frames, least squares in the linear domain.
 
     Each frame ``i`` gives ``Bbar_i = exp(ln Lbar_i)`` and ``E_i(g,x)`` (EDI sampling); per pixel,

@@ -23,7 +23,7 @@ from dataclasses import asdict, dataclass
 
 import numba as nb
 
-from .errors import ParameterError
+from necviz.core.errors import ParameterError
 
 
 @dataclass(frozen=True)

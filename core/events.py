@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import EventFormatError
-from .sensor import SensorGeometry
+from necviz.core.errors import EventFormatError
+from necviz.core.sensor import SensorGeometry
 
 EVENT_DTYPE = np.dtype([("t", "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "i1")])
 
@@ -86,7 +86,6 @@ def validate_events(events: np.ndarray, sensor: SensorGeometry | None = None) ->
             xs, ys = events["x"], events["y"]
             i = int(np.flatnonzero((xs >= sensor.width) | (ys >= sensor.height))[0])
             raise EventFormatError(
-                f"event {i} at (x={int(xs[i])}, y={int(ys[i])}) lies outside the "
-                f"{sensor.width}x{sensor.height} sensor"
+                f"event {i} at (x={int(xs[i])}, y={int(ys[i])}) lies outside the {sensor.width}x{sensor.height} sensor"
             )
     return events

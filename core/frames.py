@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import FrameFormatError
+from necviz.core.errors import FrameFormatError
 
 
 @dataclass(frozen=True, eq=False)
@@ -21,7 +21,7 @@ class Frame:
     """An 8-bit image ``Z`` (H x W) with exposure ``[exposure_start_us, exposure_end_us]`` and gain ``K >= 1``.
 
     ``truth``: what a real camera cannot know, attached by the simulator only — a
-    :class:`necviz.core.metrics.GroundTruth` (the exposure-averaged true irradiance of every pixel,
+    :class:`necviz.core.ground_truth.GroundTruth` (the exposure-averaged true irradiance of every pixel,
     the scene's lighting trace around the exposure, the camera's true limits and latency). ``None``
     for frames from cameras and files; never written by recorders, not part of equality or ``repr``.
     """

@@ -10,20 +10,35 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import EventFormatError
+from necviz.core.errors import EventFormatError
 
 #: One IMU sample: time (µs), accelerometer (g), gyroscope (°/s), temperature (°C).
-IMU_DTYPE = np.dtype([
-    ("t", "<i8"),
-    ("ax", "<f4"), ("ay", "<f4"), ("az", "<f4"),
-    ("gx", "<f4"), ("gy", "<f4"), ("gz", "<f4"),
-    ("temp", "<f4"),
-])
+IMU_DTYPE = np.dtype(
+    [
+        ("t", "<i8"),
+        ("ax", "<f4"),
+        ("ay", "<f4"),
+        ("az", "<f4"),
+        ("gx", "<f4"),
+        ("gy", "<f4"),
+        ("gz", "<f4"),
+        ("temp", "<f4"),
+    ]
+)
 
 #: Trigger kinds, as stored by AEDAT 4 (``TRIG`` stream) and the DAVIS special events.
-TRIGGER_KINDS = ("timestamp_reset", "external_rising", "external_falling", "external_pulse",
-                 "generator_rising", "generator_falling", "frame_begin", "frame_end",
-                 "exposure_begin", "exposure_end")
+TRIGGER_KINDS = (
+    "timestamp_reset",
+    "external_rising",
+    "external_falling",
+    "external_pulse",
+    "generator_rising",
+    "generator_falling",
+    "frame_begin",
+    "frame_end",
+    "exposure_begin",
+    "exposure_end",
+)
 
 #: One trigger: time (µs) and kind (index into :data:`TRIGGER_KINDS`).
 TRIGGER_DTYPE = np.dtype([("t", "<i8"), ("kind", "i1")])
@@ -59,8 +74,9 @@ class TriggerBatch:
 
     def __post_init__(self) -> None:
         _check(self.triggers, TRIGGER_DTYPE, "triggers")
-        if len(self.triggers) and (self.triggers["kind"].min() < 0
-                                   or self.triggers["kind"].max() >= len(TRIGGER_KINDS)):
+        if len(self.triggers) and (
+            self.triggers["kind"].min() < 0 or self.triggers["kind"].max() >= len(TRIGGER_KINDS)
+        ):
             raise EventFormatError(f"trigger kind must be 0..{len(TRIGGER_KINDS) - 1}")
 
     def __len__(self) -> int:

@@ -62,30 +62,32 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .crf import CameraResponse, default_davis346
-from .errors import EventFormatError, FrameFormatError, NotAnchoredError, ParameterError, StreamError
-from .event_model import TediParams, direct_integral
-from .events import EVENT_DTYPE
-from .frames import ExposureMarker, Frame
-from .imu import ImuBatch, TriggerBatch
-from .regions import zone_map, zone_sizes
-from .sensor import SensorGeometry
+from necviz.core.crf import CameraResponse, default_davis346
+from necviz.core.errors import EventFormatError, FrameFormatError, NotAnchoredError, ParameterError, StreamError
+from necviz.core.event_model import TediParams, direct_integral
+from necviz.core.events import EVENT_DTYPE
+from necviz.core.frames import ExposureMarker, Frame
+from necviz.core.imu import ImuBatch, TriggerBatch
+from necviz.core.ptedi_comp import (
+    comp_between,
+    comp_rebase,
+    comp_restate,
+    comp_snapshot,
+    comp_sums,
+    ptedi_close_comp,
+    ptedi_update_comp,
+    ptedi_update_comp_one,
+)
+from necviz.core.ptedi_frame import FrameSideMixin
+from necviz.core.ptedi_kernels import BLOCK, ptedi_close, ptedi_update, ptedi_update_whole
+from necviz.core.regions import zone_map, zone_sizes
+from necviz.core.sensor import SensorGeometry
 
-__all__ = ["FrameEstimate", "IMAGE_FORMS", "PeripheralEstimator",
-           # the Numba kernels, re-exported from ptedi_kernels and ptedi_comp
-           "BLOCK", "comp_between", "comp_rebase", "comp_restate", "comp_snapshot", "comp_sums",
-           "ptedi_close", "ptedi_close_comp", "ptedi_update", "ptedi_update_comp", "ptedi_update_comp_one",
-           "ptedi_update_whole"]
+__all__ = ["FrameEstimate", "IMAGE_FORMS", "PeripheralEstimator"]
 
 IMAGE_FORMS = ("paper", "mean_log")
 _FREE, _OPEN, _CLOSED = 0, 1, 2
 
-from .ptedi_comp import (
-    comp_between, comp_rebase, comp_restate, comp_snapshot, comp_sums, ptedi_close_comp, ptedi_update_comp,
-    ptedi_update_comp_one,
-)
-from .ptedi_frame import FrameSideMixin
-from .ptedi_kernels import BLOCK, ptedi_close, ptedi_update, ptedi_update_whole
 
 #: the integral of Eq. 12 in plain Python (a scalar prediction is cheaper without a Numba dispatch)
 _direct_integral_py = direct_integral.py_func
@@ -159,8 +161,11 @@ class PeripheralEstimator(FrameSideMixin):
         self.crf = crf if crf is not None else default_davis346()
         self.image_form = image_form
         self.min_valid_fraction = float(min_valid_fraction)
-        if (isinstance(one_sided_clip, bool) or not isinstance(one_sided_clip, (int, float))
-                or not 0.0 <= one_sided_clip <= 1.0):
+        if (
+            isinstance(one_sided_clip, bool)
+            or not isinstance(one_sided_clip, (int, float))
+            or not 0.0 <= one_sided_clip <= 1.0
+        ):
             raise ParameterError(f"one_sided_clip must lie in [0, 1], got {one_sided_clip!r}")
         self.one_sided_clip = float(one_sided_clip)
         self.zmap = zone_map(sensor, rectangle, grid)
@@ -244,8 +249,10 @@ class PeripheralEstimator(FrameSideMixin):
             self._pc = self._wsnap = self._hist = self._lev = self._kk = self._ss = None
         w = self._open
         if w >= 0:  # the zone kernel's running exp restarts from the counts with the new thresholds
-            self._webase[w] = np.exp((params.c_on * (self.counts_on - self._c0_on[w])
-                                      - params.c_off * (self.counts_off - self._c0_off[w])) * self._inv_n)
+            self._webase[w] = np.exp(
+                (params.c_on * (self.counts_on - self._c0_on[w]) - params.c_off * (self.counts_off - self._c0_off[w]))
+                * self._inv_n
+            )
 
     # -- per-pixel compensation bookkeeping (Eq. 11 with the Eq. 6 terms per pixel) ---------------
     def _comp_start(self) -> None:
@@ -281,8 +288,9 @@ class PeripheralEstimator(FrameSideMixin):
         flags = np.zeros(self.num_zones, np.bool_)
         flags[zones] = True
         _, _, a_on, b_on, a_off, b_off = self._kp
-        comp_restate(self._hist, ref, flags, np.asarray(u, np.float64), self._lev, self._kk, self._ss,
-                     a_on, b_on, a_off, b_off)
+        comp_restate(
+            self._hist, ref, flags, np.asarray(u, np.float64), self._lev, self._kk, self._ss, a_on, b_on, a_off, b_off
+        )
 
     def _comp_grow(self, need: int) -> None:
         """Widen the count histograms to hold counts up to ``need``."""
@@ -306,8 +314,9 @@ class PeripheralEstimator(FrameSideMixin):
         start (brute force over the pixels, O(pixels), :func:`comp_between`; used only for the saturation bound)."""
         c_on, c_off, a_on, b_on, a_off, b_off = self._kp
         out = np.empty((2, self.num_zones))
-        comp_between(self._pc, self._wsnap[w], self._zone_flat, np.asarray(u, np.float64), a_on, b_on, a_off, b_off,
-                     out)
+        comp_between(
+            self._pc, self._wsnap[w], self._zone_flat, np.asarray(u, np.float64), a_on, b_on, a_off, b_off, out
+        )
         return out
 
     # -- stream input -------------------------------------------------------------------------
@@ -325,14 +334,39 @@ class PeripheralEstimator(FrameSideMixin):
             if w >= 0:
                 c0[0], c0[1] = self._c0_on[w, 0], self._c0_off[w, 0]
             bad = ptedi_update_whole(
-                events["t"], events["p"], self.last_event_us, self._counts2, self._inv_n0, self._g_tab, self._h_tab,
-                w, c0, self._wlast, self._wint, self._kp[0], self._kp[1],
+                events["t"],
+                events["p"],
+                self.last_event_us,
+                self._counts2,
+                self._inv_n0,
+                self._g_tab,
+                self._h_tab,
+                w,
+                c0,
+                self._wlast,
+                self._wint,
+                self._kp[0],
+                self._kp[1],
             )
         else:
             bad = ptedi_update(
-                events["t"], events["x"], events["y"], events["p"], self.zmap, self.last_event_us,
-                self.counts_on, self.counts_off, self._inv_n, self._f_on, self._f_off,
-                w, self._c0_on, self._c0_off, self._wlast, self._wint, self._webase,
+                events["t"],
+                events["x"],
+                events["y"],
+                events["p"],
+                self.zmap,
+                self.last_event_us,
+                self.counts_on,
+                self.counts_off,
+                self._inv_n,
+                self._f_on,
+                self._f_off,
+                w,
+                self._c0_on,
+                self._c0_off,
+                self._wlast,
+                self._wint,
+                self._webase,
             )
         if bad >= 0:
             ev = events[bad]
@@ -358,9 +392,31 @@ class PeripheralEstimator(FrameSideMixin):
         kernel = ptedi_update_comp_one if self.num_zones == 1 else ptedi_update_comp
         while True:
             stop, code, last = kernel(
-                t[pos:], x[pos:], y[pos:], p[pos:], self._zone_flat, self.sensor.width, self.sensor.height, last,
-                self.counts_on, self.counts_off, self._inv_n, self._pc, self._hist, self._lev, self._kk, self._ss,
-                self.anchor_t, self.anchor_log, w, ws, self._c0_on, self._c0_off, self._wlast, self._wint, *self._kp,
+                t[pos:],
+                x[pos:],
+                y[pos:],
+                p[pos:],
+                self._zone_flat,
+                self.sensor.width,
+                self.sensor.height,
+                last,
+                self.counts_on,
+                self.counts_off,
+                self._inv_n,
+                self._pc,
+                self._hist,
+                self._lev,
+                self._kk,
+                self._ss,
+                self.anchor_t,
+                self.anchor_log,
+                w,
+                ws,
+                self._c0_on,
+                self._c0_off,
+                self._wlast,
+                self._wint,
+                *self._kp,
             )
             if code != 3:
                 return -1 if code == 0 else pos + stop
@@ -422,12 +478,36 @@ class PeripheralEstimator(FrameSideMixin):
             )
         if self._comp:
             ptedi_close_comp(
-                t_us, self.counts_on, self.counts_off, self._inv_n, self._hist, self._lev, self._kk, self._ss,
-                w, int(self._wstart[w]), self._c0_on, self._c0_off, self._wlast, self._wint, *self._kp,
+                t_us,
+                self.counts_on,
+                self.counts_off,
+                self._inv_n,
+                self._hist,
+                self._lev,
+                self._kk,
+                self._ss,
+                w,
+                int(self._wstart[w]),
+                self._c0_on,
+                self._c0_off,
+                self._wlast,
+                self._wint,
+                *self._kp,
             )
         else:
-            ptedi_close(t_us, self.counts_on, self.counts_off, self._inv_n, w, self._c0_on, self._c0_off,
-                        self._wlast, self._wint, self._kp[0], self._kp[1])
+            ptedi_close(
+                t_us,
+                self.counts_on,
+                self.counts_off,
+                self._inv_n,
+                w,
+                self._c0_on,
+                self._c0_off,
+                self._wlast,
+                self._wint,
+                self._kp[0],
+                self._kp[1],
+            )
         self._wstate[w] = _CLOSED
         self._wend[w] = t_us
         self._open = -1
@@ -440,8 +520,10 @@ class PeripheralEstimator(FrameSideMixin):
                 f"{self.sensor.width}x{self.sensor.height}"
             )
         s, e = int(frame.exposure_start_us), int(frame.exposure_end_us)
-        w = next((i for i, st in enumerate(self._wstate)
-                  if st == _CLOSED and self._wstart[i] == s and self._wend[i] == e), -1)
+        w = next(
+            (i for i, st in enumerate(self._wstate) if st == _CLOSED and self._wstart[i] == s and self._wend[i] == e),
+            -1,
+        )
         if w < 0:
             raise StreamError(
                 f"frame {frame.sequence} with exposure [{s}, {e}] µs was not announced by exposure start/end "
@@ -461,9 +543,19 @@ class PeripheralEstimator(FrameSideMixin):
                 self._wstate[w] = _FREE
                 self.frames_seen += 1
                 anchor = np.array([lp - log_e])
-                return FrameEstimate(frame.sequence, s, e, np.array([lp]), np.array([log_e]),
-                                     anchor, np.array([fr]), np.array([True]), np.array([ov]),
-                                     np.array([False]), anchor)
+                return FrameEstimate(
+                    frame.sequence,
+                    s,
+                    e,
+                    np.array([lp]),
+                    np.array([log_e]),
+                    anchor,
+                    np.array([fr]),
+                    np.array([True]),
+                    np.array([ov]),
+                    np.array([False]),
+                    anchor,
+                )
             log_pbar, frac, over = np.array([lp]), np.array([fr]), np.array([ov])
             log_e = np.array([log_e])
         else:
@@ -557,7 +649,9 @@ class PeripheralEstimator(FrameSideMixin):
         t = self.last_event_us if t_us is None else int(t_us)
         anchored = np.isfinite(self.anchor_log)
         if np.any(anchored & (t < self.anchor_t)):
-            raise ParameterError(f"prediction time {t} µs precedes the anchor at {int(self.anchor_t[anchored].max())} µs")
+            raise ParameterError(
+                f"prediction time {t} µs precedes the anchor at {int(self.anchor_t[anchored].max())} µs"
+            )
         pred = self._propagate(self.counts_on, self.counts_off)
         if self._comp:  # Eq. 11: the mean over the zone's pixels of their compensation terms
             u = np.where(anchored, (t - self.anchor_t).astype(np.float64), 0.0)

@@ -13,7 +13,7 @@ import math
 import numba as nb
 import numpy as np
 
-from .event_model import exp_linear_integral
+from necviz.core.event_model import exp_linear_integral
 
 # -- per-pixel TEDI compensation averaged over a zone (Eq. 11 with the Eq. 6 terms) -------------------
 #
@@ -70,8 +70,9 @@ def _comp_sweep(hist, ref, q, z, lev, kk, ss, r, u):
 
 
 @nb.njit(cache=True)
-def _comp_window_integral(lo, hi, z, m_on, m_off, inv, hist, lev, kk, ss,
-                          c_on, c_off, a_on, b_on, a_off, b_off, r_on, r_off):
+def _comp_window_integral(
+    lo, hi, z, m_on, m_off, inv, hist, lev, kk, ss, c_on, c_off, a_on, b_on, a_off, b_off, r_on, r_off
+):
     """``∫_lo^hi exp(c^T D_p(s, s+u)) du`` for zone ``z`` of the open window (ref 1), no events inside.
 
     ``c^T D_p = c+ (m+ + C+(u)/N) - c- (m- + C-(u)/N)`` with the per-pixel compensation sums
@@ -138,10 +139,36 @@ def _comp_window_integral(lo, hi, z, m_on, m_off, inv, hist, lev, kk, ss,
 
 @nb.njit(cache=True)
 def ptedi_update_comp(
-    t, x, y, p, zflat, width, height, last_t, counts_on, counts_off, inv_n,
-    pc, hist, lev, kk, ss, anchor_t, anchor_log,
-    w, w_start, c0_on, c0_off, w_last, w_int,
-    c_on, c_off, a_on, b_on, a_off, b_off,
+    t,
+    x,
+    y,
+    p,
+    zflat,
+    width,
+    height,
+    last_t,
+    counts_on,
+    counts_off,
+    inv_n,
+    pc,
+    hist,
+    lev,
+    kk,
+    ss,
+    anchor_t,
+    anchor_log,
+    w,
+    w_start,
+    c0_on,
+    c0_off,
+    w_last,
+    w_int,
+    c_on,
+    c_off,
+    a_on,
+    b_on,
+    a_off,
+    b_off,
 ):
     """:func:`ptedi_update` with the TEDI compensation applied per pixel and averaged (Eq. 11).
 
@@ -200,8 +227,24 @@ def ptedi_update_comp(
                     w_int[w, z] += math.exp(c_on * m_on - c_off * m_off) * float(ti - last)
                 else:
                     w_int[w, z] += _comp_window_integral(
-                        float(last - w_start), float(ti - w_start), z, m_on, m_off, inv_n[z], hist, lev, kk, ss,
-                        c_on, c_off, a_on, b_on, a_off, b_off, r_on, r_off,
+                        float(last - w_start),
+                        float(ti - w_start),
+                        z,
+                        m_on,
+                        m_off,
+                        inv_n[z],
+                        hist,
+                        lev,
+                        kk,
+                        ss,
+                        c_on,
+                        c_off,
+                        a_on,
+                        b_on,
+                        a_off,
+                        b_off,
+                        r_on,
+                        r_off,
                     )
                 w_last[w, z] = ti
             # the pixel moves from count nw to nw + 1 (written out: faster than an inlined helper here)
@@ -255,8 +298,29 @@ def _one_advance(h, lv, k, s, r, hi):
 
 
 @nb.njit(cache=True, inline="always")
-def _one_window_integral(lo, hi, m_on, m_off, inv, h_on, h_off, l_on, k_on, s_on, l_off, k_off, s_off,
-                         c_on, c_off, a_on, b_on, a_off, b_off, r_on, r_off):
+def _one_window_integral(
+    lo,
+    hi,
+    m_on,
+    m_off,
+    inv,
+    h_on,
+    h_off,
+    l_on,
+    k_on,
+    s_on,
+    l_off,
+    k_off,
+    s_off,
+    c_on,
+    c_off,
+    a_on,
+    b_on,
+    a_off,
+    b_off,
+    r_on,
+    r_off,
+):
     """:func:`_comp_window_integral` for a zone whose levels and sums are locals (same operations in
     the same order, so the same result bit for bit); returns the integral and the updated
     ``(level, K, S)`` of both polarities. O(1 + levels crossed)."""
@@ -298,10 +362,36 @@ def _one_window_integral(lo, hi, m_on, m_off, inv, h_on, h_off, l_on, k_on, s_on
 
 @nb.njit(cache=True)
 def ptedi_update_comp_one(
-    t, x, y, p, zflat, width, height, last_t, counts_on, counts_off, inv_n,
-    pc, hist, lev, kk, ss, anchor_t, anchor_log,
-    w, w_start, c0_on, c0_off, w_last, w_int,
-    c_on, c_off, a_on, b_on, a_off, b_off,
+    t,
+    x,
+    y,
+    p,
+    zflat,
+    width,
+    height,
+    last_t,
+    counts_on,
+    counts_off,
+    inv_n,
+    pc,
+    hist,
+    lev,
+    kk,
+    ss,
+    anchor_t,
+    anchor_log,
+    w,
+    w_start,
+    c0_on,
+    c0_off,
+    w_last,
+    w_int,
+    c_on,
+    c_off,
+    a_on,
+    b_on,
+    a_off,
+    b_off,
 ):
     """:func:`ptedi_update_comp` for a single zone (``zflat`` 0 or -1): same arguments, same
     equations and the same floating-point operations in the same order, so the same state bit for
@@ -373,9 +463,27 @@ def ptedi_update_comp_one(
                     wi += math.exp(c_on * m_on - c_off * m_off) * float(ti - wl)
                 else:
                     piece, l1_on, k1_on, s1_on, l1_off, k1_off, s1_off = _one_window_integral(
-                        float(wl - w_start), float(ti - w_start), m_on, m_off, inv, h1_on, h1_off,
-                        l1_on, k1_on, s1_on, l1_off, k1_off, s1_off, c_on, c_off, a_on, b_on, a_off, b_off,
-                        r_on, r_off,
+                        float(wl - w_start),
+                        float(ti - w_start),
+                        m_on,
+                        m_off,
+                        inv,
+                        h1_on,
+                        h1_off,
+                        l1_on,
+                        k1_on,
+                        s1_on,
+                        l1_off,
+                        k1_off,
+                        s1_off,
+                        c_on,
+                        c_off,
+                        a_on,
+                        b_on,
+                        a_off,
+                        b_off,
+                        r_on,
+                        r_off,
                     )
                     wi += piece
                 wl = ti
@@ -439,8 +547,26 @@ def ptedi_update_comp_one(
 
 @nb.njit(cache=True)
 def ptedi_close_comp(
-    t_end, counts_on, counts_off, inv_n, hist, lev, kk, ss,
-    w, w_start, c0_on, c0_off, w_last, w_int, c_on, c_off, a_on, b_on, a_off, b_off,
+    t_end,
+    counts_on,
+    counts_off,
+    inv_n,
+    hist,
+    lev,
+    kk,
+    ss,
+    w,
+    w_start,
+    c0_on,
+    c0_off,
+    w_last,
+    w_int,
+    c_on,
+    c_off,
+    a_on,
+    b_on,
+    a_off,
+    b_off,
 ):
     """:func:`ptedi_close` with the per-pixel compensation. O(zones + levels crossed)."""
     r_on = a_on / b_on if b_on > 0.0 else math.inf
@@ -449,8 +575,24 @@ def ptedi_close_comp(
         m_on = (counts_on[z] - c0_on[w, z]) * inv_n[z]
         m_off = (counts_off[z] - c0_off[w, z]) * inv_n[z]
         w_int[w, z] += _comp_window_integral(
-            float(w_last[w, z] - w_start), float(t_end - w_start), z, m_on, m_off, inv_n[z], hist, lev, kk, ss,
-            c_on, c_off, a_on, b_on, a_off, b_off, r_on, r_off,
+            float(w_last[w, z] - w_start),
+            float(t_end - w_start),
+            z,
+            m_on,
+            m_off,
+            inv_n[z],
+            hist,
+            lev,
+            kk,
+            ss,
+            c_on,
+            c_off,
+            a_on,
+            b_on,
+            a_off,
+            b_off,
+            r_on,
+            r_off,
         )
         w_last[w, z] = t_end
 

@@ -15,9 +15,9 @@ import math
 
 import numpy as np
 
-from .crf import US_PER_S
-from .frames import Frame
-from .ptedi_kernels import digit_histogram
+from necviz.core.crf import US_PER_S
+from necviz.core.frames import Frame
+from necviz.core.ptedi_kernels import digit_histogram
 
 _DIGITS = np.arange(256, dtype=np.int64)
 
@@ -114,7 +114,7 @@ class FrameSideMixin:
         if self.image_form == "paper":
             h = self.digit_histogram_of(frame)[0]  # one pass over the image, shared with the bounds and metering
             total = int(h @ _DIGITS)
-            nv, no = int(h[crf.valid_min:crf.valid_max + 1].sum()), int(h[crf.valid_max + 1:].sum())
+            nv, no = int(h[crf.valid_min : crf.valid_max + 1].sum()), int(h[crf.valid_max + 1 :].sum())
             mean = total / z.size
             i = min(int(mean), 254)
             g_mean = crf.g[i] + (crf.g[i + 1] - crf.g[i]) * (mean - i)

@@ -13,11 +13,26 @@ import math
 import numba as nb
 import numpy as np
 
+
 @nb.njit(cache=True)
 def ptedi_update(
-    t, x, y, p, zmap, last_t,
-    counts_on, counts_off, inv_n, f_on, f_off,
-    w, c0_on, c0_off, w_last, w_int, w_ebase,
+    t,
+    x,
+    y,
+    p,
+    zmap,
+    last_t,
+    counts_on,
+    counts_off,
+    inv_n,
+    f_on,
+    f_off,
+    w,
+    c0_on,
+    c0_off,
+    w_last,
+    w_int,
+    w_ebase,
 ):
     """Apply an event batch to the P-TEDI state of several zones, without compensation
     (``a± = 0``; Eq. 11 direct integral, Eq. 13 exposure integral).
@@ -56,7 +71,9 @@ def ptedi_update(
             counts_off[k] += 1
     return -1
 
+
 BLOCK = 256  # events per block in the whole-sensor kernel (size of its exp tables)
+
 
 @nb.njit(cache=True)
 def ptedi_update_whole(t, p, last_t, counts, inv_n, g_tab, h_tab, w, c0, w_last, w_int, c_on, c_off):
@@ -130,6 +147,7 @@ def ptedi_update_whole(t, p, last_t, counts, inv_n, g_tab, h_tab, w, c0, w_last,
     counts[1] = n_off
     return bad
 
+
 @nb.njit(cache=True)
 def ptedi_close(t_end, counts_on, counts_off, inv_n, w, c0_on, c0_off, w_last, w_int, c_on, c_off):
     """Integrate every zone of window ``w`` from its last event to the exposure end (no
@@ -139,6 +157,7 @@ def ptedi_close(t_end, counts_on, counts_off, inv_n, w, c0_on, c0_off, w_last, w
         m_off = (counts_off[k] - c0_off[w, k]) * inv_n[k]
         w_int[w, k] += math.exp(c_on * m_on - c_off * m_off) * float(t_end - w_last[w, k])
         w_last[w, k] = t_end
+
 
 @nb.njit(cache=True)
 def digit_histograms(z, zones, num_zones):

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import ParameterError
-from .sensor import SensorGeometry
+from necviz.core.errors import ParameterError
+from necviz.core.sensor import SensorGeometry
 
 
 def zone_map(
@@ -31,7 +31,9 @@ def zone_map(
         )
     nx, ny = grid
     if not (isinstance(nx, int) and isinstance(ny, int) and 1 <= nx <= x1 - x0 and 1 <= ny <= y1 - y0):
-        raise ParameterError(f"zone grid {grid} must be positive integers no larger than the region ({x1 - x0}x{y1 - y0})")
+        raise ParameterError(
+            f"zone grid {grid} must be positive integers no larger than the region ({x1 - x0}x{y1 - y0})"
+        )
     zmap = np.full(sensor.shape, -1, dtype=np.int32)
     xs = np.arange(x1 - x0)
     ys = np.arange(y1 - y0)

@@ -12,8 +12,8 @@ from collections.abc import Iterator, Sequence
 
 import numpy as np
 
-from .errors import StreamError
-from .frames import ExposureMarker, Frame
+from necviz.core.errors import StreamError
+from necviz.core.frames import ExposureMarker, Frame
 
 
 def interleave(

@@ -42,8 +42,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.optimize
 
-from .crf import CameraResponse
-from .edi import (
+from necviz.core.crf import CameraResponse
+from necviz.core.edi import (
     check_crf,
     check_event_array,
     check_events_fit,
@@ -54,23 +54,37 @@ from .edi import (
     log_mean_irradiance,
     valid_mask,
 )
-from .errors import ParameterError
-from .event_model import TediParams
-from .frames import Frame
-from .tedi_kernels import stretch_integral, tedi_exposure_integral, tedi_integral_compact, update_last_polarity
+from necviz.core.errors import ParameterError
+from necviz.core.event_model import TediParams
+from necviz.core.frames import Frame
+from necviz.core.tedi_kernels import (
+    tedi_exposure_integral,
+    tedi_integral_compact,
+    update_last_polarity,
+)
 
-__all__ = ["CalibrationPair", "TediCalibration", "calibrate_tedi", "fit_tedi_pairs", "last_polarity_before",
-           "pair_residuals", "prepare_pair", "tedi_reconstruct", "valid_mask", "PARAM_NAMES", "REFERENCES",
-           # the Numba kernels, re-exported from tedi_kernels
-           "stretch_integral", "tedi_exposure_integral", "tedi_integral_compact", "update_last_polarity"]
+__all__ = [
+    "CalibrationPair",
+    "TediCalibration",
+    "calibrate_tedi",
+    "fit_tedi_pairs",
+    "last_polarity_before",
+    "pair_residuals",
+    "prepare_pair",
+    "tedi_reconstruct",
+    "valid_mask",
+    "PARAM_NAMES",
+    "REFERENCES",
+]
 
 PARAM_NAMES = ("c_on", "c_off", "a_on", "b_on", "a_off", "b_off")
 REFERENCES = ("previous_start", "previous_end", "current_start", "current_end")
 PEAK_BIN_US = 2_000  # bin of CalibrationPair.peak_rate
 
 
-def tedi_reconstruct(events: np.ndarray, frame: Frame, g_us: int, params: TediParams,
-                     crf: CameraResponse) -> np.ndarray:
+def tedi_reconstruct(
+    events: np.ndarray, frame: Frame, g_us: int, params: TediParams, crf: CameraResponse
+) -> np.ndarray:
     """TEDI: ``ln L(g,x) = ln Lbar(x) - ln E_tri(g,x)`` with the exact integral. O(events + pixels).
 
     ``events`` (sorted) may extend beyond ``[min(g,s), max(g,e)]``. With ``a = b = 0`` this is
@@ -79,8 +93,9 @@ def tedi_reconstruct(events: np.ndarray, frame: Frame, g_us: int, params: TediPa
     g, s, e, ev = exposure_inputs(events, frame, g_us, params, crf)
     h, w = frame.shape
     npix = h * w
-    integral = tedi_exposure_integral(ev["t"], ev["x"], ev["y"], ev["p"], np.arange(npix, dtype=np.int64),
-                                      w, npix, s, e, g, *params.as_tuple())
+    integral = tedi_exposure_integral(
+        ev["t"], ev["x"], ev["y"], ev["p"], np.arange(npix, dtype=np.int64), w, npix, s, e, g, *params.as_tuple()
+    )
     return log_mean_irradiance(frame, crf) - np.log(integral / (e - s)).reshape(h, w)
 
 
@@ -174,15 +189,20 @@ class CalibrationPair:
 
     def stats(self) -> dict:
         """Plain numbers describing the pair (for reports)."""
-        return {"source": self.source, "frames": [int(self.seq_prev), int(self.seq_cur)],
-                "t_us": [int(self.s_prev), int(self.e_cur)],
-                "exposure_us": [int(self.e_prev - self.s_prev), int(self.e_cur - self.s_cur)],
-                "gain": [float(self.gain_prev), float(self.gain_cur)], "pixels": self.n,
-                "valid_pixels": int(self.valid_pixels), "events_per_pixel": round(float(self.events_per_pixel), 4),
-                "events_per_pixel_per_s": round(float(self.events_per_pixel) * 1e6 / max(1, self.e_cur - self.s_prev), 2),
-                "mean_abs_change": round(float(self.mean_abs_change), 4),
-                "peak_rate_per_pixel": round(float(self.peak_rate), 1),
-                "bus_peak_rate_mev_s": round(float(self.bus_peak_rate) / 1e6, 3)}
+        return {
+            "source": self.source,
+            "frames": [int(self.seq_prev), int(self.seq_cur)],
+            "t_us": [int(self.s_prev), int(self.e_cur)],
+            "exposure_us": [int(self.e_prev - self.s_prev), int(self.e_cur - self.s_cur)],
+            "gain": [float(self.gain_prev), float(self.gain_cur)],
+            "pixels": self.n,
+            "valid_pixels": int(self.valid_pixels),
+            "events_per_pixel": round(float(self.events_per_pixel), 4),
+            "events_per_pixel_per_s": round(float(self.events_per_pixel) * 1e6 / max(1, self.e_cur - self.s_prev), 2),
+            "mean_abs_change": round(float(self.mean_abs_change), 4),
+            "peak_rate_per_pixel": round(float(self.peak_rate), 1),
+            "bus_peak_rate_mev_s": round(float(self.bus_peak_rate) / 1e6, 3),
+        }
 
 
 def _reference_time(reference: str, prev: Frame, cur: Frame) -> int:
@@ -202,10 +222,20 @@ def _check_count(name: str, v, allow_none: bool = False, minimum: int = 1) -> No
         raise ParameterError(f"{name} must be an integer >= {minimum}{extra}, got {v!r}")
 
 
-def prepare_pair(events: np.ndarray, prev: Frame, cur: Frame, crf: CameraResponse, *,
-                 reference: str = "previous_start", max_pixels: int | None = 20_000, min_change: float = 0.0,
-                 min_pixels: int = 1, last_polarity: np.ndarray | None = None,
-                 mask: np.ndarray | None = None, source: str = "") -> CalibrationPair | None:
+def prepare_pair(
+    events: np.ndarray,
+    prev: Frame,
+    cur: Frame,
+    crf: CameraResponse,
+    *,
+    reference: str = "previous_start",
+    max_pixels: int | None = 20_000,
+    min_change: float = 0.0,
+    min_pixels: int = 1,
+    last_polarity: np.ndarray | None = None,
+    mask: np.ndarray | None = None,
+    source: str = "",
+) -> CalibrationPair | None:
     """Select the pixels of one frame pair for Eq. 7 and keep their events; ``None`` if too few qualify.
 
     A pixel is used when its digital value is valid (``crf.valid_min..valid_max``) in both frames
@@ -233,8 +263,11 @@ def prepare_pair(events: np.ndarray, prev: Frame, cur: Frame, crf: CameraRespons
         raise ParameterError(f"reference must be one of {REFERENCES}, got {reference!r}")
     _check_count("max_pixels", max_pixels, allow_none=True)
     _check_count("min_pixels", min_pixels, minimum=1)
-    if isinstance(min_change, bool) or not isinstance(min_change, (int, float, np.floating)) or not (
-            np.isfinite(min_change) and min_change >= 0):
+    if (
+        isinstance(min_change, bool)
+        or not isinstance(min_change, (int, float, np.floating))
+        or not (np.isfinite(min_change) and min_change >= 0)
+    ):
         raise ParameterError(f"min_change must be a number >= 0 (ln units), got {min_change!r}")
     h, w = prev.shape
     if cur.shape != (h, w):
@@ -265,19 +298,31 @@ def prepare_pair(events: np.ndarray, prev: Frame, cur: Frame, crf: CameraRespons
     keep = kk >= 0
     ev = ev[keep]
     z_prev, z_cur = prev.image.ravel()[sel].copy(), cur.image.ravel()[sel].copy()
-    change = np.abs(crf.log_irradiance(z_cur, cur.exposure_us, cur.gain)
-                    - crf.log_irradiance(z_prev, prev.exposure_us, prev.gain))
+    change = np.abs(
+        crf.log_irradiance(z_cur, cur.exposure_us, cur.gain) - crf.log_irradiance(z_prev, prev.exposure_us, prev.gain)
+    )
     peak = 0.0
     if ev.size:
         peak = float(np.bincount((ev["t"] - lo) // PEAK_BIN_US).max()) / (sel.size * PEAK_BIN_US * 1e-6)
     return CalibrationPair(
-        g=g, t=np.ascontiguousarray(ev["t"], dtype=np.int64), k=np.ascontiguousarray(kk[keep]),
+        g=g,
+        t=np.ascontiguousarray(ev["t"], dtype=np.int64),
+        k=np.ascontiguousarray(kk[keep]),
         p=np.ascontiguousarray(ev["p"], dtype=np.int8),
-        z_prev=z_prev, z_cur=z_cur,
-        s_prev=int(prev.exposure_start_us), e_prev=int(prev.exposure_end_us), gain_prev=float(prev.gain),
-        s_cur=int(cur.exposure_start_us), e_cur=int(cur.exposure_end_us), gain_cur=float(cur.gain),
-        seq_prev=int(prev.sequence), seq_cur=int(cur.sequence), valid_pixels=n_valid,
-        events_per_pixel=float(ev.size) / sel.size, mean_abs_change=float(np.mean(change)), peak_rate=peak,
+        z_prev=z_prev,
+        z_cur=z_cur,
+        s_prev=int(prev.exposure_start_us),
+        e_prev=int(prev.exposure_end_us),
+        gain_prev=float(prev.gain),
+        s_cur=int(cur.exposure_start_us),
+        e_cur=int(cur.exposure_end_us),
+        gain_cur=float(cur.gain),
+        seq_prev=int(prev.sequence),
+        seq_cur=int(cur.sequence),
+        valid_pixels=n_valid,
+        events_per_pixel=float(ev.size) / sel.size,
+        mean_abs_change=float(np.mean(change)),
+        peak_rate=peak,
         source=source,
     )
 
@@ -301,9 +346,17 @@ def _check_fit(fit) -> tuple[str, ...]:
     return fit
 
 
-def fit_tedi_pairs(pairs, crf: CameraResponse, init: TediParams = TediParams(), fit=PARAM_NAMES,
-                   progress=None, max_nfev: int = 200, knee_min: float = 0.0, loss: str = "linear",
-                   f_scale: float = 1.0) -> TediCalibration:
+def fit_tedi_pairs(
+    pairs,
+    crf: CameraResponse,
+    init: TediParams = TediParams(),
+    fit=PARAM_NAMES,
+    progress=None,
+    max_nfev: int = 200,
+    knee_min: float = 0.0,
+    loss: str = "linear",
+    f_scale: float = 1.0,
+) -> TediCalibration:
     """Fit the TEDI parameters on prepared frame pairs (Eq. 7 with squared residuals).
 
     The residual of a used pixel of a pair is ``ln L_i(g,x) - ln L_{i-1}(g,x)`` (Eq. 5 on both
@@ -325,8 +378,11 @@ def fit_tedi_pairs(pairs, crf: CameraResponse, init: TediParams = TediParams(), 
     fit = _check_fit(fit)
     if progress is not None and not callable(progress):
         raise ParameterError("progress must be callable or None")
-    if isinstance(knee_min, bool) or not isinstance(knee_min, (int, float)) or not (np.isfinite(knee_min)
-                                                                                   and knee_min >= 0):
+    if (
+        isinstance(knee_min, bool)
+        or not isinstance(knee_min, (int, float))
+        or not (np.isfinite(knee_min) and knee_min >= 0)
+    ):
         raise ParameterError(f"knee_min must be a number >= 0 (events per pixel per second), got {knee_min!r}")
     if loss not in ("linear", "soft_l1", "huber", "cauchy", "arctan"):
         raise ParameterError(f"loss must be linear, soft_l1, huber, cauchy or arctan, got {loss!r}")
@@ -390,23 +446,36 @@ def fit_tedi_pairs(pairs, crf: CameraResponse, init: TediParams = TediParams(), 
             n = pr.n
             ia = tedi_integral_compact(pr.t, pr.k, pr.p, n, pr.s_prev, pr.e_prev, pr.g, *kp)
             ib = tedi_integral_compact(pr.t, pr.k, pr.p, n, pr.s_cur, pr.e_cur, pr.g, *kp)
-            out[pos:pos + n] = (lb_ - np.log(ib / (pr.e_cur - pr.s_cur))) - (la - np.log(ia / (pr.e_prev - pr.s_prev)))
+            out[pos : pos + n] = (lb_ - np.log(ib / (pr.e_cur - pr.s_cur))) - (
+                la - np.log(ia / (pr.e_prev - pr.s_prev))
+            )
         evaluations += 1
         if progress is not None:
-            progress(evaluations, float(np.sqrt(np.mean(out ** 2))))
+            progress(evaluations, float(np.sqrt(np.mean(out**2))))
         return out
 
     def per_pair(r):
-        return tuple(float(np.sqrt(np.mean(r[pos:pos + pr.n] ** 2))) for pr, _, _, pos in prepared)
+        return tuple(float(np.sqrt(np.mean(r[pos : pos + pr.n] ** 2))) for pr, _, _, pos in prepared)
 
     r0 = residuals(x0)
-    rms_before = float(np.sqrt(np.mean(r0 ** 2)))
-    res = scipy.optimize.least_squares(residuals, x0, bounds=(lb, ub), method="trf", x_scale=1.0,
-                                       diff_step=1e-3, xtol=1e-8, ftol=1e-10, gtol=1e-10, max_nfev=max_nfev,
-                                       loss=loss, f_scale=float(f_scale))
+    rms_before = float(np.sqrt(np.mean(r0**2)))
+    res = scipy.optimize.least_squares(
+        residuals,
+        x0,
+        bounds=(lb, ub),
+        method="trf",
+        x_scale=1.0,
+        diff_step=1e-3,
+        xtol=1e-8,
+        ftol=1e-10,
+        gtol=1e-10,
+        max_nfev=max_nfev,
+        loss=loss,
+        f_scale=float(f_scale),
+    )
     v = values(res.x)
     params = TediParams(**{n: float(val) for n, val in zip(names, v)})
-    rms_after = float(np.sqrt(np.mean(res.fun ** 2)))
+    rms_after = float(np.sqrt(np.mean(res.fun**2)))
     stderr, at_bound = _standard_errors(res, values, spec, names, num_res)
     # A compensation that acts on no pixel of the data (knee above every rate seen) leaves the
     # residuals unchanged (within 1e-9 ln) whatever a± and b± are: report it as a = b = 0, "inactive".
@@ -425,9 +494,22 @@ def fit_tedi_pairs(pairs, crf: CameraResponse, init: TediParams = TediParams(), 
                 stderr[n] = float("nan")
     if inactive:
         params = TediParams(**{n: float(val) for n, val in zip(names, v)})
-    return TediCalibration(params, float(res.cost), rms_before, rms_after, len(pairs), num_res,
-                           bool(res.success), str(res.message), per_pair(r0), per_pair(res.fun),
-                           stderr, at_bound, evaluations, tuple(inactive))
+    return TediCalibration(
+        params,
+        float(res.cost),
+        rms_before,
+        rms_after,
+        len(pairs),
+        num_res,
+        bool(res.success),
+        str(res.message),
+        per_pair(r0),
+        per_pair(res.fun),
+        stderr,
+        at_bound,
+        evaluations,
+        tuple(inactive),
+    )
 
 
 def pair_residuals(pairs, crf: CameraResponse, params: TediParams) -> list[np.ndarray]:
@@ -465,7 +547,7 @@ def _standard_errors(res, values, spec, names, num_res):
         return stderr, at_bound
     s2 = 2.0 * float(res.cost) / dof
     jac = np.asarray(res.jac, dtype=np.float64)
-    norms = np.sqrt((jac ** 2).sum(axis=0))
+    norms = np.sqrt((jac**2).sum(axis=0))
     flat = norms <= 1e-9 * max(float(norms.max()), 1e-300)  # the residuals do not depend on it here
     cov_x = np.linalg.pinv(jac.T @ jac) * s2
     cov_x[flat, :] = 0.0

@@ -14,8 +14,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .edi import signed_counts_at
-from .event_model import segment_integral
+from necviz.core.edi import signed_counts_at
+from necviz.core.event_model import segment_integral
 
 
 @nb.njit(cache=True)
@@ -33,8 +33,9 @@ def stretch_integral(t0, t1, g, n_on, n_off, c_on, c_off, a_on, b_on, a_off, b_o
         return segment_integral(float(t0 - g), float(t1 - g), 1.0, m_on, m_off, c_on, c_off, a_on, b_on, a_off, b_off)
     if t1 <= g:
         return segment_integral(float(g - t1), float(g - t0), -1.0, m_on, m_off, c_on, c_off, a_on, b_on, a_off, b_off)
-    return (segment_integral(0.0, float(g - t0), -1.0, m_on, m_off, c_on, c_off, a_on, b_on, a_off, b_off)
-            + segment_integral(0.0, float(t1 - g), 1.0, m_on, m_off, c_on, c_off, a_on, b_on, a_off, b_off))
+    return segment_integral(
+        0.0, float(g - t0), -1.0, m_on, m_off, c_on, c_off, a_on, b_on, a_off, b_off
+    ) + segment_integral(0.0, float(t1 - g), 1.0, m_on, m_off, c_on, c_off, a_on, b_on, a_off, b_off)
 
 
 @nb.njit(cache=True)

@@ -26,9 +26,9 @@ from typing import Protocol, Union, runtime_checkable
 
 import numpy as np
 
-from ..core.frames import ExposureMarker, Frame
-from ..core.imu import ImuBatch, TriggerBatch
-from ..core.sensor import SensorGeometry
+from necviz.core.frames import ExposureMarker, Frame
+from necviz.core.imu import ImuBatch, TriggerBatch
+from necviz.core.sensor import SensorGeometry
 
 #: What a source yields. Consumers that do not use IMU samples or triggers skip them.
 Packet = Union[np.ndarray, ExposureMarker, Frame, ImuBatch, TriggerBatch]
@@ -60,8 +60,9 @@ class Source(Protocol):
 
     def packets(self) -> Iterator[tuple[str | None, Packet]]: ...
 
-    def set_exposure(self, camera: str, exposure_us: float, gain: float = 1.0, *,
-                     issue_time_us: int | None = None) -> None: ...
+    def set_exposure(
+        self, camera: str, exposure_us: float, gain: float = 1.0, *, issue_time_us: int | None = None
+    ) -> None: ...
 
     def close(self) -> None: ...
 

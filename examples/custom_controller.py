@@ -25,7 +25,7 @@ from necviz.core.control import CONTROLLERS, CameraLimits, Controller, ExposureC
 from necviz.core.errors import ParameterError
 from necviz.core.metrics import summarise
 from necviz.drivers.sim.aps import ApsParams
-from necviz.drivers.sim.camera import SimRig
+from necviz.drivers.sim.rig import SimRig
 from necviz.drivers.sim.scenes import make_scenario
 from necviz.pipeline import Lane, Pipeline
 
@@ -35,8 +35,7 @@ class MeanIntensityController(Controller):
 
     name = "meanprop"
 
-    def __init__(self, limits: CameraLimits, exposure_us: float = 5_000.0, gain: float = 1.0,
-                 crf=None, k: float = 0.8):
+    def __init__(self, limits: CameraLimits, exposure_us: float = 5_000.0, gain: float = 1.0, crf=None, k: float = 0.8):
         super().__init__(limits, exposure_us, gain)
         self.crf = crf or default_davis346()
         if not 0 < k <= 1:
@@ -59,8 +58,11 @@ def main() -> None:
     ap.add_argument("--duration-s", type=float, default=0.8, help="simulated time in s (0.2..10)")
     ap.add_argument("--seed", type=int, default=1, help="scene and noise seed (>= 0)")
     ap.add_argument("--k", type=float, default=0.8, help="fraction of the log error corrected per frame, (0, 1]")
-    ap.add_argument("--via-compare", action="store_true",
-                    help="register the controller and run necviz.compare.run instead (full 346x260, slower)")
+    ap.add_argument(
+        "--via-compare",
+        action="store_true",
+        help="register the controller and run necviz.commands.compare.run instead (full 346x260, slower)",
+    )
     args = ap.parse_args()
     if not (0.2 <= args.duration_s <= 10 and args.seed >= 0 and 0 < args.k <= 1):
         ap.error("need 0.2 <= --duration-s <= 10, --seed >= 0 and 0 < --k <= 1")
@@ -69,8 +71,9 @@ def main() -> None:
         import necviz
 
         CONTROLLERS[MeanIntensityController.name] = MeanIntensityController  # now make_controller knows it
-        necviz.run_compare(necviz.CompareOptions(necviz.SceneOptions("tunnel_exit", args.seed, args.duration_s),
-                                                 names, sift=False))
+        necviz.run_compare(
+            necviz.CompareOptions(necviz.SceneOptions("tunnel_exit", args.seed, args.duration_s), names, sift=False)
+        )
         return
 
     sensor = SensorGeometry(173, 130)  # half the DAVIS346 resolution: same optics, 4x faster
@@ -85,17 +88,28 @@ def main() -> None:
     pipe = Pipeline(rig, [Lane(n, ctrls[n]) for n in names])
     pipe.run().finish()
     steps_us = [c.t_us for c in scene.changes]
-    print(f"tunnel_exit, {sensor.width}x{sensor.height} px, {args.duration_s:g} s, seed {args.seed}, "
-          f"exit at {steps_us[0] / 1e3:.0f} ms, start exposure {start_us:.0f} µs")
-    print(f"{'controller':10s} {'frames':>6s} {'sat>50%':>7s} {'sat>10%':>7s} {'mean over':>9s} {'mean under':>10s} "
-          f"{'recovery ms':>11s}")
+    print(
+        f"tunnel_exit, {sensor.width}x{sensor.height} px, {args.duration_s:g} s, seed {args.seed}, "
+        f"exit at {steps_us[0] / 1e3:.0f} ms, start exposure {start_us:.0f} µs"
+    )
+    print(
+        f"{'controller':10s} {'frames':>6s} {'sat>50%':>7s} {'sat>10%':>7s} {'mean over':>9s} {'mean under':>10s} "
+        f"{'recovery ms':>11s}"
+    )
     for n in names:
         frames = pipe.telemetry[n].table
-        m = summarise(frames.column("exposure_start_us"), frames.column("over_exposed_rate"),
-                      frames.column("under_exposed_rate"), steps_us, end_us=scene.duration_us)
+        m = summarise(
+            frames.column("exposure_start_us"),
+            frames.column("over_exposed_rate"),
+            frames.column("under_exposed_rate"),
+            steps_us,
+            end_us=scene.duration_us,
+        )
         rec = "never" if m.recovery_ms is None else f"{m.recovery_ms:.0f}"
-        print(f"{n:10s} {m.frames:6d} {m.saturated_frames_50:7d} {m.saturated_frames_10:7d} "
-              f"{m.mean_over_exposed_rate:9.3f} {m.mean_under_exposed_rate:10.3f} {rec:>11s}")
+        print(
+            f"{n:10s} {m.frames:6d} {m.saturated_frames_50:7d} {m.saturated_frames_10:7d} "
+            f"{m.mean_over_exposed_rate:9.3f} {m.mean_under_exposed_rate:10.3f} {rec:>11s}"
+        )
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ import numpy as np
 from necviz.core import SensorGeometry, default_davis346
 from necviz.core.control import CameraLimits, make_controller
 from necviz.drivers.sim.aps import ApsParams
-from necviz.drivers.sim.camera import SimRig
+from necviz.drivers.sim.rig import SimRig
 from necviz.drivers.sim.scene import FunctionScene, LightingChange
 from necviz.drivers.sim.scenes import scenario_from_toml
 from necviz.pipeline import Lane, Pipeline
@@ -30,9 +30,13 @@ RAMP_US = 5_000  # a lamp takes 5 ms to switch
 
 
 def lamp_scene(sensor: SensorGeometry, duration_us: int, off_us: int, on_us: int, dim_ln: float) -> FunctionScene:
-    yy, xx = np.mgrid[0:sensor.height, 0:sensor.width]
-    room = (5.0 + 0.4 * np.sin(xx / 9.0) * np.cos(yy / 7.0) + 0.3 * np.where((xx // 16 + yy // 16) % 2, 1, -1)
-            + 0.05 * np.random.default_rng(1).standard_normal(sensor.shape)).astype(np.float32)
+    yy, xx = np.mgrid[0 : sensor.height, 0 : sensor.width]
+    room = (
+        5.0
+        + 0.4 * np.sin(xx / 9.0) * np.cos(yy / 7.0)
+        + 0.3 * np.where((xx // 16 + yy // 16) % 2, 1, -1)
+        + 0.05 * np.random.default_rng(1).standard_normal(sensor.shape)
+    ).astype(np.float32)
 
     def lamp_off_then_on(t_us, sensor):
         dark = np.clip((t_us - off_us) / RAMP_US, 0, 1) - np.clip((t_us - on_us) / RAMP_US, 0, 1)
@@ -80,25 +84,39 @@ def main() -> None:
     pipe = Pipeline(cam, [Lane("camera", nec)])  # the closed loop every necviz command runs
     pipe.run().finish()
     table = pipe.telemetry["camera"].table  # (start µs, exposure µs, gain, over-exposed rate, under-exposed rate)
-    frames = np.stack([table.column(k) for k in ("exposure_start_us", "exposure_us", "gain", "over_exposed_rate",
-                                                 "under_exposed_rate")], axis=1)
+    frames = np.stack(
+        [
+            table.column(k)
+            for k in ("exposure_start_us", "exposure_us", "gain", "over_exposed_rate", "under_exposed_rate")
+        ],
+        axis=1,
+    )
     f = np.array(frames)
     sat = (f[:, 3] > 0.5) | (f[:, 4] > 0.5)
 
-    print(f"scene {scene.name!r} ({'TOML' if args.toml else 'FunctionScene'}), {sensor.width}x{sensor.height} px, "
-          f"{args.duration_s:g} s; lamp off at {off_us / 1e3:g} ms (-{args.dim_ln:g} ln), on at {on_us / 1e3:g} ms")
-    print(f"{'phase':10s} {'frames':>6s} {'exposure µs':>15s} {'gain':>11s} {'saturated':>9s} "
-          f"{'settled ln(TK/TK0)':>18s}")
+    print(
+        f"scene {scene.name!r} ({'TOML' if args.toml else 'FunctionScene'}), {sensor.width}x{sensor.height} px, "
+        f"{args.duration_s:g} s; lamp off at {off_us / 1e3:g} ms (-{args.dim_ln:g} ln), on at {on_us / 1e3:g} ms"
+    )
+    print(
+        f"{'phase':10s} {'frames':>6s} {'exposure µs':>15s} {'gain':>11s} {'saturated':>9s} {'settled ln(TK/TK0)':>18s}"
+    )
     for label, lo, hi in (("lamp on", 0, off_us), ("lamp off", off_us, on_us), ("on again", on_us, duration_us)):
         sel = (f[:, 0] >= lo) & (f[:, 0] < hi)
         if sel.any():  # settled: the exposure-gain product of the phase's last frame, relative to the first frame
             settled_ln = math.log(f[sel, 1][-1] * f[sel, 2][-1] / (f[0, 1] * f[0, 2]))
-            print(f"{label:10s} {int(sel.sum()):6d} {f[sel, 1].min():7.0f}..{f[sel, 1].max():<7.0f} "
-                  f"{f[sel, 2].min():5.2f}..{f[sel, 2].max():<5.2f} {int(sat[sel].sum()):9d} {settled_ln:+18.2f}")
-    print(f"saturated frames: {int(sat.sum())} of {len(f)}"
-          + (f" (starting at {', '.join(f'{t / 1e3:.0f}' for t in f[sat, 0])} ms)" if sat.any() else ""))
-    print(f"exposure trace: initial {f[0, 1]:.0f} µs, min {f[:, 1].min():.0f} µs, max {f[:, 1].max():.0f} µs "
-          f"(gain up to {f[:, 2].max():.2f}), final {f[-1, 1]:.0f} µs")
+            print(
+                f"{label:10s} {int(sel.sum()):6d} {f[sel, 1].min():7.0f}..{f[sel, 1].max():<7.0f} "
+                f"{f[sel, 2].min():5.2f}..{f[sel, 2].max():<5.2f} {int(sat[sel].sum()):9d} {settled_ln:+18.2f}"
+            )
+    print(
+        f"saturated frames: {int(sat.sum())} of {len(f)}"
+        + (f" (starting at {', '.join(f'{t / 1e3:.0f}' for t in f[sat, 0])} ms)" if sat.any() else "")
+    )
+    print(
+        f"exposure trace: initial {f[0, 1]:.0f} µs, min {f[:, 1].min():.0f} µs, max {f[:, 1].max():.0f} µs "
+        f"(gain up to {f[:, 2].max():.2f}), final {f[-1, 1]:.0f} µs"
+    )
 
 
 if __name__ == "__main__":

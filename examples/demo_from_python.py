@@ -23,17 +23,22 @@ def main() -> None:
     args = ap.parse_args()
     try:
         stats = necviz.run_demo(
-            necviz.DemoOptions(necviz.SceneOptions(args.scenario, seed=0, duration_s=args.duration_s,
-                                                   params={}), controllers=("nec", "navid", "fixed")),
+            necviz.DemoOptions(
+                necviz.SceneOptions(args.scenario, seed=0, duration_s=args.duration_s, params={}),
+                controllers=("nec", "navid", "fixed"),
+            ),
             necviz.ViewerOptions(save=args.out, force=True),
-            out=None)
+            out=None,
+        )
     except NecvizError as e:  # bad options: one line, like the command
         raise SystemExit(f"error: {e}")
     print(f"{args.scenario}: {stats['duration_s']:.2f} s simulated, {stats['events']:,} events")
     for lane, s in stats["lanes"].items():
         sat = stats["telemetry"][lane].table.column("over_exposed_rate") > 0.5
-        print(f"  {lane:6s} {s['frames']} frames, {s['saturated_frames_50']} saturated "
-              f"(first over-exposed at frame {int(sat.argmax()) if sat.any() else '—'}), {s['commands']} commands")
+        print(
+            f"  {lane:6s} {s['frames']} frames, {s['saturated_frames_50']} saturated "
+            f"(first over-exposed at frame {int(sat.argmax()) if sat.any() else '—'}), {s['commands']} commands"
+        )
     print(f"wrote {stats['rrd']} (open it with: rerun {stats['rrd']})")
 
 

@@ -48,8 +48,11 @@ def main() -> None:
         z = crf.intensity(np.log(mean_l) + math.log(t_us / 1e6) + math.log(gain))
         return np.clip(np.rint(z), 0, 255).astype(np.uint8)
 
-    nec = NECController(PeripheralEstimator(DAVIS346, TediParams(C_ON, 0.24), crf),
-                        CameraLimits(10, 20_000, 4.0), exposure_us=math.exp(crf.goal_log_exposure - 5.0) * 1e6)
+    nec = NECController(
+        PeripheralEstimator(DAVIS346, TediParams(C_ON, 0.24), crf),
+        CameraLimits(10, 20_000, 4.0),
+        exposure_us=math.exp(crf.goal_log_exposure - 5.0) * 1e6,
+    )
     exposure, gain, first = nec.exposure_us, nec.gain, nec.exposure_us
     print(f"{'frame':>5s} {'start ms':>8s} {'exposure µs':>11s} {'gain':>5s} {'over-exposed':>12s} {'stale':>6s}  ln P")
     done = 0
@@ -64,8 +67,10 @@ def main() -> None:
                 exposure, gain = cmd.exposure_us, cmd.gain
         done = f.exposure_end_us
         stale = (expose(s, round(first), 1.0) >= 250).mean()
-        print(f"{i:5d} {s / 1000:8.1f} {f.exposure_us:11d} {gain:5.2f} {(f.image >= 250).mean():12.1%} "
-              f"{stale:6.1%}  {nec.last_log_irradiance:.3f}")
+        print(
+            f"{i:5d} {s / 1000:8.1f} {f.exposure_us:11d} {gain:5.2f} {(f.image >= 250).mean():12.1%} "
+            f"{stale:6.1%}  {nec.last_log_irradiance:.3f}"
+        )
 
 
 if __name__ == "__main__":

@@ -35,7 +35,7 @@ def main() -> None:
     delta_ln, ramp_us = args.ramp_ln, args.ramp_ms * 1e3
     sensor, crf = SensorGeometry(64, 48), default_davis346()
     rng = np.random.default_rng(0)
-    yy, xx = np.mgrid[0:sensor.height, 0:sensor.width]
+    yy, xx = np.mgrid[0 : sensor.height, 0 : sensor.width]
     log_l0 = 5.0 + 0.2 * np.sin(xx / 5.0) * np.cos(yy / 4.0) + 0.1 * np.where((xx // 8 + yy // 8) % 2, 1, -1)
     end_us = int(RAMP_START_US + ramp_us + 100_000)
 
@@ -81,15 +81,19 @@ def main() -> None:
             trace.append((t, est.predict(t), frame_ln, true_log_mean(t)))
     tr = np.array(trace)
     err = np.abs(tr[:, 1] - tr[:, 3])
-    print(f"{sensor.width}x{sensor.height} px, ramp +{delta_ln:g} ln over {args.ramp_ms:g} ms, {events.size} events, "
-          f"{len(frames)} frames at {exposure_us} µs")
+    print(
+        f"{sensor.width}x{sensor.height} px, ramp +{delta_ln:g} ln over {args.ramp_ms:g} ms, {events.size} events, "
+        f"{len(frames)} frames at {exposure_us} µs"
+    )
     print(f"{'t ms':>7s} {'true ln':>8s} {'P-TEDI ln':>9s} {'error':>7s} {'last frame ln':>13s}")
     for tq in np.linspace(RAMP_START_US, RAMP_START_US + ramp_us, 6):
         i = min(int(np.searchsorted(tr[:, 0], tq)), len(tr) - 1)
         t, pred, fr, truth = tr[i]
         print(f"{t / 1e3:7.1f} {truth:8.3f} {pred:9.3f} {pred - truth:+7.3f} {fr:13.3f}")
-    print(f"max |error| over {len(tr)} predictions: {err.max():.4f} ln (frames alone: "
-          f"{np.abs(tr[:, 2] - tr[:, 3]).max():.4f} ln)")
+    print(
+        f"max |error| over {len(tr)} predictions: {err.max():.4f} ln (frames alone: "
+        f"{np.abs(tr[:, 2] - tr[:, 3]).max():.4f} ln)"
+    )
     if args.plot:
         draw(args.plot, tr, end_us)
 
@@ -106,8 +110,16 @@ def draw(path: str, tr: np.ndarray, end_us: int) -> None:
         pts = np.array([px(t, v) for t, v in zip(tr[:, 0], tr[:, col])], np.int32)
         cv2.polylines(img, [pts], False, bgr, 1, cv2.LINE_AA)
     cv2.rectangle(img, (m, m), (w - m, h - m), (0, 0, 0), 1)
-    cv2.putText(img, f"ln L {lo:.1f}..{hi:.1f} over 0..{end_us / 1e3:.0f} ms: true (green), P-TEDI (red), "
-                "last frame (blue)", (m, m - 12), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(
+        img,
+        f"ln L {lo:.1f}..{hi:.1f} over 0..{end_us / 1e3:.0f} ms: true (green), P-TEDI (red), last frame (blue)",
+        (m, m - 12),
+        cv2.FONT_HERSHEY_SIMPLEX,
+        0.4,
+        (0, 0, 0),
+        1,
+        cv2.LINE_AA,
+    )
     if not cv2.imwrite(path, img):
         raise SystemExit(f"could not write {path}")
     print(f"wrote {path}")

@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """P-TEDI on a real recording: per frame, the event-propagated prediction vs what the frame measured.
 
-Opens a recording with ``necviz.drivers.replay.open_recording`` (any supported format; default the
+Opens a recording with ``necviz.drivers.recordings.open_recording`` (any supported format; default the
 DAVIS346 AEDAT 4 sample in /work/shared/data) and feeds every packet, in stream order, to a
 whole-sensor ``PeripheralEstimator``. At each exposure start it records the prediction
 ``ln P(s)`` propagated with events from the previous frame's anchor; when the frame arrives it
@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from necviz.core import ExposureMarker, NecvizError, PeripheralEstimator, TediParams
-from necviz.drivers.replay import open_recording
+from necviz.drivers.recordings import open_recording
 
 SAMPLE = Path("/work/shared/data/davis346_sample.aedat4")
 
@@ -31,15 +31,19 @@ def main() -> int:
     ap.add_argument("--c-off", type=float, default=0.24, help="OFF contrast threshold, ln units")
     args = ap.parse_args()
     if not Path(args.recording).is_file():
-        print(f"replay_summary: recording {args.recording} not found; pass the path of an AEDAT/native/bag file",
-              file=sys.stderr)
+        print(
+            f"replay_summary: recording {args.recording} not found; pass the path of an AEDAT/native/bag file",
+            file=sys.stderr,
+        )
         return 1
     try:
         rec = open_recording(args.recording)
         est = PeripheralEstimator(rec.sensor, TediParams(args.c_on, args.c_off))
         print(f"{args.recording}: {rec.format}, {rec.sensor.width}x{rec.sensor.height}, exposure {rec.exposure_source}")
-        print(f"{'frame':>5s} {'start ms':>8s} {'exposure µs':>11s} {'events':>7s} {'predicted ln P':>14s} "
-              f"{'frame ln P':>10s} {'diff':>7s} {'valid':>6s}")
+        print(
+            f"{'frame':>5s} {'start ms':>8s} {'exposure µs':>11s} {'events':>7s} {'predicted ln P':>14s} "
+            f"{'frame ln P':>10s} {'diff':>7s} {'valid':>6s}"
+        )
         t0_us, predicted, events = None, math.nan, 0
         for packet in rec:
             fe = est.feed(packet)  # events, exposure markers and frames; IMU samples and triggers are ignored
@@ -50,16 +54,25 @@ def main() -> int:
                 predicted = est.predict(packet.t_us) if est.ready else math.nan  # before this frame anchors
             elif fe is not None:
                 measured = float(fe.log_anchor[0])
-                pred, diff = ((f"{predicted:.3f}", f"{predicted - measured:+.3f}") if math.isfinite(predicted)
-                              else ("— (first)", "—"))
-                print(f"{fe.sequence:5d} {(fe.exposure_start_us - t0_us) / 1e3:8.1f} {packet.exposure_us:11d} "
-                      f"{events:7d} {pred:>14s} {measured:10.3f} {diff:>7s} {fe.valid_fraction[0]:6.1%}")
+                pred, diff = (
+                    (f"{predicted:.3f}", f"{predicted - measured:+.3f}")
+                    if math.isfinite(predicted)
+                    else ("— (first)", "—")
+                )
+                print(
+                    f"{fe.sequence:5d} {(fe.exposure_start_us - t0_us) / 1e3:8.1f} {packet.exposure_us:11d} "
+                    f"{events:7d} {pred:>14s} {measured:10.3f} {diff:>7s} {fe.valid_fraction[0]:6.1%}"
+                )
                 events = 0
     except NecvizError as e:  # unreadable or damaged file, bad thresholds: one line, no traceback
         print(f"replay_summary: {e}", file=sys.stderr)
         return 1
-    print(f"{est.frames_seen} frames ({est.frames_skipped} not used as anchors); final prediction "
-          f"ln P = {est.predict():.3f}" if est.ready else "no usable frame: nothing to anchor P-TEDI")
+    print(
+        f"{est.frames_seen} frames ({est.frames_skipped} not used as anchors); final prediction "
+        f"ln P = {est.predict():.3f}"
+        if est.ready
+        else "no usable frame: nothing to anchor P-TEDI"
+    )
     return 0
 
 

@@ -13,7 +13,7 @@ command line runs::
 
 The library underneath: :mod:`necviz.core` (estimators, controllers, metrics),
 :mod:`necviz.drivers` (simulator, DAVIS driver, readers), :mod:`necviz.pipeline` (the closed
-loop), :mod:`necviz.sink` (Rerun), :mod:`necviz.layouts` (blueprints).
+loop), :mod:`necviz.dashboard.sink` (Rerun), :mod:`necviz.layouts` (blueprints).
 """
 
 from importlib import import_module
@@ -26,10 +26,23 @@ except PackageNotFoundError:  # running from a source tree that is not installed
 
 # name -> "module:attribute", imported on first use (importing necviz stays light for the CLI)
 _API = {
-    "run_demo": "necviz.demo:run", "run_replay": "necviz.replay:run", "run_live": "necviz.live:run",
-    "run_compare": "necviz.compare:run",
-    **{n: f"necviz.options:{n}" for n in ("CompareOptions", "DemoOptions", "LiveOptions", "ReplayOptions",
-                                           "SceneOptions", "ShowOptions", "TuneOptions", "ViewerOptions")},
+    "run_demo": "necviz.commands.demo:run",
+    "run_replay": "necviz.commands.replay:run",
+    "run_live": "necviz.commands.live:run",
+    "run_compare": "necviz.commands.compare:run",
+    **{
+        n: f"necviz.options:{n}"
+        for n in (
+            "CompareOptions",
+            "DemoOptions",
+            "LiveOptions",
+            "ReplayOptions",
+            "SceneOptions",
+            "ShowOptions",
+            "TuneOptions",
+            "ViewerOptions",
+        )
+    },
 }
 
 __all__ = ["__version__", *_API]

@@ -55,6 +55,9 @@ def bound_heap_retention() -> bool:
     global _applied
     if _applied is None:
         libc = _glibc()
-        _applied = bool(libc is not None and libc.mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)
-                        and libc.mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES))
+        _applied = bool(
+            libc is not None
+            and libc.mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)
+            and libc.mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES)
+        )
     return _applied

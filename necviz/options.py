@@ -13,11 +13,10 @@ import os
 import re
 import tomllib
 from dataclasses import dataclass, field
-from pathlib import Path
 
-from .core.checks import check_number
-from .core.control import CONTROLLERS
-from .core.errors import ParameterError
+from necviz.core.checks import check_number
+from necviz.core.control import CONTROLLERS
+from necviz.core.errors import ParameterError
 
 #: NEC and the five baselines, as the demo shows them side by side.
 DEFAULT_CONTROLLERS = ("nec", "navid", "shim", "begin", "builtin", "fixed")
@@ -38,11 +37,17 @@ def parse_controllers(text) -> tuple[str, ...]:
     controller side by side (each configured with ``--param nec@median.metering=median``).
     """
     names = [n.strip() for n in text.split(",") if n.strip()] if isinstance(text, str) else [str(n) for n in text]
-    unknown = [n for n in names if controller_kind(n) not in CONTROLLERS
-               or ("@" in n and not n.split("@", 1)[1].replace("-", "_").isidentifier())]
+    unknown = [
+        n
+        for n in names
+        if controller_kind(n) not in CONTROLLERS
+        or ("@" in n and not n.split("@", 1)[1].replace("-", "_").isidentifier())
+    ]
     if not names or unknown:
-        raise ParameterError(f"unknown controller(s) {', '.join(unknown) or '(none given)'}; "
-                             f"available: {', '.join(sorted(CONTROLLERS))} (a variant: KIND@LABEL)")
+        raise ParameterError(
+            f"unknown controller(s) {', '.join(unknown) or '(none given)'}; "
+            f"available: {', '.join(sorted(CONTROLLERS))} (a variant: KIND@LABEL)"
+        )
     if len(set(names)) != len(names):
         raise ParameterError("each controller may appear once in --controllers")
     return tuple(names)
@@ -106,12 +111,14 @@ class SceneOptions:
     params: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        from .drivers.sim.scenes import SCENARIOS
+        from necviz.drivers.sim.scenes import SCENARIOS
 
         self.scenario = str(self.scenario)
         if self.scenario not in SCENARIOS and not self.is_file:
-            raise ParameterError(f"--scenario: {self.scenario!r} is neither a preset ({', '.join(sorted(SCENARIOS))}) "
-                                 "nor a .toml scenario file")
+            raise ParameterError(
+                f"--scenario: {self.scenario!r} is neither a preset ({', '.join(sorted(SCENARIOS))}) "
+                "nor a .toml scenario file"
+            )
         if self.seed is not None:
             self.seed = check_number("--seed", self.seed, 0, 2**32 - 1, integer=True)
         if self.duration_s is not None:
@@ -125,11 +132,17 @@ class SceneOptions:
     def spec(self) -> dict:
         """``{name, seed, duration_us, sensor, params}``: the file's (read and checked) or the preset's."""
         if self.is_file:
-            from .drivers.sim.scenes import load_scenario_spec
+            from necviz.drivers.sim.scenes import load_scenario_spec
 
             return load_scenario_spec(self.scenario)
-        return {"name": self.scenario, "seed": None, "duration_us": None, "sensor": None, "params": {},
-                "source": self.scenario}
+        return {
+            "name": self.scenario,
+            "seed": None,
+            "duration_us": None,
+            "sensor": None,
+            "params": {},
+            "source": self.scenario,
+        }
 
     @property
     def name(self) -> str:
@@ -144,14 +157,19 @@ class SceneOptions:
 
     def build(self):
         """The :class:`~necviz.drivers.sim.scene.Scene` these options describe."""
-        from .drivers.sim.scenes import make_scenario
+        from necviz.drivers.sim.scenes import make_scenario
 
         spec = self.spec()
         kw = {"sensor": spec["sensor"]} if spec["sensor"] is not None else {}
         duration_us = int(round(self.duration_s * 1e6)) if self.duration_s is not None else spec["duration_us"]
         try:
-            return make_scenario(spec["name"], duration_us=duration_us, seed=self.resolved_seed, **kw,
-                                 **{**spec["params"], **self.params})
+            return make_scenario(
+                spec["name"],
+                duration_us=duration_us,
+                seed=self.resolved_seed,
+                **kw,
+                **{**spec["params"], **self.params},
+            )
         except ParameterError as e:
             raise ParameterError(f"{self.scenario}: {e}" if self.is_file else str(e)) from None
 
@@ -308,6 +326,20 @@ class CompareOptions:
         self.sim = dict(self.sim or {})
 
 
-__all__ = ["controller_kind", "COMPARE_CONTROLLERS", "CompareOptions", "DEFAULT_CONTROLLERS", "DemoOptions", "LAYOUT_NAMES", "LiveOptions", "ReplayOptions",
-           "SceneOptions", "ShowOptions", "TuneOptions", "ViewerOptions", "parse_controllers", "parse_setting",
-           "parse_speed"]
+__all__ = [
+    "controller_kind",
+    "COMPARE_CONTROLLERS",
+    "CompareOptions",
+    "DEFAULT_CONTROLLERS",
+    "DemoOptions",
+    "LAYOUT_NAMES",
+    "LiveOptions",
+    "ReplayOptions",
+    "SceneOptions",
+    "ShowOptions",
+    "TuneOptions",
+    "ViewerOptions",
+    "parse_controllers",
+    "parse_setting",
+    "parse_speed",
+]

@@ -24,7 +24,7 @@ from collections.abc import Iterable
 from contextlib import contextmanager
 from pathlib import Path
 
-from .core.errors import ParameterError
+from necviz.core.errors import ParameterError
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -37,8 +37,9 @@ def _same_file(a: Path, b: Path) -> bool:
     return (sa.st_dev, sa.st_ino) == (sb.st_dev, sb.st_ino)
 
 
-def check_output(path, flag: str, *, inputs: Iterable = (), force: bool = False,
-                 suffixes: tuple[str, ...] | None = None) -> Path:
+def check_output(
+    path, flag: str, *, inputs: Iterable = (), force: bool = False, suffixes: tuple[str, ...] | None = None
+) -> Path:
     """Refuse an output path that would destroy an input or an existing file; return it as a Path.
 
     ``flag`` names the option in the one-line error (``--json``); ``inputs`` are the files the

@@ -8,8 +8,8 @@ straight back to the source (``source.set_exposure(camera, exposure_us, gain)``)
 at the rate event batches arrive.
 
 The pipeline only controls. What the frames and commands mean is computed once by a
-:class:`~necviz.telemetry.Telemetry`; whoever wants to see the run — the Rerun sink
-(:mod:`necviz.sink`), the native recorder — is an :class:`Observer`, called with what happened
+:class:`~necviz.dashboard.telemetry.Telemetry`; whoever wants to see the run — the Rerun sink
+(:mod:`necviz.dashboard.sink`), the native recorder — is an :class:`Observer`, called with what happened
 through methods that only append to memory, so control never waits for them.
 
 Measured per command: the processing latency from the moment the packet that caused it left the
@@ -35,14 +35,14 @@ from dataclasses import replace
 
 import numpy as np
 
-from . import schema as S
-from .core.control import CONTROLLERS, Controller, NECController, make_controller
-from .core.checks import check_number
-from .core.errors import NecvizError, ParameterError
-from .core.frames import ExposureMarker, Frame
-from .core.imu import ImuBatch, TriggerBatch
-from .core.ptedi import PeripheralEstimator
-from .telemetry import FrameRecord, Telemetry
+from necviz.core.checks import check_number
+from necviz.core.control import CONTROLLERS, Controller, NECController, make_controller
+from necviz.core.errors import NecvizError, ParameterError
+from necviz.core.frames import ExposureMarker, Frame
+from necviz.core.imu import ImuBatch, TriggerBatch
+from necviz.core.ptedi import PeripheralEstimator
+from necviz.dashboard import schema as S
+from necviz.dashboard.telemetry import FrameRecord, Telemetry
 
 #: Thresholds of the lane's P-TEDI estimator, tunable like the controller's own parameters.
 THRESHOLD_KEYS = ("c_on", "c_off", "c")
@@ -77,8 +77,14 @@ class Lane:
         (default: one on the source's sensor with default thresholds). NEC uses its own.
     """
 
-    def __init__(self, name: str, controller: Controller, camera: str | None = None, drives: bool = True,
-                 estimator: PeripheralEstimator | None = None):
+    def __init__(
+        self,
+        name: str,
+        controller: Controller,
+        camera: str | None = None,
+        drives: bool = True,
+        estimator: PeripheralEstimator | None = None,
+    ):
         if not isinstance(controller, Controller):
             raise ParameterError(f"lane {name!r}: the controller must be a necviz Controller")
         self.name = name
@@ -148,8 +154,17 @@ class Pipeline:
     stop_after_s : end the run after this much sensor time (``None``: when the source ends).
     """
 
-    def __init__(self, source, lanes: list[Lane], *, telemetry: Telemetry | None = None, observers=(),
-                 speed: float | None = None, sample_period_us: int = 2_000, stop_after_s: float | None = None):
+    def __init__(
+        self,
+        source,
+        lanes: list[Lane],
+        *,
+        telemetry: Telemetry | None = None,
+        observers=(),
+        speed: float | None = None,
+        sample_period_us: int = 2_000,
+        stop_after_s: float | None = None,
+    ):
         if not lanes:
             raise ParameterError("the pipeline needs at least one lane")
         if speed is not None and not (isinstance(speed, (int, float)) and math.isfinite(speed) and speed > 0):
@@ -163,8 +178,10 @@ class Pipeline:
             if lane.camera is None:
                 lane.camera = lane.name if lane.name in cameras else (cameras[0] if len(cameras) == 1 else None)
             if lane.camera not in cameras:
-                raise ParameterError(f"lane {lane.name!r} watches camera {lane.camera!r}, which the source does not "
-                                     f"have ({', '.join(cameras)})")
+                raise ParameterError(
+                    f"lane {lane.name!r} watches camera {lane.camera!r}, which the source does not "
+                    f"have ({', '.join(cameras)})"
+                )
             if lane.drives:
                 if lane.camera in driven:
                     raise ParameterError(f"camera {lane.camera!r} is driven by more than one lane")
@@ -291,7 +308,9 @@ class Pipeline:
             raise ParameterError(f"unknown controller {controller!r}; available: {', '.join(sorted(CONTROLLERS))}")
         if lane is None:
             if len(self.lanes) != 1:
-                raise ParameterError("drive: every controller drives its own camera here; name the lane (drive NAME LANE)")
+                raise ParameterError(
+                    "drive: every controller drives its own camera here; name the lane (drive NAME LANE)"
+                )
             ln = next(iter(self.lanes.values()))
         else:
             ln = self._targets(lane)[0]
@@ -299,13 +318,20 @@ class Pipeline:
         if controller == "nec":  # keep the lane's anchored estimator
             new = NECController(ln.estimator, old.limits, old.exposure_us, old.gain)
         else:
-            new = make_controller(controller, sensor=self.source.sensor, limits=old.limits, exposure_us=old.exposure_us,
-                                  gain=old.gain, crf=ln.estimator.crf)
+            new = make_controller(
+                controller,
+                sensor=self.source.sensor,
+                limits=old.limits,
+                exposure_us=old.exposure_us,
+                gain=old.gain,
+                crf=ln.estimator.crf,
+            )
         ln.switch(new)
         self.telemetry.attach([ln], self.source)
         self._note(S.path(ln.name, S.LOG), f"controller: {old.name} -> {controller}")
-        return f"{controller} now drives {ln.camera} (was {old.name})", {"tuning": {"key": "drive", "value": controller,
-                                                                                  "lanes": [ln.name]}}
+        return f"{controller} now drives {ln.camera} (was {old.name})", {
+            "tuning": {"key": "drive", "value": controller, "lanes": [ln.name]}
+        }
 
     def status(self) -> str:
         """The current settings of every lane, one line each."""
@@ -313,9 +339,11 @@ class Pipeline:
         for ln in self.lanes.values():
             c, p, lim = ln.controller, ln.estimator.params, ln.controller.limits
             own = ", ".join(f"{k}={v:.4g}" for k, v in c.params().items())
-            lines.append(f"{ln.name}: {c.name}{'' if ln.drives else ' (open loop)'}, c_on={p.c_on:g} c_off={p.c_off:g}, "
-                         f"exposure {lim.exposure_min_us:g}..{lim.exposure_max_us:g} µs, gain_max={lim.gain_max:g}"
-                         + (f", {own}" if own else ""))
+            lines.append(
+                f"{ln.name}: {c.name}{'' if ln.drives else ' (open loop)'}, c_on={p.c_on:g} c_off={p.c_off:g}, "
+                f"exposure {lim.exposure_min_us:g}..{lim.exposure_max_us:g} µs, gain_max={lim.gain_max:g}"
+                + (f", {own}" if own else "")
+            )
         return "\n".join(lines)
 
     def _apply_changes(self) -> None:
@@ -498,7 +526,7 @@ class Pipeline:
 class RecorderObserver(Observer):
     """Keeps one camera's stream (shared events, its markers, frames, IMU, triggers), the commands of
     the lane that drives it, and every tuning change in a native recorder
-    (:class:`~necviz.drivers.replay.native.Recorder`)."""
+    (:class:`~necviz.drivers.recordings.native.Recorder`)."""
 
     name = "recorder"
 
@@ -516,10 +544,11 @@ class RecorderObserver(Observer):
 
     def command(self, lane, command, latency_us):
         if lane == self.lane:
-            from .drivers.source import CommandRecord
+            from necviz.drivers.source import CommandRecord
 
-            self.recorder.command(CommandRecord(int(command.issue_time_us), float(command.exposure_us),
-                                                float(command.gain)))
+            self.recorder.command(
+                CommandRecord(int(command.issue_time_us), float(command.exposure_us), float(command.gain))
+            )
 
     def note(self, entity, t_us, message, level="INFO", data=None):
         if data is not None:

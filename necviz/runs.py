@@ -1,7 +1,7 @@
 """Closed-loop simulator runs, described by plain data: what ``compare``, ``demo`` and sweeps run.
 
 A run is a scene (:class:`~necviz.options.SceneOptions`), the controllers that each drive their own
-camera of one :class:`~necviz.drivers.sim.camera.SimRig` (shared scene and events), optional
+camera of one :class:`~necviz.drivers.sim.rig.SimRig` (shared scene and events), optional
 controller parameters, an optional camera profile for the controllers (response, TEDI thresholds
 and compensation) and optional simulator overrides (the DVS and APS models — e.g. thresholds that
 differ from the controller's profile). :func:`run_once` runs it through the
@@ -20,18 +20,18 @@ from __future__ import annotations
 import math
 from dataclasses import fields, replace
 
-from .core.control import CameraLimits, make_controller
-from .core.errors import ParameterError
-from .core.metrics import summarise, summarise_details
-from .options import SceneOptions
-from .pipeline import Lane, Pipeline
-from .telemetry import Telemetry
+from necviz.core.control import CameraLimits, make_controller
+from necviz.core.errors import ParameterError
+from necviz.core.metrics import summarise, summarise_details
+from necviz.dashboard.telemetry import Telemetry
+from necviz.options import SceneOptions
+from necviz.pipeline import Lane, Pipeline
 
 
 def sim_models(sim: dict | None):
     """``{"dvs.KEY": v, "aps.KEY": v}`` -> ``(DvsParams, ApsParams)`` with those fields replaced."""
-    from .drivers.sim.aps import ApsParams
-    from .drivers.sim.dvs import DvsParams
+    from necviz.drivers.sim.aps import ApsParams
+    from necviz.drivers.sim.dvs import DvsParams
 
     dvs, aps = DvsParams(), ApsParams()
     for key, value in (sim or {}).items():
@@ -47,32 +47,38 @@ def sim_models(sim: dict | None):
     return dvs, aps
 
 
-def build_controller(name: str, params: dict | None, *, sensor, limits: CameraLimits, exposure_us: float,
-                     profile=None):
+def build_controller(name: str, params: dict | None, *, sensor, limits: CameraLimits, exposure_us: float, profile=None):
     """Controller ``name`` (a registered kind, or ``KIND@LABEL`` for a labelled variant) with ``params``:
     tunable parameters are set after building (:meth:`~necviz.core.control.Controller.set_param`),
     anything else is a constructor argument."""
-    from .options import controller_kind
+    from necviz.options import controller_kind
 
     kind = controller_kind(name)
     kw = {} if profile is None else {"tedi": profile.tedi, "crf": profile.crf}
     params = dict(params or {})
     probe = make_controller(kind, sensor=sensor, limits=limits, exposure_us=exposure_us, **kw)
     tunable = {k: params.pop(k) for k in list(params) if k in probe.tunables()}
-    ctrl = make_controller(kind, sensor=sensor, limits=limits, exposure_us=exposure_us, **kw, **params) \
-        if params else probe
+    ctrl = (
+        make_controller(kind, sensor=sensor, limits=limits, exposure_us=exposure_us, **kw, **params)
+        if params
+        else probe
+    )
     for k, v in tunable.items():
         ctrl.set_param(k, v)
     ctrl.name = name
     return ctrl
 
 
-def build_rig(scene_options: SceneOptions, controllers, profile=None, controller_params: dict | None = None,
-              sim: dict | None = None):
+def build_rig(
+    scene_options: SceneOptions,
+    controllers,
+    profile=None,
+    controller_params: dict | None = None,
+    sim: dict | None = None,
+):
     """The scene, the rig (one camera per controller) and one driving lane per controller."""
-    from .drivers.sim.camera import SimRig
-
-    from .core.ptedi import PeripheralEstimator
+    from necviz.core.ptedi import PeripheralEstimator
+    from necviz.drivers.sim.rig import SimRig
 
     scene = scene_options.build()
     dvs, aps = sim_models(sim)
@@ -84,8 +90,14 @@ def build_rig(scene_options: SceneOptions, controllers, profile=None, controller
     profile = profile if profile is not None else simulator_profile()
     lanes = []
     for n in controllers:
-        ctrl = build_controller(n, (controller_params or {}).get(n), sensor=scene.sensor, limits=limits,
-                                exposure_us=rig.cams[n].exposure_us, profile=profile)
+        ctrl = build_controller(
+            n,
+            (controller_params or {}).get(n),
+            sensor=scene.sensor,
+            limits=limits,
+            exposure_us=rig.cams[n].exposure_us,
+            profile=profile,
+        )
         passive = None if hasattr(ctrl, "estimator") else PeripheralEstimator(scene.sensor, profile.tedi, profile.crf)
         lanes.append(Lane(n, ctrl, estimator=passive))
     return scene, rig, lanes, limits
@@ -93,14 +105,22 @@ def build_rig(scene_options: SceneOptions, controllers, profile=None, controller
 
 def simulator_profile():
     """The camera profile the controllers use in the simulator by default: the one calibrated on the
-    simulated DAVIS346 (held-out calibration scene; :func:`necviz.calibrate.default_sim_profile`)."""
-    from .calibrate import default_sim_profile
+    simulated DAVIS346 (held-out calibration scene; :func:`necviz.profiles.default_sim_profile`)."""
+    from necviz.profiles import default_sim_profile
 
     return default_sim_profile()
 
 
-def run_once(scene_options: SceneOptions, controllers, sift: bool = True, profile=None, observers=(),
-             controller_params: dict | None = None, sim: dict | None = None, progress=None) -> dict:
+def run_once(
+    scene_options: SceneOptions,
+    controllers,
+    sift: bool = True,
+    profile=None,
+    observers=(),
+    controller_params: dict | None = None,
+    sim: dict | None = None,
+    progress=None,
+) -> dict:
     """One closed-loop run; returns ``{"results": {name: metrics and traces}, "duration_s", "steps_us"}``.
 
     ``observers`` are :class:`~necviz.pipeline.Observer` s or factories ``f(rig, lanes)``;
@@ -120,20 +140,44 @@ def run_once(scene_options: SceneOptions, controllers, sift: bool = True, profil
         table = tel[n].table
         starts = table.column("exposure_start_us")
         sift_vals = table.column("sift_inliers") if sift else None
-        m = summarise(starts, table.column("over_exposed_rate"), table.column("under_exposed_rate"), steps,
-                      None if sift_vals is None else [None if not math.isfinite(v) else v for v in sift_vals],
-                      end_us=scene.duration_us)
-        details = summarise_details(table.column("sequence"), table.column("sift_inliers_normalised"),
-                                    table.column("true_valid_fraction"), table.column("rank_correlation"),
-                                    table.column("pedestrian_valid_fraction"), table.column("saturation_cause"))
-        res[n] = {**m.as_dict(), **details, "exposure_trace_us": table.column("exposure_us").tolist(),
-                  "gain_trace": table.column("gain").tolist(), "frame_starts_us": starts.tolist(),
-                  "frames_detail": table.rows()}
+        m = summarise(
+            starts,
+            table.column("over_exposed_rate"),
+            table.column("under_exposed_rate"),
+            steps,
+            None if sift_vals is None else [None if not math.isfinite(v) else v for v in sift_vals],
+            end_us=scene.duration_us,
+        )
+        details = summarise_details(
+            table.column("sequence"),
+            table.column("sift_inliers_normalised"),
+            table.column("true_valid_fraction"),
+            table.column("rank_correlation"),
+            table.column("pedestrian_valid_fraction"),
+            table.column("saturation_cause"),
+        )
+        res[n] = {
+            **m.as_dict(),
+            **details,
+            "exposure_trace_us": table.column("exposure_us").tolist(),
+            "gain_trace": table.column("gain").tolist(),
+            "frame_starts_us": starts.tolist(),
+            "frames_detail": table.rows(),
+        }
     return {"results": res, "duration_s": scene.duration_us / 1e6, "steps_us": steps}
 
 
-SPEC_KEYS = {"scenario", "seed", "duration_s", "scenario_params", "controllers", "controller_params", "profile",
-             "sim", "sift"}
+SPEC_KEYS = {
+    "scenario",
+    "seed",
+    "duration_s",
+    "scenario_params",
+    "controllers",
+    "controller_params",
+    "profile",
+    "sim",
+    "sift",
+}
 
 
 def run_spec(spec: dict) -> dict:
@@ -141,21 +185,31 @@ def run_spec(spec: dict) -> dict:
     unknown = set(spec) - SPEC_KEYS
     if unknown:
         raise ParameterError(f"unknown run key(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(SPEC_KEYS))}")
-    scene = SceneOptions(spec.get("scenario", "tunnel_exit"), spec.get("seed"), spec.get("duration_s"),
-                         dict(spec.get("scenario_params") or {}))
+    scene = SceneOptions(
+        spec.get("scenario", "tunnel_exit"),
+        spec.get("seed"),
+        spec.get("duration_s"),
+        dict(spec.get("scenario_params") or {}),
+    )
     profile = spec.get("profile")
     if isinstance(profile, dict):
-        from .core.profile import CameraProfile
+        from necviz.core.camera_profile import CameraProfile
 
         profile = CameraProfile.from_dict(profile, "run spec")
     elif profile is not None:
-        from .core.profile import load_profile
+        from necviz.profiles import load_profile
 
         profile = load_profile(profile)
-    from .options import parse_controllers
+    from necviz.options import parse_controllers
 
-    return run_once(scene, parse_controllers(spec.get("controllers", ["nec"])), bool(spec.get("sift", False)),
-                    profile, controller_params=spec.get("controller_params"), sim=spec.get("sim"))
+    return run_once(
+        scene,
+        parse_controllers(spec.get("controllers", ["nec"])),
+        bool(spec.get("sift", False)),
+        profile,
+        controller_params=spec.get("controller_params"),
+        sim=spec.get("sim"),
+    )
 
 
 __all__ = ["SPEC_KEYS", "build_controller", "build_rig", "run_once", "run_spec", "sim_models", "simulator_profile"]

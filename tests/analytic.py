@@ -90,8 +90,9 @@ def texture(width: int, height: int) -> np.ndarray:
 class AnalyticScene:
     """Texture x per-group trajectory, ideal events, exact frames."""
 
-    def __init__(self, width=64, height=48, trajectories=(Trajectory("flat"),), groups=None, log_level=0.0,
-                 log_texture=None):
+    def __init__(
+        self, width=64, height=48, trajectories=(Trajectory("flat"),), groups=None, log_level=0.0, log_texture=None
+    ):
         self.width, self.height = width, height
         self.log_tex = texture(width, height) if log_texture is None else np.asarray(log_texture, np.float64)
         self.log_level = log_level

@@ -17,14 +17,17 @@ import numpy as np
 # ----------------------------------------------------------------------------------- AEDAT 3.1
 
 
-def aedat3_packet(event_type: int, event_size: int, ts_overflow: int, payload: bytes, number: int,
-                  source: int = 1) -> bytes:
+def aedat3_packet(
+    event_type: int, event_size: int, ts_overflow: int, payload: bytes, number: int, source: int = 1
+) -> bytes:
     """28-byte header ``int16 type, int16 source, int32 size, int32 tsOffset, int32 tsOverflow,
     int32 capacity, int32 number, int32 valid`` + payload (capacity == number)."""
     assert len(payload) == event_size * number
     ts_offset = 4  # every libcaer event type stores its 32-bit timestamp at byte 4
-    return struct.pack("<hhiiiiii", event_type, source, event_size, ts_offset, ts_overflow,
-                       number, number, number) + payload
+    return (
+        struct.pack("<hhiiiiii", event_type, source, event_size, ts_offset, ts_overflow, number, number, number)
+        + payload
+    )
 
 
 def aedat3_polarity(t, x, y, p, overflow: int = 0) -> bytes:
@@ -46,13 +49,20 @@ def aedat3_special(t, types, overflow: int = 0) -> bytes:
     return aedat3_packet(0, 8, overflow, rec.tobytes(), t.size)
 
 
-def aedat3_frame(image10: np.ndarray, ts_start_frame, ts_end_frame, ts_start_exp, ts_end_exp,
-                 overflow: int = 0) -> bytes:
+def aedat3_frame(
+    image10: np.ndarray, ts_start_frame, ts_end_frame, ts_start_exp, ts_end_exp, overflow: int = 0
+) -> bytes:
     """FRAME packet with one frame: 36-byte header then ``uint16`` pixels (10-bit value << 6)."""
     h, w = image10.shape
-    head = struct.pack("<Iiiiiiiii", 1 | (1 << 1), *(int(v) - (overflow << 31) for v in
-                                                    (ts_start_frame, ts_end_frame, ts_start_exp, ts_end_exp)),
-                       w, h, 0, 0)
+    head = struct.pack(
+        "<Iiiiiiiii",
+        1 | (1 << 1),
+        *(int(v) - (overflow << 31) for v in (ts_start_frame, ts_end_frame, ts_start_exp, ts_end_exp)),
+        w,
+        h,
+        0,
+        0,
+    )
     px = (np.asarray(image10, np.uint16) << 6).astype("<u2").tobytes()
     return aedat3_packet(2, 36 + 2 * w * h, overflow, head + px, 1)
 
@@ -68,8 +78,11 @@ def aedat3_imu6(t, values, overflow: int = 0) -> bytes:
 
 
 def aedat3_header(source: str = "DAVIS346B") -> bytes:
-    return (b"#!AER-DAT3.1\r\n#Format: RAW\r\n" + f"#Source 1: {source}\r\n".encode()
-            + b"#Start-Time: 2024-01-01 00:00:00 (TZ+0000)\r\n#!END-HEADER\r\n")
+    return (
+        b"#!AER-DAT3.1\r\n#Format: RAW\r\n"
+        + f"#Source 1: {source}\r\n".encode()
+        + b"#Start-Time: 2024-01-01 00:00:00 (TZ+0000)\r\n#!END-HEADER\r\n"
+    )
 
 
 # ----------------------------------------------------------------------------------- AEDAT 2.0
@@ -94,16 +107,26 @@ def jaer_imu(raw7) -> np.ndarray:
 
 
 def aedat2_bytes(addr, ts, chip: str = "eu.seebetter.ini.chips.davis.Davis346B") -> bytes:
-    header = (b"#!AER-DAT2.0\r\n# This is a raw AE data file - do not edit\r\n"
-              + f"# AEChip: {chip}\r\n".encode() + b"# HardwareInterface: synthetic\r\n")
+    header = (
+        b"#!AER-DAT2.0\r\n# This is a raw AE data file - do not edit\r\n"
+        + f"# AEChip: {chip}\r\n".encode()
+        + b"# HardwareInterface: synthetic\r\n"
+    )
     rec = np.empty(len(addr), [("a", ">u4"), ("t", ">i4")])
     rec["a"] = np.asarray(addr, np.int64).astype(np.uint32)
     rec["t"] = np.asarray(ts, np.int64).astype(np.int32)
     return header + rec.tobytes()
 
 
-def aedat2_frame_words(image10_reset: np.ndarray, image10_signal: np.ndarray, t_reset0: int, t_signal0: int,
-                       width: int, height: int, step_us: int = 0):
+def aedat2_frame_words(
+    image10_reset: np.ndarray,
+    image10_signal: np.ndarray,
+    t_reset0: int,
+    t_signal0: int,
+    width: int,
+    height: int,
+    step_us: int = 0,
+):
     """Global-shutter readout: every pixel's reset read (column-major in jAER order), then every signal
     read. Returns (addr, ts); all resets stamped ``t_reset0 + k*step_us``, signals ``t_signal0 + ...``."""
     ys, xs = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")
@@ -118,16 +141,21 @@ def aedat2_frame_words(image10_reset: np.ndarray, image10_signal: np.ndarray, t_
 
 
 def native_bytes(sensor=(346, 260, "DAVIS346"), properties=None, chunks=(), end=True) -> bytes:
-    """A necviz recording from the layout in drivers/replay/native.py's docstring.
+    """A necviz recording from the layout in drivers/recordings/native.py's docstring.
 
     ``chunks``: (type, payload bytes) pairs after the header chunk.
     """
+
     def chunk(kind, payload):
         return struct.pack("<BII", kind, len(payload), zlib.crc32(payload)) + payload
 
-    header = {"format": "necviz-recording", "version": 1,
-              "sensor": {"width": sensor[0], "height": sensor[1], "name": sensor[2]},
-              "properties": properties or {}, "created_utc": "2024-01-01T00:00:00+00:00"}
+    header = {
+        "format": "necviz-recording",
+        "version": 1,
+        "sensor": {"width": sensor[0], "height": sensor[1], "name": sensor[2]},
+        "properties": properties or {},
+        "created_utc": "2024-01-01T00:00:00+00:00",
+    }
     out = b"NECVIZ-REC\x00" + bytes([1]) + chunk(1, json.dumps(header).encode())
     for kind, payload in chunks:
         out += chunk(kind, payload)
@@ -209,8 +237,7 @@ _DVS_MSGDEFS = {
 }
 
 
-def write_ros1_bag(path: Path, event_msgs, images=(), exposures=(), width=346, height=260,
-                   ns="/dvs") -> Path:
+def write_ros1_bag(path: Path, event_msgs, images=(), exposures=(), width=346, height=260, ns="/dvs") -> Path:
     """A ROS1 bag written with rosbags' own Writer (independent of the reader's byte decoding).
 
     ``event_msgs``: list of (t, x, y, p) arrays per EventArray (t µs); ``images``: (stamp µs, uint8
@@ -237,12 +264,18 @@ def write_ros1_bag(path: Path, event_msgs, images=(), exposures=(), width=346, h
     msgs = []  # (bag time ns, kind, msg)
     for i, (t, x, y, p) in enumerate(event_msgs):
         evs = [Event(x=int(a), y=int(b), ts=tm(c), polarity=bool(d > 0)) for c, a, b, d in zip(t, x, y, p)]
-        m = EventArray(header=Header(seq=i, stamp=tm(t[-1]), frame_id="cam"), height=height, width=width,
-                       events=evs)
+        m = EventArray(header=Header(seq=i, stamp=tm(t[-1]), frame_id="cam"), height=height, width=width, events=evs)
         msgs.append((int(t[-1]) * 1000 + 1, "events", m))
     for i, (stamp, img) in enumerate(images):
-        m = Image(header=Header(seq=i, stamp=tm(stamp), frame_id="cam"), height=img.shape[0], width=img.shape[1],
-                  encoding="mono8", is_bigendian=0, step=img.shape[1], data=np.ascontiguousarray(img).ravel())
+        m = Image(
+            header=Header(seq=i, stamp=tm(stamp), frame_id="cam"),
+            height=img.shape[0],
+            width=img.shape[1],
+            encoding="mono8",
+            is_bigendian=0,
+            step=img.shape[1],
+            data=np.ascontiguousarray(img).ravel(),
+        )
         msgs.append((int(stamp) * 1000 + 20_000_000, "image", m))  # received 20 ms after mid-exposure
     for t, e in exposures:
         msgs.append((int(t) * 1000, "exposure", Int32(data=int(e))))

@@ -1,7 +1,7 @@
 """Corrupted recordings for the robustness tests (``tests/test_fuzz_files.py``) and ``benchmarks/fuzz.py``.
 
 :func:`build_seeds` writes one small, valid recording of every supported format with the project's own
-writers (:mod:`format_writers`, the native :class:`~necviz.drivers.replay.native.Recorder`, rosbags'
+writers (:mod:`format_writers`, the native :class:`~necviz.drivers.recordings.native.Recorder`, rosbags'
 writer for ROS 2) plus the real DAVIS346 AEDAT 4 sample when it is present. :func:`variants` derives
 corrupted copies from them, deterministically from a seed: truncation at a random offset, bit flips,
 random bytes, huge values written into length fields (located from each format's documented layout),
@@ -17,22 +17,44 @@ from __future__ import annotations
 import shutil
 import struct
 import time
-import tracemalloc
 import traceback
+import tracemalloc
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
-from format_writers import (aedat2_bytes, aedat2_frame_words, aedat3_frame, aedat3_header, aedat3_imu6,
-                            aedat3_polarity, aedat3_special, jaer_dvs, jaer_imu, write_dsec, write_mvsec,
-                            write_ros1_bag, write_rpg_text)
+from format_writers import (
+    aedat2_bytes,
+    aedat2_frame_words,
+    aedat3_frame,
+    aedat3_header,
+    aedat3_imu6,
+    aedat3_polarity,
+    aedat3_special,
+    jaer_dvs,
+    jaer_imu,
+    write_dsec,
+    write_mvsec,
+    write_ros1_bag,
+    write_rpg_text,
+)
 
 #: the real recording the AEDAT 4 seed is taken from (tests read ../shared/data)
 SAMPLE_AEDAT4 = Path(__file__).resolve().parents[2] / "shared" / "data" / "davis346_sample.aedat4"
 
-MUTATIONS = ("truncate", "bit_flips", "random_bytes", "huge_length", "wrong_magic", "splice_header",
-             "delete_span", "duplicate_span", "zero_span", "text_columns", "text_token")
+MUTATIONS = (
+    "truncate",
+    "bit_flips",
+    "random_bytes",
+    "huge_length",
+    "wrong_magic",
+    "splice_header",
+    "delete_span",
+    "duplicate_span",
+    "zero_span",
+    "text_columns",
+    "text_token",
+)
 
 
 @dataclass(frozen=True)
@@ -61,7 +83,7 @@ def _native(path: Path, rng) -> None:
     from necviz.core.frames import ExposureMarker, Frame
     from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, ImuBatch, TriggerBatch
     from necviz.core.sensor import SensorGeometry
-    from necviz.drivers.replay import Recorder
+    from necviz.drivers.recordings import Recorder
     from necviz.drivers.source import CommandRecord
 
     sensor = SensorGeometry(32, 24, "small")
@@ -123,7 +145,7 @@ def _rosbag2(folder: Path, rng) -> None:
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    from necviz.drivers.replay.rosbag import DVS_MSGS
+    from necviz.drivers.recordings.rosbag import DVS_MSGS
 
     store = get_typestore(Stores.ROS2_HUMBLE)
     types = {}
@@ -139,8 +161,15 @@ def _rosbag2(folder: Path, rng) -> None:
         t0 = 1_000_000
         for k in range(3):
             tt, x, y, p = _events(rng, 40, t0, t0 + 10_000, 32, 24)
-            evs = [Event(x=int(a), y=int(b), ts=Time(sec=int(c) // 1_000_000, nanosec=int(c) % 1_000_000 * 1000),
-                         polarity=bool(d)) for c, a, b, d in zip(tt, x, y, p)]
+            evs = [
+                Event(
+                    x=int(a),
+                    y=int(b),
+                    ts=Time(sec=int(c) // 1_000_000, nanosec=int(c) % 1_000_000 * 1000),
+                    polarity=bool(d),
+                )
+                for c, a, b, d in zip(tt, x, y, p)
+            ]
             stamp = Time(sec=int(tt[-1]) // 1_000_000, nanosec=int(tt[-1]) % 1_000_000 * 1000)
             msg = EventArray(header=Header(stamp=stamp, frame_id="cam"), height=24, width=32, events=evs)
             w.write(conn, int(tt[-1]) * 1000, store.serialize_cdr(msg, conn.msgtype))
@@ -167,7 +196,7 @@ def build_seeds(folder, *, sample: Path | None = SAMPLE_AEDAT4, seed: int = 0) -
     p.write_bytes(_aedat2(rng))
     seeds.append(Seed("aedat2", p))
     t, x, y, pol = _events(rng, 120, 1_000_000, 1_060_000, 32, 24)
-    msgs = [(t[i:i + 40], x[i:i + 40], y[i:i + 40], pol[i:i + 40]) for i in range(0, 120, 40)]
+    msgs = [(t[i : i + 40], x[i : i + 40], y[i : i + 40], pol[i : i + 40]) for i in range(0, 120, 40)]
     img = rng.integers(0, 256, (24, 32), dtype=np.uint8)
     p = folder / "seed.bag"
     write_ros1_bag(p, msgs, images=[(1_020_000, img)], exposures=[(1_000_000, 2000)], width=32, height=24)
@@ -184,8 +213,15 @@ def build_seeds(folder, *, sample: Path | None = SAMPLE_AEDAT4, seed: int = 0) -
     write_mvsec(p, t / 1e6, x, y, pol * 2 - 1, images=imgs, image_ts=[0.05, 0.15])
     seeds.append(Seed("hdf5", p))
     p = folder / "seed_rpg"
-    write_rpg_text(p, t / 1e6, x, y, pol, frames=[(0.05, img), (0.15, img)],
-                   imu=[[0.1, 0, 0, 9.81, 0, 0, 0.1], [0.12, 0, 0, 9.81, 0, 0, 0.2]])
+    write_rpg_text(
+        p,
+        t / 1e6,
+        x,
+        y,
+        pol,
+        frames=[(0.05, img), (0.15, img)],
+        imu=[[0.1, 0, 0, 9.81, 0, 0, 0.1], [0.12, 0, 0, 9.81, 0, 0, 0.2]],
+    )
     seeds.append(Seed("rpg-text", p, ("events.txt", "images.txt", "imu.txt", "images/frame_00000000.png")))
     p = folder / "seed_events.txt"
     shutil.copyfile(folder / "seed_rpg" / "events.txt", p)
@@ -270,7 +306,7 @@ def mutate(data: bytes, fmt: str, kind: str, rng, others: list[bytes]) -> bytes:
             off = int(rng.integers(0, max(1, n // size))) * size
             v = (1 << (8 * size)) - 1 if size == 8 else v
         if off + size <= n:
-            b[off:off + size] = (v & ((1 << (8 * size)) - 1)).to_bytes(size, "little")
+            b[off : off + size] = (v & ((1 << (8 * size)) - 1)).to_bytes(size, "little")
         return bytes(b)
     if kind == "wrong_magic":
         i = int(rng.integers(0, min(n, 16)))
@@ -283,7 +319,7 @@ def mutate(data: bytes, fmt: str, kind: str, rng, others: list[bytes]) -> bytes:
         return other[:k] + data[j:]
     if kind == "delete_span":
         i = int(rng.integers(0, n))
-        return data[:i] + data[i + int(rng.integers(1, max(2, n // 4))):]
+        return data[:i] + data[i + int(rng.integers(1, max(2, n // 4))) :]
     if kind == "duplicate_span":
         i = int(rng.integers(0, n))
         j = min(n, i + int(rng.integers(1, max(2, n // 4))))
@@ -410,7 +446,7 @@ def read_variant(path, *, describe_too: bool = True) -> dict:
     """
     from necviz.core.errors import NecvizError
     from necviz.core.frames import Frame
-    from necviz.drivers.replay import describe, open_recording
+    from necviz.drivers.recordings import describe, open_recording
 
     path = Path(path)
     measured = _reset_peak()
@@ -466,5 +502,14 @@ def read_variant(path, *, describe_too: bool = True) -> dict:
     return out
 
 
-__all__ = ["MUTATIONS", "SAMPLE_AEDAT4", "Seed", "VariantMaker", "build_seeds", "mutate", "read_variant", "remove",
-           "variants"]
+__all__ = [
+    "MUTATIONS",
+    "SAMPLE_AEDAT4",
+    "Seed",
+    "VariantMaker",
+    "build_seeds",
+    "mutate",
+    "read_variant",
+    "remove",
+    "variants",
+]

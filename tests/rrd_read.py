@@ -85,8 +85,9 @@ class Rrd:
             cols = []
             for tl in timelines:
                 col = rb.column(tl)
-                cols.append(col.cast(pa.int64()).to_numpy(zero_copy_only=False) / (1e9 if pa.types.is_duration(col.type)
-                                                                                     else 1))
+                cols.append(
+                    col.cast(pa.int64()).to_numpy(zero_copy_only=False) / (1e9 if pa.types.is_duration(col.type) else 1)
+                )
             rows.extend(zip(*cols))
         return np.asarray(sorted(rows), float).reshape(-1, len(timelines))
 

@@ -13,8 +13,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from necviz.core.control.base import CameraLimits, ExposureCommand
 from necviz.core.control.begin import DELTA_EVS, BeginController, newton_optimum
+from necviz.core.control.controller import CameraLimits, ExposureCommand
 from necviz.core.control.shim import (
     GAMMA_MAX,
     GAMMA_MIN,
@@ -166,14 +166,14 @@ def test_begin_brightens_dark_and_darkens_bright_frames():
 
 def test_newton_finds_the_optimum_of_a_known_polynomial():
     # p(x) = −(x − 0.7)² − 0.1 (x − 0.7)⁴ + 3: maximum at 0.7
-    p = -np.poly1d([1, -0.7]) ** 2 - 0.1 * np.poly1d([1, -0.7]) ** 4 + 3
+    p = -(np.poly1d([1, -0.7]) ** 2) - 0.1 * np.poly1d([1, -0.7]) ** 4 + 3
     assert newton_optimum(p.coeffs) == pytest.approx(0.7, abs=1e-5)
     # the same through 7 samples and a degree-6 fit (what the controller does)
     coef = np.polyfit(DELTA_EVS, p(DELTA_EVS), 6)
     assert newton_optimum(coef) == pytest.approx(0.7, abs=1e-5)
     # not a maximum at 0 (convex) -> None; optimum outside [−2, 2] -> None
     assert newton_optimum(np.poly1d([1, 0, 0]).coeffs) is None
-    assert newton_optimum((-np.poly1d([1, -3.0]) ** 2).coeffs) is None
+    assert newton_optimum((-(np.poly1d([1, -3.0]) ** 2)).coeffs) is None
 
 
 def test_begin_motion_estimate_grows_with_a_shift():
@@ -264,9 +264,7 @@ def test_degenerate_images_give_valid_commands(name, limits):
     lo=st.floats(1.0, 5_000.0),
     span=st.floats(1.0, 100.0),
     gmax=st.floats(1.0, 200.0),
-    images=st.lists(
-        arrays(np.uint8, st.tuples(st.integers(1, 40), st.integers(1, 40))), min_size=1, max_size=4
-    ),
+    images=st.lists(arrays(np.uint8, st.tuples(st.integers(1, 40), st.integers(1, 40))), min_size=1, max_size=4),
     gains=st.lists(st.floats(1.0, 300.0), min_size=4, max_size=4),
 )
 def test_random_images_and_limits_give_valid_commands(name, lo, span, gmax, images, gains):

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from necviz.core.control.base import CameraLimits, ExposureCommand
 from necviz.core.control.builtin import BuiltinController
+from necviz.core.control.controller import CameraLimits, ExposureCommand
 from necviz.core.control.fixed import FixedController
 from necviz.core.control.navid import NavidController, mean_sample_value
 from necviz.core.crf import default_davis346
@@ -199,8 +199,11 @@ def test_builtin_msv_branch_value_weighted_with_divisor(n_bright, n_mid, expecte
     if n_bright == 0:  # 60/200 half-half: value-weighted MSV 3.54 (a pixel count would give 3.0)
         assert step == -int(100 * (2.5 - 920 / 260) ** 2)
     else:
-        assert abs(step) == int(100 * (2.5 - (5 * 240 * n_bright + 2 * 100 * n_mid) / (240 * n_bright + 100 * n_mid))
-                                ** 2) // expected_div
+        assert (
+            abs(step)
+            == int(100 * (2.5 - (5 * 240 * n_bright + 2 * 100 * n_mid) / (240 * n_bright + 100 * n_mid)) ** 2)
+            // expected_div
+        )
 
 
 @pytest.mark.parametrize("low,high", [(24, 230), (25, 229)])
@@ -330,20 +333,37 @@ LIM = CameraLimits()
 
 
 @pytest.mark.parametrize("cls", CLASSES)
-@pytest.mark.parametrize("kw", [dict(exposure_us=math.nan), dict(exposure_us=-5.0), dict(gain=math.nan),
-                                dict(gain=0.0)])
+@pytest.mark.parametrize(
+    "kw", [dict(exposure_us=math.nan), dict(exposure_us=-5.0), dict(gain=math.nan), dict(gain=0.0)]
+)
 def test_bad_common_parameters(cls, kw):
     with pytest.raises(ParameterError):
         cls(LIM, **kw)
 
 
-@pytest.mark.parametrize("kw", [
-    dict(target_msv=math.nan), dict(target_msv=1.0), dict(target_msv=5.5), dict(image_fraction=0.0),
-    dict(image_fraction=1.5), dict(k_exposure=-1.0), dict(k_gain=math.inf), dict(ki_ratio=-0.1),
-    dict(integral_limit=math.nan), dict(ev_per_unit=0.0), dict(ev_per_unit=1.0), dict(dead_band=-0.1),
-    dict(dead_band=1.0), dict(mask=np.zeros((3, 3))), dict(mask=-np.ones((3, 3))),
-    dict(mask=np.full((3, 3), np.nan)), dict(mask=np.ones(3)), dict(k_exposure="50"),
-])
+@pytest.mark.parametrize(
+    "kw",
+    [
+        dict(target_msv=math.nan),
+        dict(target_msv=1.0),
+        dict(target_msv=5.5),
+        dict(image_fraction=0.0),
+        dict(image_fraction=1.5),
+        dict(k_exposure=-1.0),
+        dict(k_gain=math.inf),
+        dict(ki_ratio=-0.1),
+        dict(integral_limit=math.nan),
+        dict(ev_per_unit=0.0),
+        dict(ev_per_unit=1.0),
+        dict(dead_band=-0.1),
+        dict(dead_band=1.0),
+        dict(mask=np.zeros((3, 3))),
+        dict(mask=-np.ones((3, 3))),
+        dict(mask=np.full((3, 3), np.nan)),
+        dict(mask=np.ones(3)),
+        dict(k_exposure="50"),
+    ],
+)
 def test_navid_bad_parameters(kw):
     with pytest.raises(ParameterError):
         NavidController(LIM, **kw)

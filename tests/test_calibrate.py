@@ -14,15 +14,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from necviz.calibrate import (PairCollector, add_parser, calibrate_from_recordings, calibrate_from_simulation,
-                              default_sim_profile, parse_seeds)
+from necviz.calibrate import PairCollector, calibrate_from_recordings, calibrate_from_simulation
+from necviz.commands.calibrate import add_parser, parse_seeds
+from necviz.core.camera_profile import CameraProfile
 from necviz.core.crf import default_davis346
 from necviz.core.errors import NecvizError, ParameterError, ProfileError
 from necviz.core.event_model import TediParams
-from necviz.core.profile import CameraProfile, load_profile
 from necviz.core.sensor import SensorGeometry
 from necviz.drivers.sim.calibration_scene import CalibrationScene
 from necviz.drivers.sim.dvs import DvsParams
+from necviz.profiles import default_sim_profile, load_profile
 
 SAMPLE = Path(__file__).resolve().parents[2] / "shared" / "data" / "davis346_sample.aedat4"
 SMALL = SensorGeometry(48, 36)
@@ -91,8 +92,23 @@ def test_real_sample_runs_and_reports_residuals(tmp_path, capsys):
     """The DAVIS346 sample has 4 frames and 0.02 events per pixel between them: every pixel is
     used (no change threshold, no continuation rule); the fit runs and reports its residuals."""
     out, rep = tmp_path / "cam.json", tmp_path / "report.json"
-    assert cli([str(SAMPLE), "--out", str(out), "--json", str(rep), "--min-change", "0", "--min-pixels", "1",
-                "--no-continuation"]) == 0
+    assert (
+        cli(
+            [
+                str(SAMPLE),
+                "--out",
+                str(out),
+                "--json",
+                str(rep),
+                "--min-change",
+                "0",
+                "--min-pixels",
+                "1",
+                "--no-continuation",
+            ]
+        )
+        == 0
+    )
     text = capsys.readouterr().out
     assert "RMS residual" in text and f"wrote {out}" in text
     report = json.loads(rep.read_text())
@@ -126,8 +142,20 @@ def test_profile_round_trips_through_json(tmp_path, sim_result):
 def test_out_is_not_overwritten_without_force(tmp_path):
     out = tmp_path / "p.json"
     out.write_text("keep me")
-    argv = ["--sim", "calibration", "--sensor", "32x24", "--duration", "1.5", "--out", str(out),
-            "--min-pixels", "20", "--fit", "c"]
+    argv = [
+        "--sim",
+        "calibration",
+        "--sensor",
+        "32x24",
+        "--duration",
+        "1.5",
+        "--out",
+        str(out),
+        "--min-pixels",
+        "20",
+        "--fit",
+        "c",
+    ]
     with pytest.raises(ParameterError, match="already exists; pass --force"):
         cli(argv)
     assert out.read_text() == "keep me"
@@ -135,19 +163,22 @@ def test_out_is_not_overwritten_without_force(tmp_path):
     assert load_profile(out).sensor.shape == (24, 32)
 
 
-@pytest.mark.parametrize("argv, match", [
-    ([], "nothing to calibrate on"),
-    (["x.aedat4", "--sim", "calibration"], "not both"),
-    (["missing.aedat4"], "no such file"),
-    (["--sim", "tunnel"], "unknown scenario"),
-    (["--sim", "calibration", "--seeds", "3..1"], "--seeds"),
-    (["--sim", "calibration", "--init", "0.3"], "--init"),
-    (["--sim", "calibration", "--init", "0.3,-1"], "contrast threshold c_off"),
-    (["--sim", "calibration", "--fit", "c_on,gamma"], "--fit"),
-    (["--sim", "calibration", "--sensor", "big"], "--sensor"),
-    (["--sim", "calibration", "--max-lag", "0"], "max_lag"),
-    (["--sim", "calibration", "--duration", "-1"], "--duration"),
-])
+@pytest.mark.parametrize(
+    "argv, match",
+    [
+        ([], "nothing to calibrate on"),
+        (["x.aedat4", "--sim", "calibration"], "not both"),
+        (["missing.aedat4"], "no such file"),
+        (["--sim", "tunnel"], "unknown scenario"),
+        (["--sim", "calibration", "--seeds", "3..1"], "--seeds"),
+        (["--sim", "calibration", "--init", "0.3"], "--init"),
+        (["--sim", "calibration", "--init", "0.3,-1"], "contrast threshold c_off"),
+        (["--sim", "calibration", "--fit", "c_on,gamma"], "--fit"),
+        (["--sim", "calibration", "--sensor", "big"], "--sensor"),
+        (["--sim", "calibration", "--max-lag", "0"], "max_lag"),
+        (["--sim", "calibration", "--duration", "-1"], "--duration"),
+    ],
+)
 def test_bad_input_gives_one_line_errors(tmp_path, monkeypatch, argv, match):
     monkeypatch.chdir(tmp_path)
     with pytest.raises(NecvizError, match=match) as e:
@@ -160,8 +191,11 @@ def test_bad_output_paths(tmp_path):
     rec = tmp_path / "rec.aedat4"
     rec.write_bytes(b"x")
     (tmp_path / "d.json").mkdir()
-    for out, match in (("p.txt", "expects a .json"), (str(tmp_path / "nodir" / "p.json"), "does not exist"),
-                       (str(tmp_path / "d.json"), "is a folder")):
+    for out, match in (
+        ("p.txt", "expects a .json"),
+        (str(tmp_path / "nodir" / "p.json"), "does not exist"),
+        (str(tmp_path / "d.json"), "is a folder"),
+    ):
         with pytest.raises(ParameterError, match=match):
             cli(["--sim", "calibration", "--out", out])
     with pytest.raises(ParameterError, match="same file"):

@@ -24,8 +24,7 @@ def interval(draw):
 
 
 def inside(v, lo, hi, lo_open, hi_open) -> bool:
-    return ((lo is None or v > lo or (v == lo and not lo_open))
-            and (hi is None or v < hi or (v == hi and not hi_open)))
+    return (lo is None or v > lo or (v == lo and not lo_open)) and (hi is None or v < hi or (v == hi and not hi_open))
 
 
 @given(interval(), finite)
@@ -39,15 +38,19 @@ def test_finite_float_inside_is_returned_unchanged_outside_raises(iv, v):
             check_number("x", v, lo, hi, lo_open=lo_open, hi_open=hi_open)
 
 
-@given(interval(), st.sampled_from([math.nan, math.inf, -math.inf, True, False, np.bool_(True), "1", None,
-                                    [1.0], np.array(1.0), 1j, 10 ** 400]))
+@given(
+    interval(),
+    st.sampled_from(
+        [math.nan, math.inf, -math.inf, True, False, np.bool_(True), "1", None, [1.0], np.array(1.0), 1j, 10**400]
+    ),
+)
 def test_nan_inf_bool_and_non_numbers_always_raise(iv, v):
     lo, hi, lo_open, hi_open = iv
     with pytest.raises(ParameterError, match=r"^x must be (a number|finite), got "):
         check_number("x", v, lo, hi, lo_open=lo_open, hi_open=hi_open)
 
 
-@given(st.integers(-10 ** 6, 10 ** 6), st.integers(-10 ** 6, 10 ** 6))
+@given(st.integers(-(10**6), 10**6), st.integers(-(10**6), 10**6))
 def test_integers_inside_and_outside(v, lo):
     if v >= lo:
         out = check_number("n", v, lo, integer=True)
@@ -71,8 +74,10 @@ def test_parse_number_reads_what_repr_writes(v):
 
 def test_messages_are_one_line_and_name_everything():
     cases = [
-        (lambda: check_number("step_db", 30, 40.0, 140.0, where="tunnel_exit"),
-         "tunnel_exit: step_db = 30 is out of range [40, 140]"),
+        (
+            lambda: check_number("step_db", 30, 40.0, 140.0, where="tunnel_exit"),
+            "tunnel_exit: step_db = 30 is out of range [40, 140]",
+        ),
         (lambda: check_number("lam", 0.0, 0.0, lo_open=True), "lam = 0 is out of range (must be > 0)"),
         (lambda: check_number("kp", 10.0, 0.0, 10.0, lo_open=True, hi_open=True), "kp = 10 is out of range (0, 10)"),
         (lambda: check_number("d", 2, hi=1, hi_open=True), "d = 2 is out of range (must be < 1)"),

@@ -7,7 +7,7 @@ import sys
 import pytest
 
 from necviz import __version__
-from necviz.cli import main
+from necviz.commands.cli import main
 
 
 def test_version_and_module_entry_point():
@@ -26,8 +26,24 @@ def test_info_lists_versions_threading_layer_and_controllers(capsys):
 
 def test_bench_estimators_writes_the_documented_json(tmp_path, capsys):
     path = tmp_path / "est.json"
-    rc = main(["bench", "estimators", "--events", "200000", "--duration", "0.2", "--fps", "50",
-               "--repeats", "2", "--edi-samples", "8", "--json", str(path)])
+    rc = main(
+        [
+            "bench",
+            "estimators",
+            "--events",
+            "200000",
+            "--duration",
+            "0.2",
+            "--fps",
+            "50",
+            "--repeats",
+            "2",
+            "--edi-samples",
+            "8",
+            "--json",
+            str(path),
+        ]
+    )
     assert rc == 0
     data = json.loads(path.read_text())
     names = [r["method"] for r in data["rows"]]
@@ -43,10 +59,13 @@ def test_bench_estimators_writes_the_documented_json(tmp_path, capsys):
     assert "P-TEDI" in table and "floor" in table
 
 
-@pytest.mark.parametrize("argv, needle", [
-    (["bench", "estimators", "--events", "10"], "events >= 1000"),
-    (["bench", "estimators", "--exposure-us", "30000", "--fps", "50"], "shorter than the frame period"),
-])
+@pytest.mark.parametrize(
+    "argv, needle",
+    [
+        (["bench", "estimators", "--events", "10"], "events >= 1000"),
+        (["bench", "estimators", "--exposure-us", "30000", "--fps", "50"], "shorter than the frame period"),
+    ],
+)
 def test_bad_parameters_give_one_line_errors(argv, needle, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()

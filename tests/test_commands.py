@@ -9,13 +9,13 @@ import sys
 from pathlib import Path
 
 import pytest
-
 from conftest import SHARED_DATA
-from necviz import schema as S
-from necviz.cli import main
-from necviz.drivers.replay import open_recording
-from necviz.core.frames import Frame
 from rrd_read import Rrd
+
+from necviz.commands.cli import main
+from necviz.core.frames import Frame
+from necviz.dashboard import schema as S
+from necviz.drivers.recordings import open_recording
 
 SAMPLE = SHARED_DATA / "davis346_sample.aedat4"
 needs_sample = pytest.mark.skipif(not SAMPLE.exists(), reason=f"real recording {SAMPLE} not available")
@@ -23,8 +23,9 @@ needs_sample = pytest.mark.skipif(not SAMPLE.exists(), reason=f"real recording {
 
 def test_live_emulated_closes_the_loop_and_records(tmp_path, capsys):
     rrd, rec = tmp_path / "live.rrd", tmp_path / "live.necrec"
-    code = main(["live", "--device", "emulated", "--duration", "0.6", "--save", str(rrd), "--record", str(rec),
-                 "--no-prompt"])
+    code = main(
+        ["live", "--device", "emulated", "--duration", "0.6", "--save", str(rrd), "--record", str(rec), "--no-prompt"]
+    )
     assert code == 0
     out = capsys.readouterr().out
     assert "nec drives the exposure" in out
@@ -45,9 +46,29 @@ def test_live_emulated_closes_the_loop_and_records(tmp_path, capsys):
 def test_unplugged_camera_flushes_everything_and_exits_nonzero(tmp_path):
     """Run as a user would: a separate process, an unplug mid-stream, then both files read back."""
     rrd, rec = tmp_path / "u.rrd", tmp_path / "u.necrec"
-    proc = subprocess.run([sys.executable, "-m", "necviz", "live", "--device", "emulated", "--duration", "3",
-                           "--emulate-unplug", "0.4", "--save", str(rrd), "--record", str(rec), "--no-prompt"],
-                          capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "necviz",
+            "live",
+            "--device",
+            "emulated",
+            "--duration",
+            "3",
+            "--emulate-unplug",
+            "0.4",
+            "--save",
+            str(rrd),
+            "--record",
+            str(rec),
+            "--no-prompt",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=tmp_path,
+    )
     assert proc.returncode == 2
     assert "necviz: error: DAVIS346 EMU00346 was unplugged at t=0.4" in proc.stderr
     assert "Traceback" not in proc.stderr
@@ -65,8 +86,20 @@ def test_unplugged_camera_flushes_everything_and_exits_nonzero(tmp_path):
 def test_a_live_session_may_outlast_any_simulated_scene(tmp_path, capsys):
     """``--duration`` of ``live`` is the session's length (hours for a soak), not the scene's (<= 600 s):
     a one-hour emulated session starts; the emulated unplug ends it at once."""
-    code = main(["live", "--device", "emulated", "--duration", "3600", "--emulate-unplug", "0.1",
-                 "--save", str(tmp_path / "l.rrd"), "--no-prompt"])
+    code = main(
+        [
+            "live",
+            "--device",
+            "emulated",
+            "--duration",
+            "3600",
+            "--emulate-unplug",
+            "0.1",
+            "--save",
+            str(tmp_path / "l.rrd"),
+            "--no-prompt",
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 2 and "unplugged" in err and "out of range" not in err
 
@@ -104,8 +137,23 @@ def test_replay_real_sample_reports_prediction_error(tmp_path, capsys):
 @needs_sample
 def test_replay_start_end_restrict_the_range(tmp_path):
     js = tmp_path / "r.json"
-    assert main(["replay", str(SAMPLE), "--start", "0.05", "--end", "0.12", "--save", str(tmp_path / "r.rrd"),
-                 "--json", str(js)]) == 0
+    assert (
+        main(
+            [
+                "replay",
+                str(SAMPLE),
+                "--start",
+                "0.05",
+                "--end",
+                "0.12",
+                "--save",
+                str(tmp_path / "r.rrd"),
+                "--json",
+                str(js),
+            ]
+        )
+        == 0
+    )
     s = json.loads(js.read_text())
     assert 0 < s["events"] < 6676 and s["duration_s"] <= 0.07 + 1e-3
 
@@ -141,13 +189,43 @@ def test_headless_default_saves_to_a_file_and_says_so(tmp_path, monkeypatch, cap
 
 def test_a_bad_flag_never_truncates_an_existing_recording(tmp_path, capsys):
     rec = tmp_path / "keep.necrec"
-    assert main(["demo", "--duration", "0.2", "--controllers", "nec", "--save", str(tmp_path / "a.rrd"),
-                 "--record", str(rec), "--no-prompt"]) == 0
+    assert (
+        main(
+            [
+                "demo",
+                "--duration",
+                "0.2",
+                "--controllers",
+                "nec",
+                "--save",
+                str(tmp_path / "a.rrd"),
+                "--record",
+                str(rec),
+                "--no-prompt",
+            ]
+        )
+        == 0
+    )
     size = rec.stat().st_size
-    for bad in (["--save", str(tmp_path / "a.txt")], ["--speed", "abc"], ["--speed", "1e-300"],
-                ["--tune-file", str(tmp_path / "missing")], ["--event-window-ms", "0"]):
-        args = ["demo", "--duration", "0.2", "--controllers", "nec", "--record", str(rec), "--force", "--no-prompt",
-                *bad]
+    for bad in (
+        ["--save", str(tmp_path / "a.txt")],
+        ["--speed", "abc"],
+        ["--speed", "1e-300"],
+        ["--tune-file", str(tmp_path / "missing")],
+        ["--event-window-ms", "0"],
+    ):
+        args = [
+            "demo",
+            "--duration",
+            "0.2",
+            "--controllers",
+            "nec",
+            "--record",
+            str(rec),
+            "--force",
+            "--no-prompt",
+            *bad,
+        ]
         if "--save" not in bad:
             args += ["--save", str(tmp_path / "b.rrd")]
         assert main(args) == 2, bad
@@ -159,8 +237,9 @@ def test_a_bad_flag_never_truncates_an_existing_recording(tmp_path, capsys):
 
 @pytest.mark.parametrize("flags", [["--connect", "notaurl"], ["--json", "/nonexistent/x.json"]])
 def test_viewer_and_output_mistakes_are_one_line(tmp_path, capsys, flags):
-    from necviz.drivers.replay import Recorder
     from test_pipeline import SENSOR, stream
+
+    from necviz.drivers.recordings import Recorder
 
     with Recorder(tmp_path / "x.necrec", sensor=SENSOR, properties={}) as rec:
         for p in stream(n_frames=2):
@@ -178,8 +257,9 @@ def test_replay_range_past_the_end_is_an_error(tmp_path, capsys):
 
 
 def test_tuned_limits_must_fit_the_camera():
-    from necviz.core.control import CameraLimits
     from test_pipeline import ListSource, nec_lane
+
+    from necviz.core.control import CameraLimits
     from necviz.pipeline import Pipeline
 
     src = ListSource([])

@@ -8,18 +8,38 @@ from pathlib import Path
 
 import pytest
 
-from necviz.cli import main
-from necviz.compare import run
+from necviz.commands.cli import main
+from necviz.commands.compare import run
 from necviz.options import CompareOptions, SceneOptions
 
-KEYS = {"frames", "saturated_frames_50", "saturated_frames_10", "mean_over_exposed_rate",
-        "mean_under_exposed_rate", "recovery_ms", "sift_inliers_mean"}
+KEYS = {
+    "frames",
+    "saturated_frames_50",
+    "saturated_frames_10",
+    "mean_over_exposed_rate",
+    "mean_under_exposed_rate",
+    "recovery_ms",
+    "sift_inliers_mean",
+}
 
 
 def test_compare_writes_json_and_a_valid_recording(tmp_path, capsys):
     js, rrd = tmp_path / "r.json", tmp_path / "c.rrd"
-    rc = main(["compare", "--scenario", "tunnel_exit", "--controllers", "nec,fixed", "--duration", "0.8",
-               "--json", str(js), "--save", str(rrd)])
+    rc = main(
+        [
+            "compare",
+            "--scenario",
+            "tunnel_exit",
+            "--controllers",
+            "nec,fixed",
+            "--duration",
+            "0.8",
+            "--json",
+            str(js),
+            "--save",
+            str(rrd),
+        ]
+    )
     assert rc == 0
     data = json.loads(js.read_text())
     assert data["scenario"] == "tunnel_exit" and data["seed"] == 0 and data["duration_s"] == pytest.approx(0.8)
@@ -50,21 +70,25 @@ def test_compare_writes_json_and_a_valid_recording(tmp_path, capsys):
 
 
 def test_seeds_report_mean_and_a_confidence_interval(tmp_path):
-    res = run(CompareOptions(SceneOptions("static_lab", seed=1, duration_s=0.3), "nec,fixed", seeds=3, sift=False),
-              out=None)
+    res = run(
+        CompareOptions(SceneOptions("static_lab", seed=1, duration_s=0.3), "nec,fixed", seeds=3, sift=False), out=None
+    )
     row = res["controllers"]["nec"]
     vals = row["frames_per_seed"]
     assert res["seeds"] == 3 and len(vals) == 3 and row["frames"] == pytest.approx(sum(vals) / 3)
     assert row["saturated_frames_50_ci95"] >= 0 and "saturated_frames_50_std" in row
 
 
-@pytest.mark.parametrize("argv, needle", [
-    (["compare", "--scenario", "moon"], "neither a preset"),
-    (["compare", "--seeds", "0"], "--seeds = 0 is out of range"),
-    (["compare", "--duration", "-1"], "--duration = -1 is out of range"),
-    (["compare", "--set", "step_db"], "--set expects KEY=VALUE"),
-    (["compare", "--set", "step_db=1", "--duration", "0.1"], "step_db = 1 is out of range"),
-])
+@pytest.mark.parametrize(
+    "argv, needle",
+    [
+        (["compare", "--scenario", "moon"], "neither a preset"),
+        (["compare", "--seeds", "0"], "--seeds = 0 is out of range"),
+        (["compare", "--duration", "-1"], "--duration = -1 is out of range"),
+        (["compare", "--set", "step_db"], "--set expects KEY=VALUE"),
+        (["compare", "--set", "step_db=1", "--duration", "0.1"], "step_db = 1 is out of range"),
+    ],
+)
 def test_bad_arguments_give_one_line_errors(argv, needle, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
@@ -88,8 +112,23 @@ def test_scenario_files_and_overrides_work_in_compare_demo_and_bench(tmp_path):
     assert a.duration_us == b.duration_us == 300_000
     assert a.seed == 4 and b.seed == 5 and a.params["ramp_ms"] == 2 and b.params["ramp_ms"] == 3
     js = tmp_path / "r.json"
-    assert main(["compare", "--scenario", str(toml), "--set", "ramp_ms=3", "--controllers", "nec,fixed",
-                 "--no-sift", "--json", str(js)]) == 0
+    assert (
+        main(
+            [
+                "compare",
+                "--scenario",
+                str(toml),
+                "--set",
+                "ramp_ms=3",
+                "--controllers",
+                "nec,fixed",
+                "--no-sift",
+                "--json",
+                str(js),
+            ]
+        )
+        == 0
+    )
     data = json.loads(js.read_text())
     assert data["scenario"] == "static_lab" and data["seed"] == 4 and data["scenario_params"] == {"ramp_ms": 3}
     assert main(["bench", "sim", "--scenario", str(toml), "--cameras", "2", "--json", str(tmp_path / "s.json")]) == 0

@@ -145,8 +145,9 @@ def test_closed_loop_exposes_the_first_frame_after_a_step_correctly(crf):
     assert over[first_after] < 0.1, over
     assert applied[first_after].exposure_us < applied[0].exposure_us * math.exp(-2.5)
     # the same frame with the pre-step exposure (what a frame-only controller would still use) saturates
-    stale = scene.frame(crf, applied[first_after].exposure_start_us,
-                        applied[first_after].exposure_start_us + applied[0].exposure_us)
+    stale = scene.frame(
+        crf, applied[first_after].exposure_start_us, applied[first_after].exposure_start_us + applied[0].exposure_us
+    )
     assert (stale.image >= 250).mean() > 0.5
 
 

@@ -6,9 +6,10 @@ import math
 import numpy as np
 import pytest
 
+from necviz.core.camera_profile import CameraProfile
 from necviz.core.crf import CameraResponse, debevec_malik, default_davis346
 from necviz.core.errors import ParameterError, ProfileError
-from necviz.core.profile import CameraProfile, load_profile, save_profile
+from necviz.profiles import load_profile, save_profile
 
 
 def test_default_curve_matches_its_documented_anchors(crf):
@@ -47,11 +48,14 @@ def test_log_irradiance_is_equation_1(crf):
     assert crf.log_irradiance(128, 10_000, 2.0) == pytest.approx(math.log(50.0))
 
 
-@pytest.mark.parametrize("g, match", [
-    (np.arange(255.0), "256 values"),
-    (np.r_[np.arange(255.0), 254.0], "increase strictly"),
-    (np.r_[np.nan, np.arange(1, 256.0)], "NaN"),
-])
+@pytest.mark.parametrize(
+    "g, match",
+    [
+        (np.arange(255.0), "256 values"),
+        (np.r_[np.arange(255.0), 254.0], "increase strictly"),
+        (np.r_[np.nan, np.arange(1, 256.0)], "NaN"),
+    ],
+)
 def test_bad_curves_rejected(g, match):
     with pytest.raises(ParameterError, match=match):
         CameraResponse(g)
@@ -69,9 +73,9 @@ def test_debevec_malik_recovers_a_known_response(truth):
     h, w = 40, 60
     log_l = rng.uniform(-4.0, 4.0, size=(h, w))  # static scene spanning a wide range
     exposures = 10_000 * 2.0 ** np.arange(-5, 4)  # 9 brackets, one stop apart
-    stack = np.stack([
-        np.clip(np.rint(truth.intensity(log_l + math.log(t / 1e6))), 0, 255).astype(np.uint8) for t in exposures
-    ])
+    stack = np.stack(
+        [np.clip(np.rint(truth.intensity(log_l + math.log(t / 1e6))), 0, 255).astype(np.uint8) for t in exposures]
+    )
     est = debevec_malik(stack, exposures)
     z = np.arange(20, 236)
     assert np.max(np.abs(est.g[z] - truth.g[z])) < 0.05
@@ -101,7 +105,7 @@ def test_profile_errors_name_the_problem(tmp_path):
     with pytest.raises(ProfileError, match="does not exist"):
         load_profile(tmp_path / "missing.json")
     bad = tmp_path / "bad.json"
-    bad.write_text("{\n  \"format\": ")
+    bad.write_text('{\n  "format": ')
     with pytest.raises(ProfileError, match="invalid JSON at line 2"):
         load_profile(bad)
     d = CameraProfile().to_dict()
@@ -111,7 +115,7 @@ def test_profile_errors_name_the_problem(tmp_path):
         load_profile(bad)
     d = CameraProfile().to_dict()
     d["limits"]["exposure_max_us"] = float("nan")
-    bad.write_text(json.dumps(d).replace("NaN", "\"nan\""))
+    bad.write_text(json.dumps(d).replace("NaN", '"nan"'))
     with pytest.raises(ProfileError, match="exposure_max_us"):
         load_profile(bad)
     d = CameraProfile().to_dict()

@@ -9,11 +9,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from necviz import schema as S
-from necviz.cli import main
-from necviz.layouts import LAYOUTS, make_blueprint
 from rrd_read import Rrd
+
+from necviz.commands.cli import main
+from necviz.dashboard import schema as S
+from necviz.layouts import LAYOUTS, make_blueprint
 
 CONTROLLERS = ("nec", "navid", "shim", "begin", "builtin", "fixed")
 DURATION_S = 1.0  # tunnel_exit: the portal is passed at 40 % of the duration
@@ -44,8 +44,12 @@ def test_every_entity_present_for_every_controller(demo):
 def test_every_view_has_data_on_both_timelines(demo):
     """Events, predictions and commands are on the `frame` timeline too: no view goes blank on it."""
     rrd, _, _ = demo
-    for entity in (S.EVENT_RATE, S.path("nec", S.IRRADIANCE_PREDICTED), S.path("nec", S.EXPOSURE_COMMANDED),
-                   S.path("navid", S.OVER_EXPOSED)):
+    for entity in (
+        S.EVENT_RATE,
+        S.path("nec", S.IRRADIANCE_PREDICTED),
+        S.path("nec", S.EXPOSURE_COMMANDED),
+        S.path("navid", S.OVER_EXPOSED),
+    ):
         t, _ = rrd.series(entity, "t")
         f, _ = rrd.series(entity, "frame")
         assert len(t) == len(f) > 0 and f.min() >= 0
@@ -106,8 +110,14 @@ def test_recording_verifies_and_replays(demo, tmp_path):
     summary = json.loads(js.read_text())
     assert summary["frames"] == Rrd(rrd_path).rows[S.path("nec", S.FRAME_IMAGE)]
     assert summary["events"] > 100_000
-    assert set(summary) >= {"frames", "events", "duration_s", "saturated_frames_50", "prediction_error_rmse",
-                            "frames_detail"}
+    assert set(summary) >= {
+        "frames",
+        "events",
+        "duration_s",
+        "saturated_frames_50",
+        "prediction_error_rmse",
+        "frames_detail",
+    }
     # P-TEDI predicts each frame of the replayed camera to within a few hundredths of a ln, except at the
     # portal: there the events exceed the bus ceiling (events lost, an under-count of ~2.5 ln) and NEC's
     # escape rule still exposes those frames validly, so they count; at most three such frames
@@ -116,7 +126,7 @@ def test_recording_verifies_and_replays(demo, tmp_path):
     assert err.size > 0.8 * summary["frames"]
     assert np.median(np.abs(err)) < 0.05
     assert np.sum(np.abs(err) > 0.5) <= 3
-    assert summary["prediction_error_rmse"] == pytest.approx(float(np.sqrt(np.mean(err ** 2))))
+    assert summary["prediction_error_rmse"] == pytest.approx(float(np.sqrt(np.mean(err**2))))
     assert len(summary["frames_detail"]) == summary["frames"]
 
 

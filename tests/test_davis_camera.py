@@ -13,8 +13,14 @@ from necviz.core.control import make_controller
 from necviz.core.errors import NecvizError
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import SensorGeometry
-from necviz.drivers.davis import (DeviceDisconnectedError, DeviceError, DeviceNotFoundError, EmulatedDavis346, Faults,
-                                  open_camera)
+from necviz.drivers.davis import (
+    DeviceDisconnectedError,
+    DeviceError,
+    DeviceNotFoundError,
+    EmulatedDavis346,
+    Faults,
+    open_camera,
+)
 
 SMALL = SensorGeometry(64, 48)
 
@@ -84,11 +90,14 @@ def test_stalled_endpoint_is_cleared_and_nothing_is_lost():
     assert sum(isinstance(p, Frame) for p in got) == sum(isinstance(p, Frame) for p in ref)
 
 
-@pytest.mark.parametrize("faults, pattern", [
-    (Faults(firmware=5), r"firmware version 5, this driver needs 6: update .*(Flashy|flashy)"),
-    (Faults(logic=17), r"FPGA logic version 17, this driver needs 18: update"),
-    (Faults(logic_patch=0), r"logic patch level 0, this driver needs >= 1"),
-])
+@pytest.mark.parametrize(
+    "faults, pattern",
+    [
+        (Faults(firmware=5), r"firmware version 5, this driver needs 6: update .*(Flashy|flashy)"),
+        (Faults(logic=17), r"FPGA logic version 17, this driver needs 18: update"),
+        (Faults(logic_patch=0), r"logic patch level 0, this driver needs >= 1"),
+    ],
+)
 def test_version_mismatch_names_found_required_and_the_remedy(faults, pattern):
     with pytest.raises(DeviceError, match=pattern) as err:
         open_camera("emulated", backend=backend(faults=faults))
@@ -110,7 +119,7 @@ def test_no_camera_and_wrong_serial():
         open_camera("emulated", backend=be)
     first, *rest = str(err.value).splitlines()
     assert first == "no DAVIS camera found (USB 152a:841a / 152a:841b)"
-    assert "lsusb" in rest[0] and any("MODE=\"0666\"" in line for line in rest)
+    assert "lsusb" in rest[0] and any('MODE="0666"' in line for line in rest)
     with pytest.raises(DeviceNotFoundError, match="no DAVIS camera with serial NOPE .found EMU00346."):
         open_camera("emulated", serial="NOPE", backend=backend())
     cam = open_camera("emulated", serial="EMU00346", backend=backend())
@@ -121,7 +130,7 @@ def test_no_camera_and_wrong_serial():
 
 
 def test_real_usb_without_a_camera_says_none_was_found():
-    from necviz.devices import list_devices
+    from necviz.commands.devices import list_devices
 
     if list_devices(include_emulated=False):
         pytest.skip("a DAVIS camera is attached")
@@ -131,7 +140,7 @@ def test_real_usb_without_a_camera_says_none_was_found():
 
 
 def test_devices_command_lists_the_emulated_camera():
-    from necviz.devices import list_devices, run
+    from necviz.commands.devices import list_devices, run
 
     infos = list_devices()
     emu = [d for d in infos if d.emulated]
@@ -193,7 +202,7 @@ def test_nec_runs_in_closed_loop_on_the_emulated_camera():
 
 
 def test_bench_decode_writes_json(tmp_path):
-    from necviz.bench.decode import run
+    from necviz.bench.decode_speed import run
 
     path = tmp_path / "decode.json"
     buf = io.StringIO()

@@ -79,7 +79,7 @@ def gen_stream(seed, w, h, orientation=0, segments=8, garbage_at=None):
         if garbage_at is not None and seg == garbage_at[0]:
             parts.append(np.asarray(garbage_at[1], np.uint16))
             enc.state[2] = -1  # the device's next event repeats its row word
-        kind = rng.choice(["events", "frame", "imu", "trigger", "gap", "reset"], p=[.3, .3, .15, .1, .1, .05])
+        kind = rng.choice(["events", "frame", "imu", "trigger", "gap", "reset"], p=[0.3, 0.3, 0.15, 0.1, 0.1, 0.05])
         if kind == "events":
             t1 = t + int(rng.integers(0, 70_000))
             add_events(t, t1, int(rng.integers(0, 300)))
@@ -96,8 +96,11 @@ def gen_stream(seed, w, h, orientation=0, segments=8, garbage_at=None):
             ts, es = t, t + int(rng.integers(0, 50))
             ee = es + int(rng.integers(1, 20_000))
             fe = ee + int(rng.integers(0, 2000))
-            parts += [enc.frame_start(ts, (c0, r0, c1, r1), cycles, bool(rng.integers(0, 2))),
-                      enc.readout(reset, False), enc.special(es, 14)]
+            parts += [
+                enc.frame_start(ts, (c0, r0, c1, r1), cycles, bool(rng.integers(0, 2))),
+                enc.readout(reset, False),
+                enc.special(es, 14),
+            ]
             ex.markers.append(("start", es + ex.offset))
             add_events(es, ee, int(rng.integers(0, 100)))
             parts.append(enc.special(ee, 15))
@@ -105,7 +108,7 @@ def gen_stream(seed, w, h, orientation=0, segments=8, garbage_at=None):
             add_events(ee, fe, int(rng.integers(0, 30)))
             parts += [enc.readout(signal, True), enc.special(fe, 10)]
             img = np.zeros((h, w), np.uint8)
-            img[r0:r1 + 1, c0:c1 + 1] = expected_z8(reset, signal)
+            img[r0 : r1 + 1, c0 : c1 + 1] = expected_z8(reset, signal)
             ex.frames.append((img, es + ex.offset, ee + ex.offset, cycles))
             t = fe
         elif kind == "imu":
@@ -114,8 +117,11 @@ def gen_stream(seed, w, h, orientation=0, segments=8, garbage_at=None):
             parts.append(enc.imu(t, raw, a, g, sensors))
             ex.imu.append((t + ex.offset, expected_imu(raw, a, g, sensors)))
         elif kind == "trigger":
-            name = str(rng.choice(["external_rising", "external_falling", "external_pulse", "generator_rising",
-                                   "generator_falling"]))
+            name = str(
+                rng.choice(
+                    ["external_rising", "external_falling", "external_pulse", "generator_rising", "generator_falling"]
+                )
+            )
             parts.append(enc.trigger(t, name))
             ex.triggers.append((t + ex.offset, TRIGGER_KINDS.index(name)))
         else:  # timestamp reset: device time restarts at 0, output continues from here
@@ -198,8 +204,12 @@ def check_against(ex: Expect, summary, dec):
 # round trips
 # ---------------------------------------------------------------------------------------------
 @HYP
-@given(seed=st.integers(0, 2**32 - 1), size=st.sampled_from([(8, 6), (17, 11), (40, 30)]),
-       orientation=st.integers(0, 7), data=st.data())
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    size=st.sampled_from([(8, 6), (17, 11), (40, 30)]),
+    orientation=st.integers(0, 7),
+    data=st.data(),
+)
 def test_round_trip_split_at_random_transfer_boundaries(seed, size, orientation, data):
     w, h = size
     words, ex = gen_stream(seed, w, h, orientation)
@@ -220,7 +230,9 @@ def test_full_size_frame_round_trip_on_davis346():
     z = rng.integers(0, 256, (260, 346))
     reset, signal = cds_pair(z)
     enc = StreamEncoder()
-    words = np.concatenate([enc.timestamp_reset(), enc.frame(10, 20, 4020, 5000, reset, signal, exposure_cycles=120960)])
+    words = np.concatenate(
+        [enc.timestamp_reset(), enc.frame(10, 20, 4020, 5000, reset, signal, exposure_cycles=120960)]
+    )
     dec = DavisDecoder()
     packets = dec.decode(words.tobytes())
     frame = [p for p in packets if isinstance(p, Frame)][0]
@@ -267,8 +279,9 @@ def test_timestamps_wrap_reset_and_never_decrease():
     enc = StreamEncoder()
     ev1 = random_events(np.random.default_rng(1), 200, 0, 200_000, 16, 12)  # crosses 6 wraps
     ev2 = random_events(np.random.default_rng(2), 50, 0, 1000, 16, 12)
-    words = np.concatenate([enc.timestamp_reset(), enc.events(ev1), enc.time(250_000), enc.timestamp_reset(),
-                            enc.events(ev2)])
+    words = np.concatenate(
+        [enc.timestamp_reset(), enc.events(ev1), enc.time(250_000), enc.timestamp_reset(), enc.events(ev2)]
+    )
     dec = DavisDecoder(16, 12)
     ev = np.concatenate([p for p in dec.decode(words) if isinstance(p, np.ndarray)])
     assert np.array_equal(ev["t"][:200], ev1["t"])
@@ -300,13 +313,40 @@ def test_backwards_timestamp_is_skipped_and_counted():
 # garbage
 # ---------------------------------------------------------------------------------------------
 #: words that encode nothing usable between frames/IMU blocks (each must be skipped and counted once)
-GARBAGE = [0x0000, 0x0006, 0x0012, 0x0FFF, 0x1FFF, 0x2FFF, 0x3FFF, 0x4123, 0x5105, 0x5207, 0x5042, 0x5311,
-           0x5A00, 0x6400, 0x6C00, 0x7000, 0x0007, 0x000B, 0x000C, 0x000D, 0x000E, 0x000F, 0x000A]
+GARBAGE = [
+    0x0000,
+    0x0006,
+    0x0012,
+    0x0FFF,
+    0x1FFF,
+    0x2FFF,
+    0x3FFF,
+    0x4123,
+    0x5105,
+    0x5207,
+    0x5042,
+    0x5311,
+    0x5A00,
+    0x6400,
+    0x6C00,
+    0x7000,
+    0x0007,
+    0x000B,
+    0x000C,
+    0x000D,
+    0x000E,
+    0x000F,
+    0x000A,
+]
 
 
 @HYP
-@given(seed=st.integers(0, 2**32 - 1), garbage=st.lists(st.sampled_from(GARBAGE), min_size=1, max_size=40),
-       where=st.integers(0, 7), cuts=st.lists(st.integers(0, 20_000), max_size=6))
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    garbage=st.lists(st.sampled_from(GARBAGE), min_size=1, max_size=40),
+    where=st.integers(0, 7),
+    cuts=st.lists(st.integers(0, 20_000), max_size=6),
+)
 def test_garbage_is_skipped_counted_and_the_stream_resynchronises(seed, garbage, where, cuts):
     """Invalid words between packets: everything else decodes exactly as if they were absent."""
     words, ex = gen_stream(seed, 17, 11, 0, garbage_at=(where, garbage))
@@ -340,7 +380,7 @@ def test_incomplete_frame_is_dropped_and_markers_still_pair():
     reset, signal = cds_pair(z)
     full = enc.frame(0, 1, 10, 20, reset, signal)
     cut = np.flatnonzero(full == 0x000D)[-1]  # drop the last signal column's end word
-    words = np.concatenate([StreamEncoder().timestamp_reset(), full[:cut], full[cut + 1:]])
+    words = np.concatenate([StreamEncoder().timestamp_reset(), full[:cut], full[cut + 1 :]])
     dec = DavisDecoder(4, 3)
     packets = dec.decode(words)
     assert not [p for p in packets if isinstance(p, Frame)]
@@ -349,8 +389,25 @@ def test_incomplete_frame_is_dropped_and_markers_still_pair():
 
 
 def test_exposure_left_open_is_closed_by_the_next_frame_start():
-    words = np.array([0x0001, 0x0008, 0x5100, 0x5200, 0x5100, 0x5200, 0x5100, 0x5200, 0x5100, 0x5200,
-                      0x8000 | 7, 0x000E, 0x8000 | 9, 0x0008], np.uint16)
+    words = np.array(
+        [
+            0x0001,
+            0x0008,
+            0x5100,
+            0x5200,
+            0x5100,
+            0x5200,
+            0x5100,
+            0x5200,
+            0x5100,
+            0x5200,
+            0x8000 | 7,
+            0x000E,
+            0x8000 | 9,
+            0x0008,
+        ],
+        np.uint16,
+    )
     dec = DavisDecoder(4, 4)
     markers = [(p.kind, p.t_us) for p in dec.decode(words) if isinstance(p, ExposureMarker)]
     assert markers == [("start", 7), ("end", 9)]
@@ -384,9 +441,19 @@ def _skew_stream(w=4, h=3):
     reset, signal = cds_pair(np.full((h, w), 100))
     at100 = np.array([(100, 1, 1, 1), (100, 2, 0, -1)], EVENT_DTYPE)
     at200 = np.array([(200, 3, 2, 1)], EVENT_DTYPE)
-    return np.concatenate([enc.timestamp_reset(), enc.frame_start(50, (0, 0, w - 1, h - 1), 3), enc.readout(reset, False),
-                           enc.special(100, 14), enc.special(100, 15), enc.events(at100), enc.events(at200),
-                           enc.readout(signal, True), enc.special(300, 10)])
+    return np.concatenate(
+        [
+            enc.timestamp_reset(),
+            enc.frame_start(50, (0, 0, w - 1, h - 1), 3),
+            enc.readout(reset, False),
+            enc.special(100, 14),
+            enc.special(100, 15),
+            enc.events(at100),
+            enc.events(at200),
+            enc.readout(signal, True),
+            enc.special(300, 10),
+        ]
+    )
 
 
 def _timeline(packets):
@@ -419,8 +486,9 @@ def test_an_exposure_ending_in_the_microsecond_it_started_keeps_markers_after_it
 
 def test_a_pending_end_marker_is_delivered_by_finish_and_by_a_wrap():
     enc = StreamEncoder()
-    words = np.concatenate([enc.timestamp_reset(), enc.frame_start(5, (0, 0, 1, 1)), enc.special(7, 14),
-                            enc.special(7, 15)])
+    words = np.concatenate(
+        [enc.timestamp_reset(), enc.frame_start(5, (0, 0, 1, 1)), enc.special(7, 14), enc.special(7, 15)]
+    )
     dec = DavisDecoder(2, 2)
     assert _timeline(dec.decode(words)) == [(7, "start")]
     assert _timeline(dec.finish()) == [(8, "end")]
@@ -435,8 +503,16 @@ def test_a_pending_end_marker_is_delivered_by_finish_and_by_a_wrap():
 def test_a_frame_start_in_the_microsecond_an_exposure_started_closes_it_in_time_order():
     enc = StreamEncoder()
     ev = np.array([(7, 0, 0, 1)], EVENT_DTYPE)
-    words = np.concatenate([enc.timestamp_reset(), enc.frame_start(5, (0, 0, 1, 1)), enc.special(7, 14),
-                            enc.frame_start(7, (0, 0, 1, 1)), enc.events(ev), enc.time(9)])
+    words = np.concatenate(
+        [
+            enc.timestamp_reset(),
+            enc.frame_start(5, (0, 0, 1, 1)),
+            enc.special(7, 14),
+            enc.frame_start(7, (0, 0, 1, 1)),
+            enc.events(ev),
+            enc.time(9),
+        ]
+    )
     dec = DavisDecoder(2, 2)
     packets = dec.decode(words)
     assert _timeline(packets) == [(7, "start"), (7, "event"), (8, "end")]
@@ -467,8 +543,11 @@ def _decode_checked(words, w, h, cuts=()):
 
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(words=st.lists(_word(), max_size=1500), size=st.sampled_from([(4, 3), (17, 11), (346, 260)]),
-       cuts=st.lists(st.integers(0, 3000), max_size=4))
+@given(
+    words=st.lists(_word(), max_size=1500),
+    size=st.sampled_from([(4, 3), (17, 11), (346, 260)]),
+    cuts=st.lists(st.integers(0, 3000), max_size=4),
+)
 def test_random_word_streams_keep_every_invariant(words, size, cuts):
     """No crash, no event off the sensor, events and markers in one time order, markers paired,
     frames after their end marker — whatever the words and wherever the transfers split them."""

@@ -63,7 +63,18 @@ def test_register_file_single_and_multiple_requests():
 
 
 # documented dataStart and dataStop order (docs/davis-protocol.md, after libcaer's src/davis.c)
-STOP_ALL = [(1, 3, 0), (2, 4, 0), (3, 2, 0), (3, 3, 0), (3, 4, 0), (4, 0, 0), (0, 0, 0), (0, 1, 0), (9, 0, 0), (0, 3, 0)]
+STOP_ALL = [
+    (1, 3, 0),
+    (2, 4, 0),
+    (3, 2, 0),
+    (3, 3, 0),
+    (3, 4, 0),
+    (4, 0, 0),
+    (0, 0, 0),
+    (0, 1, 0),
+    (9, 0, 0),
+    (0, 3, 0),
+]
 RUN_CHIP = [(0, 3, 1)]
 TRANSPORT = [(9, 0, 1), (0, 1, 1), (0, 0, 1)]
 PRODUCERS = [(1, 3, 1), (2, 4, 1), (3, 2, 1), (3, 3, 1), (3, 4, 1), (4, 0, 1)]
@@ -77,14 +88,26 @@ def test_start_and_stop_follow_the_documented_order_and_pauses():
     packets = list(cam)  # runs to the end of the scenario, then closes (stop sequence)
     assert any(isinstance(p, Frame) for p in packets)
     recs = list(be.transfers)
-    run_recs = [r for r in recs if r.direction == "clear_halt" or (r.direction == "out" and (r.module, r.param) in RUN_PARAMS)]
+    run_recs = [
+        r for r in recs if r.direction == "clear_halt" or (r.direction == "out" and (r.module, r.param) in RUN_PARAMS)
+    ]
     seq = [("halt",) if r.direction == "clear_halt" else (r.module, r.param, r.value) for r in run_recs]
     expected_start = STOP_ALL + [("halt",)] + RUN_CHIP + TRANSPORT + PRODUCERS
     assert seq[: len(expected_start)] == expected_start
     # stop: producers off, then MUX/timestamps/USB, then the chip
-    stop = seq[len(expected_start):]
-    assert stop == [(1, 3, 0), (2, 4, 0), (3, 2, 0), (3, 3, 0), (3, 4, 0), (4, 0, 0), (0, 0, 0), (0, 1, 0), (9, 0, 0),
-                    (0, 3, 0)]
+    stop = seq[len(expected_start) :]
+    assert stop == [
+        (1, 3, 0),
+        (2, 4, 0),
+        (3, 2, 0),
+        (3, 3, 0),
+        (3, 4, 0),
+        (4, 0, 0),
+        (0, 0, 0),
+        (0, 1, 0),
+        (9, 0, 0),
+        (0, 3, 0),
+    ]
     t = {r[:3]: rec.t_s for r, rec in zip(seq, run_recs)}
     assert t[(9, 0, 1)] - t[(0, 3, 1)] >= 0.19  # 200 ms bias settle after RUN_CHIP
     assert t[(1, 3, 1)] - t[(0, 0, 1)] >= 0.045  # 50 ms before the producers
@@ -115,11 +138,13 @@ def test_exposure_register_is_microseconds_times_actual_adc_clock():
 def test_decoded_frames_are_the_simulators_frames():
     """Same scene, seed and exposure: the driver path reproduces the simulator's images and times exactly."""
     from necviz.drivers.sim.aps import ApsParams
-    from necviz.drivers.sim.camera import SimRig
+    from necviz.drivers.sim.rig import SimRig
     from necviz.drivers.sim.scenes import make_scenario
 
     scene = make_scenario("tunnel_exit", sensor=SMALL, duration_us=200_000, seed=4)
-    rig = SimRig(scene, {"camera": (3000.0, 1.0)}, aps=ApsParams(frame_interval_us=20_000, exposure_max_us=19_000), seed=4)
+    rig = SimRig(
+        scene, {"camera": (3000.0, 1.0)}, aps=ApsParams(frame_interval_us=20_000, exposure_max_us=19_000), seed=4
+    )
     want = [p for _, p in rig.packets() if isinstance(p, Frame)]
     cam = open_camera("emulated", backend=backend(seed=4, duration_s=0.2), exposure_us=3000)
     assert isinstance(cam, Source)

@@ -25,8 +25,7 @@ RATE = 12e6  # events/s of device time
 def _run(stall_ms: float, buffer_s: float, duration_s: float = 0.12, stall_at_us: int = 40_000):
     """Stream the emulated camera; the consumer stops reading for ``stall_ms`` of device time once the
     stream passes ``stall_at_us``. Returns (events delivered, camera stats, backend)."""
-    be = EmulatedDavis346(duration_s=duration_s, sensor=SMALL, realtime=True, time_scale=SCALE,
-                          extra_event_rate=RATE)
+    be = EmulatedDavis346(duration_s=duration_s, sensor=SMALL, realtime=True, time_scale=SCALE, extra_event_rate=RATE)
     cam = open_camera("emulated", backend=be, buffer_s=buffer_s)
     delivered, stalled = 0, False
     for p in cam:

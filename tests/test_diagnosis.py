@@ -16,15 +16,15 @@ import pytest
 from necviz.core.control import CameraLimits
 from necviz.core.crf import default_davis346
 from necviz.core.diagnosis import CAUSES, Command, Evidence, best_valid_fraction, diagnose
-from necviz.core.metrics import GroundTruth
+from necviz.core.ground_truth import GroundTruth
 from necviz.core.sensor import SensorGeometry
+from necviz.dashboard.telemetry import Telemetry
 from necviz.drivers.sim.aps import ApsParams
-from necviz.drivers.sim.camera import SimRig
 from necviz.drivers.sim.dvs import DvsParams
+from necviz.drivers.sim.rig import SimRig
 from necviz.drivers.sim.scene import FunctionScene, LightingChange
 from necviz.pipeline import Lane, Pipeline
 from necviz.runs import build_controller
-from necviz.telemetry import Telemetry
 
 SENSOR = SensorGeometry(64, 48)
 YY, XX = np.mgrid[0:48, 0:64].astype(np.float32)
@@ -35,12 +35,16 @@ def step_scene(t_step_us: float, level: float, step: float, ramp_us: float = 0.0
     """``ln L = level + texture`` stepping up by ``step`` at ``t_step_us`` (linear over ``ramp_us``)."""
 
     def fn(t_us, sensor):
-        a = 0.0 if t_us < t_step_us else (1.0 if ramp_us <= 0 or t_us >= t_step_us + ramp_us
-                                         else (t_us - t_step_us) / ramp_us)
+        a = (
+            0.0
+            if t_us < t_step_us
+            else (1.0 if ramp_us <= 0 or t_us >= t_step_us + ramp_us else (t_us - t_step_us) / ramp_us)
+        )
         return level + TEXTURE + np.float32(step * a)
 
-    return FunctionScene(fn, SENSOR, duration_us,
-                         changes=[LightingChange(int(t_step_us), "step", step)] if step else [])
+    return FunctionScene(
+        fn, SENSOR, duration_us, changes=[LightingChange(int(t_step_us), "step", step)] if step else []
+    )
 
 
 def run(scene, controller: str, exposure_us: float | None = None, dvs: DvsParams | None = None, **params):
@@ -48,8 +52,9 @@ def run(scene, controller: str, exposure_us: float | None = None, dvs: DvsParams
     aps = ApsParams()
     rig = SimRig(scene, {"cam": None if exposure_us is None else (exposure_us, 1.0)}, dvs=dvs, aps=aps, seed=1)
     limits = CameraLimits(aps.exposure_min_us, aps.exposure_max_us, aps.gain_max)
-    ctrl = build_controller(controller, params or None, sensor=SENSOR, limits=limits,
-                            exposure_us=rig.cams["cam"].exposure_us)
+    ctrl = build_controller(
+        controller, params or None, sensor=SENSOR, limits=limits, exposure_us=rig.cams["cam"].exposure_us
+    )
     lanes = [Lane("cam", ctrl)]
     tel = Telemetry(["cam"]).attach(lanes, rig)
     Pipeline(rig, lanes, telemetry=tel).run().finish()
@@ -57,8 +62,14 @@ def run(scene, controller: str, exposure_us: float | None = None, dvs: DvsParams
 
 
 def test_causes_are_stable_strings_in_rule_order():
-    assert CAUSES == ("change_during_exposure", "command_latency", "limit_reached", "prediction_undercount",
-                      "controller_lag", "controller")
+    assert CAUSES == (
+        "change_during_exposure",
+        "command_latency",
+        "limit_reached",
+        "prediction_undercount",
+        "controller_lag",
+        "controller",
+    )
 
 
 def test_a_step_inside_an_exposure_is_a_change_during_the_exposure():
@@ -131,26 +142,44 @@ def test_a_controller_that_never_reacts_is_the_controller():
 
 def test_unsaturated_frames_carry_no_cause():
     rows, lane = run(step_scene(0, 5.0, 0.0), "nec")
-    assert all(not r["saturated"] and r["saturation_cause"] == "" and r["saturation_explanation"] == ""
-               for r in rows.values())
+    assert all(
+        not r["saturated"] and r["saturation_cause"] == "" and r["saturation_explanation"] == "" for r in rows.values()
+    )
     assert sum(lane.summary()["saturation_causes"].values()) == 0
 
 
 # --- without ground truth (a camera, a file): the evidence the data gives ----------------------
-BASE = dict(sequence=7, start_us=100_000, end_us=104_000, exposure_us=4_000.0, gain=1.0, over=0.8, under=0.0,
-            exposure_min_us=10.0, exposure_max_us=30_000.0, gain_max=1.0, latency_us=1_000.0, drives=True)
+BASE = dict(
+    sequence=7,
+    start_us=100_000,
+    end_us=104_000,
+    exposure_us=4_000.0,
+    gain=1.0,
+    over=0.8,
+    under=0.0,
+    exposure_min_us=10.0,
+    exposure_max_us=30_000.0,
+    gain_max=1.0,
+    latency_us=1_000.0,
+    drives=True,
+)
 
 
-@pytest.mark.parametrize("extra, cause", [
-    ({"sees_events": True, "exposure_log_change": 1.2}, "change_during_exposure"),
-    ({"sees_events": True, "commands": (Command(98_000, 4_000.0, 1.0), Command(99_400, 600.0, 1.0))},
-     "command_latency"),
-    ({"sees_events": False, "exposure_us": 10.0, "end_us": 100_010}, "limit_reached"),
-    ({"sees_events": True, "predicted_change": 0.4, "frame_change": 2.5}, "prediction_undercount"),
-    ({"sees_events": False, "previous_saturated": False}, "controller_lag"),
-    ({"sees_events": False, "previous_saturated": True}, "controller"),
-    ({"sees_events": True, "predicted_change": 2.4, "frame_change": 2.5}, "controller"),
-])
+@pytest.mark.parametrize(
+    "extra, cause",
+    [
+        ({"sees_events": True, "exposure_log_change": 1.2}, "change_during_exposure"),
+        (
+            {"sees_events": True, "commands": (Command(98_000, 4_000.0, 1.0), Command(99_400, 600.0, 1.0))},
+            "command_latency",
+        ),
+        ({"sees_events": False, "exposure_us": 10.0, "end_us": 100_010}, "limit_reached"),
+        ({"sees_events": True, "predicted_change": 0.4, "frame_change": 2.5}, "prediction_undercount"),
+        ({"sees_events": False, "previous_saturated": False}, "controller_lag"),
+        ({"sees_events": False, "previous_saturated": True}, "controller"),
+        ({"sees_events": True, "predicted_change": 2.4, "frame_change": 2.5}, "controller"),
+    ],
+)
 def test_data_only_evidence_names_each_cause(extra, cause):
     name, why = diagnose(Evidence(**{**BASE, **extra}))
     assert name == cause and why
@@ -186,7 +215,9 @@ def test_best_valid_fraction_of_a_uniform_log_ramp():
     # ln L uniform over 8 ln: a window as wide as the sensor's valid range, g(249.5) - g(9.5), holds that share
     crf = default_davis346()
     width = crf.log_exposure(249.5) - crf.log_exposure(9.5)
-    lbar = np.tile(np.exp(np.linspace(0.0, 8.0, 4000)).astype(np.float32), (8, 1))  # along x: the grid samples it evenly
+    lbar = np.tile(
+        np.exp(np.linspace(0.0, 8.0, 4000)).astype(np.float32), (8, 1)
+    )  # along x: the grid samples it evenly
     tr = GroundTruth(lbar, crf, np.zeros(0, np.int64), np.zeros(0))
     assert best_valid_fraction(tr) == pytest.approx(width / 8.0, abs=0.002)
     flat = GroundTruth(np.full((40, 40), 3.0, np.float32), crf, np.zeros(0, np.int64), np.zeros(0))

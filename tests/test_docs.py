@@ -33,8 +33,11 @@ def scanned_files() -> list[Path]:
         if p.is_file():
             out.append(p)
         elif p.is_dir():
-            out += [f for f in sorted(p.rglob("*"))
-                    if f.is_file() and not _SKIP_DIRS.intersection(f.relative_to(ROOT).parts)]
+            out += [
+                f
+                for f in sorted(p.rglob("*"))
+                if f.is_file() and not _SKIP_DIRS.intersection(f.relative_to(ROOT).parts)
+            ]
     return out
 
 
@@ -143,8 +146,11 @@ def test_checker_finds_broken_links(tmp_path):
     (root / "docs").mkdir()
     (root / "docs" / "a.md").write_text("# Title\n\n## The sign (Eq. 5)\n", encoding="utf-8")
     md = root / "docs" / "index.md"
-    md.write_text("[ok](a.md) [ok](a.md#the-sign-eq-5) [web](https://example.org/x.md) [self](#top)\n"
-                  "# Top\n```\n[not a link](nowhere.md)\n```\n`[code](nowhere.md)`\n", encoding="utf-8")
+    md.write_text(
+        "[ok](a.md) [ok](a.md#the-sign-eq-5) [web](https://example.org/x.md) [self](#top)\n"
+        "# Top\n```\n[not a link](nowhere.md)\n```\n`[code](nowhere.md)`\n",
+        encoding="utf-8",
+    )
     assert broken_links(md, root) == []
     md.write_text("[gone](b.md) [anchor](a.md#no-such) [out](../../x.md)\n", encoding="utf-8")
     assert [b.split(":")[0] for b in broken_links(md, root)] == ["b.md", "a.md#no-such", "../../x.md"]
@@ -176,8 +182,7 @@ def test_no_citation_of_the_private_reference_notes(path):
 
 def test_docs_pages_exist_and_the_index_links_every_page():
     pages = {p.name for p in DOCS.glob("*.md")}
-    assert {"README.md", "method.md", "baselines.md", "davis-protocol.md", "file-formats.md",
-            "simulator.md"} <= pages
+    assert {"README.md", "method.md", "baselines.md", "davis-protocol.md", "file-formats.md", "simulator.md"} <= pages
     linked = {t.partition("#")[0] for t in relative_links(DOCS / "README.md")}
     assert pages - {"README.md"} <= linked
     assert any(t.startswith("docs/") for t in relative_links(ROOT / "README.md"))

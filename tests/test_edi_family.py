@@ -107,8 +107,9 @@ def test_edi_converges_to_fast_edi(crf):
     _, ev, frame = scene_data("exp +4 inside the exposure", crf)
     g = G_TIMES["inside"]
     exact = fast_edi_reconstruct(ev, frame, g, PARAMS, crf)
-    err = {n: float(np.max(np.abs(edi_reconstruct(ev, frame, g, PARAMS, crf, n_samples=n) - exact)))
-           for n in (8, 64, 4096)}
+    err = {
+        n: float(np.max(np.abs(edi_reconstruct(ev, frame, g, PARAMS, crf, n_samples=n) - exact))) for n in (8, 64, 4096)
+    }
     # midpoint rule on a piecewise-constant integrand: the error falls like 1/n
     assert err[8] > 0.02  # coarse sampling really is inaccurate here (measured 0.050)
     assert err[64] < err[8] and err[4096] < err[64]

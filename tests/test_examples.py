@@ -7,7 +7,6 @@ import sys
 from pathlib import Path
 
 import pytest
-
 from conftest import SHARED_DATA
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -15,14 +14,21 @@ SAMPLE = SHARED_DATA / "davis346_sample.aedat4"
 
 
 def run_example(name: str, *args: str, cwd: Path, expect_rc: int = 0) -> str:
-    proc = subprocess.run([sys.executable, str(EXAMPLES / name), *args], cwd=cwd, capture_output=True,
-                          text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, str(EXAMPLES / name), *args], cwd=cwd, capture_output=True, text=True, timeout=120
+    )
     assert proc.returncode == expect_rc, f"{name} exited {proc.returncode}\n{proc.stdout}\n{proc.stderr}"
     return proc.stdout + proc.stderr
 
 
-TESTED = {"offline_nec.py", "ptedi_ramp.py", "custom_scenario.py", "custom_controller.py", "replay_summary.py",
-          "demo_from_python.py"}
+TESTED = {
+    "offline_nec.py",
+    "ptedi_ramp.py",
+    "custom_scenario.py",
+    "custom_controller.py",
+    "replay_summary.py",
+    "demo_from_python.py",
+}
 
 
 def test_every_example_is_listed_and_runs(tmp_path):
@@ -70,8 +76,11 @@ def test_custom_scenario(tmp_path):
 
 def test_custom_controller_table_lists_three_controllers(tmp_path):
     out = run_example("custom_controller.py", "--duration-s", "0.6", cwd=tmp_path)
-    rows = {line.split()[0]: line.split()[1:] for line in out.splitlines()
-            if line.split() and line.split()[0] in ("nec", "navid", "meanprop")}
+    rows = {
+        line.split()[0]: line.split()[1:]
+        for line in out.splitlines()
+        if line.split() and line.split()[0] in ("nec", "navid", "meanprop")
+    }
     assert set(rows) == {"nec", "navid", "meanprop"}, out
     for cells in rows.values():
         assert int(cells[0]) >= 25  # frames
@@ -104,8 +113,9 @@ def test_replay_summary_missing_file(tmp_path):
 
 
 def test_demo_from_python(tmp_path):
-    out = run_example("demo_from_python.py", "--scenario", "flicker", "--duration-s", "0.3", "--out", "py.rrd",
-                      cwd=tmp_path)
+    out = run_example(
+        "demo_from_python.py", "--scenario", "flicker", "--duration-s", "0.3", "--out", "py.rrd", cwd=tmp_path
+    )
     lanes = re.findall(r"^\s+(nec|navid|fixed)\s+(\d+) frames", out, re.M)
     assert [n for n, _ in lanes] == ["nec", "navid", "fixed"] and all(int(f) >= 14 for _, f in lanes)
     assert (tmp_path / "py.rrd").stat().st_size > 10_000 and "rerun py.rrd" in out

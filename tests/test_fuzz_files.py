@@ -14,10 +14,10 @@ from contextlib import contextmanager
 
 import numpy as np
 import pytest
-
 from format_writers import write_dsec
 from fuzz_corpus import MUTATIONS, SAMPLE_AEDAT4, build_seeds, read_variant, remove, variants
-from necviz.drivers.replay import RecordingError, describe, open_recording
+
+from necviz.drivers.recordings import RecordingError, describe, open_recording
 
 TIME_LIMIT_S = 5.0
 MEMORY_LIMIT = 200 * 1024 * 1024
@@ -26,6 +26,7 @@ MEMORY_LIMIT = 200 * 1024 * 1024
 @contextmanager
 def _alarm(seconds):
     """Interrupt a read that hangs in Python code (the per-file bound is checked separately)."""
+
     def hang(signum, frame):
         raise TimeoutError(f"read still running after {seconds} s")
 
@@ -105,7 +106,9 @@ def test_a_non_utf8_aedat4_description_is_refused_before_the_decoder_sees_it(tmp
     data[at + 1] = 0xC9  # a lead byte without its continuation byte
     bad = tmp_path / "bad_description.aedat4"
     bad.write_bytes(bytes(data))
-    with pytest.raises(RecordingError, match=rf"bad_description\.aedat4: IOHeader description is not UTF-8.* at byte {at + 1}$"):
+    with pytest.raises(
+        RecordingError, match=rf"bad_description\.aedat4: IOHeader description is not UTF-8.* at byte {at + 1}$"
+    ):
         open_recording(bad)
 
 
@@ -171,7 +174,7 @@ def test_keyboard_interrupt_is_not_mistaken_for_a_panic(monkeypatch):
 def test_an_h5py_error_mid_file_names_the_dataset_after_the_rows_before_it(tmp_path, monkeypatch):
     import h5py
 
-    from necviz.drivers.replay import hdf5
+    from necviz.drivers.recordings import hdf5
 
     rng = np.random.default_rng(3)
     n = 5000
@@ -201,7 +204,7 @@ def test_an_h5py_error_mid_file_names_the_dataset_after_the_rows_before_it(tmp_p
 
 def test_a_bug_is_not_disguised_as_damage(tmp_path, monkeypatch):
     """NameError/AttributeError in a reader are bugs: they stay tracebacks (the CLI reports them)."""
-    from necviz.drivers.replay import text
+    from necviz.drivers.recordings import text
 
     path = tmp_path / "events.txt"
     path.write_text("0.1 1 2 1\n0.2 3 4 0\n")

@@ -118,8 +118,16 @@ def _feed_frame(nec, image, s, e):
 
 
 def _controller(metering, crf, **kw):
-    return make_controller("nec", sensor=SENSOR, limits=CameraLimits(1, 20_000, 8.0), exposure_us=1_000,
-                           crf=crf, tedi=TediParams(C_ON, C_OFF), metering=metering, **kw)
+    return make_controller(
+        "nec",
+        sensor=SENSOR,
+        limits=CameraLimits(1, 20_000, 8.0),
+        exposure_us=1_000,
+        crf=crf,
+        tedi=TediParams(C_ON, C_OFF),
+        metering=metering,
+        **kw,
+    )
 
 
 @pytest.mark.parametrize("metering", METERING)
@@ -197,8 +205,12 @@ def test_nec_raw_keeps_the_metering_and_goal_of_nec(crf):
     tedi = TediParams(C_ON, C_OFF, 0.5, 25.0, 0.4, 20.0)
     kw = dict(sensor=SENSOR, limits=CameraLimits(1, 20_000, 8.0), crf=crf, tedi=tedi)
     nec, raw = make_controller("nec", **kw), make_controller("nec-raw", **kw)
-    assert (nec.metering, nec.goal_log_exposure, nec.escape, nec.edge_margin) == \
-        (raw.metering, raw.goal_log_exposure, raw.escape, raw.edge_margin)
+    assert (nec.metering, nec.goal_log_exposure, nec.escape, nec.edge_margin) == (
+        raw.metering,
+        raw.goal_log_exposure,
+        raw.escape,
+        raw.edge_margin,
+    )
     assert raw.estimator.params.a_on == 0.0 and nec.estimator.params.a_on == tedi.a_on
 
 
@@ -208,7 +220,7 @@ def test_the_default_beats_paper_metering_on_a_two_level_scene(crf):
     records): the paper's g(mean Z) exposes for the mean exposure, which the sun dominates, and leaves
     the shadows (70 %) under-exposed in every frame; the default metering records the majority."""
     from necviz.drivers.sim.aps import ApsParams
-    from necviz.drivers.sim.camera import SimRig
+    from necviz.drivers.sim.rig import SimRig
     from necviz.drivers.sim.scene import FunctionScene, db_to_log
 
     sensor = SensorGeometry(64, 48)
@@ -224,10 +236,22 @@ def test_the_default_beats_paper_metering_on_a_two_level_scene(crf):
     rig = SimRig(scene, ["paper", "default"], aps=aps, crf=crf, seed=2)
     limits = CameraLimits(aps.exposure_min_us, aps.exposure_max_us, aps.gain_max)
     tedi = TediParams(C_ON, C_OFF)
-    ctrls = {"paper": make_controller("nec", sensor=sensor, limits=limits, exposure_us=rig.cams["paper"].exposure_us,
-                                      crf=crf, tedi=tedi, metering="paper", goal_mode="paper", escape=False),
-             "default": make_controller("nec", sensor=sensor, limits=limits,
-                                        exposure_us=rig.cams["default"].exposure_us, crf=crf, tedi=tedi)}
+    ctrls = {
+        "paper": make_controller(
+            "nec",
+            sensor=sensor,
+            limits=limits,
+            exposure_us=rig.cams["paper"].exposure_us,
+            crf=crf,
+            tedi=tedi,
+            metering="paper",
+            goal_mode="paper",
+            escape=False,
+        ),
+        "default": make_controller(
+            "nec", sensor=sensor, limits=limits, exposure_us=rig.cams["default"].exposure_us, crf=crf, tedi=tedi
+        ),
+    }
     saturated = {n: 0 for n in ctrls}
     frames = {n: 0 for n in ctrls}
     for name, packet in rig.packets():

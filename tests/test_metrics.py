@@ -5,16 +5,16 @@ import numpy as np
 import pytest
 
 from necviz.core.errors import ParameterError
-from necviz.core.metrics import (SiftMatcher, over_exposed_rate, recovery_times_ms, saturated_frames, summarise,
-                                 under_exposed_rate)
+from necviz.core.metrics import over_exposed_rate, recovery_times_ms, saturated_frames, summarise, under_exposed_rate
+from necviz.image_quality import SiftMatcher
 
 
 def test_rates_count_the_documented_thresholds():
     img = np.zeros((10, 10), np.uint8)
-    img[0, :] = 250   # 10 over (>= 250)
+    img[0, :] = 250  # 10 over (>= 250)
     img[1, :5] = 249  # not over
-    img[2, :] = 9     # 10 under (<= 9) ...
-    img[3, :] = 10    # ... not under
+    img[2, :] = 9  # 10 under (<= 9) ...
+    img[3, :] = 10  # ... not under
     img[3, :3] = 255  # 3 more over
     assert over_exposed_rate(img) == pytest.approx(0.13)
     # rows 4..9 are 0 (60 px) + row 2 (10 px) + row 1's five zeros (5 px) = 75 under
@@ -62,14 +62,14 @@ def test_sift_inliers_high_for_a_shifted_copy_zero_for_a_blank_frame():
     assert m.next(img) is None
     good = m.next(shifted)
     assert good > 30
-    assert m.next(np.full_like(img, 255)) == 0       # a saturated frame breaks the track
+    assert m.next(np.full_like(img, 255)) == 0  # a saturated frame breaks the track
     other = SiftMatcher()
     other.next(img)
     assert other.next(_textured(seed=5)) < good / 3  # unrelated texture matches far less
 
 
 def test_ssim_is_one_for_identical_images_and_falls_with_noise():
-    from necviz.core.metrics import ssim
+    from necviz.image_quality import ssim
 
     rng = np.random.default_rng(0)
     img = cv2.GaussianBlur((rng.random((60, 80)) * 255).astype(np.uint8), (5, 5), 2)

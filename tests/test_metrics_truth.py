@@ -8,24 +8,25 @@ import math
 import cv2
 import numpy as np
 import pytest
+from rrd_read import Rrd
 
-from necviz.cli import main
-from necviz.compare import run as run_compare
+from necviz.commands.cli import main
+from necviz.commands.compare import run as run_compare
 from necviz.core.control import CameraLimits
 from necviz.core.crf import default_davis346
 from necviz.core.diagnosis import CAUSES
-from necviz.core.metrics import (GroundTruth, SiftMatcher, normalise_brightness, rank_correlation,
-                                 region_valid_fraction, summarise_details, true_valid_fraction)
+from necviz.core.ground_truth import GroundTruth, true_valid_fraction
+from necviz.core.metrics import rank_correlation, region_valid_fraction, summarise_details
 from necviz.core.sensor import SensorGeometry
+from necviz.dashboard.telemetry import Telemetry
 from necviz.drivers.sim.aps import ApsParams
-from necviz.drivers.sim.camera import SimRig
+from necviz.drivers.sim.rig import SimRig
 from necviz.drivers.sim.scene import FunctionScene
 from necviz.drivers.sim.scenes import TunnelExit
+from necviz.image_quality import SiftMatcher, normalise_brightness
 from necviz.options import CompareOptions, SceneOptions
 from necviz.pipeline import Lane, Observer, Pipeline
 from necviz.runs import build_controller
-from necviz.telemetry import Telemetry
-from rrd_read import Rrd
 
 SENSOR = SensorGeometry(64, 48)
 N = SENSOR.num_pixels
@@ -39,7 +40,9 @@ def ramp(t_us, sensor):
 
 
 def frames_of(fn, exposure_us, noise, duration_us=90_000):
-    rig = SimRig(FunctionScene(fn, SENSOR, duration_us), {"cam": (exposure_us, 1.0)}, aps=ApsParams(noise=noise), seed=2)
+    rig = SimRig(
+        FunctionScene(fn, SENSOR, duration_us), {"cam": (exposure_us, 1.0)}, aps=ApsParams(noise=noise), seed=2
+    )
     limits = CameraLimits(1.0, 18_000.0, 16.0)
     lanes = [Lane("cam", build_controller("fixed", None, sensor=SENSOR, limits=limits, exposure_us=exposure_us))]
     tel = Telemetry(["cam"]).attach(lanes, rig)
@@ -98,8 +101,9 @@ def test_rank_correlation_properties():
 
 def test_ground_truth_is_attached_without_changing_the_simulation():
     a, _ = frames_of(ramp, 4_000, noise=True)
-    rig = SimRig(FunctionScene(ramp, SENSOR, 90_000), {"cam": (4_000, 1.0)}, aps=ApsParams(noise=True), seed=2,
-                 truth=False)
+    rig = SimRig(
+        FunctionScene(ramp, SENSOR, 90_000), {"cam": (4_000, 1.0)}, aps=ApsParams(noise=True), seed=2, truth=False
+    )
     plain = [p for cam, p in rig.packets() if hasattr(p, "image")]
     assert len(plain) == len(a) and all(np.array_equal(f.image, p.image) for (f, _), p in zip(a, plain))
     assert all(p.truth is None for p in plain)
@@ -126,7 +130,12 @@ def test_sift_normalisation_removes_the_brightness_bias():
     h, w = 260, 346
     base = np.zeros((h + 40, w + 40), np.float32)
     for _ in range(300):
-        x, y, r, v = int(rng.integers(0, w + 40)), int(rng.integers(0, h + 40)), int(rng.integers(3, 18)), float(rng.uniform(-1, 1))
+        x, y, r, v = (
+            int(rng.integers(0, w + 40)),
+            int(rng.integers(0, h + 40)),
+            int(rng.integers(3, 18)),
+            float(rng.uniform(-1, 1)),
+        )
         if rng.random() < 0.5:
             cv2.circle(base, (x, y), r, v, -1)
         else:
@@ -134,7 +143,7 @@ def test_sift_normalisation_removes_the_brightness_bias():
     base = cv2.GaussianBlur(base, (0, 0), 1.2)
 
     def frame(dx, scale):
-        z = 128 * np.exp(0.5 * base[20:20 + h, 20 + dx:20 + dx + w]) * scale + rng.normal(0, 1.0, (h, w))
+        z = 128 * np.exp(0.5 * base[20 : 20 + h, 20 + dx : 20 + dx + w]) * scale + rng.normal(0, 1.0, (h, w))
         return np.clip(np.rint(z), 0, 255).astype(np.uint8)
 
     def inliers(a, b, normalise):
@@ -171,8 +180,14 @@ def test_the_pedestrian_box_covers_the_pedestrian():
 
 
 def test_summarise_details():
-    d = summarise_details([3, 4, 5, 6], [np.nan, 10, 20, np.nan], [0.5, 0.7, np.nan, 0.9], [0.9, np.nan, 1.0, 1.0],
-                          [np.nan, np.nan, 0.95, 0.2], ["", "controller", "limit_reached", "controller"])
+    d = summarise_details(
+        [3, 4, 5, 6],
+        [np.nan, 10, 20, np.nan],
+        [0.5, 0.7, np.nan, 0.9],
+        [0.9, np.nan, 1.0, 1.0],
+        [np.nan, np.nan, 0.95, 0.2],
+        ["", "controller", "limit_reached", "controller"],
+    )
     assert d["sift_inliers_normalised_mean"] == 15 and d["true_valid_fraction_mean"] == pytest.approx(0.7)
     assert d["rank_correlation_mean"] == pytest.approx(0.9666666)
     assert (d["pedestrian_frame"], d["pedestrian_valid_fraction"], d["pedestrian_well_exposed"]) == (5, 0.95, True)
@@ -201,8 +216,23 @@ def test_compare_reports_the_new_metrics_with_intervals_and_a_cause_per_saturate
     assert fixed["true_valid_fraction_mean"] < res["controllers"]["nec"]["true_valid_fraction_mean"]
     assert fixed["pedestrian_well_exposed"] == 0.0  # blind after the exit
     js = tmp_path / "c.json"
-    assert main(["compare", "--scenario", "tunnel_exit", "--duration", "0.6", "--controllers", "fixed", "--no-sift",
-                 "--json", str(js)]) == 0
+    assert (
+        main(
+            [
+                "compare",
+                "--scenario",
+                "tunnel_exit",
+                "--duration",
+                "0.6",
+                "--controllers",
+                "fixed",
+                "--no-sift",
+                "--json",
+                str(js),
+            ]
+        )
+        == 0
+    )
     one = json.loads(js.read_text())["controllers"]["fixed"]
     sat = [d for d in one["frames_detail"] if d["saturated"]]
     assert len(sat) == one["saturated_frames_50"] > 5
@@ -212,8 +242,25 @@ def test_compare_reports_the_new_metrics_with_intervals_and_a_cause_per_saturate
 
 def test_the_recording_logs_each_cause_and_the_replay_json_carries_it(tmp_path):
     rrd, rec, js = tmp_path / "d.rrd", tmp_path / "d.necrec", tmp_path / "r.json"
-    assert main(["demo", "--scenario", "tunnel_exit", "--duration", "0.6", "--controllers", "fixed", "--save", str(rrd),
-                 "--record", str(rec), "--no-prompt"]) == 0
+    assert (
+        main(
+            [
+                "demo",
+                "--scenario",
+                "tunnel_exit",
+                "--duration",
+                "0.6",
+                "--controllers",
+                "fixed",
+                "--save",
+                str(rrd),
+                "--record",
+                str(rec),
+                "--no-prompt",
+            ]
+        )
+        == 0
+    )
     r = Rrd(rrd)
     texts = [t for t in r.texts("fixed/log") if "-exposed" in t]
     assert texts and all(any(f" — {c}: " in t for c in CAUSES) for t in texts)

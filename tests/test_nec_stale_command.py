@@ -27,8 +27,16 @@ def _nec(crf, exposure_us=1_000.0):
     est = PeripheralEstimator(SENSOR, TediParams(0.26, 0.24), crf)
     # the paper's metering and goal: the mean-level arithmetic below is P-TEDI's own (the stale-command
     # rule in command_for is the same for every metering mode)
-    return NECController(est, CameraLimits(10, 20_000, 8.0), exposure_us, dead_band=DEAD, full_band=FULL,
-                         metering="paper", goal_mode="paper", escape=False)
+    return NECController(
+        est,
+        CameraLimits(10, 20_000, 8.0),
+        exposure_us,
+        dead_band=DEAD,
+        full_band=FULL,
+        metering="paper",
+        goal_mode="paper",
+        escape=False,
+    )
 
 
 def _every_pixel(n_per_pixel, t0, span_us, polarity):

@@ -6,16 +6,16 @@ import math
 
 import numpy as np
 import pytest
+from rrd_read import Rrd
 
-from necviz import schema as S
-from necviz.bench.pipeline import SyntheticStream, make_events
-from necviz.cli import main
+from necviz.bench.pipeline_speed import SyntheticStream, make_events
+from necviz.commands.cli import main
 from necviz.core.control import CameraLimits, make_controller
 from necviz.core.sensor import DAVIS346
+from necviz.dashboard import schema as S
+from necviz.dashboard.telemetry import FrameTable, LatencyHistogram, Telemetry
 from necviz.options import SceneOptions
 from necviz.pipeline import Lane, Pipeline
-from necviz.telemetry import FrameTable, LatencyHistogram, Telemetry
-from rrd_read import Rrd
 
 
 def test_compare_and_demo_write_the_same_schema_with_the_compare_layout(tmp_path):
@@ -49,15 +49,23 @@ def test_compare_results_are_unchanged_by_the_consolidation():
     # NEC runs too (each camera's noise depends on its place in the rig) but is not pinned here: its
     # behaviour was changed on purpose since (the estimator and control-law fixes)
     # and the camera profile is the default DAVIS346 response the baselines used then (Bégin reads it)
-    from necviz.core.profile import CameraProfile
+    from necviz.core.camera_profile import CameraProfile
     from necviz.runs import run_once
 
-    res = run_once(SceneOptions("tunnel_exit", seed=3, duration_s=0.6), ("nec", *BEFORE), sift=False,
-                   profile=CameraProfile())
+    res = run_once(
+        SceneOptions("tunnel_exit", seed=3, duration_s=0.6), ("nec", *BEFORE), sift=False, profile=CameraProfile()
+    )
     for name, want in BEFORE.items():
         r = res["results"][name]
-        got = (r["frames"], r["saturated_frames_50"], r["saturated_frames_10"], round(r["mean_over_exposed_rate"], 6),
-               round(r["mean_under_exposed_rate"], 6), r["recovery_ms"], round(sum(r["exposure_trace_us"])))
+        got = (
+            r["frames"],
+            r["saturated_frames_50"],
+            r["saturated_frames_10"],
+            round(r["mean_over_exposed_rate"], 6),
+            round(r["mean_under_exposed_rate"], 6),
+            r["recovery_ms"],
+            round(sum(r["exposure_trace_us"])),
+        )
         assert got == want, name
 
 
@@ -81,7 +89,7 @@ def test_a_long_run_keeps_its_telemetry_bounded():
 
 
 def test_frame_table_ring_and_growth():
-    from necviz.telemetry import FrameRecord
+    from necviz.dashboard.telemetry import FrameRecord
 
     ring, full = FrameTable(3), FrameTable(None)
     for i in range(10):
@@ -107,7 +115,10 @@ def test_latency_percentiles_are_within_one_percent():
 def test_a_demo_starts_from_python_without_faking_a_command_line(tmp_path):
     import necviz
 
-    stats = necviz.run_demo(necviz.DemoOptions(necviz.SceneOptions("flicker", duration_s=0.2), ("nec", "fixed")),
-                            necviz.ViewerOptions(save=tmp_path / "py.rrd"), out=None)
+    stats = necviz.run_demo(
+        necviz.DemoOptions(necviz.SceneOptions("flicker", duration_s=0.2), ("nec", "fixed")),
+        necviz.ViewerOptions(save=tmp_path / "py.rrd"),
+        out=None,
+    )
     assert stats["lanes"]["nec"]["frames"] >= 9 and (tmp_path / "py.rrd").stat().st_size > 10_000
     assert Rrd(tmp_path / "py.rrd").rows[S.path("fixed", S.FRAME_IMAGE)] == stats["lanes"]["fixed"]["frames"]

@@ -7,9 +7,9 @@ import os
 import shutil
 
 import pytest
-
 from conftest import SHARED_DATA
-from necviz.cli import main
+
+from necviz.commands.cli import main
 from necviz.core.errors import ParameterError
 from necviz.outputs import atomic_write, check_output, commit_recording, recording_target, write_json
 
@@ -27,8 +27,9 @@ def recording(tmp_path):
         dst = tmp_path / "in.aedat4"
         shutil.copy(SAMPLE, dst)
         return dst
-    from necviz.drivers.replay import Recorder
     from test_pipeline import SENSOR, stream
+
+    from necviz.drivers.recordings import Recorder
 
     dst = tmp_path / "in.necrec"
     with Recorder(dst, sensor=SENSOR, properties={}) as rec:
@@ -37,8 +38,9 @@ def recording(tmp_path):
     return dst
 
 
-@pytest.mark.parametrize("case", ["info-json", "replay-json", "live-record", "record-save", "replay-json-hardlink",
-                                  "demo-save-existing"])
+@pytest.mark.parametrize(
+    "case", ["info-json", "replay-json", "live-record", "record-save", "replay-json-hardlink", "demo-save-existing"]
+)
 def test_outputs_that_would_destroy_a_file_are_refused_and_leave_it_byte_identical(case, recording, tmp_path, capsys):
     inp = str(recording)
     victim = recording
@@ -51,8 +53,18 @@ def test_outputs_that_would_destroy_a_file_are_refused_and_leave_it_byte_identic
         os.link(recording, link)  # another name for the same file
         argv = ["replay", inp, "--json", str(link), "--force", "--save", str(tmp_path / "r.rrd")]
     elif case == "live-record":
-        argv = ["live", "--device", "emulated", "--duration", "0.2", "--record", inp, "--no-prompt",
-                "--save", str(tmp_path / "l.rrd")]
+        argv = [
+            "live",
+            "--device",
+            "emulated",
+            "--duration",
+            "0.2",
+            "--record",
+            inp,
+            "--no-prompt",
+            "--save",
+            str(tmp_path / "l.rrd"),
+        ]
     elif case == "record-save":
         victim = tmp_path / "x.necrec"
         victim.write_bytes(b"earlier work")
@@ -72,14 +84,28 @@ def test_outputs_that_would_destroy_a_file_are_refused_and_leave_it_byte_identic
 def test_force_replaces_an_existing_output_only_when_the_run_succeeds(tmp_path):
     old = tmp_path / "old.rrd"
     old.write_bytes(b"an earlier recording")
-    assert main(["demo", "--duration", "0.1", "--controllers", "nec", "--save", str(old), "--force",
-                 "--no-prompt"]) == 0
+    assert (
+        main(["demo", "--duration", "0.1", "--controllers", "nec", "--save", str(old), "--force", "--no-prompt"]) == 0
+    )
     assert old.stat().st_size > 10_000 and not list(tmp_path.glob(".old*"))  # replaced; no temporary file left
 
 
 def test_record_needs_the_native_extension(tmp_path, capsys):
-    assert main(["demo", "--duration", "0.1", "--record", str(tmp_path / "r.aedat4"), "--no-prompt",
-                 "--save", str(tmp_path / "d.rrd")]) == 2
+    assert (
+        main(
+            [
+                "demo",
+                "--duration",
+                "0.1",
+                "--record",
+                str(tmp_path / "r.aedat4"),
+                "--no-prompt",
+                "--save",
+                str(tmp_path / "d.rrd"),
+            ]
+        )
+        == 2
+    )
     assert "--record expects a .necrec file name" in capsys.readouterr().err
 
 

@@ -8,8 +8,8 @@ import time
 import numpy as np
 import pytest
 import rerun as rr
+from rrd_read import Rrd
 
-from necviz import schema as S
 from necviz.core.control import CameraLimits, make_controller
 from necviz.core.errors import NecvizError, ParameterError
 from necviz.core.event_image import EventImage
@@ -17,11 +17,11 @@ from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import IMU_DTYPE, ImuBatch
 from necviz.core.sensor import SensorGeometry
-from necviz.drivers.replay import Recorder, open_recording
+from necviz.dashboard import schema as S
+from necviz.dashboard.sink import RerunSink
+from necviz.drivers.recordings import Recorder, open_recording
 from necviz.drivers.source import route
 from necviz.pipeline import Lane, Pipeline, RecorderObserver, packet_time_us
-from necviz.sink import RerunSink
-from rrd_read import Rrd
 
 SENSOR = SensorGeometry(32, 24, "test")
 
@@ -169,8 +169,7 @@ def test_imu_packets_pass_through_to_the_recorder(tmp_path):
 def test_a_slow_viewer_never_slows_the_control_path(tmp_path, monkeypatch):
     """The sink's worker is stuck; the stream still runs through, and the drops are counted."""
     rec = open_rec(tmp_path / "slow.rrd")
-    sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, frame_queue_size=2, queue_size=16,
-                     max_rate_hz=1e6)
+    sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, frame_queue_size=2, queue_size=16, max_rate_hz=1e6)
     release = threading.Event()
     monkeypatch.setattr(sink, "_collect", lambda batches: release.wait(30))  # the viewer hangs
     src = ListSource(stream(n_frames=20))
@@ -188,8 +187,9 @@ def test_a_slow_viewer_never_slows_the_control_path(tmp_path, monkeypatch):
 
 def test_sink_decimates_by_stride_and_counts(tmp_path):
     rec = open_rec(tmp_path / "dec.rrd")
-    sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, event_window_us=10_000,
-                     max_events_per_window=500, lossless=True)
+    sink = RerunSink(
+        rec, ["camera"], SENSOR.height, SENSOR.width, event_window_us=10_000, max_events_per_window=500, lossless=True
+    )
     src = ListSource(stream(n_frames=5))
     Pipeline(src, [nec_lane()], observers=[sink]).run()
     s = sink.close()
@@ -240,8 +240,15 @@ def test_a_gap_in_the_stream_costs_one_window_not_one_per_window(tmp_path):
         elif isinstance(p, ExposureMarker):
             later.append(ExposureMarker(p.t_us + 3_600_000_000, p.kind))
         else:
-            later.append(Frame(p.image, p.exposure_start_us + 3_600_000_000, p.exposure_end_us + 3_600_000_000,
-                               p.gain, p.sequence + 2))
+            later.append(
+                Frame(
+                    p.image,
+                    p.exposure_start_us + 3_600_000_000,
+                    p.exposure_end_us + 3_600_000_000,
+                    p.gain,
+                    p.sequence + 2,
+                )
+            )
     rec = open_rec(tmp_path / "gap.rrd")
     sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, lossless=True)
     t0 = time.perf_counter()

@@ -14,8 +14,8 @@ from analytic import AnalyticScene, Trajectory
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from necviz.core.errors import EventFormatError, FrameFormatError, NotAnchoredError, ParameterError, StreamError
 from necviz.core.crf import default_davis346
+from necviz.core.errors import EventFormatError, FrameFormatError, NotAnchoredError, ParameterError, StreamError
 from necviz.core.event_model import TediParams
 from necviz.core.events import make_events
 from necviz.core.frames import Frame
@@ -152,8 +152,12 @@ def test_zones_follow_their_own_lighting(crf):
     groups[:24, 32:] = 1
     groups[24:, :32] = 2
     groups[24:, 32:] = 3
-    trs = [Trajectory("step", 31_000, 1.5), Trajectory("ramp", 25_000, -2.0, 20_000),
-           Trajectory("flat"), Trajectory("exp", 25_000, 2.5, 6_000)]
+    trs = [
+        Trajectory("step", 31_000, 1.5),
+        Trajectory("ramp", 25_000, -2.0, 20_000),
+        Trajectory("flat"),
+        Trajectory("exp", 25_000, 2.5, 6_000),
+    ]
     scene = AnalyticScene(64, 48, trs, groups=groups, log_level=5.0)
     frames = [scene.frame(crf, s, s + 3_000, seq=i) for i, s in enumerate(range(0, 100_000, 20_000))]
     est = PeripheralEstimator(SENSOR, PARAMS, crf, grid=(2, 2), image_form="mean_log", min_valid_fraction=0.3)
@@ -173,8 +177,13 @@ def test_zones_follow_their_own_lighting(crf):
 def test_rectangle_region_ignores_events_outside(crf):
     groups = np.zeros((48, 64), np.int64)
     groups[:, 32:] = 1
-    scene = AnalyticScene(64, 48, [Trajectory("ramp", 10_000, 2.0, 20_000), Trajectory("step", 12_000, -4.0)],
-                          groups=groups, log_level=5.0)
+    scene = AnalyticScene(
+        64,
+        48,
+        [Trajectory("ramp", 10_000, 2.0, 20_000), Trajectory("step", 12_000, -4.0)],
+        groups=groups,
+        log_level=5.0,
+    )
     frames = [scene.frame(crf, 0, 4_000)]
     est = PeripheralEstimator(SENSOR, PARAMS, crf, rectangle=(0, 0, 32, 48), image_form="mean_log")
     for pk in interleave(scene.events(C_ON, C_OFF), frames):
@@ -390,7 +399,6 @@ def test_the_lower_bound_never_exceeds_the_truth(log_l, log_t):
         assert lo[0] <= truth + slack
     if np.isfinite(hi[0]) and not (z > crf.valid_max).any():  # (a few hot pixels are tolerated, not bounded)
         assert hi[0] >= truth - slack
-
 
     with pytest.raises(ParameterError, match="one_sided_clip"):
         PeripheralEstimator(SensorGeometry(20, 10), PARAMS, crf, one_sided_clip=1.5)

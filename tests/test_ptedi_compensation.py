@@ -21,7 +21,7 @@ from necviz.core.frames import Frame
 from necviz.core.ptedi import PeripheralEstimator
 from necviz.core.sensor import SensorGeometry
 from necviz.core.stream import interleave
-from necviz.core.tedi import tedi_exposure_integral
+from necviz.core.tedi_kernels import tedi_exposure_integral
 
 W, H = 8, 6
 SENSOR = SensorGeometry(W, H)
@@ -67,8 +67,9 @@ def per_pixel_d(ev, g, t, u, p=PARAMS):
     n_on = np.bincount(pix[on], minlength=W * H).astype(np.float64)
     n_off = np.bincount(pix[~on], minlength=W * H).astype(np.float64)
     b_on, b_off = p.b_on * 1e-6, p.b_off * 1e-6
-    return (p.c_on * (n_on + np.maximum(0.0, p.a_on * n_on - b_on * u))
-            - p.c_off * (n_off + np.maximum(0.0, p.a_off * n_off - b_off * u)))
+    return p.c_on * (n_on + np.maximum(0.0, p.a_on * n_on - b_on * u)) - p.c_off * (
+        n_off + np.maximum(0.0, p.a_off * n_off - b_off * u)
+    )
 
 
 def brute_log_e(ev, s, e, zflat, k, p=PARAMS):
@@ -103,8 +104,10 @@ def mean_count_log_e(ev, s, e, zflat, k, p=PARAMS, n=4000):
         m_on = zone_means(np.bincount(pix[on], minlength=W * H).astype(float), zflat, k)
         m_off = zone_means(np.bincount(pix[~on], minlength=W * H).astype(float), zflat, k)
         u = tt - s
-        out += np.exp(p.c_on * (m_on + np.maximum(0, p.a_on * m_on - b_on * u))
-                      - p.c_off * (m_off + np.maximum(0, p.a_off * m_off - b_off * u)))
+        out += np.exp(
+            p.c_on * (m_on + np.maximum(0, p.a_on * m_on - b_on * u))
+            - p.c_off * (m_off + np.maximum(0, p.a_off * m_off - b_off * u))
+        )
     return np.log(out / n)
 
 
@@ -168,12 +171,16 @@ def test_compensated_ptedi_matches_a_per_pixel_brute_force(seed, region):
         assert gap > 0.02
 
 
-@pytest.mark.parametrize("params", [
-    TediParams(0.26, 0.24, a_on=0.5, b_on=0.0, a_off=0.3, b_off=0.0),  # b = 0: the compensation never fades
-    TediParams(0.26, 0.24, a_on=0.6, b_on=2_000.0),  # OFF uncompensated
-    TediParams(0.26, 0.24, a_off=0.4, b_off=1_000.0),  # ON uncompensated
-    TediParams(0.26, 0.24, a_on=0.05, b_on=5_000.0, a_off=0.05, b_off=8_000.0),  # a/b of 6-10 µs: many levels
-], ids=["b=0", "ON only", "OFF only", "tiny a/b"])
+@pytest.mark.parametrize(
+    "params",
+    [
+        TediParams(0.26, 0.24, a_on=0.5, b_on=0.0, a_off=0.3, b_off=0.0),  # b = 0: the compensation never fades
+        TediParams(0.26, 0.24, a_on=0.6, b_on=2_000.0),  # OFF uncompensated
+        TediParams(0.26, 0.24, a_off=0.4, b_off=1_000.0),  # ON uncompensated
+        TediParams(0.26, 0.24, a_on=0.05, b_on=5_000.0, a_off=0.05, b_off=8_000.0),  # a/b of 6-10 µs: many levels
+    ],
+    ids=["b=0", "ON only", "OFF only", "tiny a/b"],
+)
 def test_compensation_corner_cases_match_the_brute_force(params):
     ev, est, zflat, fes = run_and_check(6, "grid 2x2", 300, params)
     for f in fes:
@@ -187,8 +194,7 @@ def test_one_pixel_zones_are_per_pixel_tedi():
     pixmap = np.arange(W * H, dtype=np.int64)
     for f in fes:
         s, e = f.exposure_start_us, f.exposure_end_us
-        tedi = tedi_exposure_integral(ev["t"], ev["x"], ev["y"], ev["p"], pixmap, W, W * H, s, e, s,
-                                      *PARAMS.as_tuple())
+        tedi = tedi_exposure_integral(ev["t"], ev["x"], ev["y"], ev["p"], pixmap, W, W * H, s, e, s, *PARAMS.as_tuple())
         assert np.allclose(f.log_e, np.log(tedi / (e - s)), rtol=0, atol=1e-10)
 
 

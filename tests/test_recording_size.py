@@ -17,17 +17,17 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 from rerun.chunk import LazyChunkStream, RrdReader
+from rrd_read import Rrd
 
-import necviz.sink as sink_mod
-from necviz import schema as S
-from necviz.cli import main
+import necviz.dashboard.sink as sink_mod
+from necviz.commands.cli import main
 from necviz.core.event_image import EventImage
 from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import Frame
-from necviz.core.metrics import ssim
-from necviz.sink import EventPalette, RerunSink, encode_indexed_png
-from necviz.telemetry import FrameRecord
-from rrd_read import Rrd
+from necviz.dashboard import schema as S
+from necviz.dashboard.sink import EventPalette, RerunSink, encode_indexed_png
+from necviz.dashboard.telemetry import FrameRecord
+from necviz.image_quality import ssim
 
 LANES = ("nec", "fixed")
 DURATION_S = 0.6
@@ -84,8 +84,21 @@ def demo(tmp_path_factory):
 
     sink_mod.encode_frame, sink_mod.EventPalette.png = frame, events
     try:
-        assert main(["demo", "--duration", str(DURATION_S), "--controllers", ",".join(LANES), "--save", str(path),
-                     "--no-prompt"]) == 0
+        assert (
+            main(
+                [
+                    "demo",
+                    "--duration",
+                    str(DURATION_S),
+                    "--controllers",
+                    ",".join(LANES),
+                    "--save",
+                    str(path),
+                    "--no-prompt",
+                ]
+            )
+            == 0
+        )
     finally:
         sink_mod.encode_frame, sink_mod.EventPalette.png = f_enc, e_enc
     return path, sources, palettes
@@ -145,8 +158,13 @@ def test_short_demo_stays_under_a_size_derived_from_the_encodings(demo):
     assert size <= 400_000 + per_lane_s * DURATION_S * len(LANES)
 
 
-@given(h=st.integers(1, 40), w=st.integers(1, 41), saturate_at=st.sampled_from([1.0, 2.0, 7.5, 20.0]),
-       n=st.integers(0, 3000), seed=st.integers(0, 2**31 - 1))
+@given(
+    h=st.integers(1, 40),
+    w=st.integers(1, 41),
+    saturate_at=st.sampled_from([1.0, 2.0, 7.5, 20.0]),
+    n=st.integers(0, 3000),
+    seed=st.integers(0, 2**31 - 1),
+)
 @settings(max_examples=40, deadline=None)
 def test_paletted_png_is_lossless_for_any_window(h, w, saturate_at, n, seed):
     """Any size (odd widths pack half a byte), any colour count (<= 16: 4 bits; above: 8 bits),
@@ -161,8 +179,9 @@ def test_paletted_png_is_lossless_for_any_window(h, w, saturate_at, n, seed):
     png = encode_indexed_png(pal.indices(img), pal.palette)
     assert pal.png(img) == png  # the sink's one-pass kernel writes the same bytes
     rgb = img.render()
-    assert np.array_equal(cv2.cvtColor(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR),
-                                       cv2.COLOR_BGR2RGB), rgb)
+    assert np.array_equal(
+        cv2.cvtColor(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB), rgb
+    )
     assert np.array_equal(np.asarray(Image.open(io.BytesIO(png)).convert("RGB")), rgb)
 
 
@@ -198,8 +217,11 @@ def _feed(sink: RerunSink, n_frames: int, height=20, width=30) -> None:
         ev["x"], ev["y"], ev["p"] = rng.integers(0, width, 50), rng.integers(0, height, 50), 1
         sink.events(ev)
         img = rng.integers(0, 256, (height, width), dtype=np.uint8)
-        sink.frame("camera", Frame(img, t, t + 2_000 + k, 1.0, k),  # exposure 2000 + k µs
-                   FrameRecord(k, t, t + 2_000 + k, 2_000.0 + k, 1.0, 0.75, 0.0))
+        sink.frame(
+            "camera",
+            Frame(img, t, t + 2_000 + k, 1.0, k),  # exposure 2000 + k µs
+            FrameRecord(k, t, t + 2_000 + k, 2_000.0 + k, 1.0, 0.75, 0.0),
+        )
         sink.note("camera/log", t, f"note {k}")
 
 
@@ -232,8 +254,16 @@ def test_file_sink_writes_everything_in_order_at_close(tmp_path, chunk_rows, ima
     path = tmp_path / "run.rrd"
     rec = rr.RecordingStream("necviz-test")
     rec.save(str(path))
-    sink = RerunSink(rec, ["camera"], 20, 30, lossless=True, chunk_rows=chunk_rows,
-                     image_chunk_bytes=image_chunk_bytes, event_window_us=10_000)
+    sink = RerunSink(
+        rec,
+        ["camera"],
+        20,
+        30,
+        lossless=True,
+        chunk_rows=chunk_rows,
+        image_chunk_bytes=image_chunk_bytes,
+        event_window_us=10_000,
+    )
     n = 12
     _feed(sink, n)
     stats = sink.close()
@@ -256,12 +286,27 @@ def test_an_unwatched_live_session_sends_its_series_in_few_chunks(tmp_path):
     """Rerun's file sink keeps an index entry for every chunk until the file closes, so a live session
     that only writes a file sends each series every FILE_FLUSH_S of wall time, not every 0.1 s (with
     0.1 s, a one-hour ``live --save`` grew by ~400 MB). Every value still reaches the file."""
-    from necviz.viewer import FILE_FLUSH_S
+    from necviz.dashboard.viewer import FILE_FLUSH_S
 
     out = tmp_path / "live.rrd"
     t0 = time.perf_counter()
-    assert main(["live", "--device", "emulated", "--scenario", "static_lab", "--duration", "3", "--save", str(out),
-                 "--no-prompt"]) == 0
+    assert (
+        main(
+            [
+                "live",
+                "--device",
+                "emulated",
+                "--scenario",
+                "static_lab",
+                "--duration",
+                "3",
+                "--save",
+                str(out),
+                "--no-prompt",
+            ]
+        )
+        == 0
+    )
     wall = time.perf_counter() - t0
     chunks = rows = 0
     for ch in RrdReader(str(out)).stream().to_chunks():

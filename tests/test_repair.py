@@ -10,14 +10,31 @@ import time
 import pytest
 from rerun.chunk import RrdReader
 
-from necviz.cli import main
+from necviz.commands.cli import main
 
 
 def test_a_killed_run_is_repaired_into_a_copy(tmp_path, capsys):
     rrd = tmp_path / "cut.rrd"
-    proc = subprocess.Popen([sys.executable, "-m", "necviz", "demo", "--duration", "10", "--controllers", "nec,fixed",
-                             "--save", str(rrd), "--speed", "1", "--no-prompt"], cwd=tmp_path,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "necviz",
+            "demo",
+            "--duration",
+            "10",
+            "--controllers",
+            "nec,fixed",
+            "--save",
+            str(rrd),
+            "--speed",
+            "1",
+            "--no-prompt",
+        ],
+        cwd=tmp_path,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     deadline = time.time() + 120
     while time.time() < deadline and (not rrd.exists() or rrd.stat().st_size < 200_000):
         time.sleep(0.2)

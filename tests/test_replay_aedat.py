@@ -2,12 +2,21 @@
 
 import numpy as np
 import pytest
+from format_writers import (
+    aedat2_bytes,
+    aedat2_frame_words,
+    aedat3_frame,
+    aedat3_header,
+    aedat3_imu6,
+    aedat3_polarity,
+    aedat3_special,
+    jaer_dvs,
+    jaer_imu,
+)
 
-from format_writers import (aedat2_bytes, aedat2_frame_words, aedat3_frame, aedat3_header, aedat3_imu6,
-                            aedat3_polarity, aedat3_special, jaer_dvs, jaer_imu)
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import ImuBatch, TriggerBatch
-from necviz.drivers.replay import RecordingError, describe, open_recording
+from necviz.drivers.recordings import RecordingError, describe, open_recording
 
 W, H = 346, 260
 
@@ -24,6 +33,7 @@ def _split(packets):
 
 # ------------------------------------------------------------------------------------- AEDAT 3.1
 
+
 @pytest.fixture
 def aedat3_file(tmp_path):
     t, x, y, p = _events(1, 4000, 1000, 300_000)
@@ -31,12 +41,14 @@ def aedat3_file(tmp_path):
     img = rng.integers(0, 1024, (H, W))
     ov = 1  # timestamps beyond 2^31 µs use the packet's overflow counter
     base = 1 << 31
-    parts = [aedat3_header(),
-             aedat3_polarity(base + t[:1500], x[:1500], y[:1500], p[:1500], ov),
-             aedat3_special(base + np.array([100_000, 101_000]), [16, 17], ov),
-             aedat3_frame(img, base + 90_000, base + 120_000, base + 100_000, base + 101_000, ov),
-             aedat3_polarity(base + t[1500:], x[1500:], y[1500:], p[1500:], ov),
-             aedat3_imu6(base + np.array([200_000, 201_000]), [[0, 0, 1, 1, 2, 3, 30]] * 2, ov)]
+    parts = [
+        aedat3_header(),
+        aedat3_polarity(base + t[:1500], x[:1500], y[:1500], p[:1500], ov),
+        aedat3_special(base + np.array([100_000, 101_000]), [16, 17], ov),
+        aedat3_frame(img, base + 90_000, base + 120_000, base + 100_000, base + 101_000, ov),
+        aedat3_polarity(base + t[1500:], x[1500:], y[1500:], p[1500:], ov),
+        aedat3_imu6(base + np.array([200_000, 201_000]), [[0, 0, 1, 1, 2, 3, 30]] * 2, ov),
+    ]
     path = tmp_path / "synthetic.aedat"
     path.write_bytes(b"".join(parts))
     return path, (base + t, x, y, p), img, parts
@@ -68,7 +80,7 @@ def test_aedat3_truncated_and_garbage(aedat3_file, tmp_path):
     data = path.read_bytes()
     head = len(parts[0]) + len(parts[1]) + len(parts[2]) + len(parts[3])
     cut = tmp_path / "cut.aedat"
-    cut.write_bytes(data[:head + 28 + 100])  # inside the second polarity packet
+    cut.write_bytes(data[: head + 28 + 100])  # inside the second polarity packet
     got = []
     with pytest.raises(RecordingError, match=rf"cut\.aedat: truncated packet .* at byte {head}$"):
         for q in open_recording(cut):
@@ -76,7 +88,7 @@ def test_aedat3_truncated_and_garbage(aedat3_file, tmp_path):
     ev, frames = _split(got)
     assert np.array_equal(ev["t"], t[:1500]) and len(frames) == 1
     bad = tmp_path / "garbage.aedat"
-    bad.write_bytes(data[:head] + b"\xff" * 28 + data[head + 28:])
+    bad.write_bytes(data[:head] + b"\xff" * 28 + data[head + 28 :])
     got = []
     with pytest.raises(RecordingError, match=rf"garbage\.aedat: implausible packet header.* at byte {head}$"):
         for q in open_recording(bad):
@@ -93,6 +105,7 @@ def test_aedat3_truncated_and_garbage(aedat3_file, tmp_path):
 
 
 # ------------------------------------------------------------------------------------- AEDAT 2.0
+
 
 @pytest.fixture
 def aedat2_file(tmp_path):
@@ -152,7 +165,7 @@ def test_aedat2_truncated_and_garbage(aedat2_file, tmp_path):
     assert _split(got)[0].size == t.size - 1  # all complete records replayed
     at = header + 8 * 1500
     bad = tmp_path / "garbage.aedat"
-    bad.write_bytes(data[:at] + b"\xff" * 64 + data[at + 64:])
+    bad.write_bytes(data[:at] + b"\xff" * 64 + data[at + 64 :])
     got = []
     with pytest.raises(RecordingError, match=rf"garbage\.aedat: timestamp jumps .* at byte {at}$"):
         for q in open_recording(bad):

@@ -9,17 +9,22 @@ from conftest import SHARED_DATA
 
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import ImuBatch, TriggerBatch
-from necviz.drivers.replay import RecordingError, describe, detect_format, open_recording
+from necviz.drivers.recordings import RecordingError, describe, detect_format, open_recording
 
 SAMPLE = SHARED_DATA / "davis346_sample.aedat4"
-pytestmark = pytest.mark.skipif(not SAMPLE.is_file(), reason=f"real sample not found at {SAMPLE} "
-                                "(the shared data folder exists only in the project workspace)")
+pytestmark = pytest.mark.skipif(
+    not SAMPLE.is_file(),
+    reason=f"real sample not found at {SAMPLE} (the shared data folder exists only in the project workspace)",
+)
 
 
 def _split(packets):
     ev = [p for p in packets if isinstance(p, np.ndarray)]
-    return (np.concatenate(ev) if ev else None, [p for p in packets if isinstance(p, Frame)],
-            [p for p in packets if isinstance(p, ExposureMarker)])
+    return (
+        np.concatenate(ev) if ev else None,
+        [p for p in packets if isinstance(p, Frame)],
+        [p for p in packets if isinstance(p, ExposureMarker)],
+    )
 
 
 def test_real_sample_decodes_with_the_right_counts():
@@ -105,7 +110,7 @@ def test_truncated_copy_yields_what_precedes_the_damage(tmp_path):
     pk = _packet_offsets(data)
     off, sid, size = pk[20]
     path = tmp_path / "trunc.aedat4"
-    path.write_bytes(data[:off + 8 + size // 2])
+    path.write_bytes(data[: off + 8 + size // 2])
     got = []
     with pytest.raises(RecordingError) as err:
         for p in open_recording(path):
@@ -118,7 +123,7 @@ def test_truncated_copy_yields_what_precedes_the_damage(tmp_path):
 def test_garbage_packet_header(tmp_path):
     data = bytearray(SAMPLE.read_bytes())
     off = _packet_offsets(bytes(data))[10][0]
-    data[off:off + 8] = b"\xde\xad\xbe\xef" * 2
+    data[off : off + 8] = b"\xde\xad\xbe\xef" * 2
     path = tmp_path / "garbage.aedat4"
     path.write_bytes(bytes(data))
     got = []

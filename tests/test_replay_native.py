@@ -9,14 +9,14 @@ import time
 
 import numpy as np
 import pytest
-
 from format_writers import native_bytes, native_events
+
 from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, ImuBatch, TriggerBatch
 from necviz.core.sensor import SensorGeometry
 from necviz.core.stream import interleave
-from necviz.drivers.replay import Recorder, RecordingError, describe, open_recording
+from necviz.drivers.recordings import Recorder, RecordingError, describe, open_recording
 from necviz.drivers.source import CommandRecord
 
 SMALL = SensorGeometry(32, 24, "small")
@@ -29,8 +29,10 @@ def _stream(seed=0, n=20000, frames=5, sensor=SMALL):
     ev["x"] = rng.integers(0, sensor.width, n)
     ev["y"] = rng.integers(0, sensor.height, n)
     ev["p"] = rng.choice([-1, 1], n)
-    fr = [Frame(rng.integers(0, 256, sensor.shape, dtype=np.uint8), s, s + 3000, 1.5, i)
-          for i, s in enumerate(range(20_000, 500_000, 500_000 // frames))][:frames]
+    fr = [
+        Frame(rng.integers(0, 256, sensor.shape, dtype=np.uint8), s, s + 3000, 1.5, i)
+        for i, s in enumerate(range(20_000, 500_000, 500_000 // frames))
+    ][:frames]
     return ev, fr, list(interleave(ev, fr, 0, 1000))
 
 
@@ -40,11 +42,16 @@ def _same(a, b):
         assert np.array_equal(a, b)
     elif isinstance(a, Frame):
         assert np.array_equal(a.image, b.image)
-        assert (a.exposure_start_us, a.exposure_end_us, a.gain, a.sequence) == \
-               (b.exposure_start_us, b.exposure_end_us, b.gain, b.sequence)
+        assert (a.exposure_start_us, a.exposure_end_us, a.gain, a.sequence) == (
+            b.exposure_start_us,
+            b.exposure_end_us,
+            b.gain,
+            b.sequence,
+        )
     elif isinstance(a, (ImuBatch, TriggerBatch)):
-        assert np.array_equal(a.samples if isinstance(a, ImuBatch) else a.triggers,
-                              b.samples if isinstance(b, ImuBatch) else b.triggers)
+        assert np.array_equal(
+            a.samples if isinstance(a, ImuBatch) else a.triggers, b.samples if isinstance(b, ImuBatch) else b.triggers
+        )
     else:
         assert a == b
 
@@ -115,8 +122,9 @@ def test_seek_by_time_keeps_whole_exposures_only(tmp_path):
     want = ev[(ev["t"] >= lo) & (ev["t"] <= hi)]
     assert np.array_equal(got, want)
     frames = [p for p in out if isinstance(p, Frame)]
-    assert [f.exposure_start_us for f in frames] == [f.exposure_start_us for f in fr
-                                                     if f.exposure_start_us >= lo and f.exposure_end_us <= hi]
+    assert [f.exposure_start_us for f in frames] == [
+        f.exposure_start_us for f in fr if f.exposure_start_us >= lo and f.exposure_end_us <= hi
+    ]
     markers = [p for p in out if isinstance(p, ExposureMarker)]
     assert [m.kind for m in markers] == ["start", "end"] * len(frames)
 
@@ -137,7 +145,7 @@ def test_incomplete_last_chunk_is_a_warning_not_an_error(tmp_path):
     r = open_recording(path)
     out = list(r)
     got = np.concatenate([p for p in out if isinstance(p, np.ndarray)])
-    assert 0 < got.size < ev.size and np.array_equal(got, ev[:got.size])
+    assert 0 < got.size < ev.size and np.array_equal(got, ev[: got.size])
     assert len(r.warnings) == 1 and "incomplete chunk at byte" in r.warnings[0]
     assert "writer stopped mid-write" in r.warnings[0]
 
@@ -146,7 +154,7 @@ def test_damaged_middle_chunk_raises_after_the_good_part(tmp_path):
     ev, fr, packets = _stream()
     data = bytearray(_write(tmp_path / "a.necrec", packets))
     at = len(data) // 2
-    data[at:at + 64] = os.urandom(64)
+    data[at : at + 64] = os.urandom(64)
     path = tmp_path / "bad.necrec"
     path.write_bytes(bytes(data))
     out = []
@@ -158,14 +166,17 @@ def test_damaged_middle_chunk_raises_after_the_good_part(tmp_path):
     offset = int(msg.rsplit(" at byte ", 1)[1])
     assert offset <= at < offset + 2_000_000
     got = np.concatenate([p for p in out if isinstance(p, np.ndarray)])
-    assert got.size > 0 and np.array_equal(got, ev[:got.size])
+    assert got.size > 0 and np.array_equal(got, ev[: got.size])
 
 
-@pytest.mark.parametrize("content,expect", [
-    (b"", "empty file (0 bytes)"),
-    (b"NECVIZ-REX\x00\x01" + b"\x00" * 40, "unknown recording format"),
-    (b"NECVIZ-REC\x00\x01\x01\x50", "missing or incomplete header chunk at byte 12"),
-])
+@pytest.mark.parametrize(
+    "content,expect",
+    [
+        (b"", "empty file (0 bytes)"),
+        (b"NECVIZ-REX\x00\x01" + b"\x00" * 40, "unknown recording format"),
+        (b"NECVIZ-REC\x00\x01\x01\x50", "missing or incomplete header chunk at byte 12"),
+    ],
+)
 def test_bad_files(tmp_path, content, expect):
     path = tmp_path / "f.bin"
     path.write_bytes(content)
@@ -187,7 +198,7 @@ import numpy as np
 from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import DAVIS346
-from necviz.drivers.replay import Recorder
+from necviz.drivers.recordings import Recorder
 rec = Recorder(sys.argv[1], sensor=DAVIS346, properties={"run": "crash"})
 img = np.full((260, 346), 7, np.uint8)
 i = 0
@@ -228,8 +239,11 @@ def test_writer_killed_mid_stream_leaves_a_readable_file(tmp_path):
     assert [int(e["t"][0]) for e in ev] == [1000 * k for k in range(len(ev))]
     t = np.concatenate([e["t"] for e in ev])
     assert np.all(np.diff(t) >= 0)
-    kinds = [("S" if p.kind == "start" else "E") if isinstance(p, ExposureMarker) else "F"
-             for p in out if isinstance(p, (ExposureMarker, Frame))]
+    kinds = [
+        ("S" if p.kind == "start" else "E") if isinstance(p, ExposureMarker) else "F"
+        for p in out
+        if isinstance(p, (ExposureMarker, Frame))
+    ]
     assert "".join(kinds).startswith("SEF" * (len(ev) // 20 - 1))
     size = path.stat().st_size
     if any("incomplete chunk" in w for w in r.warnings):

@@ -2,12 +2,12 @@
 
 import numpy as np
 import pytest
-
 from format_writers import write_dsec, write_mvsec, write_ros1_bag, write_rpg_text
+
 from necviz.core.frames import Frame
 from necviz.core.imu import ImuBatch
-from necviz.drivers.replay import RecordingError, describe, detect_format, open_recording
-from necviz.drivers.replay.base import NO_EXPOSURE_FRAMES
+from necviz.drivers.recordings import RecordingError, describe, detect_format, open_recording
+from necviz.drivers.recordings.reader import NO_EXPOSURE_FRAMES
 
 W, H = 240, 180
 
@@ -16,8 +16,7 @@ W, H = 240, 180
 def events():
     rng = np.random.default_rng(7)
     n = 6000
-    return (np.sort(rng.integers(0, 600_000, n)), rng.integers(0, W, n), rng.integers(0, H, n),
-            rng.integers(0, 2, n))
+    return (np.sort(rng.integers(0, 600_000, n)), rng.integers(0, W, n), rng.integers(0, H, n), rng.integers(0, 2, n))
 
 
 def _split(packets):
@@ -34,8 +33,7 @@ def test_rpg_text(tmp_path, events):
     t, x, y, p = events
     rng = np.random.default_rng(8)
     imgs = [(0.1, rng.integers(0, 256, (H, W), dtype=np.uint8)), (0.4, rng.integers(0, 256, (H, W), dtype=np.uint8))]
-    folder = write_rpg_text(tmp_path / "rpg", t / 1e6, x, y, p, frames=imgs,
-                            imu=[[0.2, 0, 0, 9.80665, 0, 0, np.pi]])
+    folder = write_rpg_text(tmp_path / "rpg", t / 1e6, x, y, p, frames=imgs, imu=[[0.2, 0, 0, 9.80665, 0, 0, np.pi]])
     assert detect_format(folder) == "rpg-text" and detect_format(folder / "events.txt") == "rpg-text"
     r = open_recording(folder)
     ev, frames = _split(list(r))
@@ -113,10 +111,16 @@ def test_hdf5_unknown_layout_and_truncation(tmp_path, events):
 
 def test_ros1_bag(tmp_path, events):
     t, x, y, p = events
-    msgs = [(t[i:i + 500], x[i:i + 500], y[i:i + 500], p[i:i + 500]) for i in range(0, t.size, 500)]
+    msgs = [(t[i : i + 500], x[i : i + 500], y[i : i + 500], p[i : i + 500]) for i in range(0, t.size, 500)]
     img = np.random.default_rng(10).integers(0, 256, (H, W), dtype=np.uint8)
-    path = write_ros1_bag(tmp_path / "dvs.bag", msgs, images=[(100_000, img), (300_000, img)],
-                          exposures=[(50_000, 1000), (250_000, 3000)], width=W, height=H)
+    path = write_ros1_bag(
+        tmp_path / "dvs.bag",
+        msgs,
+        images=[(100_000, img), (300_000, img)],
+        exposures=[(50_000, 1000), (250_000, 3000)],
+        width=W,
+        height=H,
+    )
     assert detect_format(path) == "rosbag1"
     r = open_recording(path)
     assert r.format == "rosbag1" and (r.sensor.width, r.sensor.height) == (W, H)

@@ -9,24 +9,46 @@ import time
 
 import psutil
 import pytest
-
 from viewer_check import free_port
 
 
 def listening(proc: psutil.Process) -> set[tuple[str, int]]:
     pids = {proc.pid, *(c.pid for c in proc.children(recursive=True))}
-    return {(c.laddr.ip, c.laddr.port) for c in psutil.net_connections(kind="inet")
-            if c.status == psutil.CONN_LISTEN and c.pid in pids}
+    return {
+        (c.laddr.ip, c.laddr.port)
+        for c in psutil.net_connections(kind="inet")
+        if c.status == psutil.CONN_LISTEN and c.pid in pids
+    }
 
 
 def serve(tmp_path, *extra) -> tuple[subprocess.Popen, set, str]:
     grpc, web = free_port(), free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "necviz", "demo", "--duration", "0.2", "--controllers", "nec",
-                             "--serve", "--grpc-port", str(grpc), "--web-port", str(web), "--no-prompt", *extra],
-                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            # Ctrl-C must reach it even when the suite itself runs in the background (a shell's
-                            # `cmd &` ignores SIGINT, and children inherit that, so Python would not catch it)
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "necviz",
+            "demo",
+            "--duration",
+            "0.2",
+            "--controllers",
+            "nec",
+            "--serve",
+            "--grpc-port",
+            str(grpc),
+            "--web-port",
+            str(web),
+            "--no-prompt",
+            *extra,
+        ],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        # Ctrl-C must reach it even when the suite itself runs in the background (a shell's
+        # `cmd &` ignores SIGINT, and children inherit that, so Python would not catch it)
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     lines = []
     deadline = time.time() + 120
     while time.time() < deadline:

@@ -7,11 +7,11 @@ import pytest
 
 from necviz.core.errors import ParameterError
 from necviz.core.frames import ExposureMarker, Frame
-from necviz.drivers.sim.aps import ApsParams, expose, integrate_samples
-from necviz.drivers.sim.camera import SimRig
-from necviz.drivers.sim.dvs import DvsParams
-from necviz.drivers.sim.scene import FunctionScene
 from necviz.core.sensor import SensorGeometry
+from necviz.drivers.sim.aps import ApsParams, expose, integrate_samples
+from necviz.drivers.sim.dvs import DvsParams
+from necviz.drivers.sim.rig import SimRig
+from necviz.drivers.sim.scene import FunctionScene
 from necviz.drivers.source import Source
 
 SENSOR = SensorGeometry(48, 32)
@@ -78,8 +78,14 @@ def test_over_exposure_happens_exactly_where_physics_says(crf):
 
 def test_light_changing_during_the_exposure_is_averaged(crf):
     """A +3 step half-way through a 4 ms exposure: the frame sees the mean irradiance, not either level."""
-    cam = SimRig(step_scene(step_t=3_000), {"camera": (4_000, 1.0)}, aps=ApsParams(noise=False),
-                 dvs=DvsParams.ideal(), first_start_us=1_000, sample_us=250)
+    cam = SimRig(
+        step_scene(step_t=3_000),
+        {"camera": (4_000, 1.0)},
+        aps=ApsParams(noise=False),
+        dvs=DvsParams.ideal(),
+        first_start_us=1_000,
+        sample_us=250,
+    )
     f0 = frames_of(cam)[0]
     assert (f0.exposure_start_us, f0.exposure_end_us) == (1_000, 5_000)
     log_h = np.log((np.exp(_field()) * (1 + math.exp(3.0)) / 2)) + math.log(4_000 / 1e6)
@@ -98,8 +104,8 @@ def test_commands_apply_only_after_the_latency():
         if isinstance(p, Frame):
             seen.append(p)
         if isinstance(p, ExposureMarker) and p.kind == "end" and p.t_us == 3_000:
-            cam.set_exposure("camera", 500, 1.0, issue_time_us=issue_at[20_000])   # in time for the 21 ms frame
-            cam.set_exposure("camera", 700, 2.0, issue_time_us=issue_at[41_000])   # 1 µs late for the 41 ms frame
+            cam.set_exposure("camera", 500, 1.0, issue_time_us=issue_at[20_000])  # in time for the 21 ms frame
+            cam.set_exposure("camera", 700, 2.0, issue_time_us=issue_at[41_000])  # 1 µs late for the 41 ms frame
     starts = [f.exposure_start_us for f in seen]
     assert starts[:4] == [1_000, 21_000, 41_000, 61_000]
     assert [f.exposure_us for f in seen[:4]] == [2_000, 500, 500, 700]
@@ -145,15 +151,16 @@ def test_stream_order_per_camera_is_what_the_estimator_needs():
     from necviz.core.event_model import TediParams
     from necviz.core.ptedi import PeripheralEstimator
 
-    rig = SimRig(step_scene(), {"a": (2_000, 1.0), "b": (5_000, 1.0)}, dvs=DvsParams.ideal(),
-                 aps=ApsParams(noise=False))
+    rig = SimRig(
+        step_scene(), {"a": (2_000, 1.0), "b": (5_000, 1.0)}, dvs=DvsParams.ideal(), aps=ApsParams(noise=False)
+    )
     est = {n: PeripheralEstimator(SENSOR, TediParams(0.26, 0.24)) for n in ("a", "b")}
     last_t = -1
     for name, p in rig.packets():
         t = int(p["t"][0]) if name is None else (p.t_us if isinstance(p, ExposureMarker) else p.exposure_end_us)
         assert t >= last_t or isinstance(p, Frame)
         last_t = max(last_t, t if not isinstance(p, Frame) else last_t)
-        for n in ([name] if name else list(est)):
+        for n in [name] if name else list(est):
             est[n].feed(p)
     assert all(e.frames_seen >= 5 for e in est.values())
 
@@ -161,8 +168,12 @@ def test_stream_order_per_camera_is_what_the_estimator_needs():
 def test_same_seed_same_output_different_seed_different_noise():
     def run(seed):
         cam = SimRig(static_scene(50_000), {"camera": (2_000, 1.0)}, seed=seed)
-        return [(p.copy() if isinstance(p, np.ndarray) else p.image.copy()) for _, p in cam.packets()
-                if isinstance(p, (np.ndarray, Frame))]
+        return [
+            (p.copy() if isinstance(p, np.ndarray) else p.image.copy())
+            for _, p in cam.packets()
+            if isinstance(p, (np.ndarray, Frame))
+        ]
+
     a, b, c = run(1), run(1), run(2)
     assert len(a) == len(b) and all(np.array_equal(x, y) for x, y in zip(a, b))
     fa = [x for x in a if x.dtype == np.uint8]
@@ -170,12 +181,15 @@ def test_same_seed_same_output_different_seed_different_noise():
     assert any(not np.array_equal(x, y) for x, y in zip(fa, fc))
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    (dict(frame_interval_us=10_000, exposure_max_us=10_000), "fit in the frame interval"),
-    (dict(electrons_at_mid=float("nan")), "electrons_at_mid"),
-    (dict(exposure_min_us=0), "positive"),
-    (dict(gain_max=0.5), "gain_max"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(frame_interval_us=10_000, exposure_max_us=10_000), "fit in the frame interval"),
+        (dict(electrons_at_mid=float("nan")), "electrons_at_mid"),
+        (dict(exposure_min_us=0), "positive"),
+        (dict(gain_max=0.5), "gain_max"),
+    ],
+)
 def test_bad_aps_parameters(kwargs, match):
     with pytest.raises(ParameterError, match=match):
         ApsParams(**kwargs)
@@ -196,7 +210,7 @@ def test_bad_rig_parameters():
 def test_a_long_closed_loop_keeps_the_command_list_bounded(monkeypatch):
     """Commands issued on every batch for a long run: the rig keeps a bounded history, and the newest
     old-enough command still applies at each exposure start."""
-    import necviz.drivers.sim.camera as cam_mod
+    import necviz.drivers.sim.rig as cam_mod
 
     monkeypatch.setattr(cam_mod, "COMMAND_HISTORY", 10)
     rig = SimRig(static_scene(400_000), {"camera": (2_000, 1.0)}, dvs=DvsParams.ideal(), aps=ApsParams(noise=False))
@@ -212,5 +226,8 @@ def test_a_long_closed_loop_keeps_the_command_list_bounded(monkeypatch):
     assert issued >= 38 and len(cmds) <= 10 + 2
     applied = [c for c in cmds if c.applied_start_us is not None]
     by_start = {f.exposure_start_us: f for f in frames}
-    assert applied and all(by_start[c.applied_start_us].exposure_us == round(c.exposure_us) for c in applied
-                           if c.applied_start_us in by_start)
+    assert applied and all(
+        by_start[c.applied_start_us].exposure_us == round(c.exposure_us)
+        for c in applied
+        if c.applied_start_us in by_start
+    )

@@ -6,7 +6,7 @@ import numpy as np
 from necviz.core import Frame, PeripheralEstimator, SensorGeometry, TediParams
 from necviz.core.control import CameraLimits, NECController
 from necviz.drivers.sim.aps import ApsParams
-from necviz.drivers.sim.camera import SimRig
+from necviz.drivers.sim.rig import SimRig
 from necviz.drivers.sim.scenes import make_scenario
 
 
@@ -17,8 +17,9 @@ def test_nec_avoids_the_saturated_frames_a_fixed_exposure_gets():
     aps = ApsParams()
     rig = SimRig(scene, ["nec", "fixed"], aps=aps, seed=1)
     limits = CameraLimits(aps.exposure_min_us, aps.exposure_max_us, 1.0)
-    nec = NECController(PeripheralEstimator(sensor, TediParams(0.26, 0.24)), limits,
-                        exposure_us=rig.cams["nec"].exposure_us)
+    nec = NECController(
+        PeripheralEstimator(sensor, TediParams(0.26, 0.24)), limits, exposure_us=rig.cams["nec"].exposure_us
+    )
     frames = {"nec": [], "fixed": []}
     for name, packet in rig.packets():
         if name in (None, "nec"):

@@ -11,10 +11,16 @@ import pytest
 from necviz.core.errors import ParameterError, ProfileError
 from necviz.core.sensor import DAVIS240, DAVIS346
 from necviz.drivers.sim.aps import ApsParams
-from necviz.drivers.sim.camera import SimRig
+from necviz.drivers.sim.rig import SimRig
 from necviz.drivers.sim.scene import FunctionScene, LightingChange, Scene, db_to_log
-from necviz.drivers.sim.scenes import (COMMON_PARAMS, SCENARIOS, make_scenario, scenario_from_toml, scenario_params,
-                                       scenario_params_markdown)
+from necviz.drivers.sim.scenes import (
+    COMMON_PARAMS,
+    SCENARIOS,
+    make_scenario,
+    scenario_from_toml,
+    scenario_params,
+    scenario_params_markdown,
+)
 from necviz.drivers.sim.scenes.static_lab import FIRST_START_US, FRAME_INTERVAL_US
 
 NAMES = sorted(SCENARIOS)
@@ -213,8 +219,11 @@ def test_static_lab_levels_and_no_motion():
 
 def default_frame_clock():
     """(first exposure start, frame interval, command latency) of SimRig/ApsParams defaults, in µs."""
-    return (inspect.signature(SimRig).parameters["first_start_us"].default, ApsParams().frame_interval_us,
-            ApsParams().latency_us)
+    return (
+        inspect.signature(SimRig).parameters["first_start_us"].default,
+        ApsParams().frame_interval_us,
+        ApsParams().latency_us,
+    )
 
 
 def meets_frame_clock(t0_us, t1_us, duration_us) -> bool:
@@ -309,7 +318,7 @@ def test_change_jitter_handheld_scan_and_errors():
 def test_parameter_table_in_docstring(name, scenes):
     cls = SCENARIOS[name]
     assert cls.PARAMS["change_jitter_ms"] is COMMON_PARAMS["change_jitter_ms"]
-    table = cls.__doc__[cls.__doc__.index("Parameters (generated from ``PARAMS``"):].splitlines()
+    table = cls.__doc__[cls.__doc__.index("Parameters (generated from ``PARAMS``") :].splitlines()
     rules = [line for line in table if line.startswith("===")]
     assert len(rules) == 3
     for key, p in cls.PARAMS.items():
@@ -326,7 +335,8 @@ def test_readme_scenario_section_is_generated():
     start = text.index(head) + len(head)
     end = start + re.search(r"^#{1,3} ", text[start:], re.M).start()
     assert text[start:end] == scenario_params_markdown() + "\n", (
-        "README section out of date: paste necviz.drivers.sim.scenes.scenario_params_markdown()")
+        "README section out of date: paste necviz.drivers.sim.scenes.scenario_params_markdown()"
+    )
 
 
 # -- handheld_scan -------------------------------------------------------------------------------
@@ -336,7 +346,7 @@ def test_handheld_scan_shadow_edges(scenes):
     H, W = s.sensor.shape
     step = db_to_log(50)
     for c in s.changes:
-        centre = lambda t: float(s.log_irradiance(t)[H // 2 - 2:H // 2 + 3, W // 2 - 2:W // 2 + 3].mean())
+        centre = lambda t: float(s.log_irradiance(t)[H // 2 - 2 : H // 2 + 3, W // 2 - 2 : W // 2 + 3].mean())
         d = centre(c.t_us + 40_000) - centre(c.t_us - 40_000)
         assert np.sign(d) == np.sign(c.delta_log) and abs(d) > 0.5 * step
     img = s.log_irradiance(s.changes[0].t_us)
@@ -366,7 +376,7 @@ def test_registry_errors():
 
 def test_function_scene():
     def fn(t_us, sensor):
-        yy, xx = np.mgrid[0:sensor.height, 0:sensor.width]
+        yy, xx = np.mgrid[0 : sensor.height, 0 : sensor.width]
         return 5.0 + 0.3 * np.sin(xx / 7.0) + (3.0 if t_us > 1e6 else 0.0)
 
     s = FunctionScene(fn, duration_us=2_000_000, changes=[LightingChange(1_000_000, "step", 3.0)])
@@ -385,26 +395,31 @@ def test_toml_text_and_file(tmp_path):
     ref = make_scenario("tunnel_exit", seed=3, duration_us=2_000_000, step_db=90)
     np.testing.assert_array_equal(s.log_irradiance(5e5), ref.log_irradiance(5e5))
     p = tmp_path / "lab.toml"
-    p.write_text('name = "static_lab"\nduration_us = 1000000\nsensor = "DAVIS240"\n'
-                 '[params]\nsteps = [[0.25, 10.0], [0.75, -10.0]]\n')
+    p.write_text(
+        'name = "static_lab"\nduration_us = 1000000\nsensor = "DAVIS240"\n'
+        "[params]\nsteps = [[0.25, 10.0], [0.75, -10.0]]\n"
+    )
     for src in (p, str(p)):
         s = scenario_from_toml(src)
         assert s.sensor == DAVIS240 and [c.t_us for c in s.changes] == [250_000, 750_000]
 
 
-@pytest.mark.parametrize("text,err,msg", [
-    ('name = "tunnel_exit"\nseed = \n', ProfileError, "invalid TOML"),
-    ('seed = 1\n', ProfileError, 'missing key "name"'),
-    ('name = "tunnel_exit"\ncolour = 1\n', ProfileError, "unknown key.*colour"),
-    ('name = "tunnel_exit"\nduration_s = -1\n', ProfileError, "duration_s"),
-    ('name = "tunnel_exit"\nduration_us = 1.5\n', ProfileError, "duration_us.*whole number"),
-    ('name = "tunnel_exit"\nseed = -1\n', ProfileError, "seed"),
-    ('name = "tunnel_exit"\nduration_s = 1\nduration_us = 5\n', ProfileError, "not both"),
-    ('name = "tunnel_exit"\nsensor = "DAVIS999"\n', ProfileError, "unknown sensor"),
-    ('name = "nope"\n', ParameterError, "unknown scenario 'nope'"),
-    ('name = "tunnel_exit"\n[params]\nstep_db = 20\n', ParameterError, "step_db = 20 is out of range"),
-    ('name = "tunnel_exit"\n[params]\nspeed = 20\n', ParameterError, "unknown parameter.*speed.*speed_kmh"),
-])
+@pytest.mark.parametrize(
+    "text,err,msg",
+    [
+        ('name = "tunnel_exit"\nseed = \n', ProfileError, "invalid TOML"),
+        ("seed = 1\n", ProfileError, 'missing key "name"'),
+        ('name = "tunnel_exit"\ncolour = 1\n', ProfileError, "unknown key.*colour"),
+        ('name = "tunnel_exit"\nduration_s = -1\n', ProfileError, "duration_s"),
+        ('name = "tunnel_exit"\nduration_us = 1.5\n', ProfileError, "duration_us.*whole number"),
+        ('name = "tunnel_exit"\nseed = -1\n', ProfileError, "seed"),
+        ('name = "tunnel_exit"\nduration_s = 1\nduration_us = 5\n', ProfileError, "not both"),
+        ('name = "tunnel_exit"\nsensor = "DAVIS999"\n', ProfileError, "unknown sensor"),
+        ('name = "nope"\n', ParameterError, "unknown scenario 'nope'"),
+        ('name = "tunnel_exit"\n[params]\nstep_db = 20\n', ParameterError, "step_db = 20 is out of range"),
+        ('name = "tunnel_exit"\n[params]\nspeed = 20\n', ParameterError, "unknown parameter.*speed.*speed_kmh"),
+    ],
+)
 def test_toml_errors(text, err, msg):
     with pytest.raises(err, match=msg):
         scenario_from_toml(text)

@@ -25,7 +25,7 @@ import pytest
 from necviz.core.crf import US_PER_S, default_davis346
 from necviz.core.frames import Frame
 from necviz.drivers.sim.aps import ApsParams, DigitLut, expose
-from necviz.drivers.sim.camera import SimRig
+from necviz.drivers.sim.rig import SimRig
 from necviz.options import SceneOptions
 from necviz.pipeline import Observer
 
@@ -75,8 +75,14 @@ class _Record(Observer):
 
     def frame(self, lane, frame, record):
         self.frames.setdefault(lane, []).append(
-            (hashlib.sha256(frame.image.tobytes()).hexdigest(), frame.exposure_start_us, frame.exposure_end_us,
-             frame.gain, repr(record)))
+            (
+                hashlib.sha256(frame.image.tobytes()).hexdigest(),
+                frame.exposure_start_us,
+                frame.exposure_end_us,
+                frame.gain,
+                repr(record),
+            )
+        )
 
     def command(self, lane, command, latency_us):
         self.commands.setdefault(lane, []).append(repr(command))
@@ -171,7 +177,11 @@ def _ptedi_stream(seed: int = 4):
     ev["p"] = np.where(rng.random(n) < 0.55, 1, -1)
     frames = []
     for i, s in enumerate(range(5_000, dur - 10_000, 20_000)):
-        img = np.full(DAVIS346.shape, 255, np.uint8) if i % 3 == 2 else rng.integers(30, 220, DAVIS346.shape).astype(np.uint8)
+        img = (
+            np.full(DAVIS346.shape, 255, np.uint8)
+            if i % 3 == 2
+            else rng.integers(30, 220, DAVIS346.shape).astype(np.uint8)
+        )
         frames.append(Frame(img, s, s + 6_000, 1.0, i))
     return ev, frames
 
@@ -212,7 +222,7 @@ def test_single_zone_compensated_kernel_equals_the_general_one(monkeypatch, kw):
 
 
 def test_comp_between_kernel_equals_the_bincount_expression():
-    from necviz.core.ptedi import comp_between
+    from necviz.core.ptedi_comp import comp_between
 
     rng = np.random.default_rng(9)
     npix, k = 5_000, 3
@@ -224,8 +234,12 @@ def test_comp_between_kernel_equals_the_bincount_expression():
     sel = zf >= 0
     n = (snap[sel] - pc[sel, 2:4]).astype(np.float64)
     uz = u[zf[sel]]
-    want = np.stack([np.bincount(zf[sel], weights=np.maximum(0.0, a_on * n[:, 0] - b_on * uz), minlength=k),
-                     np.bincount(zf[sel], weights=np.maximum(0.0, a_off * n[:, 1] - b_off * uz), minlength=k)])
+    want = np.stack(
+        [
+            np.bincount(zf[sel], weights=np.maximum(0.0, a_on * n[:, 0] - b_on * uz), minlength=k),
+            np.bincount(zf[sel], weights=np.maximum(0.0, a_off * n[:, 1] - b_off * uz), minlength=k),
+        ]
+    )
     got = np.empty((2, k))
     comp_between(pc, snap, zf, u, a_on, b_on, a_off, b_off, got)
     assert np.array_equal(got, want) and (want > 0).all()

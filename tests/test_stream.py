@@ -19,12 +19,25 @@ def test_order_markers_frames_and_events():
     ev = make_events([5, 10, 10, 20, 30, 31], [0] * 6, [0] * 6, [1] * 6)
     f = _frame(10, 30)
     out = list(interleave(ev, [f], frame_delay_us=1))
-    kinds = [("ev", p["t"].tolist()) if isinstance(p, np.ndarray) else
-             (p.kind, p.t_us) if isinstance(p, ExposureMarker) else ("frame", p.sequence) for p in out]
+    kinds = [
+        ("ev", p["t"].tolist())
+        if isinstance(p, np.ndarray)
+        else (p.kind, p.t_us)
+        if isinstance(p, ExposureMarker)
+        else ("frame", p.sequence)
+        for p in out
+    ]
     # events at exactly the start follow the start marker; those at the end follow the end marker;
     # the frame arrives frame_delay_us after the end, after the events before that time
-    assert kinds == [("ev", [5]), ("start", 10), ("ev", [10, 10, 20]), ("end", 30), ("ev", [30]),
-                     ("frame", 0), ("ev", [31])]
+    assert kinds == [
+        ("ev", [5]),
+        ("start", 10),
+        ("ev", [10, 10, 20]),
+        ("end", 30),
+        ("ev", [30]),
+        ("frame", 0),
+        ("ev", [31]),
+    ]
     assert sum(p.size for p in out if isinstance(p, np.ndarray)) == ev.size
 
 

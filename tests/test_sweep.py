@@ -22,7 +22,7 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 
-from necviz.cli import main
+from necviz.commands.cli import main
 from necviz.sweep import load_plan, run_sweep
 from necviz.sweep.spec import spec_hash
 from necviz.sweep.store import Store
@@ -105,15 +105,45 @@ def test_same_spec_gives_same_hash_and_identical_metrics_on_a_separate_scheduler
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     env = {**os.environ, "NUMBA_NUM_THREADS": "1"}
-    sched = subprocess.Popen([sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1", "--port", str(port),
-                              "--no-dashboard"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    worker = subprocess.Popen([sys.executable, "-m", "dask", "worker", f"tcp://127.0.0.1:{port}", "--host",
-                               "127.0.0.1", "--nthreads", "1", "--nworkers", "1", "--no-dashboard"], env=env,
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    sched = subprocess.Popen(
+        [sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    worker = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "dask",
+            "worker",
+            f"tcp://127.0.0.1:{port}",
+            "--host",
+            "127.0.0.1",
+            "--nthreads",
+            "1",
+            "--nworkers",
+            "1",
+            "--no-dashboard",
+        ],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         out_b = tmp_path / "b"
-        rc = main(["sweep", "run", str(tmp_path / "good.toml"), "--out", str(out_b), "--scheduler",
-                   f"tcp://127.0.0.1:{port}", "--json"])
+        rc = main(
+            [
+                "sweep",
+                "run",
+                str(tmp_path / "good.toml"),
+                "--out",
+                str(out_b),
+                "--scheduler",
+                f"tcp://127.0.0.1:{port}",
+                "--json",
+            ]
+        )
         assert rc == 0
     finally:
         for p in (worker, sched):
@@ -136,7 +166,7 @@ def test_same_spec_gives_same_hash_and_identical_metrics_on_a_separate_scheduler
 
 # -- report ---------------------------------------------------------------------------------------
 def test_report_matches_compare(first, tmp_path):
-    from necviz.compare import METRICS, run
+    from necviz.commands.compare import METRICS, run
     from necviz.options import CompareOptions, SceneOptions
     from necviz.sweep.report import report
 
@@ -147,10 +177,12 @@ def test_report_matches_compare(first, tmp_path):
     assert (tmp_path / "rep" / "cells.csv").read_text().count("\n") == 5  # header + 4 cells
     assert len((tmp_path / "rep" / "runs.csv").read_text().splitlines()) == 9
     assert rep["plots"] and all(Path(p).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in rep["plots"])
-    cmp_ = run(CompareOptions(SceneOptions("tunnel_exit", 0, 0.2, {"exit_s": 0.1}), ("nec",), seeds=2, sift=False),
-               out=None)["controllers"]["nec"]
-    cell = next(c for c in rep["table"] if c["columns"]["controller"] == "nec"
-                and c["columns"]["scenario_params.exit_s"] == 0.1)
+    cmp_ = run(
+        CompareOptions(SceneOptions("tunnel_exit", 0, 0.2, {"exit_s": 0.1}), ("nec",), seeds=2, sift=False), out=None
+    )["controllers"]["nec"]
+    cell = next(
+        c for c in rep["table"] if c["columns"]["controller"] == "nec" and c["columns"]["scenario_params.exit_s"] == 0.1
+    )
     assert cell["seeds"] == [0, 1]
     compared = 0
     for m in METRICS:
@@ -194,17 +226,39 @@ def test_show_reruns_a_cell_deterministically(first, tmp_path):
 
 
 # -- interruption and resume ----------------------------------------------------------------------
-LAUNCH = ("import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
-          "from necviz.cli import main; sys.exit(main(sys.argv[1:]))")
+LAUNCH = (
+    "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+    "from necviz.commands.cli import main; sys.exit(main(sys.argv[1:]))"
+)
 
 
 def test_ctrl_c_keeps_finished_rows_and_resume_adds_only_the_missing(client, tmp_path):
-    f = _write(tmp_path / "ten.toml", 'seeds = "0..9"\nduration_s = 0.2\ncontrollers = ["fixed"]\n'
-                                      'scenarios = [{ name = "tunnel_exit", params = { exit_s = 0.1 } }]\n')
+    f = _write(
+        tmp_path / "ten.toml",
+        'seeds = "0..9"\nduration_s = 0.2\ncontrollers = ["fixed"]\n'
+        'scenarios = [{ name = "tunnel_exit", params = { exit_s = 0.1 } }]\n',
+    )
     out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-c", LAUNCH, "sweep", "run", str(f), "--out", str(out), "--workers",
-                             "1", "--dashboard", "off"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            LAUNCH,
+            "sweep",
+            "run",
+            str(f),
+            "--out",
+            str(out),
+            "--workers",
+            "1",
+            "--dashboard",
+            "off",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
     store = Store(out)
     deadline = time.monotonic() + 150
     while len(store.done()) < 1 and proc.poll() is None and time.monotonic() < deadline:
@@ -259,8 +313,9 @@ def _kill_worker_running(client, run_hash: str, timeout_s: float = 60.0):
 
 
 def test_a_killed_workers_run_is_retried(client, tmp_path):
-    f = _write(tmp_path / "one.toml", 'seeds = "3"\nduration_s = 1.5\ncontrollers = ["fixed"]\n'
-                                      'scenarios = ["tunnel_exit"]\n')
+    f = _write(
+        tmp_path / "one.toml", 'seeds = "3"\nduration_s = 1.5\ncontrollers = ["fixed"]\nscenarios = ["tunnel_exit"]\n'
+    )
     plan = load_plan(f)
     out = tmp_path / "out"
     box = {}
@@ -282,17 +337,28 @@ BAD = [
     ("seeds = 3\ncontrollers = ['nec']\nscenarios = ['flicker']\n", "seeds must be"),
     ("seeds = '5..1'\ncontrollers = ['nec']\nscenarios = ['flicker']\n", "seeds:"),
     ("seeds = '0'\ncontrollers = ['nope']\nscenarios = ['flicker']\n", "controllers[0].name"),
-    ("seeds = '0'\ncontrollers = [{ name = 'nec', params = { bogus = 1 } }]\nscenarios = ['flicker']\n",
-     "controllers[0].params"),
-    ("seeds = '0'\ncontrollers = [{ name = 'nec', params = { goal = 'x' } }]\nscenarios = ['flicker']\n",
-     "controllers[0].params"),
+    (
+        "seeds = '0'\ncontrollers = [{ name = 'nec', params = { bogus = 1 } }]\nscenarios = ['flicker']\n",
+        "controllers[0].params",
+    ),
+    (
+        "seeds = '0'\ncontrollers = [{ name = 'nec', params = { goal = 'x' } }]\nscenarios = ['flicker']\n",
+        "controllers[0].params",
+    ),
     ("seeds = '0'\ncontrollers = ['nec']\nscenarios = ['nowhere']\n", "scenarios[0].name"),
-    ("seeds = '0'\ncontrollers = ['nec']\n[[scenarios]]\nname = 'tunnel_exit'\nparams = { step_db = 1000 }\n",
-     "scenarios[0].params.step_db"),
-    ("seeds = '0'\ncontrollers = ['nec']\n[[scenarios]]\nname = 'tunnel_exit'\nparams = { nope = [1, 2] }\n",
-     "scenarios[0].params.nope"),
-    ("seeds = '0'\ncontrollers = ['nec']\n[[scenarios]]\nname = 'tunnel_exit'\nzip = { step_db = [60, 90], "
-     "transition_ms = [15] }\n", "scenarios[0].zip"),
+    (
+        "seeds = '0'\ncontrollers = ['nec']\n[[scenarios]]\nname = 'tunnel_exit'\nparams = { step_db = 1000 }\n",
+        "scenarios[0].params.step_db",
+    ),
+    (
+        "seeds = '0'\ncontrollers = ['nec']\n[[scenarios]]\nname = 'tunnel_exit'\nparams = { nope = [1, 2] }\n",
+        "scenarios[0].params.nope",
+    ),
+    (
+        "seeds = '0'\ncontrollers = ['nec']\n[[scenarios]]\nname = 'tunnel_exit'\nzip = { step_db = [60, 90], "
+        "transition_ms = [15] }\n",
+        "scenarios[0].zip",
+    ),
     ("seeds = '0'\ncontrollers = ['nec']\nscenarios = ['flicker']\nsim = { 'dvs.nope' = 1 }\n", "dvs.nope"),
     ("seeds = '0'\nduration_s = -1\ncontrollers = ['nec']\nscenarios = ['flicker']\n", "duration_s"),
     ("seeds = '0'\nsift = 'yes'\ncontrollers = ['nec']\nscenarios = ['flicker']\n", "sift"),
@@ -334,9 +400,12 @@ def test_output_folder_rules(first, tmp_path, capsys):
     other = tmp_path / "other"
     other.mkdir()
     (other / "notes.txt").write_text("mine")
-    cases = [(["--out", str(out)], "not empty"), (["--out", str(other), "--force"], "not a sweep folder"),
-             (["--out", str(tmp_path / "new"), "--resume"], "no sweep to resume"),
-             (["--out", str(other / "notes.txt")], "is a file")]
+    cases = [
+        (["--out", str(out)], "not empty"),
+        (["--out", str(other), "--force"], "not a sweep folder"),
+        (["--out", str(tmp_path / "new"), "--resume"], "no sweep to resume"),
+        (["--out", str(other / "notes.txt")], "is a file"),
+    ]
     for extra, needle in cases:
         assert main(["sweep", "run", str(f), *extra]) == 2
         err = capsys.readouterr().err
@@ -367,8 +436,10 @@ def test_a_run_whose_worker_keeps_dying_is_recorded_failed(tmp_path):
     Two workers, two runs: one each (a worker also holding a queued run would take that one down too)."""
     from necviz.sweep.engine import connect
 
-    f = _write(tmp_path / "two.toml", 'seeds = "0..1"\nduration_s = 1.5\ncontrollers = ["fixed"]\n'
-                                      'scenarios = ["tunnel_exit"]\n')
+    f = _write(
+        tmp_path / "two.toml",
+        'seeds = "0..1"\nduration_s = 1.5\ncontrollers = ["fixed"]\nscenarios = ["tunnel_exit"]\n',
+    )
     plan = load_plan(f)
     out = tmp_path / "out"
     with connect(workers=2, dashboard=None, retries=0) as c:
@@ -386,17 +457,30 @@ def test_a_run_whose_worker_keeps_dying_is_recorded_failed(tmp_path):
 
 
 def test_hash_is_canonical():
-    spec = {"scenario": "tunnel_exit", "seed": 3, "duration_s": 2.0, "scenario_params": {"step_db": 90.0},
-            "controllers": ["nec"], "controller_params": {"nec": {"goal": 110, "dead_band": 4}}, "profile": None,
-            "sim": {"dvs.c_on": 0.3}, "sift": False}
+    spec = {
+        "scenario": "tunnel_exit",
+        "seed": 3,
+        "duration_s": 2.0,
+        "scenario_params": {"step_db": 90.0},
+        "controllers": ["nec"],
+        "controller_params": {"nec": {"goal": 110, "dead_band": 4}},
+        "profile": None,
+        "sim": {"dvs.c_on": 0.3},
+        "sift": False,
+    }
     h = spec_hash(spec)
     assert len(h) == 16 and all(c in "0123456789abcdef" for c in h)
     reordered = dict(reversed(list(spec.items())))
     reordered["controller_params"] = {"nec": {"dead_band": 4, "goal": 110.0}}
     reordered["scenario_params"] = {"step_db": 90}
     assert spec_hash(reordered) == h
-    for key, value in (("seed", 4), ("duration_s", 2.5), ("sim", {"dvs.c_on": 0.31}), ("sift", True),
-                       ("controller_params", {"nec": {"goal": 111}})):
+    for key, value in (
+        ("seed", 4),
+        ("duration_s", 2.5),
+        ("sim", {"dvs.c_on": 0.31}),
+        ("sift", True),
+        ("controller_params", {"nec": {"goal": 111}}),
+    ):
         assert spec_hash({**spec, key: value}) != h, key
 
 
@@ -404,15 +488,27 @@ def test_hash_follows_a_scenario_files_content_not_its_place(tmp_path):
     a = _write(tmp_path / "s.toml", 'name = "tunnel_exit"\n[params]\nstep_db = 90\n')
     (tmp_path / "moved").mkdir()
     b = _write(tmp_path / "moved" / "s.toml", a.read_text())
-    spec = {"scenario": str(a), "seed": 0, "duration_s": None, "scenario_params": {}, "controllers": ["nec"],
-            "controller_params": {}, "profile": None, "sim": {}, "sift": False}
+    spec = {
+        "scenario": str(a),
+        "seed": 0,
+        "duration_s": None,
+        "scenario_params": {},
+        "controllers": ["nec"],
+        "controller_params": {},
+        "profile": None,
+        "sim": {},
+        "sift": False,
+    }
     assert spec_hash(spec) == spec_hash({**spec, "scenario": str(b)})
     _write(b, 'name = "tunnel_exit"\n[params]\nstep_db = 100\n')
     assert spec_hash(spec) != spec_hash({**spec, "scenario": str(b)})
 
 
 def test_grid_zip_sim_none_and_duplicates(tmp_path):
-    plan = load_plan(_write(tmp_path / "g.toml", """
+    plan = load_plan(
+        _write(
+            tmp_path / "g.toml",
+            """
 seeds = "0..2"
 controllers = ["fixed", { name = "nec", params = { goal = [100, 120] } }, "fixed"]
 sim = { "dvs.c_on" = 0.3 }
@@ -421,17 +517,24 @@ name = "tunnel_exit"
 params = { transition_ms = [15, 40, 150] }
 zip = { step_db = [60, 90], inside_log = [1.0, 2.0] }
 sim = { "dvs.max_event_rate" = [12e6, "none"] }
-"""))
+""",
+        )
+    )
     # 3 transitions × 2 zipped × 2 rate ceilings = 12 scenario configurations; 3 controller configurations
     # (the second "fixed" is the same runs again) × 3 seeds
     assert len(plan.runs) == 12 * 3 * 3 and plan.duplicates == 12 * 3
     specs = [r.spec for r in plan.runs]
-    assert {(s["scenario_params"]["step_db"], s["scenario_params"]["inside_log"]) for s in specs} == {(60, 1.0),
-                                                                                                     (90, 2.0)}
+    assert {(s["scenario_params"]["step_db"], s["scenario_params"]["inside_log"]) for s in specs} == {
+        (60, 1.0),
+        (90, 2.0),
+    }
     assert {s["sim"]["dvs.max_event_rate"] for s in specs} == {12e6, None}
     assert all(s["sim"]["dvs.c_on"] == 0.3 for s in specs)
     assert {json.dumps(s["controller_params"], sort_keys=True) for s in specs} == {
-        "{}", '{"nec": {"goal": 100}}', '{"nec": {"goal": 120}}'}
+        "{}",
+        '{"nec": {"goal": 100}}',
+        '{"nec": {"goal": 120}}',
+    }
     assert len(set(plan.hashes)) == len(plan.runs)
     assert plan.cells() == len(plan.runs) // 3
     assert not math.isnan(plan.runs[0].columns["scenario_params.transition_ms"])

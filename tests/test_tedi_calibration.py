@@ -36,8 +36,18 @@ LOG_CRF = CameraResponse((np.arange(256) - 128.0) / 20.0)
 QUANT = 0.5 / 20.0  # rounding to the nearest digit changes g by at most half a step
 
 
-def undercounting_data(true=TRUE, width=32, height=24, n_frames=12, period_us=20_000,
-                       exposure_us=4_000, slow=(0.2, 0.9), fast=(1.3, 3.0), seed=0, crf=LOG_CRF):
+def undercounting_data(
+    true=TRUE,
+    width=32,
+    height=24,
+    n_frames=12,
+    period_us=20_000,
+    exposure_us=4_000,
+    slow=(0.2, 0.9),
+    fast=(1.3, 3.0),
+    seed=0,
+    crf=LOG_CRF,
+):
     """Events and frames of constant-rate pixels obeying the TEDI model (see the module docstring).
 
     Rates are drawn as multiples of each polarity's threshold rate ``b c / a``: ``slow`` and
@@ -138,10 +148,14 @@ def test_tedi_compensation_recovers_what_plain_edi_misses(data):
                 assert np.mean(p_err[fast_ok & ~on]) * missed_sign > 0.5
 
 
-@pytest.mark.parametrize("init", [
-    TediParams(c_on=0.2, c_off=0.24),  # thresholds 20 % low and 10 % high, no compensation
-    TediParams(0.3, 0.2, 0.0, 100.0, 0.0, 100.0),  # a = 0 < b: compensation inactive everywhere
-], ids=["no-compensation", "inactive-compensation"])
+@pytest.mark.parametrize(
+    "init",
+    [
+        TediParams(c_on=0.2, c_off=0.24),  # thresholds 20 % low and 10 % high, no compensation
+        TediParams(0.3, 0.2, 0.0, 100.0, 0.0, 100.0),  # a = 0 < b: compensation inactive everywhere
+    ],
+    ids=["no-compensation", "inactive-compensation"],
+)
 def test_calibration_recovers_the_true_parameters(data, init):
     """Started away from the truth.
 
@@ -163,9 +177,12 @@ def test_calibration_recovers_the_true_parameters(data, init):
         assert getattr(p, name) == pytest.approx(getattr(TRUE, name), rel=0.2), name
     assert res.rms_after < res.rms_before / 8
     assert res.rms_after < 0.06
-    assert res.cost == pytest.approx(0.5 * res.num_residuals * res.rms_after ** 2, rel=1e-9)
-    assert seen and seen[0][1] == pytest.approx(res.rms_before) and min(r for _, r in seen) == pytest.approx(
-        res.rms_after, rel=1e-6)
+    assert res.cost == pytest.approx(0.5 * res.num_residuals * res.rms_after**2, rel=1e-9)
+    assert (
+        seen
+        and seen[0][1] == pytest.approx(res.rms_before)
+        and min(r for _, r in seen) == pytest.approx(res.rms_after, rel=1e-6)
+    )
 
 
 def test_calibration_of_a_subset_keeps_the_rest_fixed(data):
@@ -179,7 +196,11 @@ def test_calibration_of_a_subset_keeps_the_rest_fixed(data):
     assert res.params.c_on == pytest.approx(TRUE.c_on, rel=0.02)
     assert res.params.c_off == pytest.approx(TRUE.c_off, rel=0.02)
     assert (res.params.a_on, res.params.b_on, res.params.a_off, res.params.b_off) == (
-        TRUE.a_on, TRUE.b_on, TRUE.a_off, TRUE.b_off)
+        TRUE.a_on,
+        TRUE.b_on,
+        TRUE.a_off,
+        TRUE.b_off,
+    )
     plain = calibrate_tedi(ev, frames, LOG_CRF, init=TediParams(0.25, 0.22), fit=("c_on", "c_off"))
     assert plain.params.a_on == 0.0 and plain.params.b_off == 0.0
     assert plain.params.c_on > 1.1 * TRUE.c_on and plain.params.c_off > 1.1 * TRUE.c_off
@@ -188,8 +209,7 @@ def test_calibration_of_a_subset_keeps_the_rest_fixed(data):
 
 def test_calibration_reference_and_pixel_cap(data):
     ev, frames, _, _, _ = data
-    res = calibrate_tedi(ev, frames[:6], LOG_CRF, init=TRUE, reference="current_start", max_pixels=100,
-                         fit=("c_on",))
+    res = calibrate_tedi(ev, frames[:6], LOG_CRF, init=TRUE, reference="current_start", max_pixels=100, fit=("c_on",))
     assert res.num_pairs == 5 and res.num_residuals == 500
     assert res.params.c_on == pytest.approx(TRUE.c_on, rel=0.05)
 

@@ -12,16 +12,16 @@ import pytest
 import rerun as rr
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from necviz import schema as S
-from necviz.core.control import CONTROLLERS, CameraLimits, NECController, make_controller
-from necviz.core.errors import ParameterError
-from necviz.drivers.replay import Recorder, open_recording
-from necviz.pipeline import Lane, Pipeline, RecorderObserver
-from necviz.sink import RerunSink
-from necviz.tuning import TuningConsole, TuningFile, execute, parse
 from rrd_read import Rrd
 from test_pipeline import SENSOR, ListSource, nec_lane, stream
+
+from necviz.core.control import CONTROLLERS, CameraLimits, NECController, make_controller
+from necviz.core.errors import ParameterError
+from necviz.dashboard import schema as S
+from necviz.dashboard.sink import RerunSink
+from necviz.dashboard.tuning import TuningConsole, TuningFile, execute, parse
+from necviz.drivers.recordings import Recorder, open_recording
+from necviz.pipeline import Lane, Pipeline, RecorderObserver
 
 
 class TwoCameras(ListSource):
@@ -67,17 +67,20 @@ def test_goal_dead_band_and_thresholds_change_the_controller():
     assert "goal=100" in apply(pipe, "status") and "target_msv=3" in apply(pipe, "status")
 
 
-@pytest.mark.parametrize("line, fragment", [
-    ("goal = 300", "goal = 300 is out of range"),
-    ("goal = 252", "valid range"),
-    ("full_band = 0.01", "dead_band < full_band"),
-    ("exposure_min = -5", "exposure_min"),
-    ("exposure_min = 9000", r"exposure_max_us \(8000"),
-    ("c = 9", "c = 9 is out of range"),
-    ("nope.goal = 100", "no lane"),
-    ("navid.goal = 100", "no lane has a parameter 'goal'"),
-    ("drive navid", "every controller drives its own camera"),
-])
+@pytest.mark.parametrize(
+    "line, fragment",
+    [
+        ("goal = 300", "goal = 300 is out of range"),
+        ("goal = 252", "valid range"),
+        ("full_band = 0.01", "dead_band < full_band"),
+        ("exposure_min = -5", "exposure_min"),
+        ("exposure_min = 9000", r"exposure_max_us \(8000"),
+        ("c = 9", "c = 9 is out of range"),
+        ("nope.goal = 100", "no lane"),
+        ("navid.goal = 100", "no lane has a parameter 'goal'"),
+        ("drive navid", "every controller drives its own camera"),
+    ],
+)
 def test_bad_values_are_refused_with_a_reason_and_change_nothing(line, fragment):
     pipe = two_lane_pipe()
     before = {n: (ln.controller.params(), ln.controller.limits, ln.estimator.params) for n, ln in pipe.lanes.items()}
@@ -143,8 +146,9 @@ def test_changes_are_applied_between_packets_and_logged(tmp_path):
     rec.save(str(tmp_path / "t.rrd"))
     sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, lossless=True)
     recorder = Recorder(tmp_path / "t.necrec", sensor=SENSOR, properties={})
-    pipe = Pipeline(ListSource(stream(n_frames=6)), [nec_lane()],
-                    observers=[sink, RecorderObserver(recorder, "camera")])
+    pipe = Pipeline(
+        ListSource(stream(n_frames=6)), [nec_lane()], observers=[sink, RecorderObserver(recorder, "camera")]
+    )
     ok, bad = pipe.tune("goal", 90.0), pipe.tune("goal", 999.0)
     pipe.run().finish()
     rr.disconnect(rec)

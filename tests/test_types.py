@@ -53,8 +53,12 @@ def test_validate_rejects_wrong_dtype():
         validate_events([1, 2, 3])
 
 
-@given(st.lists(st.tuples(st.integers(0, 10**12), st.integers(0, 345), st.integers(0, 259), st.sampled_from([-1, 1])),
-                max_size=50))
+@given(
+    st.lists(
+        st.tuples(st.integers(0, 10**12), st.integers(0, 345), st.integers(0, 259), st.sampled_from([-1, 1])),
+        max_size=50,
+    )
+)
 def test_sorted_on_sensor_events_always_validate(rows):
     rows.sort(key=lambda r: r[0])
     t, x, y, p = (list(c) for c in zip(*rows)) if rows else ([], [], [], [])

@@ -12,10 +12,10 @@ import json
 
 import pytest
 import rerun.blueprint as rrb
-
 import viewer_check as vc
 from conftest import SHARED_DATA
-from necviz.cli import main
+
+from necviz.commands.cli import main
 from necviz.layouts import make_blueprint
 
 SAMPLE = SHARED_DATA / "davis346_sample.aedat4"
@@ -43,8 +43,7 @@ def recording(tmp_path_factory):
         assert main(["replay", str(SAMPLE), "--save", str(rrd)]) == 0
         layout, lanes = "inspect", ["camera"]
     else:
-        assert main(["demo", "--duration", "0.3", "--controllers", "nec,navid", "--save", str(rrd),
-                     "--no-prompt"]) == 0
+        assert main(["demo", "--duration", "0.3", "--controllers", "nec,navid", "--save", str(rrd), "--no-prompt"]) == 0
         layout, lanes = "compare", ["nec", "navid"]
     expected = _views(make_blueprint(layout, lanes, 346, 260).root_container)
     assert expected, "the layout has no views"
@@ -77,8 +76,9 @@ def test_blueprint_loads_in_native_viewer(recording, tmp_path):
 def test_web_viewer_shows_recording_in_headless_chromium(recording, tmp_path):
     rrd, layout, expected = recording
     try:
-        ev = vc.browser_screenshot(rrd, tmp_path / "browser.png", timeout_s=85,
-                                   expected_views=[name for name, _ in expected])
+        ev = vc.browser_screenshot(
+            rrd, tmp_path / "browser.png", timeout_s=85, expected_views=[name for name, _ in expected]
+        )
     except vc.ViewerUnavailable as e:
         pytest.skip(f"web viewer check cannot run here: {e}")
     # browser_screenshot raises unless all of this holds; spelled out here as the test's claim
@@ -96,8 +96,23 @@ def test_compare_and_demo_recordings_open_with_the_compare_layout(command, tmp_p
     """One writer: a comparison's recording and a demo's open in the same blueprint, with no view errors."""
     rrd = tmp_path / f"{command}.rrd"
     extra = ["--no-sift"] if command == "compare" else ["--no-prompt"]
-    assert main([command, "--scenario", "indoor_outdoor", "--duration", "0.2", "--controllers", "nec,navid",
-                 "--save", str(rrd), *extra]) == 0
+    assert (
+        main(
+            [
+                command,
+                "--scenario",
+                "indoor_outdoor",
+                "--duration",
+                "0.2",
+                "--controllers",
+                "nec,navid",
+                "--save",
+                str(rrd),
+                *extra,
+            ]
+        )
+        == 0
+    )
     expected = _views(make_blueprint("compare", ["nec", "navid"], 346, 260).root_container)
     try:
         ev = vc.native_screenshot(rrd, tmp_path / "native.png", frame=1, timeout_s=60)

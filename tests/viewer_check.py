@@ -116,8 +116,11 @@ def recording_ids(rrd_path: str | Path) -> dict:
     recs = r.recordings()
     if not recs:
         raise ViewerCheckError(f"{rrd_path}: no recording store in the file")
-    return {"application_id": recs[0].application_id, "recording_id": recs[0].recording_id,
-            "has_blueprint": bool(r.blueprints())}
+    return {
+        "application_id": recs[0].application_id,
+        "recording_id": recs[0].recording_id,
+        "has_blueprint": bool(r.blueprints()),
+    }
 
 
 def image_stats(png: bytes) -> dict:
@@ -132,7 +135,8 @@ def image_stats(png: bytes) -> dict:
     values, counts = np.unique(packed, return_counts=True)
     grey = flat[(flat[:, 0] == flat[:, 1]) & (flat[:, 1] == flat[:, 2])][:, 0]
     return {
-        "width": int(img.shape[1]), "height": int(img.shape[0]),
+        "width": int(img.shape[1]),
+        "height": int(img.shape[0]),
         "distinct_colours": int(values.size),
         "dominant_fraction": round(float(counts.max() / packed.size), 4),
         "std": round(float(img.std()), 2),
@@ -145,15 +149,22 @@ def looks_drawn(stats: dict) -> bool:
 
 
 def _view_dict(v) -> dict:
-    return {"view_id": str(v.view_id), "name": v.name, "class": v.view_class, "origin": v.origin,
-            "visible": bool(v.visible), "reports": [str(r) for r in (getattr(v, "reports", None) or [])]}
+    return {
+        "view_id": str(v.view_id),
+        "name": v.name,
+        "class": v.view_class,
+        "origin": v.origin,
+        "visible": bool(v.visible),
+        "reports": [str(r) for r in (getattr(v, "reports", None) or [])],
+    }
 
 
 # ---------------------------------------------------------------- native viewer
 
 
-def native_screenshot(rrd_path, png_path, frame: int | None = None, timeout_s: float = 60,
-                      timeline: str = "frame", max_size: int = 1600) -> dict:
+def native_screenshot(
+    rrd_path, png_path, frame: int | None = None, timeout_s: float = 60, timeline: str = "frame", max_size: int = 1600
+) -> dict:
     """Open ``rrd_path`` in a headless native viewer, screenshot it to ``png_path``, return evidence.
 
     Evidence: ``loading_finished``, ``active_recording``, ``views`` (name, class, origin, ``reports``: the
@@ -170,8 +181,10 @@ def native_screenshot(rrd_path, png_path, frame: int | None = None, timeout_s: f
     exe = rerun_executable()
     icds = vulkan_icds()
     if not icds:
-        raise ViewerUnavailable("no Vulkan driver for the headless native viewer "
-                                "(apt-get install mesa-vulkan-drivers gives the lavapipe CPU driver)")
+        raise ViewerUnavailable(
+            "no Vulkan driver for the headless native viewer "
+            "(apt-get install mesa-vulkan-drivers gives the lavapipe CPU driver)"
+        )
     t0 = time.monotonic()
     deadline = t0 + timeout_s
     ev: dict = {"rrd": str(rrd_path), "png": str(png_path), "vulkan_icds": icds, "frame": frame}
@@ -179,11 +192,19 @@ def native_screenshot(rrd_path, png_path, frame: int | None = None, timeout_s: f
     old = os.environ.get("WGPU_BACKEND")
     os.environ["WGPU_BACKEND"] = "vulkan"
     try:
-        viewer = ViewerClient.spawn(headless=True, port=free_port(), hide_welcome_screen=True,
-                                    memory_limit="1GB", server_memory_limit="256MiB", executable_path=exe)
+        viewer = ViewerClient.spawn(
+            headless=True,
+            port=free_port(),
+            hide_welcome_screen=True,
+            memory_limit="1GB",
+            server_memory_limit="256MiB",
+            executable_path=exe,
+        )
     except ConnectionError as e:  # the viewer panicked at start: typically no usable Vulkan adapter
-        raise ViewerUnavailable(f"headless native viewer did not start ({e}; its stderr says why, usually "
-                                f"'No graphics adapter was found'); Vulkan drivers seen: {icds}") from e
+        raise ViewerUnavailable(
+            f"headless native viewer did not start ({e}; its stderr says why, usually "
+            f"'No graphics adapter was found'); Vulkan drivers seen: {icds}"
+        ) from e
     finally:
         if old is None:
             os.environ.pop("WGPU_BACKEND", None)
@@ -194,8 +215,9 @@ def native_screenshot(rrd_path, png_path, frame: int | None = None, timeout_s: f
             try:
                 v.open(str(rrd_path))
             except ConnectionError as e:  # the viewer died at start: rendering context failed
-                raise ViewerUnavailable(f"headless native viewer did not start ({e}); "
-                                        f"Vulkan drivers seen: {icds}") from e
+                raise ViewerUnavailable(
+                    f"headless native viewer did not start ({e}); Vulkan drivers seen: {icds}"
+                ) from e
             st = v.get_state()
             while (st.loading or not st.active_recording) and time.monotonic() < deadline:
                 time.sleep(0.2)
@@ -203,8 +225,10 @@ def native_screenshot(rrd_path, png_path, frame: int | None = None, timeout_s: f
             ev["loading_finished"] = not st.loading and bool(st.active_recording)
             ev["load_s"] = round(time.monotonic() - t0, 2)
             if not ev["loading_finished"]:
-                raise ViewerCheckError(f"native viewer: {rrd_path.name} still loading after {timeout_s} s "
-                                       f"(loading={st.loading}, active={st.active_recording!r})")
+                raise ViewerCheckError(
+                    f"native viewer: {rrd_path.name} still loading after {timeout_s} s "
+                    f"(loading={st.loading}, active={st.active_recording!r})"
+                )
             if frame is not None:
                 v.set_time(timeline, sequence=int(frame), play_state="paused")
             # The first paint after loading can come before the views have their data: shoot until
@@ -253,7 +277,7 @@ class _CdpPipe:
     messages are JSON terminated by a NUL byte). Events are kept only if ``keep_event(msg)`` says so."""
 
     def __init__(self, exe: str, args: list[str], log_path: str):
-        to_r, to_w = os.pipe()      # we write, Chromium reads on fd 3
+        to_r, to_w = os.pipe()  # we write, Chromium reads on fd 3
         from_r, from_w = os.pipe()  # Chromium writes on fd 4, we read
         # copies numbered >= 10 so the dup2 onto 3 and 4 cannot clobber one another
         hi_in = fcntl.fcntl(to_r, fcntl.F_DUPFD_CLOEXEC, 10)
@@ -266,9 +290,15 @@ class _CdpPipe:
         self._log = open(log_path, "wb")
         try:
             # close_fds=False: fds 3 and 4 must survive; every other Python fd is close-on-exec anyway
-            self.proc = subprocess.Popen([exe, "--remote-debugging-pipe", *args], stdin=subprocess.DEVNULL,
-                                         stdout=self._log, stderr=subprocess.STDOUT, close_fds=False,
-                                         preexec_fn=_child_fds, start_new_session=True)
+            self.proc = subprocess.Popen(
+                [exe, "--remote-debugging-pipe", *args],
+                stdin=subprocess.DEVNULL,
+                stdout=self._log,
+                stderr=subprocess.STDOUT,
+                close_fds=False,
+                preexec_fn=_child_fds,
+                start_new_session=True,
+            )
         finally:
             for fd in (to_r, from_w, hi_in, hi_out):
                 os.close(fd)
@@ -292,15 +322,16 @@ class _CdpPipe:
         raw, self._buf = self._buf.split(b"\0", 1)
         return json.loads(raw)
 
-    def call(self, method: str, params: dict | None = None, session: str | None = None,
-             timeout_s: float = 30.0) -> dict:
+    def call(
+        self, method: str, params: dict | None = None, session: str | None = None, timeout_s: float = 30.0
+    ) -> dict:
         self._id += 1
         msg = {"id": self._id, "method": method, "params": params or {}}
         if session:
             msg["sessionId"] = session
         data = json.dumps(msg).encode() + b"\0"
         while data:
-            data = data[os.write(self._w, data):]
+            data = data[os.write(self._w, data) :]
         deadline = time.monotonic() + timeout_s
         while True:
             reply = self._message(deadline)
@@ -330,11 +361,17 @@ class _CdpPipe:
 
 
 def _evaluate(cdp: _CdpPipe, session: str, expression: str, timeout_s: float = 30.0):
-    r = cdp.call("Runtime.evaluate", {"expression": expression, "returnByValue": True, "awaitPromise": True},
-                 session=session, timeout_s=timeout_s)
+    r = cdp.call(
+        "Runtime.evaluate",
+        {"expression": expression, "returnByValue": True, "awaitPromise": True},
+        session=session,
+        timeout_s=timeout_s,
+    )
     if "exceptionDetails" in r:
-        raise ViewerCheckError(f"page script failed: {r['exceptionDetails'].get('text')} "
-                               f"{r['exceptionDetails'].get('exception', {}).get('description', '')}")
+        raise ViewerCheckError(
+            f"page script failed: {r['exceptionDetails'].get('text')} "
+            f"{r['exceptionDetails'].get('exception', {}).get('description', '')}"
+        )
     return r.get("result", {}).get("value")
 
 
@@ -362,14 +399,14 @@ def _pb_fields(buf: bytes):
         if wire == 0:
             yield field, wire, varint()
         elif wire == 1:
-            yield field, wire, buf[i:i + 8]
+            yield field, wire, buf[i : i + 8]
             i += 8
         elif wire == 2:
             ln = varint()
-            yield field, wire, buf[i:i + ln]
+            yield field, wire, buf[i : i + ln]
             i += ln
         elif wire == 5:
-            yield field, wire, buf[i:i + 4]
+            yield field, wire, buf[i : i + 4]
             i += 4
         else:
             raise ValueError(f"unsupported protobuf wire type {wire}")
@@ -442,9 +479,16 @@ def _wait_http(url: str, proc: subprocess.Popen, deadline: float) -> None:
     raise ViewerCheckError(f"web viewer did not answer at {url}")
 
 
-def browser_screenshot(rrd_path, png_path, timeout_s: float = 120, width: int = 1600, height: int = 900,
-                       expected_views: list[str] | None = None, theme: str | None = None,
-                       console: bool = False) -> dict:
+def browser_screenshot(
+    rrd_path,
+    png_path,
+    timeout_s: float = 120,
+    width: int = 1600,
+    height: int = 900,
+    expected_views: list[str] | None = None,
+    theme: str | None = None,
+    console: bool = False,
+) -> dict:
     """Serve ``rrd_path`` to the web viewer on localhost, screenshot it in headless Chromium, return evidence.
 
     Passes only if the page shows the recording, not the loading screen: the app started and did not
@@ -476,29 +520,63 @@ def browser_screenshot(rrd_path, png_path, timeout_s: float = 120, width: int = 
     ev: dict = {"rrd": str(rrd_path), "png": str(png_path), "chromium": chromium, "url": page_url, **ids}
     work = Path(tempfile.mkdtemp(prefix="necviz-browser-"))
     server = subprocess.Popen(
-        [rerun_executable(), "--serve-web", str(rrd_path), "--bind", "127.0.0.1", "--port", str(grpc_port),
-         "--web-viewer-port", str(web_port), "--server-memory-limit", "256MiB"],
-        stdin=subprocess.DEVNULL, stdout=open(work / "rerun-serve.log", "wb"), stderr=subprocess.STDOUT,
-        start_new_session=True)
+        [
+            rerun_executable(),
+            "--serve-web",
+            str(rrd_path),
+            "--bind",
+            "127.0.0.1",
+            "--port",
+            str(grpc_port),
+            "--web-viewer-port",
+            str(web_port),
+            "--server-memory-limit",
+            "256MiB",
+        ],
+        stdin=subprocess.DEVNULL,
+        stdout=open(work / "rerun-serve.log", "wb"),
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
     cdp = None
     try:
         _wait_http(f"http://127.0.0.1:{web_port}/", server, min(deadline, time.monotonic() + 30))
         ev["served_s"] = round(time.monotonic() - t0, 2)
-        cdp = _CdpPipe(chromium, [
-            "--headless=new", "--no-sandbox", "--disable-gpu", f"--user-data-dir={work / 'profile'}",
-            f"--window-size={width},{height}", "--no-first-run", "--no-default-browser-check",
-            "--disable-dev-shm-usage", "--disable-extensions", "--disable-background-networking",
-            "--disable-component-update", "--disable-sync", "--hide-scrollbars", "--mute-audio", "about:blank",
-        ], str(work / "chromium.log"))
+        cdp = _CdpPipe(
+            chromium,
+            [
+                "--headless=new",
+                "--no-sandbox",
+                "--disable-gpu",
+                f"--user-data-dir={work / 'profile'}",
+                f"--window-size={width},{height}",
+                "--no-first-run",
+                "--no-default-browser-check",
+                "--disable-dev-shm-usage",
+                "--disable-extensions",
+                "--disable-background-networking",
+                "--disable-component-update",
+                "--disable-sync",
+                "--hide-scrollbars",
+                "--mute-audio",
+                "about:blank",
+            ],
+            str(work / "chromium.log"),
+        )
         ev["browser"] = cdp.call("Browser.getVersion").get("product")
         target = cdp.call("Target.createTarget", {"url": "about:blank"})["targetId"]
         session = cdp.call("Target.attachToTarget", {"targetId": target, "flatten": True})["sessionId"]
-        cdp.call("Emulation.setDeviceMetricsOverride",
-                 {"width": width, "height": height, "deviceScaleFactor": 1, "mobile": False}, session=session)
+        cdp.call(
+            "Emulation.setDeviceMetricsOverride",
+            {"width": width, "height": height, "deviceScaleFactor": 1, "mobile": False},
+            session=session,
+        )
         # the viewer's console, minus its flood of debug lines (shader compilation)
         if console:
-            cdp.keep_event = lambda m: (m["method"] == "Runtime.exceptionThrown" or (
-                m["method"] == "Runtime.consoleAPICalled" and m["params"].get("type") != "debug"))
+            cdp.keep_event = lambda m: (
+                m["method"] == "Runtime.exceptionThrown"
+                or (m["method"] == "Runtime.consoleAPICalled" and m["params"].get("type") != "debug")
+            )
             cdp.call("Runtime.enable", session=session)
         cdp.call("Page.navigate", {"url": page_url}, session=session)
 
@@ -526,8 +604,12 @@ def browser_screenshot(rrd_path, png_path, timeout_s: float = 120, width: int = 
         png, prev, shots, diffs = b"", None, 0, []
         stable = False
         while time.monotonic() < deadline:
-            shot = cdp.call("Page.captureScreenshot", {"format": "png"}, session=session,
-                            timeout_s=max(5.0, deadline - time.monotonic()))
+            shot = cdp.call(
+                "Page.captureScreenshot",
+                {"format": "png"},
+                session=session,
+                timeout_s=max(5.0, deadline - time.monotonic()),
+            )
             png = base64.b64decode(shot["data"])
             shots += 1
             ev.setdefault("shot_times_s", []).append(round(time.monotonic() - t0, 2))
@@ -568,8 +650,11 @@ def browser_screenshot(rrd_path, png_path, timeout_s: float = 120, width: int = 
         shutil.rmtree(work, ignore_errors=True)
     else:
         ev["logs"] = str(work)  # rerun-serve.log, chromium.log and the browser profile, kept for a look
-        raise ViewerCheckError("web viewer did not show the recording: " + "; ".join(problems)
-                               + f"\nevidence: {json.dumps(ev, default=str)[:4000]}")
+        raise ViewerCheckError(
+            "web viewer did not show the recording: "
+            + "; ".join(problems)
+            + f"\nevidence: {json.dumps(ev, default=str)[:4000]}"
+        )
     return ev
 
 

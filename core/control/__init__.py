@@ -4,17 +4,17 @@ from __future__ import annotations
 
 import inspect
 
-from ..crf import CameraResponse, default_davis346
-from ..errors import ParameterError
-from ..event_model import TediParams
-from ..sensor import SensorGeometry
-from .base import CameraLimits, Controller, ExposureCommand
-from .begin import BeginController
-from .builtin import BuiltinController
-from .fixed import FixedController
-from .navid import NavidController
-from .nec import ZONE_GRID, NECController, error_weight
-from .shim import ShimController
+from necviz.core.control.begin import BeginController
+from necviz.core.control.builtin import BuiltinController
+from necviz.core.control.controller import CameraLimits, Controller, ExposureCommand
+from necviz.core.control.fixed import FixedController
+from necviz.core.control.navid import NavidController
+from necviz.core.control.nec import ZONE_GRID, NECController, error_weight
+from necviz.core.control.shim import ShimController
+from necviz.core.crf import CameraResponse, default_davis346
+from necviz.core.errors import ParameterError
+from necviz.core.event_model import TediParams
+from necviz.core.sensor import SensorGeometry
 
 #: name -> controller class
 CONTROLLERS: dict[str, type[Controller]] = {
@@ -28,9 +28,17 @@ CONTROLLERS: dict[str, type[Controller]] = {
 }
 
 
-def make_controller(name: str, *, sensor: SensorGeometry, limits: CameraLimits, exposure_us: float = 5_000.0,
-                    gain: float = 1.0, crf: CameraResponse | None = None, tedi: TediParams | None = None,
-                    **params) -> Controller:
+def make_controller(
+    name: str,
+    *,
+    sensor: SensorGeometry,
+    limits: CameraLimits,
+    exposure_us: float = 5_000.0,
+    gain: float = 1.0,
+    crf: CameraResponse | None = None,
+    tedi: TediParams | None = None,
+    **params,
+) -> Controller:
     """Build controller ``name`` with its documented defaults (``params`` override them).
 
     NEC gets a whole-sensor P-TEDI estimator with ``tedi`` (thresholds and compensation), or a
@@ -46,7 +54,7 @@ def make_controller(name: str, *, sensor: SensorGeometry, limits: CameraLimits, 
     if CONTROLLERS[name] is NECController:
         from dataclasses import replace
 
-        from ..ptedi import PeripheralEstimator
+        from necviz.core.ptedi import PeripheralEstimator
 
         tedi = tedi or TediParams()
         if name == "nec-raw":
@@ -73,6 +81,17 @@ def make_controller(name: str, *, sensor: SensorGeometry, limits: CameraLimits, 
         raise ParameterError(f"controller {name!r}: {e}") from None
 
 
-__all__ = ["CONTROLLERS", "CameraLimits", "Controller", "ExposureCommand", "NECController", "error_weight",
-           "make_controller", "NavidController", "ShimController", "BeginController", "BuiltinController",
-           "FixedController"]
+__all__ = [
+    "CONTROLLERS",
+    "CameraLimits",
+    "Controller",
+    "ExposureCommand",
+    "NECController",
+    "error_weight",
+    "make_controller",
+    "NavidController",
+    "ShimController",
+    "BeginController",
+    "BuiltinController",
+    "FixedController",
+]

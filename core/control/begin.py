@@ -56,12 +56,11 @@ from collections import deque
 import cv2
 import numpy as np
 
-from ..checks import check_number as _num
-from ..crf import CameraResponse, default_davis346
-from ..errors import ParameterError
-from ..frames import Frame
-from .base import CameraLimits, Controller, ExposureCommand
-from .base import Tunable
+from necviz.core.checks import check_number as _num
+from necviz.core.control.controller import CameraLimits, Controller, ExposureCommand, Tunable
+from necviz.core.crf import CameraResponse, default_davis346
+from necviz.core.errors import ParameterError
+from necviz.core.frames import Frame
 
 #: The published ΔEV corrections (larger EV = darker).
 DELTA_EVS = np.array([-2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 2.0])
@@ -99,8 +98,9 @@ def gradient_score(image_u8: np.ndarray, q: np.ndarray) -> float:
     return float(hist @ q) / 1e5
 
 
-def newton_optimum(coef, x0: float = 0.0, max_iter: int = 10, tol: float = 1e-5,
-                   bound: float = EV_RANGE) -> float | None:
+def newton_optimum(
+    coef, x0: float = 0.0, max_iter: int = 10, tol: float = 1e-5, bound: float = EV_RANGE
+) -> float | None:
     """Newton on ``p'(x) = 0`` from ``x0`` for polynomial ``coef`` (np.polyfit order).
 
     Returns ``None`` if ``p''(x0) >= 0`` (not a maximum), Newton does not converge within

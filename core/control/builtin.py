@@ -39,8 +39,8 @@ import math
 
 import numpy as np
 
-from ..frames import Frame
-from .base import CameraLimits, Controller, ExposureCommand
+from necviz.core.control.controller import CameraLimits, Controller, ExposureCommand
+from necviz.core.frames import Frame
 
 HISTOGRAM_PIXELS = 256
 HISTOGRAM_MSV = 5

@@ -7,9 +7,9 @@ the user tunes ``exposure`` or ``gain`` while it runs: the new setting is sent w
 
 from __future__ import annotations
 
-from ..errors import ParameterError
-from ..frames import Frame
-from .base import CameraLimits, Controller, ExposureCommand, Tunable
+from necviz.core.control.controller import CameraLimits, Controller, ExposureCommand, Tunable
+from necviz.core.errors import ParameterError
+from necviz.core.frames import Frame
 
 
 class FixedController(Controller):
@@ -47,8 +47,10 @@ class FixedController(Controller):
     def _check_params(self, params: dict[str, float]) -> None:
         lim = self.limits
         if not lim.exposure_min_us <= params["exposure"] <= lim.exposure_max_us:
-            raise ParameterError(f"exposure = {params['exposure']:g} µs is outside the camera limits "
-                                 f"{lim.exposure_min_us:g}..{lim.exposure_max_us:g} µs")
+            raise ParameterError(
+                f"exposure = {params['exposure']:g} µs is outside the camera limits "
+                f"{lim.exposure_min_us:g}..{lim.exposure_max_us:g} µs"
+            )
         if params["gain"] > lim.gain_max:
             raise ParameterError(f"gain = {params['gain']:g} is above the camera's gain_max {lim.gain_max:g}")
 

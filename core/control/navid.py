@@ -54,11 +54,10 @@ import math
 
 import numpy as np
 
-from ..checks import check_number as _num
-from ..errors import ParameterError
-from ..frames import Frame
-from .base import CameraLimits, Controller, ExposureCommand
-from .base import Tunable
+from necviz.core.checks import check_number as _num
+from necviz.core.control.controller import CameraLimits, Controller, ExposureCommand, Tunable
+from necviz.core.errors import ParameterError
+from necviz.core.frames import Frame
 
 N_REGIONS = 5
 TARGET_MSV = 2.5
@@ -102,7 +101,15 @@ class NavidController(Controller):
 
     name = "navid"
     TUNABLE = (
-        Tunable("target_msv", "MSV", "mean sample value the histogram is driven to (1..5, mid-grey 2.5)", 1.0, 5.0, True, True),
+        Tunable(
+            "target_msv",
+            "MSV",
+            "mean sample value the histogram is driven to (1..5, mid-grey 2.5)",
+            1.0,
+            5.0,
+            True,
+            True,
+        ),
         Tunable("dead_band", "MSV", "no correction while |MSV error| is below this", 0.0, 1.0, hi_open=True),
         Tunable("k_exposure", "1", "proportional gain of the exposure loop", 0.0, lo_open=True),
         Tunable("k_gain", "1", "proportional gain of the gain loop", 0.0, lo_open=True),

@@ -73,13 +73,13 @@ import math
 import numba as nb
 import numpy as np
 
-from ..checks import check_number
-from ..crf import US_PER_S
-from ..errors import ParameterError
-from ..frames import Frame
-from ..ptedi import FrameEstimate, PeripheralEstimator
-from ..ptedi_kernels import digit_histograms
-from .base import CameraLimits, Controller, ExposureCommand, Tunable
+from necviz.core.checks import check_number
+from necviz.core.control.controller import CameraLimits, Controller, ExposureCommand, Tunable
+from necviz.core.crf import US_PER_S
+from necviz.core.errors import ParameterError
+from necviz.core.frames import Frame
+from necviz.core.ptedi import FrameEstimate, PeripheralEstimator
+from necviz.core.ptedi_kernels import digit_histograms
 
 #: metering statistics (module docstring)
 METERING = ("paper", "median", "percentile", "zones")
@@ -237,17 +237,43 @@ class NECController(Controller):
 
     name = "nec"
     TUNABLE = (
-        Tunable("dead_band", "ln", "f_w is 0 while |ln(H_opt/H_i)| is at most this (no flicker from tiny corrections)", 0.0),
-        Tunable("full_band", "ln", "f_w is 1 from this |ln(H_opt/H_i)| on (one-shot jumps on big changes)", 0.0, lo_open=True),
+        Tunable(
+            "dead_band", "ln", "f_w is 0 while |ln(H_opt/H_i)| is at most this (no flicker from tiny corrections)", 0.0
+        ),
+        Tunable(
+            "full_band",
+            "ln",
+            "f_w is 1 from this |ln(H_opt/H_i)| on (one-shot jumps on big changes)",
+            0.0,
+            lo_open=True,
+        ),
         Tunable("goal", "DN", "goal intensity I_opt: the digit the metered statistic aims at", 0.0, 255.0, True, True),
         Tunable("min_command_change", "ln", "a new command must differ from the last by more than this", 0.0),
-        Tunable("edge_margin", "ln", "escape rule: aim this far inside the valid range's edge when the prediction "
-                "is only a one-sided bound", 0.0),
+        Tunable(
+            "edge_margin",
+            "ln",
+            "escape rule: aim this far inside the valid range's edge when the prediction is only a one-sided bound",
+            0.0,
+        ),
         Tunable("percentile", "fraction", "percentile metering: the highlight quantile p", 0.5, 1.0, True, True),
-        Tunable("highlight", "DN", "percentile metering: the p-quantile is kept at or below this digit", 0.0, 255.0,
-                True, True),
-        Tunable("floor", "DN", "percentile metering: highlight protection never puts the median below this digit",
-                0.0, 255.0, True, True),
+        Tunable(
+            "highlight",
+            "DN",
+            "percentile metering: the p-quantile is kept at or below this digit",
+            0.0,
+            255.0,
+            True,
+            True,
+        ),
+        Tunable(
+            "floor",
+            "DN",
+            "percentile metering: highlight protection never puts the median below this digit",
+            0.0,
+            255.0,
+            True,
+            True,
+        ),
     )
 
     def __init__(
@@ -272,8 +298,12 @@ class NECController(Controller):
         super().__init__(limits, exposure_us, gain)
         if not isinstance(estimator, PeripheralEstimator):
             raise ParameterError("NECController needs a PeripheralEstimator")
-        for label, v in (("dead_band", dead_band), ("full_band", full_band), ("min_command_change", min_command_change),
-                         ("edge_margin", edge_margin)):
+        for label, v in (
+            ("dead_band", dead_band),
+            ("full_band", full_band),
+            ("min_command_change", min_command_change),
+            ("edge_margin", edge_margin),
+        ):
             check_number(label, v, 0.0)
         if full_band <= dead_band:
             raise ParameterError(f"full_band ({full_band}) must exceed dead_band ({dead_band})")
@@ -282,7 +312,9 @@ class NECController(Controller):
         if goal_mode not in GOAL_MODES:
             raise ParameterError(f"goal_mode must be one of {', '.join(GOAL_MODES)}, got {goal_mode!r}")
         if metering == "zones" and estimator.num_zones < 2:
-            raise ParameterError("metering='zones' needs a P-TEDI estimator with a zone grid (make_controller builds one)")
+            raise ParameterError(
+                "metering='zones' needs a P-TEDI estimator with a zone grid (make_controller builds one)"
+            )
         if not isinstance(escape, bool):
             raise ParameterError(f"escape must be true or false, got {escape!r}")
         if bus_event_rate is not None:
@@ -328,8 +360,10 @@ class NECController(Controller):
         for label, v in (("highlight", highlight), ("floor", floor)):
             check_number(label, v, crf.valid_min, crf.valid_max, lo_open=True, hi_open=True)
         if not floor < crf.intensity(self.goal_log_exposure) < highlight:
-            raise ParameterError(f"percentile metering needs floor < goal < highlight, got {floor:g}, "
-                                 f"{crf.intensity(self.goal_log_exposure):.1f}, {highlight:g} DN")
+            raise ParameterError(
+                f"percentile metering needs floor < goal < highlight, got {floor:g}, "
+                f"{crf.intensity(self.goal_log_exposure):.1f}, {highlight:g} DN"
+            )
 
     # -- tunable parameters --------------------------------------------------------------------
     def _get_param(self, name: str) -> float:
@@ -348,15 +382,19 @@ class NECController(Controller):
             raise ParameterError(f"need dead_band < full_band, got {params['dead_band']:g} and {params['full_band']:g}")
         crf = self.estimator.crf
         if not crf.valid_min < params["goal"] < crf.valid_max:
-            raise ParameterError(f"goal must lie inside the valid range {crf.valid_min}..{crf.valid_max} DN, "
-                                 f"got {params['goal']:g}")
+            raise ParameterError(
+                f"goal must lie inside the valid range {crf.valid_min}..{crf.valid_max} DN, got {params['goal']:g}"
+            )
         if self.metering == "percentile" and not params["floor"] < params["goal"] < params["highlight"]:
-            raise ParameterError(f"percentile metering needs floor < goal < highlight, got {params['floor']:g}, "
-                                 f"{params['goal']:g}, {params['highlight']:g} DN")
+            raise ParameterError(
+                f"percentile metering needs floor < goal < highlight, got {params['floor']:g}, "
+                f"{params['goal']:g}, {params['highlight']:g} DN"
+            )
 
     # -- the control law ----------------------------------------------------------------------
-    def command_for(self, log_irradiance: float, t_us: int, goal_log_exposure: float | None = None
-                    ) -> ExposureCommand | None:
+    def command_for(
+        self, log_irradiance: float, t_us: int, goal_log_exposure: float | None = None
+    ) -> ExposureCommand | None:
         """Eq. 2-4 for a metered log irradiance ``M``; ``None`` inside the dead band.
 
         ``goal_log_exposure`` replaces ``g*`` (the escape rule's aim). Inside the dead band of the
@@ -378,8 +416,10 @@ class NECController(Controller):
             if last is None:
                 return None
             h_last = last.exposure_us * last.gain
-            if (abs(math.log(h_last / h_i)) <= self.min_command_change
-                    or abs(math.log(h_opt / h_last)) <= self.dead_band):
+            if (
+                abs(math.log(h_last / h_i)) <= self.min_command_change
+                or abs(math.log(h_opt / h_last)) <= self.dead_band
+            ):
                 return None  # nothing outstanding, or what is outstanding is as good as H_i
             return ExposureCommand(self.exposure_us, self.gain, int(t_us), self.name)
         h_set = h_i + w * (h_opt - h_i)
@@ -388,7 +428,10 @@ class NECController(Controller):
         exposure = h_set / gain
         exposure, gain = lim.clamp(exposure, gain)  # a capped gain leaves exposure at T_max (under-exposed)
         last = self.last_command
-        if last is not None and abs(math.log(last.exposure_us * last.gain / (exposure * gain))) < self.min_command_change:
+        if (
+            last is not None
+            and abs(math.log(last.exposure_us * last.gain / (exposure * gain))) < self.min_command_change
+        ):
             return None
         return ExposureCommand(exposure, gain, int(t_us), self.name)
 
@@ -427,8 +470,11 @@ class NECController(Controller):
         goal = self.goal_log_exposure
         cap = med + (goal - crf.log_exposure(self.floor))
         m = np.minimum(np.maximum(med, qp - (crf.log_exposure(self.highlight) - goal)), cap)
-        side = np.where(s50 == 2, 2, np.where(s50 == 1, 1, np.where(s50 == -1, np.where(sp == 1, 2, -1),
-                                                                     np.where((sp == 1) & (m < cap), 1, 0))))
+        side = np.where(
+            s50 == 2,
+            2,
+            np.where(s50 == 1, 1, np.where(s50 == -1, np.where(sp == 1, 2, -1), np.where((sp == 1) & (m < cap), 1, 0))),
+        )
         return m, side.astype(np.int8)
 
     def _update_offsets(self, frame: Frame, fe: FrameEstimate) -> bool:
@@ -440,8 +486,11 @@ class NECController(Controller):
         cand = stat - log_tk - fe.log_e - start
         old = self._offset
         with np.errstate(invalid="ignore"):
-            new = np.where(~np.isfinite(old) | (side == 0), cand,
-                           np.where(side == 1, np.fmax(old, cand), np.where(side == -1, np.fmin(old, cand), old)))
+            new = np.where(
+                ~np.isfinite(old) | (side == 0),
+                cand,
+                np.where(side == 1, np.fmax(old, cand), np.where(side == -1, np.fmin(old, cand), old)),
+            )
         new = np.where(np.isfinite(cand), new, old)
         self._offset = new
         self._offset0 = float(new[0])
@@ -466,8 +515,10 @@ class NECController(Controller):
         span = t_last - self._win_t0
         if span < BUS_WINDOW_US:
             return
-        if self._win_n >= BUS_FRACTION * self.bus_event_rate * span / US_PER_S \
-                and abs(self._win_on) >= POLARITY_DOMINANCE * self._win_n:
+        if (
+            self._win_n >= BUS_FRACTION * self.bus_event_rate * span / US_PER_S
+            and abs(self._win_on) >= POLARITY_DOMINANCE * self._win_n
+        ):
             self._sat_t = t_last
             self._sat_dir = 1 if self._win_on > 0 else -1
             self.saturated_windows += 1
@@ -542,8 +593,11 @@ class NECController(Controller):
             determined = self._update_offsets(frame, fe)
         if self.escape:
             valid = float(np.dot(fe.valid_fraction, self.estimator.sizes)) / float(self.estimator.sizes.sum())
-            over = (float(np.dot(fe.over_fraction, self.estimator.sizes)) / float(self.estimator.sizes.sum())
-                    if fe.over_fraction is not None else 0.0)
+            over = (
+                float(np.dot(fe.over_fraction, self.estimator.sizes)) / float(self.estimator.sizes.sum())
+                if fe.over_fraction is not None
+                else 0.0
+            )
             under = 1.0 - valid - over
             self._frame_dir = 1 if over > 0.5 else (-1 if under > 0.5 else 0)
             if determined and self._frame_dir == 0:

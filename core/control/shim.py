@@ -49,11 +49,10 @@ import math
 import cv2
 import numpy as np
 
-from ..checks import check_number as _num
-from ..errors import ParameterError
-from ..frames import Frame
-from .base import CameraLimits, Controller, ExposureCommand
-from .base import Tunable
+from necviz.core.checks import check_number as _num
+from necviz.core.control.controller import CameraLimits, Controller, ExposureCommand, Tunable
+from necviz.core.errors import ParameterError
+from necviz.core.frames import Frame
 
 #: The published gamma set (Shim 2014/2018), convention I_γ = I^γ (γ < 1 brightens).
 GAMMAS = np.array([1 / 1.9, 1 / 1.5, 1 / 1.2, 1.0, 1.2, 1.5, 1.9])

@@ -8,14 +8,39 @@
 * :class:`DavisDevice`, :func:`find_devices`, :func:`describe`: low-level device access.
 """
 
-from .camera import DIGITAL_GAIN_MAX, DavisCamera, open_camera
-from .decoder import DavisDecoder, decode_words
-from .device import BulkReader, DavisDevice, DeviceInfo, describe, find_devices, open_device, usb_backend
-from .emulator import ControlRecord, EmulatedDavis346, Faults
-from .encoder import StreamEncoder, cds_pair
-from .errors import DeviceDisconnectedError, DeviceError, DeviceNotFoundError
+from necviz.drivers.davis.camera import DIGITAL_GAIN_MAX, DavisCamera, open_camera
+from necviz.drivers.davis.decoder import DavisDecoder
+from necviz.drivers.davis.device import (
+    BulkReader,
+    DavisDevice,
+    DeviceInfo,
+    describe,
+    find_devices,
+    open_device,
+    usb_backend,
+)
+from necviz.drivers.davis.device_errors import DeviceDisconnectedError, DeviceError, DeviceNotFoundError
+from necviz.drivers.davis.emulator import ControlRecord, EmulatedDavis346, Faults
+from necviz.drivers.davis.encoder import StreamEncoder, cds_pair
 
-__all__ = ["BulkReader", "ControlRecord", "DIGITAL_GAIN_MAX", "DavisCamera", "DavisDecoder", "DavisDevice",
-           "DeviceDisconnectedError", "DeviceError", "DeviceInfo", "DeviceNotFoundError", "EmulatedDavis346",
-           "Faults", "StreamEncoder", "cds_pair", "decode_words", "describe", "find_devices", "open_camera",
-           "open_device", "usb_backend"]
+__all__ = [
+    "BulkReader",
+    "ControlRecord",
+    "DIGITAL_GAIN_MAX",
+    "DavisCamera",
+    "DavisDecoder",
+    "DavisDevice",
+    "DeviceDisconnectedError",
+    "DeviceError",
+    "DeviceInfo",
+    "DeviceNotFoundError",
+    "EmulatedDavis346",
+    "Faults",
+    "StreamEncoder",
+    "cds_pair",
+    "describe",
+    "find_devices",
+    "open_camera",
+    "open_device",
+    "usb_backend",
+]

@@ -34,15 +34,15 @@ from collections import deque
 
 import numpy as np
 
-from ...core.control.base import CameraLimits
-from ...core.errors import ParameterError
-from ...core.frames import Frame
-from ...core.sensor import SensorGeometry
-from ..source import CAMERA, CommandRecord, route
-from . import protocol as P
-from .decoder import DavisDecoder
-from .device import BulkReader, DavisDevice, open_device, usb_backend
-from .errors import DeviceDisconnectedError, DeviceError, DeviceNotFoundError
+from necviz.core.control.controller import CameraLimits
+from necviz.core.errors import ParameterError
+from necviz.core.frames import Frame
+from necviz.core.sensor import SensorGeometry
+from necviz.drivers.davis import protocol as P
+from necviz.drivers.davis.decoder import DavisDecoder
+from necviz.drivers.davis.device import BulkReader, DavisDevice, open_device, usb_backend
+from necviz.drivers.davis.device_errors import DeviceDisconnectedError, DeviceError, DeviceNotFoundError
+from necviz.drivers.source import CAMERA, CommandRecord, route
 
 #: digital gain limit of the live camera (linear)
 DIGITAL_GAIN_MAX = 8.0
@@ -77,13 +77,26 @@ class DavisCamera:
     "streaming", "waiting" for a reconnect, "finished", "disconnected", "closed"), ``stats``.
     """
 
-    def __init__(self, device: DavisDevice, backend, *, reconnect: bool = False, exposure_us: float = 5000.0,
-                 frame_interval_us: float = 20_000.0, batch_us: int = 1000, transfer_size: int = 256 * 1024,
-                 buffer_s: float = 2.0):
-        if not (isinstance(frame_interval_us, (int, float)) and 2 * READOUT_ALLOWANCE_US <= frame_interval_us
-                <= P.FRAME_INTERVAL_MAX_US):
-            raise ParameterError(f"frame interval must be {2 * READOUT_ALLOWANCE_US}..{P.FRAME_INTERVAL_MAX_US} µs, "
-                                 f"got {frame_interval_us!r}")
+    def __init__(
+        self,
+        device: DavisDevice,
+        backend,
+        *,
+        reconnect: bool = False,
+        exposure_us: float = 5000.0,
+        frame_interval_us: float = 20_000.0,
+        batch_us: int = 1000,
+        transfer_size: int = 256 * 1024,
+        buffer_s: float = 2.0,
+    ):
+        if not (
+            isinstance(frame_interval_us, (int, float))
+            and 2 * READOUT_ALLOWANCE_US <= frame_interval_us <= P.FRAME_INTERVAL_MAX_US
+        ):
+            raise ParameterError(
+                f"frame interval must be {2 * READOUT_ALLOWANCE_US}..{P.FRAME_INTERVAL_MAX_US} µs, "
+                f"got {frame_interval_us!r}"
+            )
         self.device = device
         self.backend = backend
         self.reconnect = bool(reconnect)
@@ -95,10 +108,11 @@ class DavisCamera:
         self.buffer_s = float(buffer_s)
         w, h = device.dvs_size
         self.sensor = SensorGeometry(int(w), int(h), device.kind)
-        self.limits = CameraLimits(exposure_min_us=10.0,
-                                   exposure_max_us=float(min(P.EXPOSURE_MAX_US,
-                                                             self.frame_interval_us - READOUT_ALLOWANCE_US)),
-                                   gain_max=DIGITAL_GAIN_MAX)
+        self.limits = CameraLimits(
+            exposure_min_us=10.0,
+            exposure_max_us=float(min(P.EXPOSURE_MAX_US, self.frame_interval_us - READOUT_ALLOWANCE_US)),
+            gain_max=DIGITAL_GAIN_MAX,
+        )
         self.state = "ready"
         self._lock = threading.RLock()
         self._history: deque[_Command] = deque(maxlen=COMMAND_HISTORY)
@@ -111,8 +125,14 @@ class DavisCamera:
         self._decoder: DavisDecoder | None = None
         self._iterating = False
         self._closed = False
-        self._totals = {"transfers": 0, "bytes": 0, "stalls": 0, "timeouts": 0, "backpressure_s": 0.0,
-                        "queue_peak_bytes": 0}
+        self._totals = {
+            "transfers": 0,
+            "bytes": 0,
+            "stalls": 0,
+            "timeouts": 0,
+            "backpressure_s": 0.0,
+            "queue_peak_bytes": 0,
+        }
         self._decoded = {}
         self._device_stats: dict = {}  # the device's counters, as last read on this connection
         self._device_totals: dict = {}  # counters of earlier connections (they restart at power-up)
@@ -155,8 +175,9 @@ class DavisCamera:
                     self._end_stream(stop_device=False)
                     if not self.reconnect:
                         self.state = "disconnected"
-                        raise DeviceDisconnectedError(f"{self.device.kind} {self.device.serial} was unplugged at "
-                                                      f"t={t_s:.3f} s")
+                        raise DeviceDisconnectedError(
+                            f"{self.device.kind} {self.device.serial} was unplugged at t={t_s:.3f} s"
+                        )
                     if not self._wait_for_device():
                         return
                     self._start_stream(time_offset_us=self._last_t + 1)
@@ -166,8 +187,9 @@ class DavisCamera:
         finally:
             self.close()
 
-    def set_exposure(self, camera: str, exposure_us: float, gain: float = 1.0, *,
-                     issue_time_us: int | None = None) -> None:
+    def set_exposure(
+        self, camera: str, exposure_us: float, gain: float = 1.0, *, issue_time_us: int | None = None
+    ) -> None:
         """Command exposure (µs, clamped to ``limits``) and digital gain (linear, 1..``limits.gain_max``).
 
         ``camera`` is ``"camera"`` (the :class:`~necviz.drivers.source.Source` signature).
@@ -178,8 +200,12 @@ class DavisCamera:
         if camera != CAMERA:
             raise ParameterError(f"this source has one camera, {CAMERA!r}; got {camera!r}")
         for label, v in (("exposure_us", exposure_us), ("gain", gain)):
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v) \
-                    or v <= 0:
+            if (
+                isinstance(v, bool)
+                or not isinstance(v, (int, float, np.integer, np.floating))
+                or not math.isfinite(v)
+                or v <= 0
+            ):
                 raise ParameterError(f"{label} must be a positive finite number, got {v!r}")
         if gain < 1.0:
             raise ParameterError(f"gain must be >= 1 (linear), got {gain}")
@@ -267,10 +293,18 @@ class DavisCamera:
     # -- streaming ----------------------------------------------------------------------------------
     def _start_stream(self, time_offset_us: int) -> None:
         d = self.device
-        self._decoder = DavisDecoder(d.dvs_size[0], d.dvs_size[1], aps_width=d.aps_size[0], aps_height=d.aps_size[1],
-                                     dvs_invert_xy=bool(d.dvs_orientation & 4), aps_orientation=d.aps_orientation,
-                                     imu_orientation=d.imu_orientation, imu_model=d.imu_type,
-                                     adc_shift=1 if d.kind == "DAVIS240" else 0, time_offset_us=time_offset_us)
+        self._decoder = DavisDecoder(
+            d.dvs_size[0],
+            d.dvs_size[1],
+            aps_width=d.aps_size[0],
+            aps_height=d.aps_size[1],
+            dvs_invert_xy=bool(d.dvs_orientation & 4),
+            aps_orientation=d.aps_orientation,
+            imu_orientation=d.imu_orientation,
+            imu_model=d.imu_type,
+            adc_shift=1 if d.kind == "DAVIS240" else 0,
+            time_offset_us=time_offset_us,
+        )
         self._reader = BulkReader(d, transfer_size=self.transfer_size, buffer_s=self.buffer_s)
         d.start()
         self._reader.start()
@@ -365,10 +399,21 @@ class DavisCamera:
         return Frame(img, frame.exposure_start_us, frame.exposure_end_us, gain, frame.sequence)
 
 
-def open_camera(device: str = "usb", serial: str | None = None, *, scenario: str = "tunnel_exit", seed: int = 0,
-                duration_s: float | None = None, reconnect: bool = False, faults=None, realtime: bool = False,
-                exposure_us: float = 5000.0, frame_interval_us: float = 20_000.0,
-                backend=None, buffer_s: float = 2.0) -> DavisCamera:
+def open_camera(
+    device: str = "usb",
+    serial: str | None = None,
+    *,
+    scenario: str = "tunnel_exit",
+    seed: int = 0,
+    duration_s: float | None = None,
+    reconnect: bool = False,
+    faults=None,
+    realtime: bool = False,
+    exposure_us: float = 5000.0,
+    frame_interval_us: float = 20_000.0,
+    backend=None,
+    buffer_s: float = 2.0,
+) -> DavisCamera:
     """Open a DAVIS camera: ``device="usb"`` (hardware through libusb) or ``"emulated"``.
 
     For the emulator, ``scenario``/``seed``/``duration_s`` choose the simulated scene, ``faults`` an
@@ -385,16 +430,23 @@ def open_camera(device: str = "usb", serial: str | None = None, *, scenario: str
     emulated = device == "emulated"
     if backend is None:
         if emulated:
-            from .emulator import EmulatedDavis346
+            from necviz.drivers.davis.emulator import EmulatedDavis346
 
-            backend = EmulatedDavis346(scenario=scenario, seed=seed, duration_s=duration_s, faults=faults,
-                                       realtime=realtime)
+            backend = EmulatedDavis346(
+                scenario=scenario, seed=seed, duration_s=duration_s, faults=faults, realtime=realtime
+            )
         else:
             backend = usb_backend()
     dev = open_device(backend, serial, emulated)
     try:
-        return DavisCamera(dev, backend, reconnect=reconnect, exposure_us=exposure_us,
-                           frame_interval_us=frame_interval_us, buffer_s=buffer_s)
+        return DavisCamera(
+            dev,
+            backend,
+            reconnect=reconnect,
+            exposure_us=exposure_us,
+            frame_interval_us=frame_interval_us,
+            buffer_s=buffer_s,
+        )
     except BaseException:
         dev.close()
         raise

@@ -28,31 +28,38 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...core.errors import ParameterError
-from ...core.events import EVENT_DTYPE
-from ...core.frames import ExposureMarker, Frame
-from ...core.imu import IMU_DTYPE, TRIGGER_DTYPE, ImuBatch, TriggerBatch
-from .decoder_kernels import (
-    decode_words, S_WRAP, S_NOW, S_OFFSET, S_LAST_Y, S_NEV, S_NMK, S_NIMU, S_FRAME_READY, S_SKIPPED, S_TIME_REG,
-    S_FRAMES_DROPPED, S_IMU_DROPPED, S_EXPO_ABORTED, S_IN_FRAME, S_FRAME_OK, S_ROI_IDX, S_GS, S_ROI, S_EXPX, S_EXPY,
-    S_SIZEX, S_RTYPE, S_CX0, S_CY0, S_CX1, S_CY1, S_EXP_IDX, S_EXP_CYC, S_T_FS, S_T_ES, S_HAS_ES, S_HAS_EE, S_T_EE,
-    S_EXPO_OPEN, S_EXPO_OPEN_T, S_IMU_ACTIVE, S_IMU_COUNT, S_IMU_TYPE, S_IMU_ASCALE, S_IMU_GSCALE, S_IMU_B, S_F_ES,
-    S_F_EE, S_F_CYC, S_F_T_END, S_ROI_TMP, S_WORDS, S_SIZE, C_DVS_W, C_DVS_H, C_DVS_INVERT, C_APS_W, C_APS_H,
-    C_APS_ORIENT, C_IMU_ORIENT, C_IMU_MODEL, C_ADC_SHIFT, C_SIZE, MK_EXPOSURE_START, MK_EXPOSURE_END, MK_FRAME,
-    MK_IMU, MK_TRIGGER, TRIG_RESET, TRIG_RISING, TRIG_FALLING, TRIG_PULSE, TRIG_GEN_RISING, TRIG_GEN_FALLING,
+from necviz.core.errors import ParameterError
+from necviz.core.events import EVENT_DTYPE
+from necviz.core.frames import ExposureMarker, Frame
+from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, ImuBatch, TriggerBatch
+from necviz.drivers.davis.decoder_kernels import (
+    MK_EXPOSURE_END,
+    MK_EXPOSURE_START,
+    MK_IMU,
+    MK_TRIGGER,
+    S_EXPO_ABORTED,
+    S_EXPO_OPEN,
+    S_EXPO_OPEN_T,
+    S_F_CYC,
+    S_F_EE,
+    S_F_ES,
+    S_FRAMES_DROPPED,
+    S_IMU_DROPPED,
+    S_IN_FRAME,
+    S_LAST_Y,
+    S_NEV,
+    S_NMK,
+    S_NOW,
+    S_OFFSET,
+    S_RTYPE,
+    S_SIZE,
+    S_SKIPPED,
+    S_TIME_REG,
+    S_WORDS,
+    decode_words,
 )
 
-__all__ = [  # DavisDecoder, and the kernel and its layout constants, re-exported from decoder_kernels
-    "DavisDecoder", "decode_words", "S_WRAP", "S_NOW", "S_OFFSET", "S_LAST_Y", "S_NEV", "S_NMK", "S_NIMU",
-    "S_FRAME_READY", "S_SKIPPED", "S_TIME_REG", "S_FRAMES_DROPPED", "S_IMU_DROPPED", "S_EXPO_ABORTED", "S_IN_FRAME",
-    "S_FRAME_OK", "S_ROI_IDX", "S_GS", "S_ROI", "S_EXPX", "S_EXPY", "S_SIZEX", "S_RTYPE", "S_CX0", "S_CY0", "S_CX1",
-    "S_CY1", "S_EXP_IDX", "S_EXP_CYC", "S_T_FS", "S_T_ES", "S_HAS_ES", "S_HAS_EE", "S_T_EE", "S_EXPO_OPEN",
-    "S_EXPO_OPEN_T", "S_IMU_ACTIVE", "S_IMU_COUNT", "S_IMU_TYPE", "S_IMU_ASCALE", "S_IMU_GSCALE", "S_IMU_B",
-    "S_F_ES", "S_F_EE", "S_F_CYC", "S_F_T_END", "S_ROI_TMP", "S_WORDS", "S_SIZE", "C_DVS_W", "C_DVS_H",
-    "C_DVS_INVERT", "C_APS_W", "C_APS_H", "C_APS_ORIENT", "C_IMU_ORIENT", "C_IMU_MODEL", "C_ADC_SHIFT", "C_SIZE",
-    "MK_EXPOSURE_START", "MK_EXPOSURE_END", "MK_FRAME", "MK_IMU", "MK_TRIGGER", "TRIG_RESET", "TRIG_RISING",
-    "TRIG_FALLING", "TRIG_PULSE", "TRIG_GEN_RISING", "TRIG_GEN_FALLING",
-]
+__all__ = ["DavisDecoder"]
 
 
 _IMU_FIELDS = ("ax", "ay", "az", "gx", "gy", "gz", "temp")
@@ -78,9 +85,20 @@ class DavisDecoder:
     the exposure the device reported for the last frame (ADC cycles, -1 if absent).
     """
 
-    def __init__(self, width: int = 346, height: int = 260, *, aps_width: int | None = None,
-                 aps_height: int | None = None, dvs_invert_xy: bool = False, aps_orientation: int = 0,
-                 imu_orientation: int = 0, imu_model: int = 1, adc_shift: int = 0, time_offset_us: int = 0):
+    def __init__(
+        self,
+        width: int = 346,
+        height: int = 260,
+        *,
+        aps_width: int | None = None,
+        aps_height: int | None = None,
+        dvs_invert_xy: bool = False,
+        aps_orientation: int = 0,
+        imu_orientation: int = 0,
+        imu_model: int = 1,
+        adc_shift: int = 0,
+        time_offset_us: int = 0,
+    ):
         for label, v in (("width", width), ("height", height)):
             if not isinstance(v, (int, np.integer)) or not 0 < v <= 4096:
                 raise ParameterError(f"decoder {label} must be an integer in 1..4096, got {v!r}")
@@ -88,8 +106,20 @@ class DavisDecoder:
         aps_height = height if aps_height is None else aps_height
         self.width, self.height = int(width), int(height)
         self.aps_shape = (int(aps_height), int(aps_width))
-        self.cfg = np.array([width, height, int(bool(dvs_invert_xy)), aps_width, aps_height, aps_orientation & 7,
-                             imu_orientation & 7, imu_model, adc_shift], np.int64)
+        self.cfg = np.array(
+            [
+                width,
+                height,
+                int(bool(dvs_invert_xy)),
+                aps_width,
+                aps_height,
+                aps_orientation & 7,
+                imu_orientation & 7,
+                imu_model,
+                adc_shift,
+            ],
+            np.int64,
+        )
         self.st = np.zeros(S_SIZE, np.int64)
         self.st[S_LAST_Y] = -1
         self.st[S_RTYPE] = -1
@@ -120,11 +150,18 @@ class DavisDecoder:
     @property
     def stats(self) -> dict:
         st = self.st
-        return {"words": int(st[S_WORDS]), "events": self.events, "frames": self.frames,
-                "frames_dropped": int(st[S_FRAMES_DROPPED]), "imu_samples": self.imu_samples,
-                "imu_dropped": int(st[S_IMU_DROPPED]), "triggers": self.triggers,
-                "skipped_words": int(st[S_SKIPPED]), "time_regressions": int(st[S_TIME_REG]),
-                "exposures_aborted": int(st[S_EXPO_ABORTED])}
+        return {
+            "words": int(st[S_WORDS]),
+            "events": self.events,
+            "frames": self.frames,
+            "frames_dropped": int(st[S_FRAMES_DROPPED]),
+            "imu_samples": self.imu_samples,
+            "imu_dropped": int(st[S_IMU_DROPPED]),
+            "triggers": self.triggers,
+            "skipped_words": int(st[S_SKIPPED]),
+            "time_regressions": int(st[S_TIME_REG]),
+            "exposures_aborted": int(st[S_EXPO_ABORTED]),
+        }
 
     # -- decoding -------------------------------------------------------------------------------
     def words_of(self, data) -> np.ndarray:
@@ -151,8 +188,7 @@ class DavisDecoder:
         mk, imu_t, imu_v = self._mk, self._imu_t, self._imu_v
         while pos < n:
             ev = np.empty(min(n - pos, self.max_batch), EVENT_DTYPE)
-            pos = decode_words(words, pos, self.st, self.cfg, ev, mk, imu_t, imu_v, self._reset_buf,
-                               self._frame_flat)
+            pos = decode_words(words, pos, self.st, self.cfg, ev, mk, imu_t, imu_v, self._reset_buf, self._frame_flat)
             self._emit(out, ev[: self.st[S_NEV]], mk[: self.st[S_NMK]], imu_t, imu_v)
         return out
 
@@ -232,4 +268,3 @@ class DavisDecoder:
         if done < ev.size:
             out.append(ev[done:])
         flush_side()
-

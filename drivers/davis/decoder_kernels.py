@@ -468,8 +468,15 @@ def decode_words(words, start, st, cfg, ev, mk, imu_t, imu_v, reset_buf, frame):
                 ex = st[S_EXPX]
                 # a frame whose end marker is still pending (read out within the µs its exposure
                 # started: garbage) cannot be delivered after it: dropped
-                ok = (st[S_FRAME_OK] == 1 and st[S_ROI_IDX] == 8 and st[S_CX0] == ex and st[S_CX1] == ex
-                      and st[S_HAS_ES] == 1 and st[S_HAS_EE] == 1 and st[S_EXPO_OPEN] == 0)
+                ok = (
+                    st[S_FRAME_OK] == 1
+                    and st[S_ROI_IDX] == 8
+                    and st[S_CX0] == ex
+                    and st[S_CX1] == ex
+                    and st[S_HAS_ES] == 1
+                    and st[S_HAS_EE] == 1
+                    and st[S_EXPO_OPEN] == 0
+                )
                 st[S_IN_FRAME] = 0
                 if ok:
                     st[S_F_ES] = st[S_T_ES]

@@ -28,8 +28,8 @@ from dataclasses import dataclass
 import usb.core
 import usb.util
 
-from . import protocol as P
-from .errors import DeviceDisconnectedError, DeviceError, DeviceNotFoundError
+from necviz.drivers.davis import protocol as P
+from necviz.drivers.davis.device_errors import DeviceDisconnectedError, DeviceError, DeviceNotFoundError
 
 
 # -- backends ---------------------------------------------------------------------------------------
@@ -46,19 +46,22 @@ def usb_backend():
         except ImportError:
             backend = None
     if backend is None:
-        raise DeviceError("libusb-1.0 is not available: install it (apt install libusb-1.0-0) or "
-                          "pip install libusb-package")
+        raise DeviceError(
+            "libusb-1.0 is not available: install it (apt install libusb-1.0-0) or pip install libusb-package"
+        )
     return backend
 
 
 def _is_disconnect(e: BaseException) -> bool:
     return isinstance(e, usb.core.USBError) and (
-        getattr(e, "errno", None) == _errno.ENODEV or "No such device" in str(e))
+        getattr(e, "errno", None) == _errno.ENODEV or "No such device" in str(e)
+    )
 
 
 def _is_access(e: BaseException) -> bool:
     return isinstance(e, usb.core.USBError) and (
-        getattr(e, "errno", None) == _errno.EACCES or "Access denied" in str(e))
+        getattr(e, "errno", None) == _errno.EACCES or "Access denied" in str(e)
+    )
 
 
 def find_devices(backend) -> list:
@@ -147,30 +150,40 @@ class DavisDevice:
         if _is_disconnect(e):
             return DeviceDisconnectedError(f"{self._name()} was unplugged ({what} failed)")
         if _is_access(e):
-            return DeviceError(f"permission denied opening {self.product} at bus {self.bus} address {self.address} "
-                               "(no udev rule for 152a:84xx?)\n" + P.UDEV_INSTALL)
+            return DeviceError(
+                f"permission denied opening {self.product} at bus {self.bus} address {self.address} "
+                "(no udev rule for 152a:84xx?)\n" + P.UDEV_INSTALL
+            )
         return DeviceError(f"{self._name()}: {what} failed: {e}")
 
     def _check_versions(self) -> None:
         need = P.REQUIRED_FIRMWARE.get(self.dev.idProduct)
         if need is not None and self.firmware != need:
-            raise DeviceError(f"{self.product} {self.serial} has firmware version {self.firmware}, this driver needs "
-                              f"{need}: {P.FIRMWARE_REMEDY}")
+            raise DeviceError(
+                f"{self.product} {self.serial} has firmware version {self.firmware}, this driver needs "
+                f"{need}: {P.FIRMWARE_REMEDY}"
+            )
         self.logic_version = self.get(P.SYSINFO.MODULE, P.SYSINFO.LOGIC_VERSION)
         if self.logic_version != P.REQUIRED_LOGIC:
-            raise DeviceError(f"{self.product} {self.serial} has FPGA logic version {self.logic_version}, this driver "
-                              f"needs {P.REQUIRED_LOGIC}: {P.FIRMWARE_REMEDY}")
+            raise DeviceError(
+                f"{self.product} {self.serial} has FPGA logic version {self.logic_version}, this driver "
+                f"needs {P.REQUIRED_LOGIC}: {P.FIRMWARE_REMEDY}"
+            )
         self.logic_patch = self.get(P.SYSINFO.MODULE, P.SYSINFO.LOGIC_PATCH)
         if self.logic_patch < P.REQUIRED_LOGIC_PATCH:
-            raise DeviceError(f"{self.product} {self.serial} has logic patch level {self.logic_patch}, this driver "
-                              f"needs >= {P.REQUIRED_LOGIC_PATCH}: {P.FIRMWARE_REMEDY}")
+            raise DeviceError(
+                f"{self.product} {self.serial} has logic patch level {self.logic_patch}, this driver "
+                f"needs >= {P.REQUIRED_LOGIC_PATCH}: {P.FIRMWARE_REMEDY}"
+            )
 
     def _read_info(self) -> None:
         g = self.get
         S, D, A, I = P.SYSINFO, P.DVS, P.APS, P.IMU
         self.chip_id = g(S.MODULE, S.CHIP_IDENTIFIER)
         chip = P.CHIP_NAMES.get(self.chip_id, f"chip {self.chip_id}")
-        self.kind = "DAVIS346" if self.chip_id in P.DAVIS346_CHIPS else "DAVIS240" if self.chip_id in P.DAVIS240_CHIPS else chip
+        self.kind = (
+            "DAVIS346" if self.chip_id in P.DAVIS346_CHIPS else "DAVIS240" if self.chip_id in P.DAVIS240_CHIPS else chip
+        )
         self.chip = chip
         self.is_master = bool(g(S.MODULE, S.DEVICE_IS_MASTER))
         self.capabilities = {
@@ -191,22 +204,40 @@ class DavisDevice:
         self.aps_orientation = g(A.MODULE, A.ORIENTATION_INFO)
         self.imu_type = g(I.MODULE, I.TYPE)
         self.imu_orientation = g(I.MODULE, I.ORIENTATION_INFO)
-        self.clocks = P.Clocks.from_registers(g(S.MODULE, S.LOGIC_CLOCK), g(S.MODULE, S.ADC_CLOCK),
-                                              g(S.MODULE, S.USB_CLOCK), g(S.MODULE, S.CLOCK_DEVIATION))
+        self.clocks = P.Clocks.from_registers(
+            g(S.MODULE, S.LOGIC_CLOCK),
+            g(S.MODULE, S.ADC_CLOCK),
+            g(S.MODULE, S.USB_CLOCK),
+            g(S.MODULE, S.CLOCK_DEVIATION),
+        )
         if min(self.dvs_size) <= 0 or min(self.aps_size) <= 0 or self.clocks.adc_mhz <= 0:
-            raise DeviceError(f"{self._name()} reports an invalid size {self.dvs_size} or ADC clock "
-                              f"{self.clocks.adc_mhz} MHz")
+            raise DeviceError(
+                f"{self._name()} reports an invalid size {self.dvs_size} or ADC clock {self.clocks.adc_mhz} MHz"
+            )
 
     @property
     def info(self) -> dict:
         c = self.clocks
-        return {"kind": self.kind, "product": self.product, "serial": self.serial, "firmware": self.firmware,
-                "logic": self.logic_version, "logic_patch": self.logic_patch, "chip_id": self.chip_id,
-                "chip": self.chip, "master": self.is_master, "bus": self.bus, "address": self.address,
-                "emulated": self.emulated, "dvs_size": self.dvs_size, "aps_size": self.aps_size,
-                "global_shutter": self.has_global_shutter, "imu_type": self.imu_type,
-                "clocks_mhz": {"logic": c.logic_mhz, "adc": c.adc_mhz, "usb": c.usb_mhz},
-                "capabilities": dict(self.capabilities)}
+        return {
+            "kind": self.kind,
+            "product": self.product,
+            "serial": self.serial,
+            "firmware": self.firmware,
+            "logic": self.logic_version,
+            "logic_patch": self.logic_patch,
+            "chip_id": self.chip_id,
+            "chip": self.chip,
+            "master": self.is_master,
+            "bus": self.bus,
+            "address": self.address,
+            "emulated": self.emulated,
+            "dvs_size": self.dvs_size,
+            "aps_size": self.aps_size,
+            "global_shutter": self.has_global_shutter,
+            "imu_type": self.imu_type,
+            "clocks_mhz": {"logic": c.logic_mhz, "adc": c.adc_mhz, "usb": c.usb_mhz},
+            "capabilities": dict(self.capabilities),
+        }
 
     # -- configuration ------------------------------------------------------------------------------
     def set(self, module: int, param: int, value: int) -> None:
@@ -234,7 +265,7 @@ class DavisDevice:
         """Write several registers with vendor request 0xC2 (in chunks of 682 entries), in order."""
         entries = list(entries)
         for i in range(0, len(entries), P.MULTIPLE_MAX_ENTRIES):
-            chunk = entries[i:i + P.MULTIPLE_MAX_ENTRIES]
+            chunk = entries[i : i + P.MULTIPLE_MAX_ENTRIES]
             try:
                 self.dev.ctrl_transfer(P.REQ_OUT, P.VR_FPGA_CONFIG_MULTIPLE, len(chunk), 0, P.pack_multiple(chunk))
             except usb.core.USBError as e:
@@ -270,20 +301,31 @@ class DavisDevice:
             raise DeviceError(f"ROI ({start_col}, {start_row})-({end_col}, {end_row}) does not fit the {w}x{h} array")
         A = P.APS
         run = [(A.MODULE, A.RUN, 1)] if self.running else []
-        self.set_multiple([(A.MODULE, A.RUN, 0), (A.MODULE, A.START_COLUMN_0, start_col),
-                           (A.MODULE, A.START_ROW_0, start_row), (A.MODULE, A.END_COLUMN_0, end_col),
-                           (A.MODULE, A.END_ROW_0, end_row)] + run)
+        self.set_multiple(
+            [
+                (A.MODULE, A.RUN, 0),
+                (A.MODULE, A.START_COLUMN_0, start_col),
+                (A.MODULE, A.START_ROW_0, start_row),
+                (A.MODULE, A.END_COLUMN_0, end_col),
+                (A.MODULE, A.END_ROW_0, end_row),
+            ]
+            + run
+        )
 
-    def set_dvs_filters(self, background_activity_us: float | None = 2000.0, refractory_us: float | None = None) -> None:
+    def set_dvs_filters(
+        self, background_activity_us: float | None = 2000.0, refractory_us: float | None = None
+    ) -> None:
         """DVS background-activity and refractory filters (times in µs, 250 µs units on the device; None = off)."""
         D = P.DVS
         entries = []
         if self.capabilities.get("dvs_background_activity_filter"):
             ba = background_activity_us
-            entries += [(D.MODULE, D.FILTER_BACKGROUND_ACTIVITY, int(ba is not None)),
-                        (D.MODULE, D.FILTER_BACKGROUND_ACTIVITY_TIME, max(1, round((ba or 2000) / 250))),
-                        (D.MODULE, D.FILTER_REFRACTORY_PERIOD, int(refractory_us is not None)),
-                        (D.MODULE, D.FILTER_REFRACTORY_PERIOD_TIME, max(1, round((refractory_us or 250) / 250)))]
+            entries += [
+                (D.MODULE, D.FILTER_BACKGROUND_ACTIVITY, int(ba is not None)),
+                (D.MODULE, D.FILTER_BACKGROUND_ACTIVITY_TIME, max(1, round((ba or 2000) / 250))),
+                (D.MODULE, D.FILTER_REFRACTORY_PERIOD, int(refractory_us is not None)),
+                (D.MODULE, D.FILTER_REFRACTORY_PERIOD_TIME, max(1, round((refractory_us or 250) / 250))),
+            ]
         if entries:
             self.set_multiple(entries)
 
@@ -298,37 +340,61 @@ class DavisDevice:
         self.set_biases(P.default_chip_config(self.chip_id))
         w, h = self.dvs_size
         aw, ah = self.aps_size
-        entries = [(M.MODULE, M.DROP_EXTINPUT_ON_TRANSFER_STALL, 1), (M.MODULE, M.DROP_DVS_ON_TRANSFER_STALL, 1),
-                   (D.MODULE, D.WAIT_ON_TRANSFER_STALL, 0), (D.MODULE, D.EXTERNAL_AER_CONTROL, 0)]
+        entries = [
+            (M.MODULE, M.DROP_EXTINPUT_ON_TRANSFER_STALL, 1),
+            (M.MODULE, M.DROP_DVS_ON_TRANSFER_STALL, 1),
+            (D.MODULE, D.WAIT_ON_TRANSFER_STALL, 0),
+            (D.MODULE, D.EXTERNAL_AER_CONTROL, 0),
+        ]
         if self.capabilities["dvs_pixel_filter"]:
             for r, c in zip(D.FILTER_PIXEL_ROW, D.FILTER_PIXEL_COLUMN):
                 entries += [(D.MODULE, r, h), (D.MODULE, c, w)]  # out of range = disabled
         if self.capabilities["dvs_background_activity_filter"]:
-            entries += [(D.MODULE, D.FILTER_BACKGROUND_ACTIVITY, 1), (D.MODULE, D.FILTER_BACKGROUND_ACTIVITY_TIME, 8),
-                        (D.MODULE, D.FILTER_REFRACTORY_PERIOD, 0), (D.MODULE, D.FILTER_REFRACTORY_PERIOD_TIME, 1)]
+            entries += [
+                (D.MODULE, D.FILTER_BACKGROUND_ACTIVITY, 1),
+                (D.MODULE, D.FILTER_BACKGROUND_ACTIVITY_TIME, 8),
+                (D.MODULE, D.FILTER_REFRACTORY_PERIOD, 0),
+                (D.MODULE, D.FILTER_REFRACTORY_PERIOD_TIME, 1),
+            ]
         if self.capabilities["dvs_roi_filter"]:
-            entries += [(D.MODULE, D.ROI_START_COLUMN, 0), (D.MODULE, D.ROI_START_ROW, 0),
-                        (D.MODULE, D.ROI_END_COLUMN, w - 1), (D.MODULE, D.ROI_END_ROW, h - 1)]
+            entries += [
+                (D.MODULE, D.ROI_START_COLUMN, 0),
+                (D.MODULE, D.ROI_START_ROW, 0),
+                (D.MODULE, D.ROI_END_COLUMN, w - 1),
+                (D.MODULE, D.ROI_END_ROW, h - 1),
+            ]
         if self.capabilities["dvs_skip_filter"]:
             entries += [(D.MODULE, D.SKIP_EVENTS, 0), (D.MODULE, D.SKIP_EVENTS_EVERY, 5)]
         if self.capabilities["dvs_polarity_filter"]:
-            entries += [(D.MODULE, D.POLARITY_FLATTEN, 0), (D.MODULE, D.POLARITY_SUPPRESS, 0),
-                        (D.MODULE, D.POLARITY_SUPPRESS_TYPE, 0)]
-        entries += [(A.MODULE, A.WAIT_ON_TRANSFER_STALL, 1),
-                    (A.MODULE, A.GLOBAL_SHUTTER, int(self.has_global_shutter)),
-                    (P.BIAS.MODULE, 142, int(self.has_global_shutter)),
-                    (A.MODULE, A.START_COLUMN_0, 0), (A.MODULE, A.START_ROW_0, 0),
-                    (A.MODULE, A.END_COLUMN_0, aw - 1), (A.MODULE, A.END_ROW_0, ah - 1),
-                    (A.MODULE, A.EXPOSURE, self.us_to_cycles(exposure_us)),
-                    (A.MODULE, A.FRAME_INTERVAL, self.us_to_cycles(frame_interval_us)),
-                    (I.MODULE, I.SAMPLE_RATE_DIVIDER, 0), (I.MODULE, I.ACCEL_DLPF, 1),
-                    (I.MODULE, I.ACCEL_FULL_SCALE, 1)]
+            entries += [
+                (D.MODULE, D.POLARITY_FLATTEN, 0),
+                (D.MODULE, D.POLARITY_SUPPRESS, 0),
+                (D.MODULE, D.POLARITY_SUPPRESS_TYPE, 0),
+            ]
+        entries += [
+            (A.MODULE, A.WAIT_ON_TRANSFER_STALL, 1),
+            (A.MODULE, A.GLOBAL_SHUTTER, int(self.has_global_shutter)),
+            (P.BIAS.MODULE, 142, int(self.has_global_shutter)),
+            (A.MODULE, A.START_COLUMN_0, 0),
+            (A.MODULE, A.START_ROW_0, 0),
+            (A.MODULE, A.END_COLUMN_0, aw - 1),
+            (A.MODULE, A.END_ROW_0, ah - 1),
+            (A.MODULE, A.EXPOSURE, self.us_to_cycles(exposure_us)),
+            (A.MODULE, A.FRAME_INTERVAL, self.us_to_cycles(frame_interval_us)),
+            (I.MODULE, I.SAMPLE_RATE_DIVIDER, 0),
+            (I.MODULE, I.ACCEL_DLPF, 1),
+            (I.MODULE, I.ACCEL_FULL_SCALE, 1),
+        ]
         if self.imu_type == 2:
             entries.append((I.MODULE, I.GYRO_DLPF, 1))
-        entries += [(I.MODULE, I.GYRO_FULL_SCALE, 1),
-                    (E.MODULE, E.DETECT_RISING_EDGES, 0), (E.MODULE, E.DETECT_FALLING_EDGES, 0),
-                    (E.MODULE, E.DETECT_PULSES, 1), (E.MODULE, E.DETECT_PULSE_POLARITY, 1),
-                    (E.MODULE, E.DETECT_PULSE_LENGTH, max(1, round(10 * self.clocks.logic_mhz)))]
+        entries += [
+            (I.MODULE, I.GYRO_FULL_SCALE, 1),
+            (E.MODULE, E.DETECT_RISING_EDGES, 0),
+            (E.MODULE, E.DETECT_FALLING_EDGES, 0),
+            (E.MODULE, E.DETECT_PULSES, 1),
+            (E.MODULE, E.DETECT_PULSE_POLARITY, 1),
+            (E.MODULE, E.DETECT_PULSE_LENGTH, max(1, round(10 * self.clocks.logic_mhz))),
+        ]
         if self.capabilities["extinput_generator"]:
             entries.append((E.MODULE, E.RUN_GENERATOR, 0))
         entries.append((P.USB.MODULE, P.USB.EARLY_PACKET_DELAY, round(8 * 125 * self.clocks.usb_mhz)))
@@ -445,8 +511,9 @@ def describe(backend, emulated: bool = False) -> list[DeviceInfo]:
             dev = DavisDevice(d, backend, emulated)
         except DeviceError as e:
             serial = _serial_of(d) or "?"
-            out.append(DeviceInfo(kind, serial, d.bcdDevice & 0xFF, None, d.bus, d.address, emulated,
-                                  str(e).splitlines()[0]))
+            out.append(
+                DeviceInfo(kind, serial, d.bcdDevice & 0xFF, None, d.bus, d.address, emulated, str(e).splitlines()[0])
+            )
             continue
         out.append(DeviceInfo(dev.kind, dev.serial, dev.firmware, dev.logic_version, dev.bus, dev.address, emulated))
         dev.close()
@@ -483,8 +550,14 @@ class BulkReader:
     drops is reported the same way. ``queue_peak_bytes`` is the deepest the queue has been.
     """
 
-    def __init__(self, device: DavisDevice, transfer_size: int = 256 * 1024, timeout_ms: int = 100,
-                 buffer_s: float = 2.0, max_queued: int | None = None):
+    def __init__(
+        self,
+        device: DavisDevice,
+        transfer_size: int = 256 * 1024,
+        timeout_ms: int = 100,
+        buffer_s: float = 2.0,
+        max_queued: int | None = None,
+    ):
         self.device = device
         self.transfer_size = int(transfer_size)
         self.timeout_ms = int(timeout_ms)
@@ -493,8 +566,14 @@ class BulkReader:
         self.queued_bytes = 0
         self._room = threading.Condition()
         self._stop = threading.Event()
-        self.stats = {"transfers": 0, "bytes": 0, "stalls": 0, "timeouts": 0, "backpressure_s": 0.0,
-                      "queue_peak_bytes": 0}
+        self.stats = {
+            "transfers": 0,
+            "bytes": 0,
+            "stalls": 0,
+            "timeouts": 0,
+            "backpressure_s": 0.0,
+            "queue_peak_bytes": 0,
+        }
         self.thread = threading.Thread(target=self._run, name=f"necviz-davis-{device.serial}", daemon=True)
 
     def start(self) -> None:

@@ -9,7 +9,7 @@
   holding the logic-18 map of :mod:`.protocol` (sizes, clocks, versions; every write is stored and
   logged in :attr:`EmulatedDavis346.transfers`, in order, so a test can check the start sequence);
 * bulk reads of endpoint 0x82 returning 16-bit words (:mod:`.encoder`) of a closed-loop simulated
-  scene (:class:`~necviz.drivers.sim.camera.SimRig`, one camera). Data flows only while the
+  scene (:class:`~necviz.drivers.sim.rig.SimRig`, one camera). Data flows only while the
   producers, MUX, timestamps and USB run registers are on, as on the device. The APS EXPOSURE
   register (ADC cycles) is honoured: a write becomes ``set_exposure(cycles / adc_mhz)`` on the
   simulator, which applies it at the next exposure starting at least 1 ms later; each frame carries
@@ -54,11 +54,11 @@ import numpy as np
 import usb.backend
 import usb.core
 
-from ...core.errors import ParameterError
-from ...core.sensor import DAVIS346, SensorGeometry
-from . import protocol as P
-from .emulator_stream import EARLY_PACKET_US, FIFO_BYTES, DataPathMixin
-from .emulator_usb import ControlRecord, UsbInterfaceMixin, _usb_error
+from necviz.core.errors import ParameterError
+from necviz.core.sensor import DAVIS346, SensorGeometry
+from necviz.drivers.davis import protocol as P
+from necviz.drivers.davis.emulator_stream import EARLY_PACKET_US, FIFO_BYTES, DataPathMixin
+from necviz.drivers.davis.emulator_usb import ControlRecord, UsbInterfaceMixin, _usb_error
 
 #: clocks the emulated DAVIS346 reports: logic, ADC, USB (MHz) and the deviation (x1000)
 EMULATED_CLOCKS = (104, 30, 80, 1008)
@@ -97,13 +97,26 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
     scenario_params : extra keyword parameters of the scenario.
     """
 
-    def __init__(self, scenario: str = "tunnel_exit", seed: int = 0, duration_s: float | None = None,
-                 faults: Faults | None = None, realtime: bool = False, *, sensor: SensorGeometry = DAVIS346,
-                 serial: str = EMULATED_SERIAL, aps_orientation: int = 0, bus: int = 0, address: int = 1,
-                 scenario_params: dict | None = None, time_scale: float = 1.0, fifo_bytes: int = FIFO_BYTES,
-                 extra_event_rate: float = 0.0):
+    def __init__(
+        self,
+        scenario: str = "tunnel_exit",
+        seed: int = 0,
+        duration_s: float | None = None,
+        faults: Faults | None = None,
+        realtime: bool = False,
+        *,
+        sensor: SensorGeometry = DAVIS346,
+        serial: str = EMULATED_SERIAL,
+        aps_orientation: int = 0,
+        bus: int = 0,
+        address: int = 1,
+        scenario_params: dict | None = None,
+        time_scale: float = 1.0,
+        fifo_bytes: int = FIFO_BYTES,
+        extra_event_rate: float = 0.0,
+    ):
         super().__init__()
-        from ..sim.scenes import SCENARIOS
+        from necviz.drivers.sim.scenes import SCENARIOS
 
         if scenario not in SCENARIOS:
             raise ParameterError(f"unknown scenario {scenario!r}; known: {', '.join(sorted(SCENARIOS))}")
@@ -114,8 +127,11 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         for label, v in (("time_scale", time_scale), ("fifo_bytes", fifo_bytes)):
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0 or v != v or v == float("inf"):
                 raise ParameterError(f"{label} must be a positive number, got {v!r}")
-        if isinstance(extra_event_rate, bool) or not isinstance(extra_event_rate, (int, float)) \
-                or not 0 <= extra_event_rate < 1e9:
+        if (
+            isinstance(extra_event_rate, bool)
+            or not isinstance(extra_event_rate, (int, float))
+            or not 0 <= extra_event_rate < 1e9
+        ):
             raise ParameterError(f"extra_event_rate must be 0..1e9 events/s, got {extra_event_rate!r}")
         self.scenario, self.seed, self.duration_s = scenario, int(seed), duration_s
         self.scenario_params = dict(scenario_params or {})
@@ -160,21 +176,31 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
             (P.SYSINFO.MODULE, P.SYSINFO.USB_CLOCK): usb_clk,
             (P.SYSINFO.MODULE, P.SYSINFO.CLOCK_DEVIATION): dev,
             (P.SYSINFO.MODULE, P.SYSINFO.LOGIC_PATCH): f.logic_patch,
-            (P.DVS.MODULE, P.DVS.SIZE_COLUMNS): w, (P.DVS.MODULE, P.DVS.SIZE_ROWS): h,
+            (P.DVS.MODULE, P.DVS.SIZE_COLUMNS): w,
+            (P.DVS.MODULE, P.DVS.SIZE_ROWS): h,
             (P.DVS.MODULE, P.DVS.ORIENTATION_INFO): 0,
-            (P.APS.MODULE, P.APS.SIZE_COLUMNS): w, (P.APS.MODULE, P.APS.SIZE_ROWS): h,
+            (P.APS.MODULE, P.APS.SIZE_COLUMNS): w,
+            (P.APS.MODULE, P.APS.SIZE_ROWS): h,
             (P.APS.MODULE, P.APS.ORIENTATION_INFO): self.aps_orientation,
-            (P.APS.MODULE, P.APS.COLOR_FILTER): 0, (P.APS.MODULE, P.APS.HAS_GLOBAL_SHUTTER): 1,
+            (P.APS.MODULE, P.APS.COLOR_FILTER): 0,
+            (P.APS.MODULE, P.APS.HAS_GLOBAL_SHUTTER): 1,
             (P.APS.MODULE, P.APS.GLOBAL_SHUTTER): 1,
-            (P.APS.MODULE, P.APS.START_COLUMN_0): 0, (P.APS.MODULE, P.APS.START_ROW_0): 0,
-            (P.APS.MODULE, P.APS.END_COLUMN_0): w - 1, (P.APS.MODULE, P.APS.END_ROW_0): h - 1,
+            (P.APS.MODULE, P.APS.START_COLUMN_0): 0,
+            (P.APS.MODULE, P.APS.START_ROW_0): 0,
+            (P.APS.MODULE, P.APS.END_COLUMN_0): w - 1,
+            (P.APS.MODULE, P.APS.END_ROW_0): h - 1,
             (P.APS.MODULE, P.APS.EXPOSURE): round(4000 * self.adc_mhz),
             (P.APS.MODULE, P.APS.FRAME_INTERVAL): round(40000 * self.adc_mhz),
-            (P.IMU.MODULE, P.IMU.TYPE): 1, (P.IMU.MODULE, P.IMU.ORIENTATION_INFO): 0,
-            (P.MUX.MODULE, P.MUX.HAS_STATISTICS): 1, (P.DVS.MODULE, P.DVS.HAS_STATISTICS): 1,
-            (P.DVS.MODULE, P.DVS.HAS_PIXEL_FILTER): 1, (P.DVS.MODULE, P.DVS.HAS_BACKGROUND_ACTIVITY_FILTER): 1,
-            (P.DVS.MODULE, P.DVS.HAS_ROI_FILTER): 1, (P.DVS.MODULE, P.DVS.HAS_SKIP_FILTER): 1,
-            (P.DVS.MODULE, P.DVS.HAS_POLARITY_FILTER): 1, (P.EXTINPUT.MODULE, P.EXTINPUT.HAS_GENERATOR): 1,
+            (P.IMU.MODULE, P.IMU.TYPE): 1,
+            (P.IMU.MODULE, P.IMU.ORIENTATION_INFO): 0,
+            (P.MUX.MODULE, P.MUX.HAS_STATISTICS): 1,
+            (P.DVS.MODULE, P.DVS.HAS_STATISTICS): 1,
+            (P.DVS.MODULE, P.DVS.HAS_PIXEL_FILTER): 1,
+            (P.DVS.MODULE, P.DVS.HAS_BACKGROUND_ACTIVITY_FILTER): 1,
+            (P.DVS.MODULE, P.DVS.HAS_ROI_FILTER): 1,
+            (P.DVS.MODULE, P.DVS.HAS_SKIP_FILTER): 1,
+            (P.DVS.MODULE, P.DVS.HAS_POLARITY_FILTER): 1,
+            (P.EXTINPUT.MODULE, P.EXTINPUT.HAS_GENERATOR): 1,
         }
         self._streaming = False
         self._encoder = None
@@ -211,8 +237,12 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
 
     def _running(self) -> bool:
         r = self.reg
-        return bool(r(P.MUX.MODULE, P.MUX.RUN) and r(P.MUX.MODULE, P.MUX.TIMESTAMP_RUN) and r(P.USB.MODULE, P.USB.RUN)
-                    and r(P.MUX.MODULE, P.MUX.RUN_CHIP))
+        return bool(
+            r(P.MUX.MODULE, P.MUX.RUN)
+            and r(P.MUX.MODULE, P.MUX.TIMESTAMP_RUN)
+            and r(P.USB.MODULE, P.USB.RUN)
+            and r(P.MUX.MODULE, P.MUX.RUN_CHIP)
+        )
 
     def _check_plug(self) -> None:
         """Raise ENODEV while unplugged; come back (power-cycled) after ``replug_after_s``."""
@@ -244,8 +274,12 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
     def _write(self, request: int, module: int, param: int, value: int) -> None:
         self._log(ControlRecord("out", request, module, param, value, time.monotonic()))
         key = (module, param)
-        if module == P.SYSINFO.MODULE or key in ((P.DVS.MODULE, P.DVS.SIZE_COLUMNS), (P.DVS.MODULE, P.DVS.SIZE_ROWS),
-                                                 (P.APS.MODULE, P.APS.SIZE_COLUMNS), (P.APS.MODULE, P.APS.SIZE_ROWS)):
+        if module == P.SYSINFO.MODULE or key in (
+            (P.DVS.MODULE, P.DVS.SIZE_COLUMNS),
+            (P.DVS.MODULE, P.DVS.SIZE_ROWS),
+            (P.APS.MODULE, P.APS.SIZE_COLUMNS),
+            (P.APS.MODULE, P.APS.SIZE_ROWS),
+        ):
             return  # read-only
         self.regs[key] = value
         if key == (P.APS.MODULE, P.APS.EXPOSURE) and self._rig is not None:
@@ -261,5 +295,14 @@ def find_emulated(backend: EmulatedDavis346):
     return usb.core.find(idVendor=P.VID, idProduct=P.PID_FX3, backend=backend)
 
 
-__all__ = ["EmulatedDavis346", "Faults", "ControlRecord", "EMULATED_CLOCKS", "EMULATED_SERIAL", "find_emulated",
-           "FIFO_BYTES", "EARLY_PACKET_US", "TRANSFER_LOG"]
+__all__ = [
+    "EmulatedDavis346",
+    "Faults",
+    "ControlRecord",
+    "EMULATED_CLOCKS",
+    "EMULATED_SERIAL",
+    "find_emulated",
+    "FIFO_BYTES",
+    "EARLY_PACKET_US",
+    "TRANSFER_LOG",
+]

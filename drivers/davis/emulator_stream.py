@@ -1,7 +1,7 @@
 """The data path of the emulated DAVIS346: simulated sensor → 16-bit words → device FIFO → bulk transfers.
 
 :class:`DataPathMixin` is the streaming half of :class:`~necviz.drivers.davis.emulator.EmulatedDavis346`:
-it starts the closed-loop simulator (:class:`~necviz.drivers.sim.camera.SimRig`) when the run
+it starts the closed-loop simulator (:class:`~necviz.drivers.sim.rig.SimRig`) when the run
 registers are on, encodes its packets into the device FIFO (:mod:`.encoder`: DVS events, frames with
 their exposure words, IMU samples) and answers bulk reads of endpoint 0x82, checking the unplug and
 stall faults on every read. It uses the device model's registers, lock, faults and counters.
@@ -38,11 +38,11 @@ import time
 import numpy as np
 import usb.core
 
-from ...core.events import EVENT_DTYPE
-from ...core.frames import ExposureMarker, Frame
-from . import protocol as P
-from .emulator_usb import _usb_error
-from .encoder import EXPOSURE_END, EXPOSURE_START, FRAME_END, StreamEncoder, cds_pair
+from necviz.core.events import EVENT_DTYPE
+from necviz.core.frames import ExposureMarker, Frame
+from necviz.drivers.davis import protocol as P
+from necviz.drivers.davis.emulator_usb import _usb_error
+from necviz.drivers.davis.encoder import EXPOSURE_END, EXPOSURE_START, FRAME_END, StreamEncoder, cds_pair
 
 #: device-side buffering assumed for the DAVIS346 FX3 (bytes; see the module docstring)
 FIFO_BYTES = 128 * 1024
@@ -57,16 +57,17 @@ class DataPathMixin:
 
     # -- streaming -----------------------------------------------------------------------------------
     def _ensure_rig(self) -> None:
-        from ..sim.aps import ApsParams
-        from ..sim.camera import SimRig
-        from ..sim.scenes import make_scenario
+        from necviz.drivers.sim.aps import ApsParams
+        from necviz.drivers.sim.rig import SimRig
+        from necviz.drivers.sim.scenes import make_scenario
 
         if self._rig is None:
             interval = max(int(round(self.reg(P.APS.MODULE, P.APS.FRAME_INTERVAL) / self.adc_mhz)), 3000)
             aps = ApsParams(frame_interval_us=interval, exposure_max_us=interval - 1000)
             duration_us = None if self.duration_s is None else int(round(self.duration_s * 1e6))
-            scene = make_scenario(self.scenario, sensor=self.sensor, duration_us=duration_us, seed=self.seed,
-                                  **self.scenario_params)
+            scene = make_scenario(
+                self.scenario, sensor=self.sensor, duration_us=duration_us, seed=self.seed, **self.scenario_params
+            )
             exp_us = min(max(self.reg(P.APS.MODULE, P.APS.EXPOSURE) / self.adc_mhz, 1.0), aps.exposure_max_us)
             self._rig = SimRig(scene, {"camera": (exp_us, 1.0)}, aps=aps, seed=self.seed)
             self._gen = self._rig.packets()
@@ -203,7 +204,7 @@ class DataPathMixin:
                     self._put(enc.special(t, EXPOSURE_END))
             elif isinstance(pk, Frame) and self._frame_open:
                 c0, r0, c1, r1 = self._frame_roi
-                _, signal = cds_pair(pk.image[r0:r1 + 1, c0:c1 + 1])
+                _, signal = cds_pair(pk.image[r0 : r1 + 1, c0 : c1 + 1])
                 self._put(enc.readout(signal, True))
                 self._put(enc.special(self._dev_t(self._rig.now_us), FRAME_END))
                 self._frame_open = False
@@ -248,7 +249,7 @@ class DataPathMixin:
         """Move FIFO bytes into the host buffer ``view`` after its first ``got`` bytes; returns the new fill."""
         n = min(len(view) - got, len(self._pending))
         if n:
-            view[got:got + n] = self._pending[:n]
+            view[got : got + n] = self._pending[:n]
             del self._pending[:n]
             self._late = max(0, self._late - n)
         return got + n

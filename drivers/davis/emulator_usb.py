@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import usb.core
 
-from . import protocol as P
+from necviz.drivers.davis import protocol as P
 
 
 @dataclass(frozen=True)
@@ -74,27 +74,75 @@ class UsbInterfaceMixin:
         return None
 
     def get_device_descriptor(self, dev):
-        return _Desc(bLength=18, bDescriptorType=1, bcdUSB=0x0300, bDeviceClass=0, bDeviceSubClass=0,
-                     bDeviceProtocol=0, bMaxPacketSize0=9, idVendor=P.VID, idProduct=P.PID_FX3,
-                     bcdDevice=0x0100 | (self.faults.firmware & 0xFF), iManufacturer=1, iProduct=2,
-                     iSerialNumber=3, bNumConfigurations=1, address=self.address, bus=self.bus,
-                     port_number=1, port_numbers=(1,), speed=4)
+        return _Desc(
+            bLength=18,
+            bDescriptorType=1,
+            bcdUSB=0x0300,
+            bDeviceClass=0,
+            bDeviceSubClass=0,
+            bDeviceProtocol=0,
+            bMaxPacketSize0=9,
+            idVendor=P.VID,
+            idProduct=P.PID_FX3,
+            bcdDevice=0x0100 | (self.faults.firmware & 0xFF),
+            iManufacturer=1,
+            iProduct=2,
+            iSerialNumber=3,
+            bNumConfigurations=1,
+            address=self.address,
+            bus=self.bus,
+            port_number=1,
+            port_numbers=(1,),
+            speed=4,
+        )
 
     def get_configuration_descriptor(self, dev, config):
-        return _Desc(bLength=9, bDescriptorType=2, wTotalLength=32, bNumInterfaces=1,
-                     bConfigurationValue=P.CONFIGURATION, iConfiguration=0, bmAttributes=0x80, bMaxPower=50)
+        return _Desc(
+            bLength=9,
+            bDescriptorType=2,
+            wTotalLength=32,
+            bNumInterfaces=1,
+            bConfigurationValue=P.CONFIGURATION,
+            iConfiguration=0,
+            bmAttributes=0x80,
+            bMaxPower=50,
+        )
 
     def get_interface_descriptor(self, dev, intf, alt, config):
-        return _Desc(bLength=9, bDescriptorType=4, bInterfaceNumber=P.INTERFACE, bAlternateSetting=0,
-                     bNumEndpoints=2, bInterfaceClass=0xFF, bInterfaceSubClass=0, bInterfaceProtocol=0,
-                     iInterface=0)
+        return _Desc(
+            bLength=9,
+            bDescriptorType=4,
+            bInterfaceNumber=P.INTERFACE,
+            bAlternateSetting=0,
+            bNumEndpoints=2,
+            bInterfaceClass=0xFF,
+            bInterfaceSubClass=0,
+            bInterfaceProtocol=0,
+            iInterface=0,
+        )
 
     def get_endpoint_descriptor(self, dev, ep, intf, alt, config):
         if ep == 0:
-            return _Desc(bLength=7, bDescriptorType=5, bEndpointAddress=P.DEBUG_ENDPOINT, bmAttributes=3,
-                         wMaxPacketSize=64, bInterval=1, bRefresh=0, bSynchAddress=0)
-        return _Desc(bLength=7, bDescriptorType=5, bEndpointAddress=P.DATA_ENDPOINT, bmAttributes=2,
-                     wMaxPacketSize=1024, bInterval=0, bRefresh=0, bSynchAddress=0)
+            return _Desc(
+                bLength=7,
+                bDescriptorType=5,
+                bEndpointAddress=P.DEBUG_ENDPOINT,
+                bmAttributes=3,
+                wMaxPacketSize=64,
+                bInterval=1,
+                bRefresh=0,
+                bSynchAddress=0,
+            )
+        return _Desc(
+            bLength=7,
+            bDescriptorType=5,
+            bEndpointAddress=P.DATA_ENDPOINT,
+            bmAttributes=2,
+            wMaxPacketSize=1024,
+            bInterval=0,
+            bRefresh=0,
+            bSynchAddress=0,
+        )
 
     # -- handles ------------------------------------------------------------------------------------
     def open_device(self, dev):

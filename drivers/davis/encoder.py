@@ -16,7 +16,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ...core.errors import ParameterError
+from necviz.core.errors import ParameterError
 
 #: special event codes (code 0)
 TS_RESET, EXT_FALLING, EXT_RISING, EXT_PULSE = 1, 2, 3, 4
@@ -27,8 +27,14 @@ EXPOSURE_START, EXPOSURE_END = 14, 15
 GEN_FALLING, GEN_RISING = 16, 17
 
 #: TRIGGER_KINDS name -> special code
-TRIGGER_CODES = {"timestamp_reset": TS_RESET, "external_rising": EXT_RISING, "external_falling": EXT_FALLING,
-                 "external_pulse": EXT_PULSE, "generator_rising": GEN_RISING, "generator_falling": GEN_FALLING}
+TRIGGER_CODES = {
+    "timestamp_reset": TS_RESET,
+    "external_rising": EXT_RISING,
+    "external_falling": EXT_FALLING,
+    "external_pulse": EXT_PULSE,
+    "generator_rising": GEN_RISING,
+    "generator_falling": GEN_FALLING,
+}
 
 
 @nb.njit(cache=True)
@@ -149,8 +155,9 @@ class StreamEncoder:
         return out
 
     # -- frames -----------------------------------------------------------------------------------
-    def frame_start(self, t_us: int, roi: tuple[int, int, int, int], exposure_cycles: int | None = None,
-                    global_shutter: bool = True) -> np.ndarray:
+    def frame_start(
+        self, t_us: int, roi: tuple[int, int, int, int], exposure_cycles: int | None = None, global_shutter: bool = True
+    ) -> np.ndarray:
         """Frame start (special 8 GS / 9 RS), optional exposure chunks, 8 ROI words (c0, r0, c1, r1)."""
         words = [FRAME_START_GS if global_shutter else FRAME_START_RS]
         if exposure_cycles is not None:
@@ -184,20 +191,31 @@ class StreamEncoder:
         block[:, -1] = COL_END
         return block.ravel()
 
-    def frame(self, t_start: int, t_exp_start: int, t_exp_end: int, t_end: int, reset: np.ndarray,
-              signal: np.ndarray, roi: tuple[int, int, int, int] | None = None,
-              exposure_cycles: int | None = None, global_shutter: bool = True) -> np.ndarray:
+    def frame(
+        self,
+        t_start: int,
+        t_exp_start: int,
+        t_exp_end: int,
+        t_end: int,
+        reset: np.ndarray,
+        signal: np.ndarray,
+        roi: tuple[int, int, int, int] | None = None,
+        exposure_cycles: int | None = None,
+        global_shutter: bool = True,
+    ) -> np.ndarray:
         """A whole frame with no events inside (GS order: start, reset read, exposure, signal read, end)."""
         h, w = np.shape(reset)
         roi = roi or (0, 0, w - 1, h - 1)
-        return np.concatenate([
-            self.frame_start(t_start, roi, exposure_cycles, global_shutter),
-            self.readout(reset, False),
-            self.special(t_exp_start, EXPOSURE_START),
-            self.special(t_exp_end, EXPOSURE_END),
-            self.readout(signal, True),
-            self.special(t_end, FRAME_END),
-        ])
+        return np.concatenate(
+            [
+                self.frame_start(t_start, roi, exposure_cycles, global_shutter),
+                self.readout(reset, False),
+                self.special(t_exp_start, EXPOSURE_START),
+                self.special(t_exp_end, EXPOSURE_END),
+                self.readout(signal, True),
+                self.special(t_end, FRAME_END),
+            ]
+        )
 
     # -- IMU --------------------------------------------------------------------------------------
     def imu(self, t_us: int, raw, accel_scale: int = 1, gyro_scale: int = 1, sensors: int = 7) -> np.ndarray:

@@ -176,8 +176,18 @@ class USB:
     EARLY_PACKET_DELAY = 1  # USB-clock cycles
 
 
-CHIP_NAMES = {0: "DAVIS240A", 1: "DAVIS240B", 2: "DAVIS240C", 3: "DAVIS128", 4: "DAVIS346A", 5: "DAVIS346B",
-              6: "DAVIS640", 7: "DAVIS640H", 8: "DAVIS208", 9: "DAVIS346C"}
+CHIP_NAMES = {
+    0: "DAVIS240A",
+    1: "DAVIS240B",
+    2: "DAVIS240C",
+    3: "DAVIS128",
+    4: "DAVIS346A",
+    5: "DAVIS346B",
+    6: "DAVIS640",
+    7: "DAVIS640H",
+    8: "DAVIS208",
+    9: "DAVIS346C",
+}
 DAVIS240_CHIPS = (0, 1, 2)
 DAVIS346_CHIPS = (4, 5, 9)
 
@@ -197,14 +207,27 @@ def vdac(voltage: int, current: int) -> int:
     return (voltage & 0x3F) | (current & 0x7) << 6
 
 
-def coarse_fine(coarse: int, fine: int, *, enabled: bool = True, sex_n: bool = True, type_normal: bool = True,
-                current_level_normal: bool = True) -> int:
+def coarse_fine(
+    coarse: int,
+    fine: int,
+    *,
+    enabled: bool = True,
+    sex_n: bool = True,
+    type_normal: bool = True,
+    current_level_normal: bool = True,
+) -> int:
     """Coarse/fine bias word: bit0 enabled, bit1 sexN, bit2 typeNormal, bit3 currentLevelNormal,
     ``fine`` (8 bits) << 4, ``coarse`` (3 bits) << 12."""
     if not (0 <= coarse < 8 and 0 <= fine < 256):
         raise ValueError(f"coarse must be 0..7 and fine 0..255, got {coarse}, {fine}")
-    return (int(enabled) | int(sex_n) << 1 | int(type_normal) << 2 | int(current_level_normal) << 3
-            | fine << 4 | coarse << 12)
+    return (
+        int(enabled)
+        | int(sex_n) << 1
+        | int(type_normal) << 2
+        | int(current_level_normal) << 3
+        | fine << 4
+        | coarse << 12
+    )
 
 
 def shifted_source(ref: int, reg: int, *, op_mode: int = 0, voltage_level: int = 0) -> int:
@@ -258,8 +281,23 @@ DAVIS346_BIASES = {
 }
 
 #: DAVIS346 chip configuration (module 5, params >= 128), GLOBAL_SHUTTER (142) is written separately.
-DAVIS346_CHIP_CONFIG = {128: 0, 129: 0, 130: 0, 131: 0, 132: 0, 133: 0, 134: 0, 135: 0, 136: 1, 137: 0, 138: 1,
-                        140: 0, 141: 0, 143: 1, 144: 0}
+DAVIS346_CHIP_CONFIG = {
+    128: 0,
+    129: 0,
+    130: 0,
+    131: 0,
+    132: 0,
+    133: 0,
+    134: 0,
+    135: 0,
+    136: 1,
+    137: 0,
+    138: 1,
+    140: 0,
+    141: 0,
+    143: 1,
+    144: 0,
+}
 
 #: DAVIS240 biases (old 22-branch generator). No DAVIS240 defaults were taken from libcaer: these reuse the
 #: DAVIS346 settings of the same-named branches; APSCASEPC, DIFFCASBNC and APSOVERFLOWLEVELBN are
@@ -288,8 +326,21 @@ DAVIS240_BIASES = {
     20: shifted_source(1, 33),  # SSP
     21: shifted_source(1, 33),  # SSN
 }
-DAVIS240_CHIP_CONFIG = {128: 0, 129: 0, 130: 0, 131: 0, 132: 0, 133: 0, 134: 0, 135: 0, 136: 1, 137: 0, 138: 1,
-                        140: 0, 141: 0}
+DAVIS240_CHIP_CONFIG = {
+    128: 0,
+    129: 0,
+    130: 0,
+    131: 0,
+    132: 0,
+    133: 0,
+    134: 0,
+    135: 0,
+    136: 1,
+    137: 0,
+    138: 1,
+    140: 0,
+    141: 0,
+}
 
 
 def default_biases(chip_id: int) -> dict[int, int]:
@@ -306,21 +357,37 @@ def default_chip_config(chip_id: int) -> dict[int, int]:
 #: ``dataStart`` after the default configuration: everything off, then (after clearing the halt) the
 #: chip, then USB/timestamps/MUX, then the producers. Each group is written in order; the driver
 #: sleeps ``START_SETTLE_S`` after each of the first three groups.
-START_STOP_ALL = ((DVS.MODULE, DVS.RUN, 0), (APS.MODULE, APS.RUN, 0), (IMU.MODULE, IMU.RUN_ACCELEROMETER, 0),
-                  (IMU.MODULE, IMU.RUN_GYROSCOPE, 0), (IMU.MODULE, IMU.RUN_TEMPERATURE, 0),
-                  (EXTINPUT.MODULE, EXTINPUT.RUN_DETECTOR, 0), (MUX.MODULE, MUX.RUN, 0),
-                  (MUX.MODULE, MUX.TIMESTAMP_RUN, 0), (USB.MODULE, USB.RUN, 0), (MUX.MODULE, MUX.RUN_CHIP, 0))
+START_STOP_ALL = (
+    (DVS.MODULE, DVS.RUN, 0),
+    (APS.MODULE, APS.RUN, 0),
+    (IMU.MODULE, IMU.RUN_ACCELEROMETER, 0),
+    (IMU.MODULE, IMU.RUN_GYROSCOPE, 0),
+    (IMU.MODULE, IMU.RUN_TEMPERATURE, 0),
+    (EXTINPUT.MODULE, EXTINPUT.RUN_DETECTOR, 0),
+    (MUX.MODULE, MUX.RUN, 0),
+    (MUX.MODULE, MUX.TIMESTAMP_RUN, 0),
+    (USB.MODULE, USB.RUN, 0),
+    (MUX.MODULE, MUX.RUN_CHIP, 0),
+)
 START_CHIP = ((MUX.MODULE, MUX.RUN_CHIP, 1),)
 START_TRANSPORT = ((USB.MODULE, USB.RUN, 1), (MUX.MODULE, MUX.TIMESTAMP_RUN, 1), (MUX.MODULE, MUX.RUN, 1))
-START_PRODUCERS = ((DVS.MODULE, DVS.RUN, 1), (APS.MODULE, APS.RUN, 1), (IMU.MODULE, IMU.RUN_ACCELEROMETER, 1),
-                   (IMU.MODULE, IMU.RUN_GYROSCOPE, 1), (IMU.MODULE, IMU.RUN_TEMPERATURE, 1),
-                   (EXTINPUT.MODULE, EXTINPUT.RUN_DETECTOR, 1))
+START_PRODUCERS = (
+    (DVS.MODULE, DVS.RUN, 1),
+    (APS.MODULE, APS.RUN, 1),
+    (IMU.MODULE, IMU.RUN_ACCELEROMETER, 1),
+    (IMU.MODULE, IMU.RUN_GYROSCOPE, 1),
+    (IMU.MODULE, IMU.RUN_TEMPERATURE, 1),
+    (EXTINPUT.MODULE, EXTINPUT.RUN_DETECTOR, 1),
+)
 #: sleeps (s) after: stop-all (before clearing the halt), RUN_CHIP (bias settle), USB/TS/MUX run
 START_SETTLE_S = (0.010, 0.200, 0.050)
 #: ``dataStop``: producers off, then MUX/timestamps/USB, then the chip.
 STOP_SEQUENCE = tuple((m, p, 0) for m, p, _ in START_PRODUCERS) + (
-    (MUX.MODULE, MUX.RUN, 0), (MUX.MODULE, MUX.TIMESTAMP_RUN, 0), (USB.MODULE, USB.RUN, 0),
-    (MUX.MODULE, MUX.RUN_CHIP, 0))
+    (MUX.MODULE, MUX.RUN, 0),
+    (MUX.MODULE, MUX.TIMESTAMP_RUN, 0),
+    (USB.MODULE, USB.RUN, 0),
+    (MUX.MODULE, MUX.RUN_CHIP, 0),
+)
 
 
 # -- user help -----------------------------------------------------------------------------------
@@ -331,8 +398,10 @@ UDEV_INSTALL = (
     "to /etc/udev/rules.d/65-inivation.rules, run `sudo udevadm control --reload-rules && sudo udevadm trigger` "
     "and replug the camera"
 )
-UDEV_HINT = ("check that the camera is listed by `lsusb -d 152a:` (DAVIS346 = 152a:841a, DAVIS240 = 152a:841b); "
-             "if it is but cannot be opened, " + UDEV_INSTALL)
+UDEV_HINT = (
+    "check that the camera is listed by `lsusb -d 152a:` (DAVIS346 = 152a:841a, DAVIS240 = 152a:841b); "
+    "if it is but cannot be opened, " + UDEV_INSTALL
+)
 FIRMWARE_REMEDY = "update the camera's firmware and logic with iniVation's DV software (Flashy / dv-flashy)"
 
 

@@ -22,8 +22,8 @@ from dataclasses import asdict, dataclass
 import numba as nb
 import numpy as np
 
-from ...core.crf import US_PER_S, CameraResponse
-from ...core.errors import ParameterError
+from necviz.core.crf import US_PER_S, CameraResponse
+from necviz.core.errors import ParameterError
 
 
 @dataclass(frozen=True)
@@ -132,8 +132,14 @@ def _digits(log_e, offset, scale, table, out):
     return True
 
 
-def expose(mean_irradiance: np.ndarray, exposure_us: float, gain: float, crf: CameraResponse,
-           params: ApsParams, rng: np.random.Generator | None) -> np.ndarray:
+def expose(
+    mean_irradiance: np.ndarray,
+    exposure_us: float,
+    gain: float,
+    crf: CameraResponse,
+    params: ApsParams,
+    rng: np.random.Generator | None,
+) -> np.ndarray:
     """One 8-bit frame from the exposure-averaged irradiance ``Lbar`` (float array, linear units)."""
     lut = _LUTS.get(id(crf))
     if lut is None or lut[0] is not crf:

@@ -41,10 +41,10 @@ import math
 import cv2
 import numpy as np
 
-from ...core.checks import check_number
-from ...core.errors import ParameterError
-from ...core.sensor import DAVIS346, SensorGeometry
-from .scene import LightingChange, Scene
+from necviz.core.checks import check_number
+from necviz.core.errors import ParameterError
+from necviz.core.sensor import DAVIS346, SensorGeometry
+from necviz.drivers.sim.scene import LightingChange, Scene
 
 __all__ = ["CalibrationScene", "CALIBRATION_SCENE"]
 
@@ -89,11 +89,23 @@ class CalibrationScene(Scene):
     name = CALIBRATION_SCENE
     DEFAULT_DURATION_US = 6_000_000
 
-    def __init__(self, sensor: SensorGeometry = DAVIS346, duration_us: int | None = None, seed: int = 0, *,
-                 base_log: float = 5.0, contrast: float = 0.35, motion_px: float = 0.0, bracket_s: float = 0.4,
-                 level_range: tuple[float, float] = (-2.0, 4.0), spot_range: tuple[float, float] = (-1.0, 2.0),
-                 ramp_ms: tuple[float, float] = (3.0, 300.0), hold_ms: tuple[float, float] = (40.0, 120.0),
-                 min_step: float = 0.3, spot_prob: float = 0.35):
+    def __init__(
+        self,
+        sensor: SensorGeometry = DAVIS346,
+        duration_us: int | None = None,
+        seed: int = 0,
+        *,
+        base_log: float = 5.0,
+        contrast: float = 0.35,
+        motion_px: float = 0.0,
+        bracket_s: float = 0.4,
+        level_range: tuple[float, float] = (-2.0, 4.0),
+        spot_range: tuple[float, float] = (-1.0, 2.0),
+        ramp_ms: tuple[float, float] = (3.0, 300.0),
+        hold_ms: tuple[float, float] = (40.0, 120.0),
+        min_step: float = 0.3,
+        spot_prob: float = 0.35,
+    ):
         if not isinstance(sensor, SensorGeometry):
             raise ParameterError(f"{self.name}: sensor must be a SensorGeometry, got {sensor!r}")
         duration_us = self.DEFAULT_DURATION_US if duration_us is None else duration_us
@@ -105,8 +117,12 @@ class CalibrationScene(Scene):
         dur_s = self.duration_us / 1e6
         bracket_s = check_number("bracket_s", bracket_s, 0.0, dur_s, where=name)
         pairs = {}
-        for key, v, lo, hi in (("level_range", level_range, -10.0, 10.0), ("spot_range", spot_range, -10.0, 10.0),
-                               ("ramp_ms", ramp_ms, 0.1, 10_000.0), ("hold_ms", hold_ms, 1.0, 10_000.0)):
+        for key, v, lo, hi in (
+            ("level_range", level_range, -10.0, 10.0),
+            ("spot_range", spot_range, -10.0, 10.0),
+            ("ramp_ms", ramp_ms, 0.1, 10_000.0),
+            ("hold_ms", hold_ms, 1.0, 10_000.0),
+        ):
             if not isinstance(v, (tuple, list)) or len(v) != 2:
                 raise ParameterError(f"{name}: {key} must be a (low, high) pair, got {v!r}")
             a = check_number(f"{key}[0]", v[0], lo, hi, where=name)
@@ -120,10 +136,18 @@ class CalibrationScene(Scene):
             lo, hi = pairs[key]
             if hi - lo < 2 * min_step:
                 raise ParameterError(f"{name}: {key} {pairs[key]} is narrower than twice min_step ({min_step:g})")
-        self.params = {"base_log": base_log, "contrast": contrast, "motion_px": motion_px, "bracket_s": bracket_s,
-                       "level_range": pairs["level_range"], "spot_range": pairs["spot_range"],
-                       "ramp_ms": pairs["ramp_ms"], "hold_ms": pairs["hold_ms"], "min_step": min_step,
-                       "spot_prob": spot_prob}
+        self.params = {
+            "base_log": base_log,
+            "contrast": contrast,
+            "motion_px": motion_px,
+            "bracket_s": bracket_s,
+            "level_range": pairs["level_range"],
+            "spot_range": pairs["spot_range"],
+            "ramp_ms": pairs["ramp_ms"],
+            "hold_ms": pairs["hold_ms"],
+            "min_step": min_step,
+            "spot_prob": spot_prob,
+        }
         self.bracket_us = int(round(bracket_s * 1e6))
         rng = np.random.default_rng([self.seed, 0xCA1])
         H, W = sensor.shape
@@ -177,7 +201,7 @@ class CalibrationScene(Scene):
     def _make_jitter(rng: np.random.Generator, px: float):
         f = np.exp(rng.uniform(math.log(0.3), math.log(4.0), size=(2, 6)))
         a = 1.0 / f
-        a *= px * math.sqrt(2.0) / np.sqrt((a ** 2).sum(axis=1, keepdims=True))
+        a *= px * math.sqrt(2.0) / np.sqrt((a**2).sum(axis=1, keepdims=True))
         ph = rng.uniform(0.0, 2 * math.pi, size=(2, 6))
         return f, a, ph
 
@@ -208,8 +232,13 @@ class CalibrationScene(Scene):
                 break
             (lamp if region == "lamp" else glob).append((t, t + ramp, cur, new))
             share = spot_share if region == "lamp" else 1.0
-            changes.append(LightingChange(int(round(t + ramp / 2)), f"{region} {cur:+.2f} -> {new:+.2f} ln "
-                                          f"in {ramp / 1e3:.3g} ms", (new - cur) * share))
+            changes.append(
+                LightingChange(
+                    int(round(t + ramp / 2)),
+                    f"{region} {cur:+.2f} -> {new:+.2f} ln in {ramp / 1e3:.3g} ms",
+                    (new - cur) * share,
+                )
+            )
             state[region] = [new, direction, left - 1]
             t += ramp + hold
         return _Ramps(glob), _Ramps(lamp), changes
@@ -238,7 +267,7 @@ class CalibrationScene(Scene):
         dx, dy = self.offset(t)
         m = self._margin
         if dx == 0.0 and dy == 0.0:
-            img = self._texture[m:m + H, m:m + W].copy()
+            img = self._texture[m : m + H, m : m + W].copy()
         else:
             mat = np.array([[1.0, 0.0, dx - m], [0.0, 1.0, dy - m]], np.float64)
             img = cv2.warpAffine(self._texture, mat, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)

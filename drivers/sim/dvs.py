@@ -63,10 +63,10 @@ from dataclasses import dataclass, fields, replace
 import numba as nb
 import numpy as np
 
-from ...core.checks import check_number
-from ...core.errors import ParameterError
-from ...core.events import EVENT_DTYPE
-from ...core.sensor import SensorGeometry
+from necviz.core.checks import check_number
+from necviz.core.errors import ParameterError
+from necviz.core.events import EVENT_DTYPE
+from necviz.core.sensor import SensorGeometry
 
 THRESHOLD_MIN = 0.01  # v2e/ESIM-fork clamp of the per-pixel thresholds (ln units)
 DARK_FLOOR = 20.0 / 255.0  # v2e's (I + 20) / 275: bandwidth floor 20/275 = 0.073 of the cutoff
@@ -135,8 +135,17 @@ class DvsParams:
     @classmethod
     def ideal(cls, c_on: float = 0.26, c_off: float = 0.24, **overrides) -> "DvsParams":
         """ESIM's ideal sensor: no mismatch, no low-pass, no noise, no refractory period, no ceiling."""
-        base = dict(c_on=c_on, c_off=c_off, sigma_threshold=0.0, refractory_us=0.0, cutoff_hz=None,
-                    leak_hz=0.0, leak_cov_decades=0.0, shot_noise_hz=0.0, max_event_rate=None)
+        base = dict(
+            c_on=c_on,
+            c_off=c_off,
+            sigma_threshold=0.0,
+            refractory_us=0.0,
+            cutoff_hz=None,
+            leak_hz=0.0,
+            leak_cov_decades=0.0,
+            shot_noise_hz=0.0,
+            max_event_rate=None,
+        )
         base.update(overrides)
         return cls(**base)
 
@@ -175,10 +184,33 @@ def lowpass_table(dt_us: float, omega_per_us: float, ref_log: float):
 #: last check when they are more than 4x that (so a burst's buffers are let go, a busy scene keeps them).
 SHRINK_EVERY = 256
 
+
 @nb.njit(cache=True, nogil=True)
-def dvs_pixels(lnew, lp, ref, th_on, th_off, leak_k, t_last, wake,
-               t0, t1, e0, e1, omega_s, a_tab, tab_lo, tab_inv_h, refractory, start,
-               out_t, out_pix, out_p, n0, stats):
+def dvs_pixels(
+    lnew,
+    lp,
+    ref,
+    th_on,
+    th_off,
+    leak_k,
+    t_last,
+    wake,
+    t0,
+    t1,
+    e0,
+    e1,
+    omega_s,
+    a_tab,
+    tab_lo,
+    tab_inv_h,
+    refractory,
+    start,
+    out_t,
+    out_pix,
+    out_p,
+    n0,
+    stats,
+):
     """One sample interval of the per-pixel model (low-pass, leak, ESIM crossings, refractory).
 
     ``lnew`` float32 (N,) new ``ln L``; state arrays (N,): ``lp`` filtered level (float64),
@@ -301,10 +333,10 @@ def dvs_pixels(lnew, lp, ref, th_on, th_off, leak_k, t_last, wake,
     return np.int64(n), w
 
 
-
 @nb.njit(cache=True, nogil=True)
-def dvs_shot_noise(cand_pix, cand_t, cand_u, cand_on, lnew, lp, ref, leak_k, th_on, wake, e1, ref_log,
-                   out_t, out_pix, out_p, n0):
+def dvs_shot_noise(
+    cand_pix, cand_t, cand_u, cand_on, lnew, lp, ref, leak_k, th_on, wake, e1, ref_log, out_t, out_pix, out_p, n0
+):
     """Thin homogeneous shot-noise candidates to v2e's intensity-dependent rate and apply them.
 
     Candidate ``j`` at pixel ``cand_pix[j]`` is kept when ``cand_u[j] < 1 - 0.75 inten01(L1)``
@@ -531,9 +563,29 @@ class EventSimulator:
         start, n = 0, 0
         while True:
             start, n = dvs_pixels(
-                img, self._lp, self._ref, self._th_on, self._th_off, self._leak_k, self._t_last,
-                self._wake, t0, t1, e0, e1, self._omega, a_tab, tab_lo, tab_inv_h, self._refractory, start,
-                self._buf_t, self._buf_pix, self._buf_p, n, self._stats,
+                img,
+                self._lp,
+                self._ref,
+                self._th_on,
+                self._th_off,
+                self._leak_k,
+                self._t_last,
+                self._wake,
+                t0,
+                t1,
+                e0,
+                e1,
+                self._omega,
+                a_tab,
+                tab_lo,
+                tab_inv_h,
+                self._refractory,
+                start,
+                self._buf_t,
+                self._buf_pix,
+                self._buf_p,
+                n,
+                self._stats,
             )
             if start >= self._n:
                 break
@@ -548,8 +600,24 @@ class EventSimulator:
                 on = self._rng.random(m) < 0.5
                 if n + m > self._buf_t.shape[0]:
                     self._grow(n + m)
-                n2 = dvs_shot_noise(pix, tt, uu, on, img, self._lp, self._ref, self._leak_k, self._th_on, self._wake, e1,
-                                    float(p.bandwidth_ref_log), self._buf_t, self._buf_pix, self._buf_p, n)
+                n2 = dvs_shot_noise(
+                    pix,
+                    tt,
+                    uu,
+                    on,
+                    img,
+                    self._lp,
+                    self._ref,
+                    self._leak_k,
+                    self._th_on,
+                    self._wake,
+                    e1,
+                    float(p.bandwidth_ref_log),
+                    self._buf_t,
+                    self._buf_pix,
+                    self._buf_p,
+                    n,
+                )
                 self.shot_noise_events += n2 - n
                 n = n2
         self.events_generated += n

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...core.errors import ParameterError
-from ...core.sensor import DAVIS346, SensorGeometry
+from necviz.core.errors import ParameterError
+from necviz.core.sensor import DAVIS346, SensorGeometry
 
 
 @dataclass(frozen=True)
@@ -34,8 +34,14 @@ class Scene:
 
     name = "scene"
 
-    def __init__(self, sensor: SensorGeometry = DAVIS346, duration_us: int = 5_000_000, seed: int = 0,
-                 params: dict | None = None, changes: list[LightingChange] | None = None):
+    def __init__(
+        self,
+        sensor: SensorGeometry = DAVIS346,
+        duration_us: int = 5_000_000,
+        seed: int = 0,
+        params: dict | None = None,
+        changes: list[LightingChange] | None = None,
+    ):
         if not isinstance(duration_us, (int, np.integer)) or duration_us <= 0:
             raise ParameterError(f"scene duration must be a positive integer (µs), got {duration_us!r}")
         if not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -59,8 +65,13 @@ class Scene:
         return None
 
     def describe(self) -> dict:
-        return {"name": self.name, "seed": self.seed, "duration_us": self.duration_us,
-                "sensor": f"{self.sensor.width}x{self.sensor.height}", **self.params}
+        return {
+            "name": self.name,
+            "seed": self.seed,
+            "duration_us": self.duration_us,
+            "sensor": f"{self.sensor.width}x{self.sensor.height}",
+            **self.params,
+        }
 
 
 class FunctionScene(Scene):
@@ -78,8 +89,15 @@ class FunctionScene(Scene):
 
     name = "custom"
 
-    def __init__(self, fn, sensor: SensorGeometry = DAVIS346, duration_us: int = 5_000_000, seed: int = 0,
-                 changes: list[LightingChange] | None = None, name: str = "custom"):
+    def __init__(
+        self,
+        fn,
+        sensor: SensorGeometry = DAVIS346,
+        duration_us: int = 5_000_000,
+        seed: int = 0,
+        changes: list[LightingChange] | None = None,
+        name: str = "custom",
+    ):
         super().__init__(sensor, duration_us, seed, {"function": getattr(fn, "__name__", "fn")}, changes)
         if not callable(fn):
             raise ParameterError("FunctionScene needs a callable fn(t_us, sensor) -> ln L image")

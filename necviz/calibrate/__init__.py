@@ -8,32 +8,51 @@ and the events between it and ``g`` (:mod:`necviz.core.tedi`, SciPy least square
 data hold exposure brackets of a static scene, the camera response ``g(Z)`` is fitted first by
 Debevec & Malik (1997) and the TEDI fit uses it.
 
-Data: recordings in any format :func:`necviz.drivers.replay.open_recording` reads, or simulator
+Data: recordings in any format :func:`necviz.drivers.recordings.open_recording` reads, or simulator
 runs (:func:`simulate_calibration_stream`: the calibration scene of
 :mod:`necviz.drivers.sim.calibration_scene`, or a preset, driven by an exposure oracle).
 Both are consumed as one stream of packets by :class:`PairCollector`.
 
 Modules: :mod:`.pairs` (choosing the frame pairs and the exposure brackets from a stream),
 :mod:`.fit` (the least-squares fit and :class:`CalibrationResult`), :mod:`.recordings` and
-:mod:`.simulate` (the two data sources), :mod:`.profile` (the shipped simulated-DAVIS346 profile),
-:mod:`.cli` (the ``necviz calibrate`` command). Every name is importable from ``necviz.calibrate``.
+:mod:`.simulate` (the two data sources). The shipped simulated-DAVIS346 profile is
+:func:`necviz.profiles.default_sim_profile`; the command is :mod:`necviz.commands.calibrate`.
 """
 
 from __future__ import annotations
 
-# The names below and outside __all__ (DEFAULTS, FIT_CHOICES, DEFAULT_*, KNOWN_EVENT_RATES, BRACKET_OFFSETS,
-# ExposureOracle, make_sim_scene, calibrate_collected) stay importable from here, as from the single module
-# this package replaced.
-from .cli import add_parser, parse_seeds, run
-from .fit import (DEFAULT_F_SCALE, DEFAULT_LOSS, DEFAULT_SLOW_RATE, FIT_CHOICES, CalibrationResult,  # noqa: F401
-                  calibrate_collected)
-from .pairs import DEFAULTS, PairCollector  # noqa: F401
-from .profile import SIM_CALIBRATION, SIM_PROFILE, default_sim_profile
-from .recordings import KNOWN_EVENT_RATES, calibrate_from_recordings  # noqa: F401
-from .simulate import (BRACKET_OFFSETS, ExposureOracle, calibrate_from_simulation, make_sim_scene,  # noqa: F401
-                       simulate_calibration_stream)
+from necviz.calibrate.fit import (
+    DEFAULT_F_SCALE,
+    DEFAULT_LOSS,
+    DEFAULT_SLOW_RATE,
+    FIT_CHOICES,
+    CalibrationResult,
+    calibrate_collected,
+)
+from necviz.calibrate.pairs import DEFAULTS, PairCollector
+from necviz.calibrate.recordings import KNOWN_EVENT_RATES, calibrate_from_recordings
+from necviz.calibrate.simulate import (
+    BRACKET_OFFSETS,
+    ExposureOracle,
+    calibrate_from_simulation,
+    make_sim_scene,
+    simulate_calibration_stream,
+)
 
-__all__ = ["CalibrationResult", "PairCollector", "add_parser", "calibrate_from_recordings",
-           "calibrate_from_simulation", "default_sim_profile", "parse_seeds", "run", "simulate_calibration_stream",
-           "SIM_PROFILE", "SIM_CALIBRATION"]
-
+__all__ = [
+    "BRACKET_OFFSETS",
+    "DEFAULTS",
+    "DEFAULT_F_SCALE",
+    "DEFAULT_LOSS",
+    "DEFAULT_SLOW_RATE",
+    "FIT_CHOICES",
+    "KNOWN_EVENT_RATES",
+    "CalibrationResult",
+    "ExposureOracle",
+    "PairCollector",
+    "calibrate_collected",
+    "calibrate_from_recordings",
+    "calibrate_from_simulation",
+    "make_sim_scene",
+    "simulate_calibration_stream",
+]

@@ -18,14 +18,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core.control import CameraLimits
-from ..core.crf import CameraResponse, debevec_malik
-from ..core.errors import ParameterError
-from ..core.event_model import TediParams
-from ..core.profile import CameraProfile
-from ..core.sensor import SensorGeometry
-from ..core.tedi import PARAM_NAMES, TediCalibration, fit_tedi_pairs, pair_residuals
-from .pairs import PairCollector
+from necviz.calibrate.pairs import PairCollector
+from necviz.core.camera_profile import CameraProfile
+from necviz.core.control import CameraLimits
+from necviz.core.crf import CameraResponse, debevec_malik
+from necviz.core.errors import ParameterError
+from necviz.core.event_model import TediParams
+from necviz.core.sensor import SensorGeometry
+from necviz.core.tedi import PARAM_NAMES, TediCalibration, fit_tedi_pairs, pair_residuals
 
 FIT_CHOICES = {"all": PARAM_NAMES, "c": ("c_on", "c_off")}
 
@@ -80,13 +80,21 @@ class CalibrationResult:
         return {
             "profile": self.profile.to_dict(),
             "init": _params_dict(self.init),
-            "fit": {"params": _params_dict(self.params), "stderr": {k: _num(v) for k, v in self.stderr.items()},
-                    "at_bound": list(self.at_bound), "rms_before": self.rms_before, "rms_after": self.rms_after,
-                    "residuals": self.num_residuals, "method": self.method, "stages": self.stages,
-                    "inactive_compensation": list(self.inactive),
-                    "groups": self.groups},
-            "plain": None if self.plain is None else {
-                "params": _params_dict(self.plain.params), "rms_after": self.plain.rms_after},
+            "fit": {
+                "params": _params_dict(self.params),
+                "stderr": {k: _num(v) for k, v in self.stderr.items()},
+                "at_bound": list(self.at_bound),
+                "rms_before": self.rms_before,
+                "rms_after": self.rms_after,
+                "residuals": self.num_residuals,
+                "method": self.method,
+                "stages": self.stages,
+                "inactive_compensation": list(self.inactive),
+                "groups": self.groups,
+            },
+            "plain": None
+            if self.plain is None
+            else {"params": _params_dict(self.plain.params), "rms_after": self.plain.rms_after},
             "crf": {"fitted": self.crf_fitted, **self.crf_info},
             "data": self.data,
             "pairs": self.pairs,
@@ -95,10 +103,13 @@ class CalibrationResult:
     def summary(self) -> str:
         p, se = self.params, self.stderr
         d = self.data
-        lines = [f"data: {d.get('frames', '?')} frames, {d.get('pairs_considered', '?')} pairs considered, "
-                 f"{len(self.pairs)} used ({self.num_residuals:,} pixel residuals; "
-                 f"{self.groups.get('saturated', {}).get('pairs', 0)} reached the sensor's bus ceiling)",
-                 f"fit: {self.method}", "fitted TEDI parameters (± standard error):"]
+        lines = [
+            f"data: {d.get('frames', '?')} frames, {d.get('pairs_considered', '?')} pairs considered, "
+            f"{len(self.pairs)} used ({self.num_residuals:,} pixel residuals; "
+            f"{self.groups.get('saturated', {}).get('pairs', 0)} reached the sensor's bus ceiling)",
+            f"fit: {self.method}",
+            "fitted TEDI parameters (± standard error):",
+        ]
         for name in PARAM_NAMES:
             unit = " ev/s" if name.startswith("b_") else ""
             v, s = getattr(p, name), se.get(name, math.nan)
@@ -115,18 +126,26 @@ class CalibrationResult:
             else:
                 extra = ""
             lines.append(f"  {name:6s} {v:10.4g}{unit}" + (f" ± {s:.2g}" if math.isfinite(s) else "") + extra)
-        lines.append(f"RMS residual (ln units), all pairs: {self.rms_before:.4f} at the start -> {self.rms_after:.4f} fitted")
+        lines.append(
+            f"RMS residual (ln units), all pairs: {self.rms_before:.4f} at the start -> {self.rms_after:.4f} fitted"
+        )
         for key in ("unsaturated", "saturated"):
             g = self.groups.get(key)
             if g and g["pairs"]:
-                lines.append(f"  {key} pairs ({g['pairs']}): {g['rms_before']:.4f} -> {g['rms_after']:.4f}"
-                             + (f" (without compensation: {g['rms_plain']:.4f})" if g.get("rms_plain") is not None else ""))
+                lines.append(
+                    f"  {key} pairs ({g['pairs']}): {g['rms_before']:.4f} -> {g['rms_after']:.4f}"
+                    + (f" (without compensation: {g['rms_plain']:.4f})" if g.get("rms_plain") is not None else "")
+                )
         if self.plain is not None:
-            lines.append(f"  without compensation (c± only, a = b = 0, all pairs): {self.plain.rms_after:.4f} "
-                         f"(c_on {self.plain.params.c_on:.4f}, c_off {self.plain.params.c_off:.4f})")
+            lines.append(
+                f"  without compensation (c± only, a = b = 0, all pairs): {self.plain.rms_after:.4f} "
+                f"(c_on {self.plain.params.c_on:.4f}, c_off {self.plain.params.c_off:.4f})"
+            )
         if self.crf_fitted:
-            lines.append(f"camera response: fitted (Debevec-Malik) from {self.crf_info['frames']} bracketed frames, "
-                         f"max |change| {self.crf_info['max_abs_change_ln']:.3f} ln over the valid range")
+            lines.append(
+                f"camera response: fitted (Debevec-Malik) from {self.crf_info['frames']} bracketed frames, "
+                f"max |change| {self.crf_info['max_abs_change_ln']:.3f} ln over the valid range"
+            )
         else:
             lines.append(f"camera response: {self.crf_info.get('reason', 'kept')}")
         return "\n".join(lines)
@@ -142,7 +161,6 @@ def _params_dict(p: TediParams) -> dict:
     return {n: float(getattr(p, n)) for n in PARAM_NAMES}
 
 
-
 def _resolve_fit(fit) -> tuple[str, ...]:
     if isinstance(fit, str):
         if fit in FIT_CHOICES:
@@ -151,8 +169,10 @@ def _resolve_fit(fit) -> tuple[str, ...]:
     fit = tuple(fit)
     bad = [f for f in fit if f not in PARAM_NAMES]
     if not fit or bad or len(set(fit)) != len(fit):
-        raise ParameterError(f"--fit must be 'all', 'c' or distinct names among {', '.join(PARAM_NAMES)}; "
-                             f"got {','.join(fit) or 'nothing'}")
+        raise ParameterError(
+            f"--fit must be 'all', 'c' or distinct names among {', '.join(PARAM_NAMES)}; "
+            f"got {','.join(fit) or 'nothing'}"
+        )
     return fit
 
 
@@ -174,9 +194,17 @@ def _fit_crf(collector: PairCollector, base: CameraResponse, mode: str) -> tuple
     cnt = ok.sum(axis=0)
     mean = np.where(cnt > 0, (lh * ok).sum(axis=0) / np.maximum(cnt, 1), 0.0)
     dev = (lh - mean)[ok & (cnt >= 2)[None]]
-    rms = float(np.sqrt(np.mean(dev ** 2))) if dev.size else math.nan
-    return crf, True, {"frames": len(group), "exposure_gain_us": [float(p) for p in sorted(products)],
-                       "max_abs_change_ln": change, "bracket_rms_ln": _num(rms)}
+    rms = float(np.sqrt(np.mean(dev**2))) if dev.size else math.nan
+    return (
+        crf,
+        True,
+        {
+            "frames": len(group),
+            "exposure_gain_us": [float(p) for p in sorted(products)],
+            "max_abs_change_ln": change,
+            "bracket_rms_ln": _num(rms),
+        },
+    )
 
 
 def _report(progress, text: str) -> None:
@@ -189,20 +217,39 @@ def _rms(parts) -> float:
     if not parts:
         return math.nan
     r = np.concatenate(parts)
-    return float(np.sqrt(np.mean(r ** 2)))
+    return float(np.sqrt(np.mean(r**2)))
 
 
 def _stage(name: str, pairs, res: TediCalibration) -> dict:
-    return {"stage": name, "pairs": len(pairs), "fitted": [k for k, v in res.stderr.items() if math.isfinite(v)]
-            + list(res.at_bound), "rms_before": res.rms_before, "rms_after": res.rms_after,
-            "evaluations": res.evaluations, "success": res.success, "message": res.message}
+    return {
+        "stage": name,
+        "pairs": len(pairs),
+        "fitted": [k for k, v in res.stderr.items() if math.isfinite(v)] + list(res.at_bound),
+        "rms_before": res.rms_before,
+        "rms_after": res.rms_after,
+        "evaluations": res.evaluations,
+        "success": res.success,
+        "message": res.message,
+    }
 
 
-def calibrate_collected(collector: PairCollector, *, base: CameraProfile | None = None, init: TediParams | None = None,
-                        fit="all", crf_mode: str = "auto", name: str | None = None, limits: CameraLimits | None = None,
-                        max_event_rate: float | None = None, slow_rate: float = DEFAULT_SLOW_RATE,
-                        loss: str = DEFAULT_LOSS, f_scale: float = DEFAULT_F_SCALE, extra: dict | None = None,
-                        progress=None, max_nfev: int = 200) -> CalibrationResult:
+def calibrate_collected(
+    collector: PairCollector,
+    *,
+    base: CameraProfile | None = None,
+    init: TediParams | None = None,
+    fit="all",
+    crf_mode: str = "auto",
+    name: str | None = None,
+    limits: CameraLimits | None = None,
+    max_event_rate: float | None = None,
+    slow_rate: float = DEFAULT_SLOW_RATE,
+    loss: str = DEFAULT_LOSS,
+    f_scale: float = DEFAULT_F_SCALE,
+    extra: dict | None = None,
+    progress=None,
+    max_nfev: int = 200,
+) -> CalibrationResult:
     """Fit response (if brackets) and TEDI parameters on what ``collector`` kept; build the profile.
 
     **Saturated pairs.** ``max_event_rate`` (events/s) is the sensor's bus ceiling: a pair whose
@@ -230,22 +277,31 @@ def calibrate_collected(collector: PairCollector, *, base: CameraProfile | None 
     fit = _resolve_fit(fit)
     if crf_mode not in ("auto", "keep"):
         raise ParameterError(f"--crf must be auto or keep, got {crf_mode!r}")
-    if isinstance(slow_rate, bool) or not isinstance(slow_rate, (int, float)) or not (math.isfinite(slow_rate)
-                                                                                     and slow_rate > 0):
+    if (
+        isinstance(slow_rate, bool)
+        or not isinstance(slow_rate, (int, float))
+        or not (math.isfinite(slow_rate) and slow_rate > 0)
+    ):
         raise ParameterError(f"slow_rate must be a positive number of events per pixel per second, got {slow_rate!r}")
-    if max_event_rate is not None and (isinstance(max_event_rate, bool) or not isinstance(max_event_rate, (int, float))
-                                       or not (math.isfinite(max_event_rate) and max_event_rate > 0)):
+    if max_event_rate is not None and (
+        isinstance(max_event_rate, bool)
+        or not isinstance(max_event_rate, (int, float))
+        or not (math.isfinite(max_event_rate) and max_event_rate > 0)
+    ):
         raise ParameterError(f"max_event_rate must be a positive number of events per second, got {max_event_rate!r}")
     if not collector.pairs:
         d = collector
         if d.frames < 2:
-            raise ParameterError(f"calibration needs frames with their exposures: the input held {d.frames} frame(s) "
-                                 f"(formats without stored exposure need --exposure-us)")
+            raise ParameterError(
+                f"calibration needs frames with their exposures: the input held {d.frames} frame(s) "
+                f"(formats without stored exposure need --exposure-us)"
+            )
         raise ParameterError(
             f"no frame pair qualifies: {d.considered} frames tried against up to {d.max_lag} earlier ones, none with "
             f"{d.min_pixels} pixels valid in both, changed by >= {d.min_change:g} ln"
             + (" and continuing their last event's direction" if d.continuation else "")
-            + "; record lighting changes or motion, or lower --min-change / --min-pixels")
+            + "; record lighting changes or motion, or lower --min-change / --min-pixels"
+        )
     crf, crf_fitted, crf_info = _fit_crf(collector, base.crf, crf_mode)
     pairs = collector.pairs
     t_fit = time.perf_counter()
@@ -268,18 +324,24 @@ def calibrate_collected(collector: PairCollector, *, base: CameraProfile | None 
     knee_text = f", knee b/a >= {knee:g} ev/s per pixel" if knee else ""
     if c_names and comp_names and len(complete) >= 3:
         label[0] = f"thresholds on {len(complete)} unsaturated pairs"
-        s1 = fit_tedi_pairs(complete, crf, TediParams(init.c_on, init.c_off), c_names, cb, max_nfev=max_nfev,
-                            loss=loss, f_scale=f_scale)
+        s1 = fit_tedi_pairs(
+            complete, crf, TediParams(init.c_on, init.c_off), c_names, cb, max_nfev=max_nfev, loss=loss, f_scale=f_scale
+        )
         start = TediParams(s1.params.c_on, s1.params.c_off, init.a_on, init.b_on, init.a_off, init.b_off)
         label[0] = f"compensation on {len(pairs)} pairs"
-        res = fit_tedi_pairs(pairs, crf, start, comp_names, cb, max_nfev=max_nfev, knee_min=knee, loss=loss,
-                             f_scale=f_scale)
-        stages = [_stage(f"{', '.join(c_names)} (a = b = 0) on the unsaturated pairs", complete, s1),
-                  _stage(f"{', '.join(comp_names)} (c fixed) on all pairs", pairs, res)]
+        res = fit_tedi_pairs(
+            pairs, crf, start, comp_names, cb, max_nfev=max_nfev, knee_min=knee, loss=loss, f_scale=f_scale
+        )
+        stages = [
+            _stage(f"{', '.join(c_names)} (a = b = 0) on the unsaturated pairs", complete, s1),
+            _stage(f"{', '.join(comp_names)} (c fixed) on all pairs", pairs, res),
+        ]
         stderr = {k: (s1.stderr[k] if k in c_names else res.stderr[k]) for k in PARAM_NAMES}
         at_bound = list(s1.at_bound) + list(res.at_bound)
-        method = (f"two stages: {', '.join(c_names)} on the {len(complete)} unsaturated pairs, then "
-                  f"{', '.join(comp_names)} on all {len(pairs)} pairs{robust}{knee_text}")
+        method = (
+            f"two stages: {', '.join(c_names)} on the {len(complete)} unsaturated pairs, then "
+            f"{', '.join(comp_names)} on all {len(pairs)} pairs{robust}{knee_text}"
+        )
     else:
         label[0] = f"{len(pairs)} pairs"
         res = fit_tedi_pairs(pairs, crf, init, fit, cb, max_nfev=max_nfev, knee_min=knee, loss=loss, f_scale=f_scale)
@@ -292,22 +354,39 @@ def calibrate_collected(collector: PairCollector, *, base: CameraProfile | None 
     plain = None
     if comp_names:
         label[0] = "thresholds without compensation"
-        plain = fit_tedi_pairs(pairs, crf, TediParams(params.c_on, params.c_off), ("c_on", "c_off"), cb,
-                               max_nfev=max_nfev, loss=loss, f_scale=f_scale)
+        plain = fit_tedi_pairs(
+            pairs,
+            crf,
+            TediParams(params.c_on, params.c_off),
+            ("c_on", "c_off"),
+            cb,
+            max_nfev=max_nfev,
+            loss=loss,
+            f_scale=f_scale,
+        )
     r_before = pair_residuals(pairs, crf, init)
     r_after = pair_residuals(pairs, crf, params)
     r_plain = pair_residuals(pairs, crf, plain.params) if plain is not None else None
     groups = {}
     for key, want in (("unsaturated", False), ("saturated", True)):
         idx = [i for i, v in enumerate(saturated) if v == want]
-        groups[key] = {"pairs": len(idx), "rms_before": _num(_rms([r_before[i] for i in idx])),
-                       "rms_after": _num(_rms([r_after[i] for i in idx])),
-                       "rms_plain": None if r_plain is None else _num(_rms([r_plain[i] for i in idx]))}
+        groups[key] = {
+            "pairs": len(idx),
+            "rms_before": _num(_rms([r_before[i] for i in idx])),
+            "rms_after": _num(_rms([r_after[i] for i in idx])),
+            "rms_plain": None if r_plain is None else _num(_rms([r_plain[i] for i in idx])),
+        }
     groups["max_event_rate"] = max_event_rate
     per_pair = []
     for pr, rb, ra, sat in zip(pairs, r_before, r_after, saturated):
-        per_pair.append({**pr.stats(), "saturated": sat, "rms_before": float(np.sqrt(np.mean(rb ** 2))),
-                         "rms_after": float(np.sqrt(np.mean(ra ** 2)))})
+        per_pair.append(
+            {
+                **pr.stats(),
+                "saturated": sat,
+                "rms_before": float(np.sqrt(np.mean(rb**2))),
+                "rms_after": float(np.sqrt(np.mean(ra**2))),
+            }
+        )
     rms_before, rms_after = _rms(r_before), _rms(r_after)
     num_res = int(sum(pr.n for pr in pairs))
     h, w = collector.shape
@@ -318,15 +397,34 @@ def calibrate_collected(collector: PairCollector, *, base: CameraProfile | None 
         "data": {k: data[k] for k in ("sources", "frames", "pairs_used", "pairs_considered") if k in data}
         | ({"simulation": extra["simulation"]} if extra and "simulation" in extra else {}),
         "selection": {**data["selection"], "slow_rate": slow_rate, "max_event_rate": max_event_rate},
-        "fitted": list(fit), "init": _params_dict(init),
-        "rms_before": rms_before, "rms_after": rms_after,
+        "fitted": list(fit),
+        "init": _params_dict(init),
+        "rms_before": rms_before,
+        "rms_after": rms_after,
         "rms_without_compensation": None if plain is None else plain.rms_after,
         "pairs_saturated": int(sum(saturated)),
         "stderr": {k: _num(v) for k, v in stderr.items() if k in fit},
         "crf": "fitted (Debevec-Malik)" if crf_fitted else crf_info.get("reason", "kept"),
     }
-    profile = CameraProfile(name=name or base.name, sensor=sensor, crf=crf, tedi=params,
-                            limits=limits or base.limits, calibration=calib)
-    return CalibrationResult(profile, params, init, stderr, at_bound, rms_before, rms_after, num_res, plain, method,
-                             stages, crf_fitted, crf_info, data, per_pair, groups, tuple(res.inactive))
-
+    profile = CameraProfile(
+        name=name or base.name, sensor=sensor, crf=crf, tedi=params, limits=limits or base.limits, calibration=calib
+    )
+    return CalibrationResult(
+        profile,
+        params,
+        init,
+        stderr,
+        at_bound,
+        rms_before,
+        rms_after,
+        num_res,
+        plain,
+        method,
+        stages,
+        crf_fitted,
+        crf_info,
+        data,
+        per_pair,
+        groups,
+        tuple(res.inactive),
+    )

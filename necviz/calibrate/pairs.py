@@ -36,17 +36,25 @@ import math
 
 import numpy as np
 
-from ..core.crf import CameraResponse
-from ..core.errors import EventFormatError, ParameterError
-from ..core.events import EVENT_DTYPE
-from ..core.frames import ExposureMarker, Frame
-from ..core.profile import CameraProfile
-from ..core.tedi import REFERENCES, CalibrationPair, prepare_pair
-from ..core.tedi_kernels import update_last_polarity
+from necviz.core.camera_profile import CameraProfile
+from necviz.core.crf import CameraResponse
+from necviz.core.errors import EventFormatError, ParameterError
+from necviz.core.events import EVENT_DTYPE
+from necviz.core.frames import ExposureMarker, Frame
+from necviz.core.tedi import REFERENCES, CalibrationPair, prepare_pair
+from necviz.core.tedi_kernels import update_last_polarity
 
-DEFAULTS = {"min_change": 0.5, "min_pixels": 200, "max_pixels": 5_000, "max_pairs": 200,
-            "max_bytes": 400_000_000, "max_gap_us": 1_000_000, "max_lag": 8, "static_events": 0.05,
-            "continuation": True}
+DEFAULTS = {
+    "min_change": 0.5,
+    "min_pixels": 200,
+    "max_pixels": 5_000,
+    "max_pairs": 200,
+    "max_bytes": 400_000_000,
+    "max_gap_us": 1_000_000,
+    "max_lag": 8,
+    "static_events": 0.05,
+    "continuation": True,
+}
 
 
 class _Recent:
@@ -86,17 +94,33 @@ class PairCollector:
     least-squares thresholds come out low).
     """
 
-    def __init__(self, crf: CameraResponse, *, reference: str = "previous_start",
-                 min_change: float = DEFAULTS["min_change"], min_pixels: int = DEFAULTS["min_pixels"],
-                 max_pixels: int = DEFAULTS["max_pixels"], max_pairs: int = DEFAULTS["max_pairs"],
-                 max_bytes: int = DEFAULTS["max_bytes"], max_gap_us: int = DEFAULTS["max_gap_us"],
-                 max_lag: int = DEFAULTS["max_lag"], static_events: float = DEFAULTS["static_events"],
-                 continuation: bool = DEFAULTS["continuation"], max_buffer_events: int = 30_000_000):
+    def __init__(
+        self,
+        crf: CameraResponse,
+        *,
+        reference: str = "previous_start",
+        min_change: float = DEFAULTS["min_change"],
+        min_pixels: int = DEFAULTS["min_pixels"],
+        max_pixels: int = DEFAULTS["max_pixels"],
+        max_pairs: int = DEFAULTS["max_pairs"],
+        max_bytes: int = DEFAULTS["max_bytes"],
+        max_gap_us: int = DEFAULTS["max_gap_us"],
+        max_lag: int = DEFAULTS["max_lag"],
+        static_events: float = DEFAULTS["static_events"],
+        continuation: bool = DEFAULTS["continuation"],
+        max_buffer_events: int = 30_000_000,
+    ):
         if reference not in REFERENCES:
             raise ParameterError(f"reference must be one of {', '.join(REFERENCES)}, got {reference!r}")
-        for name, v, lo in (("min_pixels", min_pixels, 1), ("max_pixels", max_pixels, 1), ("max_pairs", max_pairs, 2),
-                            ("max_bytes", max_bytes, 1), ("max_gap_us", max_gap_us, 1), ("max_lag", max_lag, 1),
-                            ("max_buffer_events", max_buffer_events, 1)):
+        for name, v, lo in (
+            ("min_pixels", min_pixels, 1),
+            ("max_pixels", max_pixels, 1),
+            ("max_pairs", max_pairs, 2),
+            ("max_bytes", max_bytes, 1),
+            ("max_gap_us", max_gap_us, 1),
+            ("max_lag", max_lag, 1),
+            ("max_buffer_events", max_buffer_events, 1),
+        ):
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
                 raise ParameterError(f"{name} must be an integer >= {lo}, got {v!r}")
         if max_lag > 50:
@@ -207,15 +231,20 @@ class PairCollector:
             self._run_last = np.zeros(cur.shape[0] * cur.shape[1], np.int8)
         elif cur.shape != self.shape:
             h, w = self.shape
-            raise ParameterError(f"{self._source}: frames are {cur.shape[1]}x{cur.shape[0]}, earlier input "
-                                 f"had {w}x{h}; calibrate one camera at a time")
+            raise ParameterError(
+                f"{self._source}: frames are {cur.shape[1]}x{cur.shape[0]}, earlier input "
+                f"had {w}x{h}; calibrate one camera at a time"
+            )
         self.frames += 1
         ev = self._events()
         self._advance_history(ev, cur.exposure_start_us)
         entry = _Recent(cur, self.crf, self._run_last.copy() if self.continuation else None)
         if self._recent:
             last = self._recent[-1].frame
-            if cur.exposure_start_us <= last.exposure_start_us or cur.exposure_start_us - last.exposure_end_us > self.max_gap_us:
+            if (
+                cur.exposure_start_us <= last.exposure_start_us
+                or cur.exposure_start_us - last.exposure_end_us > self.max_gap_us
+            ):
                 self.rejected["gap_or_order"] += 1
                 self._close_group()
                 self._recent = []
@@ -245,8 +274,16 @@ class PairCollector:
             if self.continuation:
                 use &= np.sign(diff).astype(np.int8) == prev.last_polarity
             if int(use.sum()) >= self.min_pixels:
-                pr = prepare_pair(ev, prev.frame, cur.frame, self.crf, reference=self.reference,
-                                  max_pixels=self.max_pixels, mask=use, source=self._source)
+                pr = prepare_pair(
+                    ev,
+                    prev.frame,
+                    cur.frame,
+                    self.crf,
+                    reference=self.reference,
+                    max_pixels=self.max_pixels,
+                    mask=use,
+                    source=self._source,
+                )
                 if pr is not None:
                     i0, i1 = np.searchsorted(ev["t"], [prev.frame.exposure_start_us, cur.frame.exposure_end_us])
                     if i1 > i0:
@@ -283,8 +320,9 @@ class PairCollector:
         pf, cf = prev.frame, cur.frame
         h, w = cf.shape
         t = ev["t"]
-        n = int(np.searchsorted(t, cf.exposure_end_us, side="left") - np.searchsorted(t, pf.exposure_start_us,
-                                                                                      side="left"))
+        n = int(
+            np.searchsorted(t, cf.exposure_end_us, side="left") - np.searchsorted(t, pf.exposure_start_us, side="left")
+        )
         if not self._group:
             self._group = [(pf.image, pf.exposure_us * pf.gain, prev.log_lbar, _well(pf))]
         well = _well(cf)
@@ -318,16 +356,28 @@ class PairCollector:
             self.best_brackets = list(g)
 
     def describe(self) -> dict:
-        return {"sources": list(self.sources), "frames": self.frames, "events": int(self.events),
-                "pairs_considered": self.considered, "pairs_qualifying": self.qualifying,
-                "pairs_used": len(self.pairs), "thinning_stride": self.stride, "rejected": dict(self.rejected),
-                "pairs_by_lag": {str(k): v for k, v in sorted(self.lags.items())},
-                "selection": {"reference": self.reference, "min_change_ln": self.min_change,
-                              "min_pixels": self.min_pixels, "max_pixels": self.max_pixels,
-                              "max_pairs": self.max_pairs, "max_gap_us": self.max_gap_us, "max_lag": self.max_lag,
-                              "continuation_rule": self.continuation},
-                "bracket_frames": 0 if self.best_brackets is None else len(self.best_brackets)}
-
+        return {
+            "sources": list(self.sources),
+            "frames": self.frames,
+            "events": int(self.events),
+            "pairs_considered": self.considered,
+            "pairs_qualifying": self.qualifying,
+            "pairs_used": len(self.pairs),
+            "thinning_stride": self.stride,
+            "rejected": dict(self.rejected),
+            "pairs_by_lag": {str(k): v for k, v in sorted(self.lags.items())},
+            "selection": {
+                "reference": self.reference,
+                "min_change_ln": self.min_change,
+                "min_pixels": self.min_pixels,
+                "max_pixels": self.max_pixels,
+                "max_pairs": self.max_pairs,
+                "max_gap_us": self.max_gap_us,
+                "max_lag": self.max_lag,
+                "continuation_rule": self.continuation,
+            },
+            "bracket_frames": 0 if self.best_brackets is None else len(self.best_brackets),
+        }
 
 
 def _collector(base: CameraProfile, kw: dict) -> PairCollector:

@@ -5,23 +5,42 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from ..core.errors import ParameterError
-from ..core.event_model import TediParams
-from ..core.frames import Frame
-from ..core.profile import CameraProfile
-from .fit import DEFAULT_F_SCALE, DEFAULT_LOSS, DEFAULT_SLOW_RATE, CalibrationResult, _report, calibrate_collected
-from .pairs import DEFAULTS, _collector
+from necviz.calibrate.fit import (
+    DEFAULT_F_SCALE,
+    DEFAULT_LOSS,
+    DEFAULT_SLOW_RATE,
+    CalibrationResult,
+    _report,
+    calibrate_collected,
+)
+from necviz.calibrate.pairs import DEFAULTS, _collector
+from necviz.core.camera_profile import CameraProfile
+from necviz.core.errors import ParameterError
+from necviz.core.event_model import TediParams
+from necviz.core.frames import Frame
 
 #: Bus ceilings (events/s) assumed for recordings of known sensors (``--max-event-rate auto``).
 KNOWN_EVENT_RATES = {(346, 260): 12e6, (240, 180): 12e6}
 
 
-def calibrate_from_recordings(paths, *, profile: CameraProfile | None = None, init: TediParams | None = None,
-                              fit="all", crf: str = "auto", exposure_us: float | None = None, name: str | None = None,
-                              max_event_rate="auto", slow_rate: float = DEFAULT_SLOW_RATE, loss: str = DEFAULT_LOSS,
-                              f_scale: float = DEFAULT_F_SCALE, progress=None, max_nfev: int = 200,
-                              **selection) -> CalibrationResult:
-    """Calibrate from recorded files (any format :func:`~necviz.drivers.replay.open_recording` reads).
+def calibrate_from_recordings(
+    paths,
+    *,
+    profile: CameraProfile | None = None,
+    init: TediParams | None = None,
+    fit="all",
+    crf: str = "auto",
+    exposure_us: float | None = None,
+    name: str | None = None,
+    max_event_rate="auto",
+    slow_rate: float = DEFAULT_SLOW_RATE,
+    loss: str = DEFAULT_LOSS,
+    f_scale: float = DEFAULT_F_SCALE,
+    progress=None,
+    max_nfev: int = 200,
+    **selection,
+) -> CalibrationResult:
+    """Calibrate from recorded files (any format :func:`~necviz.drivers.recordings.open_recording` reads).
 
     ``profile``: the starting profile (response, limits, initial parameters; default DAVIS346);
     ``max_event_rate``: the sensor's bus ceiling in events/s (``"auto"``: 12 Mev/s for DAVIS346 and
@@ -32,7 +51,7 @@ def calibrate_from_recordings(paths, *, profile: CameraProfile | None = None, in
     ``max_pixels``, ``max_pairs``, ``max_bytes``, ``max_gap_us``, ``reference``...).
     ``progress(text)`` gets a status line now and then.
     """
-    from ..drivers.replay import open_recording
+    from necviz.drivers.recordings import open_recording
 
     base = profile or CameraProfile()
     paths = [Path(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)]
@@ -55,14 +74,27 @@ def calibrate_from_recordings(paths, *, profile: CameraProfile | None = None, in
                     now = time.perf_counter()
                     if now - last > 0.5:
                         last = now
-                        _report(progress, f"reading {path.name}: {(t_now - t_first) / 1e6:.1f} s, {col.frames} frames, "
-                                          f"{len(col.pairs)} pairs kept ({now - t_wall:.0f} s)")
+                        _report(
+                            progress,
+                            f"reading {path.name}: {(t_now - t_first) / 1e6:.1f} s, {col.frames} frames, "
+                            f"{len(col.pairs)} pairs kept ({now - t_wall:.0f} s)",
+                        )
         finally:
             rec.close()
     col.finish()
     if max_event_rate == "auto":
         max_event_rate = KNOWN_EVENT_RATES.get((col.shape[1], col.shape[0])) if col.shape else None
-    return calibrate_collected(col, base=base, init=init, fit=fit, crf_mode=crf, name=name,
-                               max_event_rate=max_event_rate, slow_rate=slow_rate, loss=loss, f_scale=f_scale,
-                               progress=progress, max_nfev=max_nfev)
-
+    return calibrate_collected(
+        col,
+        base=base,
+        init=init,
+        fit=fit,
+        crf_mode=crf,
+        name=name,
+        max_event_rate=max_event_rate,
+        slow_rate=slow_rate,
+        loss=loss,
+        f_scale=f_scale,
+        progress=progress,
+        max_nfev=max_nfev,
+    )

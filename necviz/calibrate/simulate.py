@@ -9,15 +9,22 @@ import time
 
 import numpy as np
 
-from ..core.control import CameraLimits
-from ..core.crf import CameraResponse, default_davis346
-from ..core.errors import ParameterError
-from ..core.event_model import TediParams
-from ..core.frames import ExposureMarker, Frame
-from ..core.profile import CameraProfile
-from ..core.sensor import DAVIS346, SensorGeometry
-from .fit import DEFAULT_F_SCALE, DEFAULT_LOSS, DEFAULT_SLOW_RATE, CalibrationResult, _report, calibrate_collected
-from .pairs import DEFAULTS, _collector
+from necviz.calibrate.fit import (
+    DEFAULT_F_SCALE,
+    DEFAULT_LOSS,
+    DEFAULT_SLOW_RATE,
+    CalibrationResult,
+    _report,
+    calibrate_collected,
+)
+from necviz.calibrate.pairs import DEFAULTS, _collector
+from necviz.core.camera_profile import CameraProfile
+from necviz.core.control import CameraLimits
+from necviz.core.crf import CameraResponse, default_davis346
+from necviz.core.errors import ParameterError
+from necviz.core.event_model import TediParams
+from necviz.core.frames import ExposureMarker, Frame
+from necviz.core.sensor import DAVIS346, SensorGeometry
 
 BRACKET_OFFSETS = (-2.4, -1.6, -0.8, 0.0, 0.8, 1.6, 2.4)  # ln exposure offsets in the static opening
 
@@ -45,21 +52,24 @@ class ExposureOracle:
             total = math.exp(goal - self._mean(min(mid, self.scene.duration_us))) * 1e6
             total = min(max(total, aps.exposure_min_us), aps.exposure_max_us * aps.gain_max)
         if start_us < self.bracket_us:
-            total = min(max(total * math.exp(BRACKET_OFFSETS[k % len(BRACKET_OFFSETS)]), aps.exposure_min_us),
-                        aps.exposure_max_us * aps.gain_max)
+            total = min(
+                max(total * math.exp(BRACKET_OFFSETS[k % len(BRACKET_OFFSETS)]), aps.exposure_min_us),
+                aps.exposure_max_us * aps.gain_max,
+            )
         gain = max(1.0, total / aps.exposure_max_us)
         return total / gain, gain
 
 
-def simulate_calibration_stream(scene, *, dvs=None, aps=None, crf: CameraResponse | None = None, seed: int = 0,
-                                brackets: bool = True):
+def simulate_calibration_stream(
+    scene, *, dvs=None, aps=None, crf: CameraResponse | None = None, seed: int = 0, brackets: bool = True
+):
     """Packets (events, markers, frames) of one simulated camera driven by :class:`ExposureOracle`.
 
     The command for each frame is issued at the previous exposure start (the simulator's latency
     is far shorter than a frame interval), so every frame gets the oracle's exposure.
     """
-    from ..drivers.sim.aps import ApsParams
-    from ..drivers.sim.camera import SimRig
+    from necviz.drivers.sim.aps import ApsParams
+    from necviz.drivers.sim.rig import SimRig
 
     aps = aps or ApsParams()
     crf = crf or default_davis346()
@@ -78,22 +88,38 @@ def simulate_calibration_stream(scene, *, dvs=None, aps=None, crf: CameraRespons
 
 def make_sim_scene(name: str, sensor: SensorGeometry, duration_s: float | None, seed: int):
     """The calibration scene (``"calibration"``) or an evaluation preset by name."""
-    from ..drivers.sim.calibration_scene import CALIBRATION_SCENE, CalibrationScene
+    from necviz.drivers.sim.calibration_scene import CALIBRATION_SCENE, CalibrationScene
 
     dur = None if duration_s is None else int(round(duration_s * 1e6))
     if name == CALIBRATION_SCENE:
         return CalibrationScene(sensor=sensor, duration_us=dur, seed=seed)
-    from ..drivers.sim.scenes import make_scenario
+    from necviz.drivers.sim.scenes import make_scenario
 
     return make_scenario(name, sensor=sensor, duration_us=dur, seed=seed)
 
 
-def calibrate_from_simulation(scenarios=("calibration",), seeds=(0,), duration_s: float | None = None, *,
-                              sensor: SensorGeometry = DAVIS346, dvs=None, aps=None, sim_crf: CameraResponse | None = None,
-                              profile: CameraProfile | None = None, init: TediParams | None = None, fit="all",
-                              crf: str = "auto", name: str | None = None, max_event_rate="auto",
-                              slow_rate: float = DEFAULT_SLOW_RATE, loss: str = DEFAULT_LOSS, f_scale: float = DEFAULT_F_SCALE, progress=None,
-                              max_nfev: int = 200, **selection) -> CalibrationResult:
+def calibrate_from_simulation(
+    scenarios=("calibration",),
+    seeds=(0,),
+    duration_s: float | None = None,
+    *,
+    sensor: SensorGeometry = DAVIS346,
+    dvs=None,
+    aps=None,
+    sim_crf: CameraResponse | None = None,
+    profile: CameraProfile | None = None,
+    init: TediParams | None = None,
+    fit="all",
+    crf: str = "auto",
+    name: str | None = None,
+    max_event_rate="auto",
+    slow_rate: float = DEFAULT_SLOW_RATE,
+    loss: str = DEFAULT_LOSS,
+    f_scale: float = DEFAULT_F_SCALE,
+    progress=None,
+    max_nfev: int = 200,
+    **selection,
+) -> CalibrationResult:
     """Calibrate from simulator runs: every scenario x seed, one camera driven by :class:`ExposureOracle`.
 
     ``scenarios``: ``"calibration"`` (the held-out calibration scene) and/or preset names;
@@ -101,8 +127,8 @@ def calibrate_from_simulation(scenarios=("calibration",), seeds=(0,), duration_s
     profile's limits are the simulated camera's. Other arguments as
     :func:`calibrate_from_recordings`.
     """
-    from ..drivers.sim.aps import ApsParams
-    from ..drivers.sim.dvs import DvsParams
+    from necviz.drivers.sim.aps import ApsParams
+    from necviz.drivers.sim.dvs import DvsParams
 
     scenarios = [scenarios] if isinstance(scenarios, str) else list(scenarios)
     seeds = [seeds] if isinstance(seeds, (int, np.integer)) else list(seeds)
@@ -128,16 +154,34 @@ def calibrate_from_simulation(scenarios=("calibration",), seeds=(0,), duration_s
                 now = time.perf_counter()
                 if now - last > 0.5:
                     last = now
-                    _report(progress, f"simulating {sc} seed {sd}: {packet.exposure_end_us / 1e6:.2f}/"
-                                      f"{scene.duration_us / 1e6:g} s, {len(col.pairs)} pairs kept ({now - t_wall:.0f} s)")
+                    _report(
+                        progress,
+                        f"simulating {sc} seed {sd}: {packet.exposure_end_us / 1e6:.2f}/"
+                        f"{scene.duration_us / 1e6:g} s, {len(col.pairs)} pairs kept ({now - t_wall:.0f} s)",
+                    )
     col.finish()
     limits = CameraLimits(float(aps.exposure_min_us), float(aps.exposure_max_us), float(aps.gain_max))
-    sim = {"scenarios": scenarios, "seeds": [int(s) for s in seeds],
-           "duration_s": [s.duration_us / 1e6 for _, _, s in scenes][0], "sensor": f"{sensor.width}x{sensor.height}",
-           "dvs": dvs.as_dict(), "exposure": "oracle (the scene's mean ln L), brackets in the static opening"}
-    return calibrate_collected(col, base=base, init=init, fit=fit, crf_mode=crf, name=name, limits=limits,
-                               max_event_rate=dvs.max_event_rate if max_event_rate == "auto" else max_event_rate,
-                               slow_rate=slow_rate, loss=loss, f_scale=f_scale,
-                               extra={"simulation": sim},
-                               progress=progress, max_nfev=max_nfev)
-
+    sim = {
+        "scenarios": scenarios,
+        "seeds": [int(s) for s in seeds],
+        "duration_s": [s.duration_us / 1e6 for _, _, s in scenes][0],
+        "sensor": f"{sensor.width}x{sensor.height}",
+        "dvs": dvs.as_dict(),
+        "exposure": "oracle (the scene's mean ln L), brackets in the static opening",
+    }
+    return calibrate_collected(
+        col,
+        base=base,
+        init=init,
+        fit=fit,
+        crf_mode=crf,
+        name=name,
+        limits=limits,
+        max_event_rate=dvs.max_event_rate if max_event_rate == "auto" else max_event_rate,
+        slow_rate=slow_rate,
+        loss=loss,
+        f_scale=f_scale,
+        extra={"simulation": sim},
+        progress=progress,
+        max_nfev=max_nfev,
+    )

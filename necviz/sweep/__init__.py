@@ -15,12 +15,21 @@ plots); :mod:`.show` re-runs one run in the Rerun dashboard. From Python::
     report("out/example")
 """
 
-_WHERE = {"SweepResult": "engine", "connect": "engine", "run_sweep": "engine", "status": "engine",
-          "report": "report", "Plan": "spec", "Run": "spec", "SweepFileError": "spec", "load_plan": "spec",
-          "spec_hash": "spec"}
+_WHERE = {
+    "SweepResult": "engine",
+    "connect": "engine",
+    "run_sweep": "engine",
+    "status": "engine",
+    "report": "report",
+    "Plan": "spec",
+    "Run": "spec",
+    "SweepFileError": "spec",
+    "load_plan": "spec",
+    "spec_hash": "spec",
+}
 
 
-def __getattr__(name):  # imported on use: `necviz --help` loads necviz.sweep.cli without Dask or NumPy
+def __getattr__(name):  # imported on use: `necviz --help` loads necviz.commands.sweep without Dask or NumPy
     if name in _WHERE:
         import importlib
 
@@ -28,5 +37,15 @@ def __getattr__(name):  # imported on use: `necviz --help` loads necviz.sweep.cl
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["Plan", "Run", "SweepFileError", "SweepResult", "connect", "load_plan", "report", "run_sweep",
-           "spec_hash", "status"]
+__all__ = [
+    "Plan",
+    "Run",
+    "SweepFileError",
+    "SweepResult",
+    "connect",
+    "load_plan",
+    "report",
+    "run_sweep",
+    "spec_hash",
+    "status",
+]

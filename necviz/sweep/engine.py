@@ -25,7 +25,6 @@ every row already written and says how to resume; ``--resume`` then runs only th
 from __future__ import annotations
 
 import importlib.util
-import json
 import logging
 import math
 import os
@@ -34,12 +33,11 @@ import time
 import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from pathlib import Path
 
-from ..core.errors import NecvizError, ParameterError
-from .spec import Plan
-from .store import Store, SweepDirError, git_revision, machine, now, prepare_out, versions
-from .worker import failed_row
+from necviz.core.errors import NecvizError, ParameterError
+from necviz.sweep.spec import Plan
+from necviz.sweep.store import Store, SweepDirError, git_revision, machine, now, prepare_out, versions
+from necviz.sweep.worker import failed_row
 
 WORKER_ENV = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 DEFAULT_DASHBOARD = "127.0.0.1:8787"
@@ -101,8 +99,13 @@ def _dashboard_link(client) -> str | None:
 
 
 @contextmanager
-def connect(workers: int | None = None, scheduler: str | None = None, dashboard: str | None = DEFAULT_DASHBOARD,
-            retries: int = 3, wait_workers_s: float = 120.0):
+def connect(
+    workers: int | None = None,
+    scheduler: str | None = None,
+    dashboard: str | None = DEFAULT_DASHBOARD,
+    retries: int = 3,
+    wait_workers_s: float = 120.0,
+):
     """A :class:`distributed.Client`: on an embedded cluster (closed on exit) or a running scheduler."""
     import dask
     from distributed import Client, LocalCluster
@@ -132,23 +135,39 @@ def connect(workers: int | None = None, scheduler: str | None = None, dashboard:
     # mmap threshold: every image-sized array is then mmap'd and unmapped, and the page faults cost
     # the simulator about as much system time as its own work (measured: 0.8 s on a 1.3 s run). The
     # workers get glibc's defaults instead.
-    spawn_env = {k: v for k, v in (dask.config.get("distributed.nanny.pre-spawn-environ", {}) or {}).items()
-                 if k != "MALLOC_TRIM_THRESHOLD_"}
-    with dask.config.set({"distributed.scheduler.allowed-failures": int(retries),
-                          "distributed.nanny.pre-spawn-environ": spawn_env,
-                          "distributed.scheduler.worker-saturation": 1.0,
-                          "distributed.worker.daemon": True, "distributed.admin.tick.limit": "30s"}), \
-            warnings.catch_warnings():
+    spawn_env = {
+        k: v
+        for k, v in (dask.config.get("distributed.nanny.pre-spawn-environ", {}) or {}).items()
+        if k != "MALLOC_TRIM_THRESHOLD_"
+    }
+    with (
+        dask.config.set(
+            {
+                "distributed.scheduler.allowed-failures": int(retries),
+                "distributed.nanny.pre-spawn-environ": spawn_env,
+                "distributed.scheduler.worker-saturation": 1.0,
+                "distributed.worker.daemon": True,
+                "distributed.admin.tick.limit": "30s",
+            }
+        ),
+        warnings.catch_warnings(),
+    ):
         warnings.filterwarnings("ignore", message=r"Port \d+ is already in use")  # Dask then picks another
         try:
-            cluster = LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
-                                   host="127.0.0.1", dashboard_address=dashboard or "127.0.0.1:0",
-                                   scheduler_kwargs={"dashboard": bool(dashboard)},
-                                   silence_logs=logging.CRITICAL, env=dict(WORKER_ENV))
+            cluster = LocalCluster(
+                n_workers=workers or default_workers(),
+                threads_per_worker=1,
+                processes=True,
+                host="127.0.0.1",
+                dashboard_address=dashboard or "127.0.0.1:0",
+                scheduler_kwargs={"dashboard": bool(dashboard)},
+                silence_logs=logging.CRITICAL,
+                env=dict(WORKER_ENV),
+            )
         except (OSError, RuntimeError, TimeoutError) as e:
             raise ClusterError(f"cannot start a local Dask cluster: {' '.join(str(e).split())[:200]}") from None
         client = Client(cluster, set_as_default=False)
-        from .worker import IgnoreInterrupt
+        from necviz.sweep.worker import IgnoreInterrupt
 
         client.register_plugin(IgnoreInterrupt())
         try:
@@ -177,18 +196,39 @@ def _manifest(plan: Plan, store: Store, resume: bool) -> dict:
         before = {g["hash"] for g in old.get("grid", [])}
         dropped = before - set(plan.hashes)
         if dropped:
-            raise SweepDirError(f"--resume: {len(dropped)} of the {len(before)} runs of the sweep in {store.root} "
-                                f"are not in {plan.source} (the file or a file it names changed); use a new --out "
-                                f"or --force to start over")
+            raise SweepDirError(
+                f"--resume: {len(dropped)} of the {len(before)} runs of the sweep in {store.root} "
+                f"are not in {plan.source} (the file or a file it names changed); use a new --out "
+                f"or --force to start over"
+            )
         m = dict(old)
-        m.update(grid=grid, sweep_file=plan.source, sweep_text=plan.text, sweep=plan.data,
-                 metrics=plan.metrics, counts=plan.counts(), updated=now())
+        m.update(
+            grid=grid,
+            sweep_file=plan.source,
+            sweep_text=plan.text,
+            sweep=plan.data,
+            metrics=plan.metrics,
+            counts=plan.counts(),
+            updated=now(),
+        )
         m.setdefault("sessions", [])
         return m
-    return {"format": "necviz-sweep/1", "name": plan.name, "created": now(), "updated": now(),
-            "sweep_file": str(plan.source), "sweep_text": plan.text, "sweep": plan.data, "metrics": plan.metrics,
-            "counts": plan.counts(), "grid": grid, "versions": versions(), "git": git_revision(),
-            "machine": machine(), "sessions": []}
+    return {
+        "format": "necviz-sweep/1",
+        "name": plan.name,
+        "created": now(),
+        "updated": now(),
+        "sweep_file": str(plan.source),
+        "sweep_text": plan.text,
+        "sweep": plan.data,
+        "metrics": plan.metrics,
+        "counts": plan.counts(),
+        "grid": grid,
+        "versions": versions(),
+        "git": git_revision(),
+        "machine": machine(),
+        "sessions": [],
+    }
 
 
 # -- progress --------------------------------------------------------------------------------------
@@ -220,8 +260,10 @@ class Progress:
         el = time.perf_counter() - self.t0
         made = ok + failed
         eta = el / made * left if made else math.inf
-        return (f"sweep [{'#' * fill}{'.' * (self.width - fill)}] {done}/{self.total} done · {failed} failed · "
-                f"{running} running · {left} left · {_clock(el)} elapsed · ETA {_clock(eta) if left else '0s'}")
+        return (
+            f"sweep [{'#' * fill}{'.' * (self.width - fill)}] {done}/{self.total} done · {failed} failed · "
+            f"{running} running · {left} left · {_clock(el)} elapsed · ETA {_clock(eta) if left else '0s'}"
+        )
 
     def update(self, ok, failed, running, final: bool = False) -> None:
         if self.stream is None:
@@ -242,8 +284,17 @@ class Progress:
 # -- running ---------------------------------------------------------------------------------------
 def _warmup_spec(plan: Plan) -> dict:
     """A short run of every controller of the sweep: loads (or compiles) each worker's Numba kernels."""
-    return {"scenario": "static_lab", "seed": 0, "duration_s": 0.06, "scenario_params": {},
-            "controllers": plan.controllers, "controller_params": {}, "profile": None, "sim": {}, "sift": False}
+    return {
+        "scenario": "static_lab",
+        "seed": 0,
+        "duration_s": 0.06,
+        "scenario_params": {},
+        "controllers": plan.controllers,
+        "controller_params": {},
+        "profile": None,
+        "sim": {},
+        "sift": False,
+    }
 
 
 def _error_text(exc: BaseException, retries: int | None) -> str:
@@ -254,9 +305,21 @@ def _error_text(exc: BaseException, retries: int | None) -> str:
     return f"{name}: {' '.join(str(exc).split())[:500]}"
 
 
-def run_sweep(plan: Plan, out, *, workers: int | None = None, scheduler: str | None = None, client=None,
-              resume: bool = False, force: bool = False, retry_failed: bool = False, retries: int = 3,
-              dashboard: str | None = DEFAULT_DASHBOARD, stream=..., poll_s: float = 0.05) -> SweepResult:
+def run_sweep(
+    plan: Plan,
+    out,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    client=None,
+    resume: bool = False,
+    force: bool = False,
+    retry_failed: bool = False,
+    retries: int = 3,
+    dashboard: str | None = DEFAULT_DASHBOARD,
+    stream=...,
+    poll_s: float = 0.05,
+) -> SweepResult:
     """Run every run of ``plan`` not yet in ``out`` (see the module docstring); returns what happened.
 
     ``client``: an existing :class:`distributed.Client` to use (tests, notebooks); else ``scheduler``
@@ -278,7 +341,7 @@ def run_sweep(plan: Plan, out, *, workers: int | None = None, scheduler: str | N
         manifest = _manifest(plan, store, resume)
         store.write_manifest(manifest)
         if not (store.root / "sweep.toml").exists():
-            from ..outputs import atomic_write
+            from necviz.outputs import atomic_write
 
             with atomic_write(store.root / "sweep.toml") as f:
                 f.write(plan.text)
@@ -294,25 +357,46 @@ def run_sweep(plan: Plan, out, *, workers: int | None = None, scheduler: str | N
         manifest["sessions"].append(session)
         try:
             if todo:
-                _execute(plan, store, todo, res, client=client, workers=workers, scheduler=scheduler,
-                         retries=retries, dashboard=dashboard, stream=stream, poll_s=poll_s)
+                _execute(
+                    plan,
+                    store,
+                    todo,
+                    res,
+                    client=client,
+                    workers=workers,
+                    scheduler=scheduler,
+                    retries=retries,
+                    dashboard=dashboard,
+                    stream=stream,
+                    poll_s=poll_s,
+                )
         except BaseException as e:
             res.interrupted = isinstance(e, KeyboardInterrupt)
             stopped = True
             raise
         finally:
-            session.update(finished=now(), ok=res.ok, failed=res.failed, interrupted=res.interrupted,
-                           workers=res.workers, scheduler=res.scheduler, wall_s=round(res.wall_s, 3))
+            session.update(
+                finished=now(),
+                ok=res.ok,
+                failed=res.failed,
+                interrupted=res.interrupted,
+                workers=res.workers,
+                scheduler=res.scheduler,
+                wall_s=round(res.wall_s, 3),
+            )
             manifest["updated"] = now()
             try:
                 store.write_manifest(manifest)
             except OSError:
                 pass
             if stream is not None and stopped and res.left:
-                print(f"{'interrupted' if res.interrupted else 'stopped'}: {res.skipped + res.written} of "
-                      f"{res.runs} runs are in {store.root}; "
-                      f"`necviz sweep run {plan.source} --out {store.root} --resume` runs the other {res.left}",
-                      file=stream, flush=True)
+                print(
+                    f"{'interrupted' if res.interrupted else 'stopped'}: {res.skipped + res.written} of "
+                    f"{res.runs} runs are in {store.root}; "
+                    f"`necviz sweep run {plan.source} --out {store.root} --resume` runs the other {res.left}",
+                    file=stream,
+                    flush=True,
+                )
     finally:
         store.unlock()
     return res
@@ -329,10 +413,17 @@ def _execute(plan, store, todo, res, *, client, workers, scheduler, retries, das
         embedded_off = client is None and not scheduler and (not dashboard or importlib.util.find_spec("bokeh") is None)
         res.dashboard = None if embedded_off else _dashboard_link(cl)
         if stream is not None:
-            where = f"{scheduler}" if scheduler else ("the given client" if client is not None else
-                                                      "an embedded local cluster")
-            print(f"sweep: {len(todo)} runs to do ({res.skipped} already in {store.root}) on {res.workers} "
-                  f"worker{'s' if res.workers != 1 else ''} ({where})", file=stream, flush=True)
+            where = (
+                f"{scheduler}"
+                if scheduler
+                else ("the given client" if client is not None else "an embedded local cluster")
+            )
+            print(
+                f"sweep: {len(todo)} runs to do ({res.skipped} already in {store.root}) on {res.workers} "
+                f"worker{'s' if res.workers != 1 else ''} ({where})",
+                file=stream,
+                flush=True,
+            )
             if res.dashboard:
                 print(f"Dask dashboard: {res.dashboard}", file=stream, flush=True)
         limit = retries if client is None and not scheduler else None  # else the scheduler's own setting
@@ -345,18 +436,19 @@ def _existing(client):
 
 
 def _loop(plan, store, todo, res, client, nthreads, retries, stream, poll_s):
+    import uuid
+
     from distributed import as_completed
 
-    from .worker import execute
-
-    import uuid
+    from necviz.sweep.worker import execute
 
     warm = _warmup_spec(plan)
     session = uuid.uuid4().hex[:8]  # keys unique per session: a resubmitted run never reuses a finished key
     t0 = time.perf_counter()
     task_list = [{"hash": r.hash, "spec": r.spec, "columns": r.columns, "warmup": warm} for r in todo]
-    futures = client.map(execute, task_list, key=[f"necviz-run-{r.hash}-{session}" for r in todo], pure=False,
-                         retries=0)  # one message for the whole grid, in grid order
+    futures = client.map(
+        execute, task_list, key=[f"necviz-run-{r.hash}-{session}" for r in todo], pure=False, retries=0
+    )  # one message for the whole grid, in grid order
     tasks = {f.key: t for f, t in zip(futures, task_list)}
     progress = Progress(res.runs, res.skipped, stream)
     pending = {f.key: f for f in futures}
@@ -417,8 +509,10 @@ def _collect(fut, task, store: Store, res: SweepResult, retries: int) -> None:
         res.timeline.append((out["worker"], out["started"], out["started"] + (out["wall_s"] or 0.0)))
         return
     if fut.status == "cancelled":
-        raise ClusterError(f"the scheduler dropped run {h} (was the cluster shut down?); "
-                           f"{res.written} rows were written this session, --resume runs the rest")
+        raise ClusterError(
+            f"the scheduler dropped run {h} (was the cluster shut down?); "
+            f"{res.written} rows were written this session, --resume runs the rest"
+        )
     exc = fut.exception()
     store.write_run(h, failed_row(task, _error_text(exc, retries)), None)
     res.failed += 1
@@ -439,13 +533,34 @@ def status(out) -> dict:
         key = (r.get("error") or "?").split(":", 1)[0]
         errors[key] = errors.get(key, 0) + 1
     wall = [r["wall_s"] for r in rows if r.get("wall_s") is not None]
-    return {"out": str(store.root), "name": m.get("name"), "sweep_file": m.get("sweep_file"), "runs": len(grid),
-            "ok": ok, "failed": len(failed), "missing": len(grid) - len(rows), "errors": errors,
-            "run_s_total": sum(wall), "run_s_mean": (sum(wall) / len(wall)) if wall else None,
-            "sessions": len(m.get("sessions", [])), "last_session": (m.get("sessions") or [None])[-1],
-            "git": m.get("git"), "created": m.get("created"), "updated": m.get("updated"),
-            "failed_runs": [{"hash": r["hash"], "error": r.get("error")} for r in failed[:20]]}
+    return {
+        "out": str(store.root),
+        "name": m.get("name"),
+        "sweep_file": m.get("sweep_file"),
+        "runs": len(grid),
+        "ok": ok,
+        "failed": len(failed),
+        "missing": len(grid) - len(rows),
+        "errors": errors,
+        "run_s_total": sum(wall),
+        "run_s_mean": (sum(wall) / len(wall)) if wall else None,
+        "sessions": len(m.get("sessions", [])),
+        "last_session": (m.get("sessions") or [None])[-1],
+        "git": m.get("git"),
+        "created": m.get("created"),
+        "updated": m.get("updated"),
+        "failed_runs": [{"hash": r["hash"], "error": r.get("error")} for r in failed[:20]],
+    }
 
 
-__all__ = ["ClusterError", "DEFAULT_DASHBOARD", "Progress", "SweepResult", "WORKER_ENV", "connect", "default_workers",
-           "run_sweep", "status"]
+__all__ = [
+    "ClusterError",
+    "DEFAULT_DASHBOARD",
+    "Progress",
+    "SweepResult",
+    "WORKER_ENV",
+    "connect",
+    "default_workers",
+    "run_sweep",
+    "status",
+]

@@ -14,15 +14,15 @@ from __future__ import annotations
 import json
 import time
 
-from .spec import Plan
+from necviz.sweep.spec import Plan
 
 
 def run_duration_s(spec: dict) -> float:
     """The simulated seconds of a run: its ``duration_s``, else its scenario file's, else the preset's."""
     if spec.get("duration_s") is not None:
         return float(spec["duration_s"])
-    from ..drivers.sim.scenes import SCENARIOS
-    from ..options import SceneOptions
+    from necviz.drivers.sim.scenes import SCENARIOS
+    from necviz.options import SceneOptions
 
     sc = SceneOptions(spec["scenario"], spec.get("seed"), None, dict(spec.get("scenario_params") or {}))
     s = sc.spec()
@@ -33,11 +33,13 @@ def run_duration_s(spec: dict) -> float:
 
 def describe(plan: Plan) -> dict:
     """Counts and the swept values of ``plan`` (plain data)."""
-    from .report import is_spec_column
+    from necviz.sweep.report import is_spec_column
 
     counts = plan.counts()
-    scen_cfg = {json.dumps([r.spec["scenario"], r.spec["scenario_params"], r.spec["sim"], r.spec["duration_s"]],
-                           sort_keys=True) for r in plan.runs}
+    scen_cfg = {
+        json.dumps([r.spec["scenario"], r.spec["scenario_params"], r.spec["sim"], r.spec["duration_s"]], sort_keys=True)
+        for r in plan.runs
+    }
     values: dict = {}
     for r in plan.runs:
         for k, v in r.columns.items():
@@ -51,26 +53,39 @@ def describe(plan: Plan) -> dict:
         key = (r.spec["scenario"], r.spec["duration_s"], json.dumps(r.spec["scenario_params"], sort_keys=True))
         if key not in durations:
             durations[key] = run_duration_s(r.spec)
-    sim_s = sum(durations[(r.spec["scenario"], r.spec["duration_s"], json.dumps(r.spec["scenario_params"],
-                                                                                 sort_keys=True))]
-                for r in plan.runs)
+    sim_s = sum(
+        durations[(r.spec["scenario"], r.spec["duration_s"], json.dumps(r.spec["scenario_params"], sort_keys=True))]
+        for r in plan.runs
+    )
     ctrl = []
     for r in plan.runs:
         (c,) = r.spec["controllers"]
-        label = c + (f" {json.dumps(r.spec['controller_params'][c], sort_keys=True)}"
-                     if r.spec["controller_params"].get(c) else "")
+        label = c + (
+            f" {json.dumps(r.spec['controller_params'][c], sort_keys=True)}"
+            if r.spec["controller_params"].get(c)
+            else ""
+        )
         if label not in ctrl:
             ctrl.append(label)
-    return {"name": plan.name, **counts, "scenario_configurations": len(scen_cfg),
-            "profiles": len(values.get("profile", [None])), "seeds_list": plan.seeds, "sift": plan.sift,
-            "swept": swept, "controllers": ctrl, "simulated_s": sim_s, "metrics": plan.metrics}
+    return {
+        "name": plan.name,
+        **counts,
+        "scenario_configurations": len(scen_cfg),
+        "profiles": len(values.get("profile", [None])),
+        "seeds_list": plan.seeds,
+        "sift": plan.sift,
+        "swept": swept,
+        "controllers": ctrl,
+        "simulated_s": sim_s,
+        "metrics": plan.metrics,
+    }
 
 
 def calibrate(plan: Plan, cap_s: float = 2.0) -> dict | None:
     """Time one run of the grid's first spec (see the module docstring) as a sweep worker runs it."""
-    from ..drivers.sim import camera
-    from ..runs import run_spec
-    from .worker import InlineExecutor, flatten_result
+    from necviz.drivers.sim import rig as camera
+    from necviz.runs import run_spec
+    from necviz.sweep.worker import InlineExecutor, flatten_result
 
     if not plan.runs:
         return None
@@ -94,8 +109,15 @@ def calibrate(plan: Plan, cap_s: float = 2.0) -> dict | None:
         if saved is not None:
             camera.ThreadPoolExecutor = saved
     metrics = flatten_result(result["results"][first["controllers"][0]])[1]
-    return {"scenario": first["scenario"], "controller": first["controllers"][0], "sift": bool(first.get("sift")),
-            "metrics": metrics, "duration_s": d, "run_s": took, "per_sim_s": took / d}
+    return {
+        "scenario": first["scenario"],
+        "controller": first["controllers"][0],
+        "sift": bool(first.get("sift")),
+        "metrics": metrics,
+        "duration_s": d,
+        "run_s": took,
+        "per_sim_s": took / d,
+    }
 
 
 def estimate(plan: Plan, workers: int, cal: dict | None, desc: dict | None = None) -> dict | None:
@@ -103,8 +125,13 @@ def estimate(plan: Plan, workers: int, cal: dict | None, desc: dict | None = Non
         return cal
     desc = desc or describe(plan)
     total = desc["simulated_s"] * cal["per_sim_s"]
-    return {**cal, "workers": workers, "run_s_total": total, "run_s_mean": total / max(1, len(plan.runs)),
-            "wall_s": total / max(1, workers)}
+    return {
+        **cal,
+        "workers": workers,
+        "run_s_total": total,
+        "run_s_mean": total / max(1, len(plan.runs)),
+        "wall_s": total / max(1, workers),
+    }
 
 
 __all__ = ["calibrate", "describe", "estimate", "run_duration_s"]

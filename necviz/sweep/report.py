@@ -3,7 +3,7 @@
 A *cell* is every run of the grid that differs only in its seed (same scenario, parameters,
 simulator overrides, profile, controller and controller parameters). For each chosen metric the
 cell's value is the mean over its seeds with the half-width of the 95 % confidence interval,
-Student's t on the per-seed values (:func:`necviz.compare.confidence_interval`, the same figures
+Student's t on the per-seed values (:func:`necviz.core.metrics.confidence_interval`, the same figures
 ``necviz compare --seeds N`` prints). A metric some seed has no value for (``recovery_ms`` when a
 controller never recovered) has no mean; the table says how many seeds lack it.
 
@@ -31,12 +31,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..compare import confidence_interval
-from ..core.errors import ParameterError
-from .spec import cell_key
-from .store import Store, SweepDirError
+from necviz.core.errors import ParameterError
+from necviz.core.metrics import confidence_interval
+from necviz.sweep.spec import cell_key
+from necviz.sweep.store import REPORT_FILES, Store, SweepDirError
 
-REPORT_FILES = ("report.md", "cells.csv", "runs.csv")
 PLOT_DEFAULT = ("saturated_frames_50", "recovery_ms")
 SPEC_FIXED = ("scenario", "duration_s", "profile", "sift", "controller")
 SPEC_PREFIXES = ("scenario_params.", "controller_params.", "sim.")
@@ -81,8 +80,10 @@ def choose_metrics(rows, wanted=None) -> list[str]:
         return have
     bad = [m for m in wanted if m not in have]
     if bad:
-        raise ParameterError(f"metrics: {', '.join(repr(m) for m in bad)} not among the runs' metrics "
-                             f"({', '.join(have) or 'none: no run finished'})")
+        raise ParameterError(
+            f"metrics: {', '.join(repr(m) for m in bad)} not among the runs' metrics "
+            f"({', '.join(have) or 'none: no run finished'})"
+        )
     return list(wanted)
 
 
@@ -119,8 +120,13 @@ def build_cells(rows, metrics) -> list[Cell]:
                 cell.stats[m] = {"mean": None, "ci95": None, "std": None, "n": len(got), "missing": missing}
                 continue
             mean, ci = confidence_interval(got)
-            cell.stats[m] = {"mean": mean, "ci95": ci, "std": float(np.std(got, ddof=1)) if len(got) > 1 else 0.0,
-                             "n": len(got), "missing": 0}
+            cell.stats[m] = {
+                "mean": mean,
+                "ci95": ci,
+                "std": float(np.std(got, ddof=1)) if len(got) > 1 else 0.0,
+                "n": len(got),
+                "missing": 0,
+            }
     return list(groups.values())
 
 
@@ -157,7 +163,7 @@ def _value_text(v) -> str:
 def _short(col: str) -> str:
     for p in ("scenario_params.", "controller_params."):
         if col.startswith(p):
-            return col[len(p):]
+            return col[len(p) :]
     return col
 
 
@@ -178,8 +184,11 @@ def varying(cells, exclude=("scenario", "controller")) -> list[str]:
 
 
 def controller_label(columns: dict, skip: str | None = None) -> str:
-    params = [f"{_short(k)}={_value_text(v)}" for k, v in sorted(columns.items())
-              if k.startswith("controller_params.") and k != skip and v is not None]
+    params = [
+        f"{_short(k)}={_value_text(v)}"
+        for k, v in sorted(columns.items())
+        if k.startswith("controller_params.") and k != skip and v is not None
+    ]
     return columns.get("controller", "?") + (f" ({', '.join(params)})" if params else "")
 
 
@@ -251,7 +260,7 @@ def _safe(text: str) -> str:
 
 
 def _save(fig, path: Path) -> None:
-    from ..outputs import atomic_write
+    from necviz.outputs import atomic_write
 
     with atomic_write(path, "wb") as f:
         fig.savefig(f, format="png", dpi=110)
@@ -274,8 +283,9 @@ def plots(cells, metrics, folder: Path) -> list[Path]:
                 labels = [controller_label(c.columns) for c in cs]
                 means = [(c.stats.get(m) or {}).get("mean") for c in cs]
                 cis = [(c.stats.get(m) or {}).get("ci95") or 0.0 for c in cs]
-                ax.bar(range(len(cs)), [np.nan if v is None else v for v in means], yerr=cis, capsize=3,
-                       color="#4c72b0")
+                ax.bar(
+                    range(len(cs)), [np.nan if v is None else v for v in means], yerr=cis, capsize=3, color="#4c72b0"
+                )
                 ax.set_xticks(range(len(cs)), labels, rotation=30, ha="right", fontsize=8)
                 ax.set_title(m, fontsize=9)
             fig.suptitle(f"{scen}: mean ± 95 % CI over seeds", fontsize=10)
@@ -299,12 +309,16 @@ def plots(cells, metrics, folder: Path) -> list[Path]:
             for i, m in enumerate(metrics):
                 ax = fig.add_subplot(1, len(metrics), i + 1)
                 for label, group in lines.items():
-                    group = sorted(group, key=lambda c: (c.columns.get(axis) if numeric
-                                                         else cats.index(_value_text(c.columns.get(axis)))))
-                    x = [c.columns.get(axis) if numeric else cats.index(_value_text(c.columns.get(axis)))
-                         for c in group]
-                    y = np.array([np.nan if (c.stats.get(m) or {}).get("mean") is None else c.stats[m]["mean"]
-                                  for c in group])
+                    group = sorted(
+                        group,
+                        key=lambda c: c.columns.get(axis) if numeric else cats.index(_value_text(c.columns.get(axis))),
+                    )
+                    x = [
+                        c.columns.get(axis) if numeric else cats.index(_value_text(c.columns.get(axis))) for c in group
+                    ]
+                    y = np.array(
+                        [np.nan if (c.stats.get(m) or {}).get("mean") is None else c.stats[m]["mean"] for c in group]
+                    )
                     e = np.array([(c.stats.get(m) or {}).get("ci95") or 0.0 for c in group])
                     (ln,) = ax.plot(x, y, marker="o", label=label)
                     ax.fill_between(x, y - e, y + e, alpha=0.2, color=ln.get_color(), linewidth=0)
@@ -325,7 +339,7 @@ def plots(cells, metrics, folder: Path) -> list[Path]:
 
 def report(out, metrics=None, folder=None, force: bool = False, plot_metrics=None, stream=None) -> dict:
     """Write the report of the sweep in ``out`` (see the module docstring); returns what it wrote."""
-    from ..outputs import atomic_write
+    from necviz.outputs import atomic_write
 
     store = Store(out)
     m = store.manifest()
@@ -346,28 +360,40 @@ def report(out, metrics=None, folder=None, force: bool = False, plot_metrics=Non
     cells = build_cells(rows, chosen)
     ok = sum(r.get("status") == "ok" for r in rows)
     git = m.get("git") or {}
-    intro = [f"{len(rows)} of {len(grid)} runs ({ok} ok, {len(rows) - ok} failed) from `{m.get('sweep_file')}`; "
-             f"necviz {m.get('versions', {}).get('necviz')}"
-             + (f", git {git.get('revision', '')[:10]}{' (modified)' if git.get('dirty') else ''}" if git else "")
-             + ".", "",
-             "Each value is the mean over the cell's seeds ± the half-width of its 95 % confidence interval "
-             "(Student's t); *seeds* is how many runs the cell has."]
+    intro = [
+        f"{len(rows)} of {len(grid)} runs ({ok} ok, {len(rows) - ok} failed) from `{m.get('sweep_file')}`; "
+        f"necviz {m.get('versions', {}).get('necviz')}"
+        + (f", git {git.get('revision', '')[:10]}{' (modified)' if git.get('dirty') else ''}" if git else "")
+        + ".",
+        "",
+        "Each value is the mean over the cell's seeds ± the half-width of its 95 % confidence interval "
+        "(Student's t); *seeds* is how many runs the cell has.",
+    ]
     folder.mkdir(exist_ok=True)
     if force:
         for p in folder.glob("plot-*.png"):
             p.unlink()
     files = {}
-    for name, text in (("report.md", markdown(f"Sweep report: {m.get('name') or store.root.name}", intro, cells,
-                                              chosen)),
-                       ("cells.csv", cells_csv(cells, chosen)), ("runs.csv", runs_csv(rows))):
+    for name, text in (
+        ("report.md", markdown(f"Sweep report: {m.get('name') or store.root.name}", intro, cells, chosen)),
+        ("cells.csv", cells_csv(cells, chosen)),
+        ("runs.csv", runs_csv(rows)),
+    ):
         with atomic_write(folder / name) as f:
             f.write(text)
         files[name] = str(folder / name)
     pm = [x for x in (plot_metrics or PLOT_DEFAULT) if x in chosen] or chosen[:2]
     pngs = plots(cells, pm, folder) if pm else []
-    result = {"folder": str(folder), "files": files, "plots": [str(p) for p in pngs], "metrics": chosen,
-              "cells": len(cells), "rows": len(rows), "ok": ok,
-              "table": [{"columns": c.columns, "seeds": c.seeds, "failed": c.failed, "stats": c.stats} for c in cells]}
+    result = {
+        "folder": str(folder),
+        "files": files,
+        "plots": [str(p) for p in pngs],
+        "metrics": chosen,
+        "cells": len(cells),
+        "rows": len(rows),
+        "ok": ok,
+        "table": [{"columns": c.columns, "seeds": c.seeds, "failed": c.failed, "stats": c.stats} for c in cells],
+    }
     if stream is not None:
         print(f"report: {len(cells)} cells from {len(rows)} runs; metrics: {', '.join(chosen)}", file=stream)
         for p in [*files.values(), *result["plots"]]:
@@ -375,4 +401,4 @@ def report(out, metrics=None, folder=None, force: bool = False, plot_metrics=Non
     return result
 
 
-__all__ = ["Cell", "REPORT_FILES", "available_metrics", "build_cells", "choose_metrics", "report"]
+__all__ = ["Cell", "available_metrics", "build_cells", "choose_metrics", "report"]

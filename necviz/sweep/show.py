@@ -2,7 +2,7 @@
 
 The row's exact spec (its ``spec_json`` column) is rebuilt into the same scene, rig, controller,
 profile and simulator overrides as :func:`necviz.runs.run_spec` builds, and run through the
-dashboard's session (:func:`necviz.dashboard.run_session`, the ``compare`` layout): a native
+dashboard's session (:func:`necviz.dashboard.session.run_session`, the ``compare`` layout): a native
 viewer, ``--serve``, ``--connect`` or ``--save FILE.rrd``, as ``necviz demo``. The simulator is
 deterministic for its seed, so the re-run shows exactly the run in the table; its metrics are
 recomputed from the session's telemetry (as :func:`necviz.runs.run_once` computes them) and
@@ -16,18 +16,23 @@ import math
 import sys
 from pathlib import Path
 
-from ..core.errors import ParameterError
-from .store import Store
+from necviz.core.errors import ParameterError
+from necviz.sweep.store import Store
 
 
 def _metrics(lane, scene) -> dict:
     """The run's metrics from a lane's telemetry (the same call as :func:`necviz.runs.run_once`)."""
-    from ..core.metrics import summarise
+    from necviz.core.metrics import summarise
 
     table = lane.table
-    m = summarise(table.column("exposure_start_us"), table.column("over_exposed_rate"),
-                  table.column("under_exposed_rate"), [c.t_us for c in scene.changes], None,
-                  end_us=scene.duration_us)
+    m = summarise(
+        table.column("exposure_start_us"),
+        table.column("over_exposed_rate"),
+        table.column("under_exposed_rate"),
+        [c.t_us for c in scene.changes],
+        None,
+        end_us=scene.duration_us,
+    )
     return m.as_dict()
 
 
@@ -45,9 +50,9 @@ def show(out, run: str, viewer=None, speed="auto", stream=...) -> dict:
 
     Returns ``{"hash", "spec", "metrics", "row", "matches", "rrd"}``.
     """
-    from ..dashboard import Session, preflight, run_session
-    from ..options import SceneOptions, ShowOptions, ViewerOptions
-    from ..runs import build_rig
+    from necviz.dashboard.session import Session, preflight, run_session
+    from necviz.options import SceneOptions, ShowOptions, ViewerOptions
+    from necviz.runs import build_rig
 
     stream = sys.stdout if stream is ... else stream
     store = Store(out)
@@ -62,41 +67,74 @@ def show(out, run: str, viewer=None, speed="auto", stream=...) -> dict:
         raise ParameterError(f"run {h} used the scenario file {scen}, which no longer exists")
     profile = spec.get("profile")
     if isinstance(profile, dict):
-        from ..core.profile import CameraProfile
+        from necviz.core.camera_profile import CameraProfile
 
         profile = CameraProfile.from_dict(profile, f"run {h}")
     elif profile is not None:
-        from ..core.profile import load_profile
+        from necviz.profiles import load_profile
 
         profile = load_profile(profile)
     sc = SceneOptions(scen, spec.get("seed"), spec.get("duration_s"), dict(spec.get("scenario_params") or {}))
     names = list(spec["controllers"])
     scene, rig, lanes, limits = build_rig(sc, names, profile, spec.get("controller_params"), spec.get("sim"))
-    props = {"command": "sweep show", "run": h, "scenario": sc.name, "seed": sc.resolved_seed,
-             "duration_s": scene.duration_us / 1e6, "scenario_params": sc.params, "controllers": ",".join(names),
-             "controller_params": spec.get("controller_params"), "sim": spec.get("sim"),
-             "camera_limits": limits, "camera_profile": str(spec.get("profile") or "default DAVIS346 response"),
-             "sweep": str(store.root)}
+    props = {
+        "command": "sweep show",
+        "run": h,
+        "scenario": sc.name,
+        "seed": sc.resolved_seed,
+        "duration_s": scene.duration_us / 1e6,
+        "scenario_params": sc.params,
+        "controllers": ",".join(names),
+        "controller_params": spec.get("controller_params"),
+        "sim": spec.get("sim"),
+        "camera_limits": limits,
+        "camera_profile": str(spec.get("profile") or "default DAVIS346 response"),
+        "sweep": str(store.root),
+    }
     if stream is not None:
-        print(f"  sweep show {h}: {sc.name} seed {sc.resolved_seed}, {', '.join(names)} "
-              f"({props['duration_s']:g} s simulated)", file=stream)
-    stats = run_session(Session("sweep show", rig, lanes, "compare", f"necviz sweep show {h}", props, viewer,
-                                show_opts, None, None, lossless=True, expected_duration_s=props["duration_s"]),
-                        stream)
+        print(
+            f"  sweep show {h}: {sc.name} seed {sc.resolved_seed}, {', '.join(names)} "
+            f"({props['duration_s']:g} s simulated)",
+            file=stream,
+        )
+    stats = run_session(
+        Session(
+            "sweep show",
+            rig,
+            lanes,
+            "compare",
+            f"necviz sweep show {h}",
+            props,
+            viewer,
+            show_opts,
+            None,
+            None,
+            lossless=True,
+            expected_duration_s=props["duration_s"],
+        ),
+        stream,
+    )
     metrics = _metrics(stats["telemetry"][names[0]], scene)
-    checked = {k: (v, row.get(k)) for k, v in metrics.items()
-               if k in row and (v is None or isinstance(v, (int, float)))}
+    checked = {
+        k: (v, row.get(k)) for k, v in metrics.items() if k in row and (v is None or isinstance(v, (int, float)))
+    }
     matches = row.get("status") == "ok" and all(_same(a, b) for a, b in checked.values())
     if stream is not None:
         if row.get("status") != "ok":
             print(f"  the sweep recorded this run as failed: {row.get('error')}", file=stream)
         elif matches:
-            print("  the re-run reproduces the sweep's row: "
-                  + ", ".join(f"{k} {_txt(a)}" for k, (a, _) in checked.items()), file=stream)
+            print(
+                "  the re-run reproduces the sweep's row: "
+                + ", ".join(f"{k} {_txt(a)}" for k, (a, _) in checked.items()),
+                file=stream,
+            )
         else:
             diff = [f"{k} {_txt(b)} -> {_txt(a)}" for k, (a, b) in checked.items() if not _same(a, b)]
-            print(f"  warning: the re-run differs from the sweep's row ({'; '.join(diff)}): the code, a file "
-                  "it reads or the machine changed since the sweep", file=stream)
+            print(
+                f"  warning: the re-run differs from the sweep's row ({'; '.join(diff)}): the code, a file "
+                "it reads or the machine changed since the sweep",
+                file=stream,
+            )
     return {"hash": h, "spec": spec, "metrics": metrics, "row": row, "matches": matches, "rrd": stats.get("rrd")}
 
 

@@ -46,13 +46,23 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..core.errors import NecvizError, ParameterError
+from necviz.core.errors import NecvizError, ParameterError
 
 #: The version of the row/hash layout; part of every hash.
 HASH_VERSION = 1
 HASH_CHARS = 16
-TOP_KEYS = {"name", "description", "seeds", "duration_s", "sift", "metrics", "profiles", "sim", "controllers",
-            "scenarios"}
+TOP_KEYS = {
+    "name",
+    "description",
+    "seeds",
+    "duration_s",
+    "sift",
+    "metrics",
+    "profiles",
+    "sim",
+    "controllers",
+    "scenarios",
+}
 SCENARIO_KEYS = {"name", "params", "zip", "sim", "duration_s"}
 CONTROLLER_KEYS = {"name", "params", "zip"}
 MAX_RUNS = 1_000_000
@@ -98,10 +108,16 @@ class Plan:
 
     def counts(self) -> dict:
         scen = sorted({r.columns["scenario"] for r in self.runs})
-        return {"runs": len(self.runs), "cells": self.cells(), "seeds": len(self.seeds), "scenarios": len(scen),
-                "controller_configurations": len({json.dumps([r.spec["controllers"], r.spec["controller_params"]],
-                                                             sort_keys=True) for r in self.runs}),
-                "duplicates_dropped": self.duplicates}
+        return {
+            "runs": len(self.runs),
+            "cells": self.cells(),
+            "seeds": len(self.seeds),
+            "scenarios": len(scen),
+            "controller_configurations": len(
+                {json.dumps([r.spec["controllers"], r.spec["controller_params"]], sort_keys=True) for r in self.runs}
+            ),
+            "duplicates_dropped": self.duplicates,
+        }
 
 
 # -- small parsers ---------------------------------------------------------------------------------
@@ -230,8 +246,14 @@ def _scalar(v):
 def spec_columns(spec: dict, scenario_label: str, profile_label: str | None) -> dict:
     """The row's description of a spec: flat columns, nested values as JSON text."""
     (ctrl,) = spec["controllers"]
-    cols = {"scenario": scenario_label, "seed": spec["seed"], "duration_s": spec.get("duration_s"),
-            "controller": ctrl, "profile": profile_label, "sift": bool(spec.get("sift", False))}
+    cols = {
+        "scenario": scenario_label,
+        "seed": spec["seed"],
+        "duration_s": spec.get("duration_s"),
+        "controller": ctrl,
+        "profile": profile_label,
+        "sift": bool(spec.get("sift", False)),
+    }
     for k, v in sorted((spec.get("scenario_params") or {}).items()):
         cols[f"scenario_params.{k}"] = _scalar(v)
     for k, v in sorted(((spec.get("controller_params") or {}).get(ctrl) or {}).items()):
@@ -293,8 +315,8 @@ def _list_of(data, key, default=None):
 
 def expand(data: dict, base: Path = Path("."), source: str = "sweep", text: str = "", check: bool = True) -> Plan:
     """Expand parsed TOML into a :class:`Plan` (``base``: the folder relative file names start from)."""
-    from ..core.control import CONTROLLERS
-    from ..drivers.sim.scenes import SCENARIOS
+    from necviz.core.control import CONTROLLERS
+    from necviz.drivers.sim.scenes import SCENARIOS
 
     unknown = sorted(set(data) - TOP_KEYS)
     if unknown:
@@ -322,7 +344,7 @@ def expand(data: dict, base: Path = Path("."), source: str = "sweep", text: str 
             profiles.append((None, "default", None))
         elif isinstance(prof, str):
             path = (base / prof).resolve()
-            from ..core.profile import load_profile
+            from necviz.profiles import load_profile
 
             try:
                 loaded = load_profile(path) if check else None
@@ -330,10 +352,11 @@ def expand(data: dict, base: Path = Path("."), source: str = "sweep", text: str 
                 raise SweepFileError(f"{where}: {' '.join(str(e).split())}") from None
             profiles.append((str(path), prof, loaded))
         elif isinstance(prof, dict):
-            from ..core.profile import CameraProfile
+            from necviz.core.camera_profile import CameraProfile
 
-            profiles.append((prof, json.dumps(prof, sort_keys=True),
-                             CameraProfile.from_dict(prof, where) if check else None))  # errors name `where`
+            profiles.append(
+                (prof, json.dumps(prof, sort_keys=True), CameraProfile.from_dict(prof, where) if check else None)
+            )  # errors name `where`
         else:
             raise SweepFileError(f'{where} must be "default", a profile file or a profile table, got {prof!r}')
 
@@ -347,7 +370,9 @@ def expand(data: dict, base: Path = Path("."), source: str = "sweep", text: str 
         c = _entry(c, where, "controller", CONTROLLER_KEYS)
         name = c.get("name")
         if name not in CONTROLLERS:
-            raise SweepFileError(f"{where}.name: unknown controller {name!r}; available: {', '.join(sorted(CONTROLLERS))}")
+            raise SweepFileError(
+                f"{where}.name: unknown controller {name!r}; available: {', '.join(sorted(CONTROLLERS))}"
+            )
         for combo in _combinations(c.get("params"), c.get("zip"), where):
             ctrl_entries.append((name, combo, where))
 
@@ -365,15 +390,16 @@ def expand(data: dict, base: Path = Path("."), source: str = "sweep", text: str 
             path = (base / name).resolve()
             if not path.is_file():
                 raise SweepFileError(f"{where}.name: scenario file {name!r} does not exist")
-            from ..drivers.sim.scenes import load_scenario_spec
+            from necviz.drivers.sim.scenes import load_scenario_spec
 
             try:
                 value, preset = str(path), load_scenario_spec(path)["name"]
             except NecvizError as e:
                 raise SweepFileError(f"{where}.name: {' '.join(str(e).split())}") from None
         else:
-            raise SweepFileError(f"{where}.name: {name!r} is neither a preset ({', '.join(sorted(SCENARIOS))}) "
-                                 "nor a .toml scenario file")
+            raise SweepFileError(
+                f"{where}.name: {name!r} is neither a preset ({', '.join(sorted(SCENARIOS))}) nor a .toml scenario file"
+            )
         dur = _duration(s["duration_s"], f"{where}.duration_s") if "duration_s" in s else duration
         sim = {**top_sim, **_axis_values(s.get("sim", {}), f"{where}.sim", none_words=True)}
         sim_rows = [dict(zip(sim, vals)) for vals in itertools.product(*sim.values())] if sim else [{}]
@@ -397,9 +423,17 @@ def expand(data: dict, base: Path = Path("."), source: str = "sweep", text: str 
         for prof_value, prof_label, _ in profiles:
             for ctrl, cparams, _ in ctrl_entries:
                 for seed in seeds:
-                    spec = {"scenario": value, "seed": seed, "duration_s": dur, "scenario_params": dict(params),
-                            "controllers": [ctrl], "controller_params": {ctrl: dict(cparams)} if cparams else {},
-                            "profile": prof_value, "sim": dict(sim_row), "sift": sift}
+                    spec = {
+                        "scenario": value,
+                        "seed": seed,
+                        "duration_s": dur,
+                        "scenario_params": dict(params),
+                        "controllers": [ctrl],
+                        "controller_params": {ctrl: dict(cparams)} if cparams else {},
+                        "profile": prof_value,
+                        "sim": dict(sim_row),
+                        "sift": sift,
+                    }
                     refs = {}
                     for key in ("scenario", "profile"):
                         v = spec[key]
@@ -419,7 +453,7 @@ def expand(data: dict, base: Path = Path("."), source: str = "sweep", text: str 
 def _duration(v, where):
     if v is None:
         return None
-    from ..core.checks import check_number
+    from necviz.core.checks import check_number
 
     try:
         return check_number(where, v, 0.0, 600.0, lo_open=True)
@@ -429,15 +463,16 @@ def _duration(v, where):
 
 def _check_scenario_params(preset: str, combos: list[dict], where: str) -> None:
     """Names and ranges of scenario parameters (as the preset checks them), before anything runs."""
-    from ..core.checks import check_number
-    from ..drivers.sim.scenes import scenario_params
+    from necviz.core.checks import check_number
+    from necviz.drivers.sim.scenes import scenario_params
 
     known = scenario_params(preset)
     for combo in combos:
         for k, v in combo.items():
             if k not in known:
-                raise SweepFileError(f"{where}.params.{k}: {preset} has no parameter {k!r}; accepted: "
-                                     f"{', '.join(known)}")
+                raise SweepFileError(
+                    f"{where}.params.{k}: {preset} has no parameter {k!r}; accepted: {', '.join(known)}"
+                )
             spec = known[k]
             if spec.kind == "float" or (spec.kind == "opt_float" and v is not None):
                 try:
@@ -447,7 +482,7 @@ def _check_scenario_params(preset: str, combos: list[dict], where: str) -> None:
 
 
 def _check_sims(rows) -> None:
-    from ..runs import sim_models
+    from necviz.runs import sim_models
 
     for row in rows:
         try:
@@ -458,10 +493,10 @@ def _check_sims(rows) -> None:
 
 def _check_controllers(entries, profiles) -> None:
     """Build every controller configuration once (cheap) so a bad parameter is refused up front."""
-    from ..core.control import CameraLimits
-    from ..core.sensor import DAVIS346
-    from ..drivers.sim.aps import ApsParams
-    from ..runs import build_controller
+    from necviz.core.control import CameraLimits
+    from necviz.core.sensor import DAVIS346
+    from necviz.drivers.sim.aps import ApsParams
+    from necviz.runs import build_controller
 
     aps = ApsParams()
     limits = CameraLimits(aps.exposure_min_us, aps.exposure_max_us, aps.gain_max)
@@ -478,5 +513,15 @@ def _check_controllers(entries, profiles) -> None:
                 raise SweepFileError(f"{where}.params: {' '.join(str(e).split())}") from None
 
 
-__all__ = ["HASH_VERSION", "Plan", "Run", "SweepFileError", "cell_key", "expand", "load_plan", "parse_seeds",
-           "spec_columns", "spec_hash"]
+__all__ = [
+    "HASH_VERSION",
+    "Plan",
+    "Run",
+    "SweepFileError",
+    "cell_key",
+    "expand",
+    "load_plan",
+    "parse_seeds",
+    "spec_columns",
+    "spec_hash",
+]

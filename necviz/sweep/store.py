@@ -26,8 +26,11 @@ import sys
 import time
 from pathlib import Path
 
-from ..core.errors import ParameterError
-from ..outputs import atomic_write, write_json
+from necviz.core.errors import ParameterError
+from necviz.outputs import atomic_write, write_json
+
+#: the files ``necviz sweep report`` writes into a sweep folder (replaced, never mixed with the runs)
+REPORT_FILES = ("report.md", "cells.csv", "runs.csv")
 
 MANIFEST = "manifest.json"
 FORMAT = "necviz-sweep/1"
@@ -57,8 +60,9 @@ class Store:
         try:
             m = json.loads(self.manifest_path.read_text(encoding="utf-8"))
         except FileNotFoundError:
-            raise SweepDirError(f"{self.root} is not a sweep folder (no {MANIFEST}; run `necviz sweep run` first)") \
-                from None
+            raise SweepDirError(
+                f"{self.root} is not a sweep folder (no {MANIFEST}; run `necviz sweep run` first)"
+            ) from None
         except (OSError, ValueError) as e:
             raise SweepDirError(f"cannot read {self.manifest_path}: {e}") from None
         if not isinstance(m, dict) or m.get("format") != FORMAT:
@@ -79,8 +83,11 @@ class Store:
         """Hashes with a row (finished or failed)."""
         if not self.runs.is_dir():
             return set()
-        return {p.name[: -len(ROW_SUFFIX)] for p in self.runs.iterdir()
-                if p.name.endswith(ROW_SUFFIX) and not p.name.endswith(TRACE_SUFFIX) and not p.name.startswith(".")}
+        return {
+            p.name[: -len(ROW_SUFFIX)]
+            for p in self.runs.iterdir()
+            if p.name.endswith(ROW_SUFFIX) and not p.name.endswith(TRACE_SUFFIX) and not p.name.startswith(".")
+        }
 
     def write_run(self, h: str, row: bytes, trace: bytes | None) -> None:
         """Trace first, then the row (the row marks the run done); each atomically."""
@@ -134,8 +141,10 @@ class Store:
                 if host == socket.gethostname() and not _alive(int(pid)):
                     path.unlink(missing_ok=True)
                     continue
-                raise SweepDirError(f"another sweep is writing to {self.root} (process {pid} on {host or '?'}); "
-                                    f"if it is gone, delete {path}") from None
+                raise SweepDirError(
+                    f"another sweep is writing to {self.root} (process {pid} on {host or '?'}); "
+                    f"if it is gone, delete {path}"
+                ) from None
             with os.fdopen(fd, "w") as f:
                 f.write(me)
             return
@@ -195,8 +204,9 @@ def prepare_out(out, *, resume: bool, force: bool) -> Store:
         store.manifest()
     elif not empty:
         if not force:
-            raise SweepDirError(f"--out: {root} is not empty; pass --resume to complete that sweep or --force to "
-                                "start it over")
+            raise SweepDirError(
+                f"--out: {root} is not empty; pass --resume to complete that sweep or --force to start it over"
+            )
         if not store.is_sweep():
             raise SweepDirError(f"--force: {root} is not a sweep folder (no {MANIFEST}); choose a new or empty folder")
         _clear(store)
@@ -217,8 +227,6 @@ def _clear(store: Store) -> None:
         (store.root / name).unlink(missing_ok=True)
     rep = store.root / "report"
     if rep.is_dir():
-        from .report import REPORT_FILES
-
         for p in rep.iterdir():
             if p.is_file() and (p.name in REPORT_FILES or (p.name.startswith("plot-") and p.suffix == ".png")):
                 p.unlink()
@@ -229,8 +237,18 @@ def versions() -> dict:
     from importlib.metadata import PackageNotFoundError, version
 
     out = {"python": platform.python_version()}
-    for name in ("necviz", "numpy", "numba", "scipy", "opencv-python-headless", "pyarrow", "dask", "distributed",
-                 "matplotlib", "rerun-sdk"):
+    for name in (
+        "necviz",
+        "numpy",
+        "numba",
+        "scipy",
+        "opencv-python-headless",
+        "pyarrow",
+        "dask",
+        "distributed",
+        "matplotlib",
+        "rerun-sdk",
+    ):
         try:
             out[name] = version(name)
         except PackageNotFoundError:
@@ -242,12 +260,15 @@ def git_revision() -> dict | None:
     """The revision of the source tree necviz runs from (``None`` outside a git checkout)."""
     here = Path(__file__).resolve().parents[2]
     try:
-        rev = subprocess.run(["git", "-C", str(here), "rev-parse", "HEAD"], capture_output=True, text=True,
-                             timeout=10)
+        rev = subprocess.run(["git", "-C", str(here), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10)
         if rev.returncode != 0:
             return None
-        dirty = subprocess.run(["git", "-C", str(here), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=20)
+        dirty = subprocess.run(
+            ["git", "-C", str(here), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            timeout=20,
+        )
         return {"revision": rev.stdout.strip(), "dirty": bool(dirty.stdout.strip()) if dirty.returncode == 0 else None}
     except (OSError, subprocess.SubprocessError):
         return None
@@ -259,9 +280,15 @@ def machine() -> dict:
         mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (ValueError, OSError, AttributeError):
         pass
-    return {"hostname": socket.gethostname(), "platform": platform.platform(), "machine": platform.machine(),
-            "processor": platform.processor() or None, "cpu_count": os.cpu_count(), "memory_bytes": mem,
-            "executable": sys.executable}
+    return {
+        "hostname": socket.gethostname(),
+        "platform": platform.platform(),
+        "machine": platform.machine(),
+        "processor": platform.processor() or None,
+        "cpu_count": os.cpu_count(),
+        "memory_bytes": mem,
+        "executable": sys.executable,
+    }
 
 
 def now() -> str:

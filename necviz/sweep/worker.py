@@ -40,10 +40,11 @@ ROW_FORMAT = "necviz-sweep-row/1"
 TRACE_SKIP = {"frames_detail", "exposure_trace_us", "gain_trace", "frame_starts_us"}
 MAX_LIST = 64  # longer lists are traces, not row values
 
+
 class InlineExecutor:
     """A stand-in for ``ThreadPoolExecutor`` that runs each call at ``submit`` on the calling thread.
 
-    The simulator (:meth:`necviz.drivers.sim.camera.SimRig.packets`) overlaps its DVS step with
+    The simulator (:meth:`necviz.drivers.sim.rig.SimRig.packets`) overlaps its DVS step with
     scene rendering on a second thread: right for one run on an idle machine, but a sweep already
     runs one run per core, and the second thread would make every worker compete for two. The
     DVS steps are submitted and collected in order, so running them inline gives the same events.
@@ -68,7 +69,7 @@ class InlineExecutor:
 
 def serial_simulator() -> bool:
     """Make this process's simulator single-threaded (:class:`InlineExecutor`); False if it cannot."""
-    from ..drivers.sim import camera
+    from necviz.drivers.sim import rig as camera
 
     if not hasattr(camera, "ThreadPoolExecutor"):
         return False
@@ -119,7 +120,7 @@ def prepare(warmup: dict | None, serial: bool = True) -> float | None:
             pass
         t0 = time.perf_counter()
         if warmup:
-            from ..runs import run_spec
+            from necviz.runs import run_spec
 
             try:
                 run_spec(warmup)
@@ -168,7 +169,7 @@ def execute(task: dict) -> dict:
     with the row and trace as Parquet bytes."""
     warm = prepare(task.get("warmup"), task.get("serial", True))
     _threads()
-    from ..runs import run_spec
+    from necviz.runs import run_spec
 
     spec = task["spec"]
     started = time.time()
@@ -186,8 +187,17 @@ def execute(task: dict) -> dict:
     if result is not None:
         (ctrl,) = spec["controllers"]
         trace = trace_bytes(result["results"][ctrl].get("frames_detail") or [], task["hash"])
-    return {"hash": task["hash"], "status": row["status"], "error": error, "wall_s": wall, "warmup_s": warm,
-            "started": started, "worker": where, "row": row_bytes(row), "trace": trace}
+    return {
+        "hash": task["hash"],
+        "status": row["status"],
+        "error": error,
+        "wall_s": wall,
+        "warmup_s": warm,
+        "started": started,
+        "worker": where,
+        "row": row_bytes(row),
+        "trace": trace,
+    }
 
 
 def flatten_result(res: dict) -> tuple[dict, list[str]]:
@@ -205,8 +215,11 @@ def flatten_result(res: dict) -> tuple[dict, list[str]]:
             metrics.append(key)
         elif isinstance(v, str):
             cols[key] = v
-        elif isinstance(v, (list, tuple)) and len(v) <= MAX_LIST and all(
-                x is None or isinstance(x, (bool, int, float, str)) for x in v):
+        elif (
+            isinstance(v, (list, tuple))
+            and len(v) <= MAX_LIST
+            and all(x is None or isinstance(x, (bool, int, float, str)) for x in v)
+        ):
             cols[key] = json.dumps([None if isinstance(x, float) and not math.isfinite(x) else x for x in v])
         # longer lists and anything else are traces (the trace file) or not row data
 
@@ -219,10 +232,20 @@ def flatten_result(res: dict) -> tuple[dict, list[str]]:
 def build_row(task: dict, result: dict | None, error, tb, *, wall, warmup_s, started, worker) -> dict:
     """The row of a run as ``{column: value}`` plus its metric names under ``"__metrics__"``."""
     spec = task["spec"]
-    row = {"hash": task["hash"], "status": "ok" if error is None else "failed", "error": error, "traceback": tb,
-           **task["columns"], "spec_json": json.dumps(spec, sort_keys=True),
-           "sim_duration_s": None, "wall_s": wall, "warmup_s": warmup_s,
-           "started_at": _iso(started), "finished_at": _iso(time.time()), "worker": worker}
+    row = {
+        "hash": task["hash"],
+        "status": "ok" if error is None else "failed",
+        "error": error,
+        "traceback": tb,
+        **task["columns"],
+        "spec_json": json.dumps(spec, sort_keys=True),
+        "sim_duration_s": None,
+        "wall_s": wall,
+        "warmup_s": warmup_s,
+        "started_at": _iso(started),
+        "finished_at": _iso(time.time()),
+        "worker": worker,
+    }
     metrics: list[str] = []
     if result is not None:
         (ctrl,) = spec["controllers"]
@@ -277,4 +300,13 @@ def trace_bytes(frames: list[dict], run_hash: str) -> bytes:
     return buf.getvalue()
 
 
-__all__ = ["IgnoreInterrupt", "InlineExecutor", "execute", "serial_simulator", "flatten_result", "prepare", "row_bytes", "trace_bytes"]
+__all__ = [
+    "IgnoreInterrupt",
+    "InlineExecutor",
+    "execute",
+    "serial_simulator",
+    "flatten_result",
+    "prepare",
+    "row_bytes",
+    "trace_bytes",
+]

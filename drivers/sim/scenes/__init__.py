@@ -40,15 +40,28 @@ TOML description with :func:`scenario_from_toml` (keys in :mod:`.toml`)::
     step_db = 90
 """
 
-from .base import COMMON_PARAMS, Param, PresetScene
-from .flicker import Flicker
-from .handheld_scan import HandheldScan
-from .indoor_outdoor import IndoorOutdoor
-from .registry import SCENARIOS, make_scenario, scenario_params, scenario_params_markdown
-from .static_lab import StaticLab
-from .toml import load_scenario_spec, scenario_from_toml
-from .tunnel_exit import TunnelExit
+from necviz.drivers.sim.scenes.flicker import Flicker
+from necviz.drivers.sim.scenes.handheld_scan import HandheldScan
+from necviz.drivers.sim.scenes.indoor_outdoor import IndoorOutdoor
+from necviz.drivers.sim.scenes.preset import COMMON_PARAMS, Param, PresetScene
+from necviz.drivers.sim.scenes.registry import SCENARIOS, make_scenario, scenario_params, scenario_params_markdown
+from necviz.drivers.sim.scenes.static_lab import StaticLab
+from necviz.drivers.sim.scenes.toml import load_scenario_spec, scenario_from_toml
+from necviz.drivers.sim.scenes.tunnel_exit import TunnelExit
 
-__all__ = ["SCENARIOS", "make_scenario", "load_scenario_spec", "scenario_from_toml", "scenario_params", "scenario_params_markdown",
-           "TunnelExit", "IndoorOutdoor", "Flicker", "StaticLab", "HandheldScan", "PresetScene", "Param",
-           "COMMON_PARAMS"]
+__all__ = [
+    "SCENARIOS",
+    "make_scenario",
+    "load_scenario_spec",
+    "scenario_from_toml",
+    "scenario_params",
+    "scenario_params_markdown",
+    "TunnelExit",
+    "IndoorOutdoor",
+    "Flicker",
+    "StaticLab",
+    "HandheldScan",
+    "PresetScene",
+    "Param",
+    "COMMON_PARAMS",
+]

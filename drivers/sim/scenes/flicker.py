@@ -6,8 +6,15 @@ import math
 
 import numpy as np
 
-from ..scene import LightingChange, db_to_log
-from .base import COMMON_PARAMS, US, Param, PresetScene, _smoothstep_scalar, _structured_texture
+from necviz.drivers.sim.scene import LightingChange, db_to_log
+from necviz.drivers.sim.scenes.preset import (
+    COMMON_PARAMS,
+    US,
+    Param,
+    PresetScene,
+    _smoothstep_scalar,
+    _structured_texture,
+)
 
 __all__ = ["Flicker"]
 
@@ -34,9 +41,13 @@ class Flicker(PresetScene):
         "depth": Param(0.3, 0.0, 0.95, "modulation depth of the lamp"),
         "lamp_db": Param(12.0, -20.0, 60.0, "lamp over ambient irradiance in its pool, dB"),
         "switch_db": Param(20.0, 0.0, 80.0, "switched light: on/off ratio, dB"),
-        "switch_times_s": Param(None, kind="times", doc="times the light toggles, s (starts off)",
-                                default_text="[30 %, 60 %] of the duration",
-                                range_text="increasing, in [0, duration]"),
+        "switch_times_s": Param(
+            None,
+            kind="times",
+            doc="times the light toggles, s (starts off)",
+            default_text="[30 %, 60 %] of the duration",
+            range_text="increasing, in [0, duration]",
+        ),
         "switch_ms": Param(2.0, 0.0, 1000.0, "duration of a switch ramp, ms"),
         **COMMON_PARAMS,
     }
@@ -50,7 +61,7 @@ class Flicker(PresetScene):
         R = _structured_texture(rng, H, W, amp=0.7, density=0.8, size=(5, 50))
         lx, ly = W * rng.uniform(0.25, 0.4), H * rng.uniform(0.3, 0.45)
         rr = ((self._xx - lx) / (0.22 * W)) ** 2 + ((self._yy - ly) / (0.3 * H)) ** 2
-        w = np.exp(-rr ** 2).astype(np.float32)  # soft pool
+        w = np.exp(-(rr**2)).astype(np.float32)  # soft pool
         blob = np.exp(-(((self._xx - lx) ** 2 + (self._yy - ly + 0.22 * H) ** 2) / (0.03 * W) ** 2))
         w = w + 6.0 * blob.astype(np.float32)
         self.lamp_mask = w > 0.6
@@ -70,8 +81,9 @@ class Flicker(PresetScene):
             m1 = np.log(self.A * math.exp(new * self.s_log) + 1e-30)
             m0[self.roi] = np.log(self.A[self.roi] * math.exp(state * self.s_log) + self.B)
             m1[self.roi] = np.log(self.A[self.roi] * math.exp(new * self.s_log) + self.B)
-            self.changes.append(LightingChange(int(round(t_us)), "light on" if new else "light off",
-                                               float(m1.mean() - m0.mean())))
+            self.changes.append(
+                LightingChange(int(round(t_us)), "light on" if new else "light off", float(m1.mean() - m0.mean()))
+            )
             state = new
 
     def _switch(self, t: float) -> float:

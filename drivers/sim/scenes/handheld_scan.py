@@ -7,8 +7,17 @@ import math
 import cv2
 import numpy as np
 
-from ..scene import LightingChange, db_to_log
-from .base import COMMON_PARAMS, US, Param, PresetScene, _affine, _Shake, _structured_texture, _warp
+from necviz.drivers.sim.scene import LightingChange, db_to_log
+from necviz.drivers.sim.scenes.preset import (
+    COMMON_PARAMS,
+    US,
+    Param,
+    PresetScene,
+    _affine,
+    _Shake,
+    _structured_texture,
+    _warp,
+)
 
 __all__ = ["HandheldScan"]
 
@@ -68,17 +77,25 @@ class HandheldScan(PresetScene):
         self.shadow_delay_us = float(self._jitter_us(1)[0])  # change_jitter_ms: the bands run late by this
         self.x_lo, self.x_hi = W / 2 + 10, fw - W / 2 - 10
         self.ycen = fh / 2
-        self._motion_rate = (1.5 * float(np.abs(np.diff(tex, axis=1)).max())
-                             * (p["scan_speed_px_s"] + self.shake.max_speed() + 20) / US
-                             + self.step / p["shadow_soft_px"] * (p["shadow_speed_px_s"] + p["scan_speed_px_s"]
-                                                                  + self.shake.max_speed() + 20) / US)
+        self._motion_rate = (
+            1.5 * float(np.abs(np.diff(tex, axis=1)).max()) * (p["scan_speed_px_s"] + self.shake.max_speed() + 20) / US
+            + self.step
+            / p["shadow_soft_px"]
+            * (p["shadow_speed_px_s"] + p["scan_speed_px_s"] + self.shake.max_speed() + 20)
+            / US
+        )
         # changes: shadow edges crossing the image centre (sampled every 0.5 ms)
         ts = np.arange(0, self.duration_us + 1, 500.0)
         wc = np.array([self._weight_at_centre(t) for t in ts])
         idx = np.nonzero(np.diff(np.sign(wc - 0.5)) != 0)[0]
-        self.changes = [LightingChange(int(ts[i + 1]), "sun edge at centre" if wc[i + 1] > wc[i] else
-                                       "shadow edge at centre", self.step if wc[i + 1] > wc[i] else -self.step)
-                        for i in idx]
+        self.changes = [
+            LightingChange(
+                int(ts[i + 1]),
+                "sun edge at centre" if wc[i + 1] > wc[i] else "shadow edge at centre",
+                self.step if wc[i + 1] > wc[i] else -self.step,
+            )
+            for i in idx
+        ]
 
     def _pose(self, t: float):
         """Facade point at the image centre (x, y) and shake (dx, dy, rot) at time t (µs)."""
@@ -100,8 +117,12 @@ class HandheldScan(PresetScene):
         nx, ny = self.n
         a = nx * inv[0, 0] + ny * inv[1, 0]
         b = nx * inv[0, 1] + ny * inv[1, 1]
-        c = (nx * inv[0, 2] + ny * inv[1, 2] + self.params["shadow_speed_px_s"] * (t - self.shadow_delay_us) / US
-             + self.phase0)
+        c = (
+            nx * inv[0, 2]
+            + ny * inv[1, 2]
+            + self.params["shadow_speed_px_s"] * (t - self.shadow_delay_us) / US
+            + self.phase0
+        )
         return a, b, c % self.params["shadow_period_px"]
 
     def _weight_at_centre(self, t: float) -> float:

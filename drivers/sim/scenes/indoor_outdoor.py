@@ -7,8 +7,18 @@ import math
 import cv2
 import numpy as np
 
-from ..scene import LightingChange, db_to_log
-from .base import COMMON_PARAMS, US, Param, PresetScene, _affine, _Shake, _smoothstep_scalar, _structured_texture, _warp
+from necviz.drivers.sim.scene import LightingChange, db_to_log
+from necviz.drivers.sim.scenes.preset import (
+    COMMON_PARAMS,
+    US,
+    Param,
+    PresetScene,
+    _affine,
+    _Shake,
+    _smoothstep_scalar,
+    _structured_texture,
+    _warp,
+)
 
 __all__ = ["IndoorOutdoor"]
 
@@ -33,8 +43,15 @@ class IndoorOutdoor(PresetScene):
     PARAMS = {
         "inside_log": Param(5.0, -5.0, 15.0, "mean ln L indoors"),
         "step_db": Param(70.0, 60.0, 80.0, "outdoor/indoor irradiance ratio, dB"),
-        "exit_s": Param(None, 0.0, None, "time of passing the door (middle of the transition), s", "opt_float",
-                        default_text="50 % of the duration", range_text="inside the duration"),
+        "exit_s": Param(
+            None,
+            0.0,
+            None,
+            "time of passing the door (middle of the transition), s",
+            "opt_float",
+            default_text="50 % of the duration",
+            range_text="inside the duration",
+        ),
         "transition_ms": Param(300.0, 1.0, 3000.0, "duration of the door passage, ms"),
         "walk_speed_mps": Param(1.4, 0.0, 5.0, "walking speed, m/s"),
         "door_frac": Param(0.1, 0.005, 0.6, "image fraction of the door when the transition starts"),
@@ -81,8 +98,16 @@ class IndoorOutdoor(PresetScene):
         self.off_in = np.float32(p["inside_log"] - self._inside(0.0)[0].mean())
         self.off_out = np.float32(p["inside_log"] + self.step - self._outside(self.t1_tr).mean())
         self._s_max = s_max
-        self._motion_rate = 1.5 * float(np.abs(np.diff(tex, axis=1)).max()) * (
-            self.shake.max_speed() + 0.5 * math.hypot(W, H) * v / self.z_min + math.radians(p["shake_deg"]) * 4 * 2 * math.pi * 12 * W) / US
+        self._motion_rate = (
+            1.5
+            * float(np.abs(np.diff(tex, axis=1)).max())
+            * (
+                self.shake.max_speed()
+                + 0.5 * math.hypot(W, H) * v / self.z_min
+                + math.radians(p["shake_deg"]) * 4 * 2 * math.pi * 12 * W
+            )
+            / US
+        )
         i0, o0 = self._inside(0.0)[0], self._outside(self.t1_tr)
         self._span = float(max(o0.max() - i0.min(), i0.max() - o0.min())) + 0.5  # max |out - in| per pixel
         before = self._mean_now(self.t0_tr - 1.0)

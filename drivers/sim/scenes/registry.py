@@ -4,16 +4,16 @@ from __future__ import annotations
 
 from typing import Callable
 
-from ....core.checks import format_number
-from ....core.errors import ParameterError
-from ....core.sensor import DAVIS346, SensorGeometry
-from ..scene import Scene
-from .base import US, Param, params_markdown, summary
-from .flicker import Flicker
-from .handheld_scan import HandheldScan
-from .indoor_outdoor import IndoorOutdoor
-from .static_lab import StaticLab
-from .tunnel_exit import TunnelExit
+from necviz.core.checks import format_number
+from necviz.core.errors import ParameterError
+from necviz.core.sensor import DAVIS346, SensorGeometry
+from necviz.drivers.sim.scene import Scene
+from necviz.drivers.sim.scenes.flicker import Flicker
+from necviz.drivers.sim.scenes.handheld_scan import HandheldScan
+from necviz.drivers.sim.scenes.indoor_outdoor import IndoorOutdoor
+from necviz.drivers.sim.scenes.preset import US, Param, params_markdown, summary
+from necviz.drivers.sim.scenes.static_lab import StaticLab
+from necviz.drivers.sim.scenes.tunnel_exit import TunnelExit
 
 __all__ = ["SCENARIOS", "make_scenario", "scenario_params", "scenario_params_markdown"]
 
@@ -33,8 +33,9 @@ def scenario_params(name: str) -> dict[str, Param]:
     return dict(SCENARIOS[name].PARAMS)
 
 
-def make_scenario(name: str, sensor: SensorGeometry = DAVIS346, duration_us: int | None = None, seed: int = 0,
-                  **params) -> Scene:
+def make_scenario(
+    name: str, sensor: SensorGeometry = DAVIS346, duration_us: int | None = None, seed: int = 0, **params
+) -> Scene:
     """Build the named preset; ``duration_us`` None uses the preset's default duration."""
     if not isinstance(name, str) or name not in SCENARIOS:
         raise ParameterError(f"unknown scenario {name!r}; known: {', '.join(sorted(SCENARIOS))}")
@@ -43,11 +44,18 @@ def make_scenario(name: str, sensor: SensorGeometry = DAVIS346, duration_us: int
 
 def scenario_params_markdown() -> str:
     """Every preset's parameter table as Markdown (the README's "Simulator scenarios" section)."""
-    out = ["Generated from each preset's `PARAMS` by `necviz.drivers.sim.scenes.scenario_params_markdown()`. "
-           "Pass parameters as `make_scenario(name, seed=..., duration_us=..., **params)` or in the `[params]` "
-           "table of a scenario TOML file; a value outside its range is refused with a one-line error."]
+    out = [
+        "Generated from each preset's `PARAMS` by `necviz.drivers.sim.scenes.scenario_params_markdown()`. "
+        "Pass parameters as `make_scenario(name, seed=..., duration_us=..., **params)` or in the `[params]` "
+        "table of a scenario TOML file; a value outside its range is refused with a one-line error."
+    ]
     for name, cls in SCENARIOS.items():
-        out += ["", f"#### `{name}`", "",
-                f"{summary(cls)} Default duration {format_number(cls.DEFAULT_DURATION_US / US)} s.", "",
-                params_markdown(cls.PARAMS)]
+        out += [
+            "",
+            f"#### `{name}`",
+            "",
+            f"{summary(cls)} Default duration {format_number(cls.DEFAULT_DURATION_US / US)} s.",
+            "",
+            params_markdown(cls.PARAMS),
+        ]
     return "\n".join(out) + "\n"

@@ -7,11 +7,18 @@ import math
 import cv2
 import numpy as np
 
-from ....core.checks import check_number
-from ....core.errors import ParameterError
-from ..aps import ApsParams
-from ..scene import LightingChange, db_to_log
-from .base import COMMON_PARAMS, US, Param, PresetScene, _smoothstep_scalar, _structured_texture
+from necviz.core.checks import check_number
+from necviz.core.errors import ParameterError
+from necviz.drivers.sim.aps import ApsParams
+from necviz.drivers.sim.scene import LightingChange, db_to_log
+from necviz.drivers.sim.scenes.preset import (
+    COMMON_PARAMS,
+    US,
+    Param,
+    PresetScene,
+    _smoothstep_scalar,
+    _structured_texture,
+)
 
 __all__ = ["StaticLab", "DEFAULT_STEPS", "between_exposures_us"]
 
@@ -61,10 +68,14 @@ class StaticLab(PresetScene):
     PARAMS = {
         "base_log": Param(5.0, -5.0, 15.0, "mean ln L at 0 dB"),
         "initial_db": Param(0.0, -100.0, 100.0, "light level at t = 0, dB relative to base_log"),
-        "steps": Param(None, kind="steps", doc="list of (time s, level dB) light steps",
-                       default_text="+20, -20, +40, 0 dB at 1.011, 2.011, 3.011, 4.011 s (in 5 s: 20/40/60/80 % "
-                                    "of the duration, moved mid-way between exposure starts)",
-                       range_text="times in [0, duration], levels in [-100, 100]"),
+        "steps": Param(
+            None,
+            kind="steps",
+            doc="list of (time s, level dB) light steps",
+            default_text="+20, -20, +40, 0 dB at 1.011, 2.011, 3.011, 4.011 s (in 5 s: 20/40/60/80 % "
+            "of the duration, moved mid-way between exposure starts)",
+            range_text="times in [0, duration], levels in [-100, 100]",
+        ),
         "ramp_ms": Param(1.0, 0.0, 10000.0, "duration of each light change, ms"),
         **COMMON_PARAMS,
     }
@@ -103,8 +114,13 @@ class StaticLab(PresetScene):
         cx0, cy0 = int(W * rng.uniform(0.5, 0.65)), int(H * rng.uniform(0.15, 0.3))
         for i in range(7):
             for j in range(5):
-                cv2.rectangle(tex, (cx0 + i * cell, cy0 + j * cell), (cx0 + (i + 1) * cell - 1, cy0 + (j + 1) * cell - 1),
-                              0.9 if (i + j) % 2 else -0.9, -1)
+                cv2.rectangle(
+                    tex,
+                    (cx0 + i * cell, cy0 + j * cell),
+                    (cx0 + (i + 1) * cell - 1, cy0 + (j + 1) * cell - 1),
+                    0.9 if (i + j) % 2 else -0.9,
+                    -1,
+                )
         for k in range(3):
             y = int(H * (0.55 + 0.12 * k))
             cv2.line(tex, (0, y), (W - 1, y), -0.8, 2)
@@ -115,8 +131,9 @@ class StaticLab(PresetScene):
         self.changes = []
         prev = p["initial_db"]
         for t_us, (_, lv) in zip(self.t_us, clean):
-            self.changes.append(LightingChange(int(round(t_us)), f"lights {prev:+g} -> {lv:+g} dB",
-                                               db_to_log(lv - prev)))
+            self.changes.append(
+                LightingChange(int(round(t_us)), f"lights {prev:+g} -> {lv:+g} dB", db_to_log(lv - prev))
+            )
             prev = lv
 
     def level_db(self, t_us: float) -> float:

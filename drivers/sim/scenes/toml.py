@@ -16,12 +16,12 @@ import os
 import tomllib
 from pathlib import Path
 
-from ....core.checks import check_number
-from ....core.errors import ParameterError, ProfileError
-from ....core.sensor import DAVIS240, DAVIS346, SensorGeometry
-from ..scene import Scene
-from .base import US
-from .registry import SCENARIOS, make_scenario
+from necviz.core.checks import check_number
+from necviz.core.errors import ParameterError, ProfileError
+from necviz.core.sensor import DAVIS240, DAVIS346, SensorGeometry
+from necviz.drivers.sim.scene import Scene
+from necviz.drivers.sim.scenes.preset import US
+from necviz.drivers.sim.scenes.registry import SCENARIOS, make_scenario
 
 __all__ = ["load_scenario_spec", "scenario_from_toml"]
 
@@ -63,7 +63,7 @@ def load_scenario_spec(path_or_text: str | os.PathLike) -> dict:
     if unknown:
         raise ProfileError(f"{source}: unknown key(s) {', '.join(unknown)}; accepted: {', '.join(sorted(_TOML_KEYS))}")
     if "name" not in d:
-        raise ProfileError(f"{source}: missing key \"name\" (one of {', '.join(sorted(SCENARIOS))})")
+        raise ProfileError(f'{source}: missing key "name" (one of {", ".join(sorted(SCENARIOS))})')
     if d["name"] not in SCENARIOS:
         raise ParameterError(f"{source}: unknown scenario {d['name']!r}; known: {', '.join(sorted(SCENARIOS))}")
     seed = _number(source, "seed", d["seed"], lo=0, integer=True) if "seed" in d else None
@@ -77,8 +77,10 @@ def load_scenario_spec(path_or_text: str | os.PathLike) -> dict:
     sensor = d.get("sensor")
     if isinstance(sensor, str):
         if sensor not in _SENSORS:
-            raise ProfileError(f"{source}: unknown sensor {sensor!r}; known: {', '.join(_SENSORS)} "
-                               "or a table {width = .., height = ..}")
+            raise ProfileError(
+                f"{source}: unknown sensor {sensor!r}; known: {', '.join(_SENSORS)} "
+                "or a table {width = .., height = ..}"
+            )
         sensor = _SENSORS[sensor]
     elif isinstance(sensor, dict):
         try:
@@ -88,19 +90,30 @@ def load_scenario_spec(path_or_text: str | os.PathLike) -> dict:
         except ParameterError as e:
             raise ProfileError(f"{source}: {e}") from None
     elif sensor is not None and not isinstance(sensor, SensorGeometry):
-        raise ProfileError(f"{source}: \"sensor\" must be a name or a table, got {sensor!r}")
+        raise ProfileError(f'{source}: "sensor" must be a name or a table, got {sensor!r}')
     params = d.get("params", {})
     if not isinstance(params, dict):
         raise ProfileError(f"{source}: [params] must be a table, got {params!r}")
-    return {"name": d["name"], "seed": seed, "duration_us": duration_us, "sensor": sensor, "params": params,
-            "source": source}
+    return {
+        "name": d["name"],
+        "seed": seed,
+        "duration_us": duration_us,
+        "sensor": sensor,
+        "params": params,
+        "source": source,
+    }
 
 
 def scenario_from_toml(path_or_text: str | os.PathLike) -> Scene:
     """Build a scenario from a TOML file path or TOML text (a string containing ``=``); keys: module docstring."""
     spec = load_scenario_spec(path_or_text)
     try:
-        return make_scenario(spec["name"], sensor=spec["sensor"] or DAVIS346, duration_us=spec["duration_us"],
-                             seed=spec["seed"] or 0, **spec["params"])
+        return make_scenario(
+            spec["name"],
+            sensor=spec["sensor"] or DAVIS346,
+            duration_us=spec["duration_us"],
+            seed=spec["seed"] or 0,
+            **spec["params"],
+        )
     except ParameterError as e:
         raise ParameterError(f"{spec['source']}: {e}") from None

@@ -7,9 +7,18 @@ import math
 import cv2
 import numpy as np
 
-from ....core.sensor import SensorGeometry
-from ..scene import LightingChange, db_to_log
-from .base import COMMON_PARAMS, US, Param, PresetScene, _blur, _noise, _smoothstep_scalar, _structured_texture
+from necviz.core.sensor import SensorGeometry
+from necviz.drivers.sim.scene import LightingChange, db_to_log
+from necviz.drivers.sim.scenes.preset import (
+    COMMON_PARAMS,
+    US,
+    Param,
+    PresetScene,
+    _blur,
+    _noise,
+    _smoothstep_scalar,
+    _structured_texture,
+)
 
 __all__ = ["TunnelExit"]
 
@@ -24,8 +33,19 @@ class _Corridor:
     substitute) so it does not alias.
     """
 
-    def __init__(self, sensor: SensorGeometry, f: float, foe: tuple[float, float], half_w: float, floor_h: float,
-                 top_h: float, closed: bool, res: float, period_m: float, z_max: float = 300.0):
+    def __init__(
+        self,
+        sensor: SensorGeometry,
+        f: float,
+        foe: tuple[float, float],
+        half_w: float,
+        floor_h: float,
+        top_h: float,
+        closed: bool,
+        res: float,
+        period_m: float,
+        z_max: float = 300.0,
+    ):
         H, W = sensor.shape
         yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
         dx, dy = xx + 0.5 - foe[0], yy + 0.5 - foe[1]
@@ -110,8 +130,15 @@ class TunnelExit(PresetScene):
         "inside_log": Param(5.0, -5.0, 15.0, "mean ln L of the tunnel surfaces (portal excluded)"),
         "step_db": Param(60.0, 40.0, 140.0, "outside/inside irradiance ratio, dB"),
         "transition_ms": Param(40.0, 1.0, 1000.0, "duration of the portal passage, ms"),
-        "exit_s": Param(None, 0.0, None, "time the portal is passed (middle of the transition), s", "opt_float",
-                        default_text="40 % of the duration", range_text="inside the duration"),
+        "exit_s": Param(
+            None,
+            0.0,
+            None,
+            "time the portal is passed (middle of the transition), s",
+            "opt_float",
+            default_text="40 % of the duration",
+            range_text="inside the duration",
+        ),
         "speed_kmh": Param(60.0, 0.0, 300.0, "forward speed, km/h"),
         "portal_frac": Param(0.08, 0.0, 0.5, "image fraction covered by the portal when the transition starts"),
         "texture_contrast": Param(1.0, 0.0, 3.0, "multiplier of the texture contrast"),
@@ -144,8 +171,9 @@ class TunnelExit(PresetScene):
         u_ceil0, u_ceil1 = (10 + 6) * res, (10 + 6 + 10) * res  # ceiling u range (texels)
         for k in range(int(48 / 12)):
             y0 = int((k * 12 + 2) * res)
-            cv2.rectangle(tex, (int((u_ceil0 + u_ceil1) / 2 - 10), y0), (int((u_ceil0 + u_ceil1) / 2 + 10), y0 + 24),
-                          2.2, -1)
+            cv2.rectangle(
+                tex, (int((u_ceil0 + u_ceil1) / 2 - 10), y0), (int((u_ceil0 + u_ceil1) / 2 + 10), y0 + 24), 2.2, -1
+            )
         tex = _blur(tex, 0.6, True)
         self.tex_in = tex * tc
         shade = np.where(ti.floor, -0.4, np.where(ti.ceil, -0.2, 0.2)).astype(np.float32)
@@ -183,7 +211,7 @@ class TunnelExit(PresetScene):
         pw = max(4, int(round(ph * 0.4)))
         self.ped_patch = _structured_texture(rng, ph, pw, amp=0.5, density=3.0, size=(2, max(3, ph / 5)))
         self.ped_patch[: ph // 2] += 0.6
-        self.ped_patch[ph // 2:] -= 0.6
+        self.ped_patch[ph // 2 :] -= 0.6
         alpha = np.zeros((ph, pw), np.float32)
         cv2.ellipse(alpha, (pw // 2, ph // 8), (max(1, pw // 4), max(1, ph // 9)), 0, 0, 360, 1.0, -1)  # head
         cv2.rectangle(alpha, (1, ph // 4), (pw - 2, ph - 1), 1.0, -1)
@@ -192,10 +220,15 @@ class TunnelExit(PresetScene):
         self.ped_y = self.foe[1] + 0.28 * H - ph  # feet on the road's right side
         self.t_ped = self.t_exit + p["pedestrian_delay_ms"] * 1e3
         self.ped_x0 = W - 1.0  # enters from the right edge
-        self.annotations = {"transition_us": (self.t0_tr, self.t1_tr), "pedestrian_enters_us": self.t_ped,
-                            "foe": self.foe}
+        self.annotations = {
+            "transition_us": (self.t0_tr, self.t1_tr),
+            "pedestrian_enters_us": self.t_ped,
+            "foe": self.foe,
+        }
         # motion bound for max_log_rate: gradient of a rendered frame x max flow
-        g = max(np.abs(np.diff(self._inside(0.0), axis=1)).max(), np.abs(np.diff(self._outside(self.t_exit), axis=1)).max())
+        g = max(
+            np.abs(np.diff(self._inside(0.0), axis=1)).max(), np.abs(np.diff(self._outside(self.t_exit), axis=1)).max()
+        )
         flow_in = float((self.inside.flow_per_mps * (self.inside.z < 80)).max())
         flow_out = float((self.outside.flow_per_mps * ~self.outside.sky).max())
         self._motion_rate = 1.5 * float(g) * max(flow_in, flow_out) * self.v  # ln/µs

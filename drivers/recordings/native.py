@@ -1,0 +1,534 @@
+"""necviz's own recording format (``.necrec``): a crash-safe, append-only log of what a source produced.
+
+Written by :class:`Recorder` (``necviz live/demo --record FILE``), read by :class:`NativeRecording`.
+
+Layout (all integers little-endian)::
+
+    file    := magic chunk*
+    magic   := b"NECVIZ-REC\\x00" (11 bytes)  version:u8 (= 1)
+    chunk   := type:u8  length:u32  crc32:u32  payload[length]      (crc32 = zlib.crc32(payload))
+
+The first chunk is the header; then chunks follow in the order the source yielded the packets
+(stream order), so a reader replays them as they are:
+
+    type 1 HEADER      UTF-8 JSON object: {"format": "necviz-recording", "version": 1,
+                       "sensor": {"width", "height", "name"}, "properties": {...run metadata...},
+                       "created_utc": ISO-8601 string}
+    type 2 EVENTS      n packed records of 13 bytes: t:i64 (µs), x:u16, y:u16, p:i8 (+1/-1)
+                       (numpy EVENT_DTYPE; at most 1,048,576 events per chunk, time-sorted)
+    type 3 MARKER      t:i64 (µs), kind:u8 (0 exposure start, 1 exposure end)
+    type 4 FRAME       exposure_start:i64 (µs), exposure_end:i64 (µs), gain:f64 (linear, >= 1),
+                       sequence:i64, height:u16, width:u16, then height*width uint8 pixels, row-major,
+                       (0,0) top-left
+    type 5 IMU         n records of 36 bytes: t:i64 (µs), ax, ay, az (g), gx, gy, gz (°/s), temp (°C): f32
+    type 6 TRIGGERS    n records of 9 bytes: t:i64 (µs), kind:i8 (index into core.imu.TRIGGER_KINDS)
+    type 7 COMMAND     issue_time:i64 (µs), exposure:f64 (µs), gain:f64 (linear), has_applied:u8,
+                       applied_start:i64 (µs; meaningful when has_applied = 1)
+    type 8 ANNOTATION  t:i64 (µs), then a UTF-8 JSON object (e.g. a live parameter change)
+    type 9 END         empty; written by a clean close
+
+Crash safety: chunks are only ever appended. The writer keeps chunks in a memory buffer, writes
+whole 64 KiB blocks to the OS as they fill and everything at least every 0.25 s of wall time (a
+background thread also flushes when the source goes quiet); ``close`` writes the END chunk and
+calls ``os.fsync``. After a crash (process killed, cable pulled) the file is a valid prefix up to
+the last flush, possibly ending inside a chunk; the reader replays every complete chunk and
+reports the incomplete tail as a warning. A file without END (killed exactly between chunks) is
+also replayed completely, with a warning. A CRC mismatch or an unknown chunk type before the last
+chunk is damage: the reader yields everything before it and raises :class:`RecordingError`.
+
+Compression: none. Event chunks are raw structured arrays because LZ4 on this layout saves only
+~37 % (compressed size 0.63 of raw, measured on random and on the real DAVIS346 sample's events)
+while costing CPU in the live writer path; raw chunks are also trivially readable by other tools (``np.frombuffer``).
+
+Seeking (``start_us``/``end_us``): a forward scan of the chunk headers (reading only the first
+9-17 bytes of each chunk and seeking over payloads) builds an index of chunk offsets and times.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import struct
+import threading
+import time
+import zlib
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from necviz.core.errors import NecvizError
+from necviz.core.events import EVENT_DTYPE
+from necviz.core.frames import ExposureMarker, Frame
+from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, ImuBatch, TriggerBatch
+from necviz.core.sensor import SensorGeometry
+from necviz.drivers.recordings.reader import Recording, RecordingError, first_line
+from necviz.drivers.source import CommandRecord
+
+MAGIC = b"NECVIZ-REC\x00"
+VERSION = 1
+PREAMBLE = len(MAGIC) + 1
+CHUNK_HEAD = struct.Struct("<BII")
+HEADER, EVENTS, MARKER, FRAME, IMU, TRIGGERS, COMMAND, ANNOTATION, END = range(1, 10)
+_NAMES = {
+    HEADER: "header",
+    EVENTS: "events",
+    MARKER: "marker",
+    FRAME: "frame",
+    IMU: "IMU",
+    TRIGGERS: "triggers",
+    COMMAND: "command",
+    ANNOTATION: "annotation",
+    END: "end",
+}
+MARKER_S = struct.Struct("<qB")
+FRAME_S = struct.Struct("<qqdqHH")
+COMMAND_S = struct.Struct("<qddBq")
+T_S = struct.Struct("<q")
+MAX_EVENTS_PER_CHUNK = 1 << 20
+BLOCK = 1 << 16
+FLUSH_S = 0.25
+_PACKED_EVENTS = np.dtype(
+    {"names": ["t", "x", "y", "p"], "formats": ["<i8", "<u2", "<u2", "i1"], "offsets": [0, 8, 10, 12], "itemsize": 13}
+)
+assert EVENT_DTYPE.itemsize == 13 and _PACKED_EVENTS == EVENT_DTYPE
+
+
+def _chunk(kind: int, payload: bytes) -> bytes:
+    return CHUNK_HEAD.pack(kind, len(payload), zlib.crc32(payload)) + payload
+
+
+class Recorder:
+    """Append what a source produced to a crash-safe native recording (layout in the module docstring).
+
+    ``Recorder(path, sensor=..., properties={...})``; :meth:`write` takes any stream packet (event
+    batch, ExposureMarker, Frame, ImuBatch, TriggerBatch), :meth:`command` an issued exposure
+    command, :meth:`annotate` a timestamped JSON-able dict. Data reach the OS at least every 0.25 s
+    of wall time; :meth:`close` (idempotent; also on leaving a ``with`` block) ends the file and
+    fsyncs it.
+    """
+
+    def __init__(self, path, *, sensor: SensorGeometry, properties: dict | None = None):
+        self.path = Path(path)
+        self.sensor = sensor
+        header = {
+            "format": "necviz-recording",
+            "version": VERSION,
+            "sensor": {"width": sensor.width, "height": sensor.height, "name": sensor.name},
+            "properties": dict(properties or {}),
+            "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        }
+        try:
+            payload = json.dumps(header, default=str).encode()
+        except (TypeError, ValueError) as exc:
+            raise RecordingError(f"{self.path}: recording properties are not JSON-serialisable ({exc})") from None
+        try:
+            self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        except OSError as exc:
+            raise RecordingError(f"{self.path}: cannot create recording ({exc.strerror})") from None
+        self._buf = bytearray()
+        self._lock = threading.Lock()
+        self._closed = False
+        self._dirty_since: float | None = None
+        self.bytes_written = 0
+        self._write_all(MAGIC + bytes([VERSION]) + _chunk(HEADER, payload))
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._flusher, name="necviz-recorder-flush", daemon=True)
+        self._thread.start()
+
+    # -- low level -----------------------------------------------------------------------------
+    def _write_all(self, data) -> None:
+        view = memoryview(data)
+        while view:
+            n = os.write(self._fd, view)
+            view = view[n:]
+            self.bytes_written += n
+
+    def _append(self, kind: int, payload) -> None:
+        payload = bytes(payload)
+        with self._lock:
+            if self._closed:
+                raise RecordingError(f"{self.path}: recorder is closed")
+            self._buf += _chunk(kind, payload)
+            if self._dirty_since is None:
+                self._dirty_since = time.monotonic()
+            if len(self._buf) >= BLOCK:
+                n = len(self._buf) // BLOCK * BLOCK
+                self._write_all(memoryview(self._buf)[:n])
+                del self._buf[:n]
+                if not self._buf:
+                    self._dirty_since = None
+            if self._dirty_since is not None and time.monotonic() - self._dirty_since >= FLUSH_S:
+                self._flush_locked()
+
+    def _flush_locked(self) -> None:
+        if self._buf:
+            self._write_all(self._buf)
+            self._buf.clear()
+        self._dirty_since = None
+
+    def _flusher(self) -> None:
+        while not self._stop.wait(FLUSH_S / 2):
+            with self._lock:
+                if self._closed:
+                    return
+                if self._dirty_since is not None and time.monotonic() - self._dirty_since >= FLUSH_S / 2:
+                    self._flush_locked()
+
+    # -- public --------------------------------------------------------------------------------
+    def write(self, packet) -> None:
+        """Append one stream packet."""
+        if isinstance(packet, np.ndarray):
+            if packet.dtype != EVENT_DTYPE or packet.ndim != 1:
+                raise RecordingError(
+                    f"{self.path}: cannot record an array of dtype {packet.dtype} (expected an EVENT_DTYPE event batch)"
+                )
+            for i in range(0, packet.size, MAX_EVENTS_PER_CHUNK):
+                self._append(EVENTS, np.ascontiguousarray(packet[i : i + MAX_EVENTS_PER_CHUNK]).tobytes())
+        elif isinstance(packet, ExposureMarker):
+            self._append(MARKER, MARKER_S.pack(int(packet.t_us), 0 if packet.kind == "start" else 1))
+        elif isinstance(packet, Frame):
+            h, w = packet.image.shape
+            self._append(
+                FRAME,
+                FRAME_S.pack(
+                    int(packet.exposure_start_us),
+                    int(packet.exposure_end_us),
+                    float(packet.gain),
+                    int(packet.sequence),
+                    h,
+                    w,
+                )
+                + np.ascontiguousarray(packet.image).tobytes(),
+            )
+        elif isinstance(packet, ImuBatch):
+            self._append(IMU, np.ascontiguousarray(packet.samples, dtype=IMU_DTYPE).tobytes())
+        elif isinstance(packet, TriggerBatch):
+            self._append(TRIGGERS, np.ascontiguousarray(packet.triggers, dtype=TRIGGER_DTYPE).tobytes())
+        else:
+            raise RecordingError(f"{self.path}: cannot record a {type(packet).__name__} packet")
+
+    def command(self, record: CommandRecord) -> None:
+        """Append an exposure command (issue time µs, exposure µs, linear gain, applied start µs)."""
+        applied = record.applied_start_us
+        self._append(
+            COMMAND,
+            COMMAND_S.pack(
+                int(record.issue_time_us),
+                float(record.exposure_us),
+                float(record.gain),
+                applied is not None,
+                0 if applied is None else int(applied),
+            ),
+        )
+
+    def annotate(self, t_us: int, data: dict) -> None:
+        """Append a timestamped note (a JSON-serialisable dict), e.g. a live parameter change."""
+        try:
+            text = json.dumps(data, default=str).encode()
+        except (TypeError, ValueError) as exc:
+            raise RecordingError(f"{self.path}: annotation is not JSON-serialisable ({exc})") from None
+        self._append(ANNOTATION, T_S.pack(int(t_us)) + text)
+
+    def flush(self) -> None:
+        """Hand everything buffered to the OS (no fsync)."""
+        with self._lock:
+            if not self._closed:
+                self._flush_locked()
+
+    def close(self) -> None:
+        """Write the END chunk, flush, fsync and close (idempotent)."""
+        with self._lock:
+            if self._closed:
+                return
+            self._buf += _chunk(END, b"")
+            self._flush_locked()
+            self._closed = True
+            try:
+                os.fsync(self._fd)
+            finally:
+                os.close(self._fd)
+        self._stop.set()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def is_native(head: bytes) -> bool:
+    return head.startswith(MAGIC)
+
+
+class NativeRecording(Recording):
+    """Replay a native recording (see the module docstring for the layout)."""
+
+    format = "necviz"
+
+    def __init__(self, path, **kwargs):
+        kwargs.pop("exposure_us", None)  # exposures are stored
+        super().__init__(path, **kwargs)
+        self._fh = open(self.path, "rb")
+        self.size = os.fstat(self._fh.fileno()).st_size
+        head = self._fh.read(PREAMBLE)
+        if not head.startswith(MAGIC):
+            raise self.error("not a necviz recording (wrong magic)", 0)
+        if len(head) < PREAMBLE:
+            raise self.error("truncated file header", len(head))
+        if head[-1] != VERSION:
+            raise self.error(
+                f"unsupported necviz recording version {head[-1]} (this reader reads {VERSION})", PREAMBLE - 1
+            )
+        kind, length, crc, payload, status = self._read_chunk(PREAMBLE)
+        if status != "ok" or kind != HEADER:
+            raise self.error("missing or incomplete header chunk", PREAMBLE)
+        try:
+            header = json.loads(payload)
+            s = header["sensor"] if isinstance(header, dict) else None
+            if not isinstance(s, dict):
+                raise ValueError("no sensor object")
+            stored = SensorGeometry(int(s["width"]), int(s["height"]), str(s.get("name", "custom")))
+            props = header.get("properties") or {}
+            if not isinstance(props, dict):
+                raise ValueError("properties is not an object")
+        except (ValueError, KeyError, TypeError, OverflowError, NecvizError) as exc:
+            raise self.error(f"unreadable header chunk ({first_line(exc)})", PREAMBLE) from None
+        self.header = header
+        self.sensor = self.sensor or stored
+        self.properties = dict(props)
+        self.created_utc = header.get("created_utc")
+        self._data_start = PREAMBLE + CHUNK_HEAD.size + length
+        self._index: list[tuple[int, int, int, int]] | None = None  # (offset, type, length, t_us)
+        self._commands: list[CommandRecord] | None = None
+        self._annotations: list | None = None
+        self._pairs: dict[int, int] = {}
+        self.exposure_source = "stored"
+
+    # -- chunk access ---------------------------------------------------------------------------
+    def _read_chunk(self, offset: int, payload: bool = True, peek: int = 0):
+        """Read the chunk at ``offset``: (type, length, crc, payload-or-peek, status).
+
+        status: "ok", "eof" (clean end), "tail" (incomplete last chunk) or "unknown" (bad type).
+        """
+        f = self._fh
+        f.seek(offset)
+        head = f.read(CHUNK_HEAD.size)
+        if not head:
+            return 0, 0, 0, b"", "eof"
+        if len(head) < CHUNK_HEAD.size:
+            return 0, 0, 0, b"", "tail"
+        kind, length, crc = CHUNK_HEAD.unpack(head)
+        if kind not in _NAMES:
+            if kind == 0 and self._zeros_to_end(offset):
+                return kind, length, crc, b"", "tail"
+            return kind, length, crc, b"", "unknown"
+        end = offset + CHUNK_HEAD.size + length
+        if end > self.size:
+            return kind, length, crc, b"", "tail"
+        if payload:
+            data = bytearray(length)  # writable, so replayed arrays are ordinary writable arrays
+            got = f.readinto(data)
+            if got < length:
+                return kind, length, crc, b"", "tail"
+            if zlib.crc32(data) != crc:
+                return kind, length, crc, data, ("tail" if end == self.size else "crc")
+            return kind, length, crc, data, "ok"
+        return kind, length, crc, f.read(min(peek, length)), "ok"
+
+    def _zeros_to_end(self, offset: int) -> bool:
+        self._fh.seek(offset)
+        while True:
+            block = self._fh.read(1 << 20)
+            if not block:
+                return True
+            if block.count(0) != len(block):
+                return False
+
+    def _tail_warning(self, offset: int) -> None:
+        self.warn(
+            f"recording ends in an incomplete chunk at byte {offset} (writer stopped mid-write); "
+            f"{self.size - offset} bytes ignored"
+        )
+
+    def _damage(self, status: str, kind: int, offset: int) -> RecordingError:
+        if status == "unknown":
+            return self.error(f"unknown chunk type {kind} (garbage or damaged data)", offset)
+        return self.error(f"{_NAMES.get(kind, kind)} chunk fails its CRC check (damaged data)", offset)
+
+    @staticmethod
+    def _chunk_time(kind: int, peek: bytes) -> int | None:
+        if kind in (EVENTS, MARKER, FRAME, IMU, TRIGGERS, COMMAND, ANNOTATION) and len(peek) >= 8:
+            return T_S.unpack_from(peek)[0]
+        return None
+
+    def scan(self) -> list[tuple[int, int, int, int]]:
+        """Index the chunks by a forward scan of their headers: ``[(offset, type, length, t_us)]``.
+
+        Reads 9 header bytes per chunk plus the small payloads of markers, commands and annotations
+        (which it collects); seeks over everything else. Stops at the first damaged or incomplete
+        chunk (iteration reports it).
+        """
+        if self._index is not None:
+            return self._index
+        index, commands, notes, pairs = [], [], [], {}
+        open_start = None
+        off = self._data_start
+        while True:
+            kind, length, _, data, status = self._read_chunk(off, payload=False, peek=17)
+            if status != "ok":
+                break
+            t = self._chunk_time(kind, data)
+            if kind in (MARKER, COMMAND, ANNOTATION):
+                kind2, _, _, full, status = self._read_chunk(off)
+                if status != "ok":
+                    break
+                if len(full) < {MARKER: MARKER_S.size, COMMAND: COMMAND_S.size, ANNOTATION: T_S.size}[kind]:
+                    break  # malformed: iteration reports it
+                if kind == MARKER:
+                    tm, mk = MARKER_S.unpack_from(full)
+                    if mk == 0:
+                        open_start = tm
+                    elif open_start is not None:
+                        pairs[open_start] = tm
+                        open_start = None
+                elif kind == COMMAND:
+                    commands.append(self._command(full))
+                else:
+                    notes.append(self._annotation(full, off))
+            index.append((off, kind, length, -1 if t is None else t))
+            off += CHUNK_HEAD.size + length
+        self._index, self._commands, self._annotations, self._pairs = index, commands, notes, pairs
+        return index
+
+    @staticmethod
+    def _command(data: bytes) -> CommandRecord:
+        issue, exp, gain, has, applied = COMMAND_S.unpack_from(data)
+        return CommandRecord(int(issue), float(exp), float(gain), int(applied) if has else None)
+
+    def _annotation(self, data: bytes, offset: int):
+        try:
+            return (T_S.unpack_from(data)[0], json.loads(data[8:]))
+        except ValueError:
+            raise self.error("unreadable annotation chunk", offset) from None
+
+    @property
+    def commands(self) -> list[CommandRecord]:
+        """Exposure commands stored in the file (indexes the file on first use)."""
+        if self._commands is None:
+            self.scan()
+        return self._commands
+
+    @commands.setter
+    def commands(self, value) -> None:  # the base class initialises it
+        self._commands = None if not value else list(value)
+
+    @property
+    def annotations(self) -> list:
+        """``(t_us, dict)`` notes stored in the file (indexes the file on first use)."""
+        if self._annotations is None:
+            self.scan()
+        return self._annotations
+
+    @annotations.setter
+    def annotations(self, value) -> None:
+        self._annotations = None if not value else list(value)
+
+    # -- iteration ------------------------------------------------------------------------------
+    def _first_offset(self) -> int:
+        if self.start_us is None:
+            return self._data_start
+        index = self.scan()
+        # last events chunk starting at or before start_us (events before it are all earlier)
+        best = 0
+        for i, (off, kind, length, t) in enumerate(index):
+            if kind == EVENTS and t <= self.start_us:
+                best = i
+            elif kind == EVENTS and t > self.start_us:
+                break
+        return index[best][0] if index else self._data_start
+
+    def _packets(self) -> Iterator:
+        ranged = self.start_us is not None or self.end_us is not None
+        if ranged:
+            self.scan()
+        lo = -(1 << 62) if self.start_us is None else self.start_us
+        hi = (1 << 62) if self.end_us is None else self.end_us
+        allowed_open = False  # the current exposure is replayed (its start marker was yielded)
+        awaiting_frame = False
+        off = self._first_offset()
+        commands: list[CommandRecord] = []
+        notes: list = []
+        complete = False
+        w, h = self.sensor.width, self.sensor.height
+        off_sensor = 0
+        while True:
+            self._where = off
+            kind, length, _, data, status = self._read_chunk(off)
+            if status == "eof":
+                self.warn("recording has no end chunk (the writer was not closed); everything written was read")
+                complete = True
+                break
+            if status == "tail":
+                self._tail_warning(off)
+                complete = True
+                break
+            if status != "ok":
+                raise self._damage(status, kind, off)
+            next_off = off + CHUNK_HEAD.size + length
+            try:
+                if kind == EVENTS:
+                    ev = np.frombuffer(data, dtype=EVENT_DTYPE)
+                    if ev.size and (int(ev["x"].max()) >= w or int(ev["y"].max()) >= h):
+                        keep = (ev["x"] < w) & (ev["y"] < h)
+                        off_sensor += ev.size - int(keep.sum())
+                        ev = ev[keep]
+                    if ev.size:
+                        t = ev["t"]
+                        if t[0] > hi and not awaiting_frame:
+                            break
+                        if t[0] < lo or t[-1] > hi:
+                            ev = ev[(t >= lo) & (t <= hi)]
+                        if ev.size:
+                            yield ev
+                elif kind == MARKER:
+                    t, mk = MARKER_S.unpack(data)
+                    if mk == 0:
+                        allowed_open = not ranged or (t >= lo and self._pairs.get(t, hi + 1) <= hi)
+                        if allowed_open:
+                            yield ExposureMarker(int(t), "start")
+                    elif allowed_open:
+                        allowed_open = False
+                        awaiting_frame = True
+                        yield ExposureMarker(int(t), "end")
+                elif kind == FRAME:
+                    s, e, gain, seq, h, w = FRAME_S.unpack_from(data)
+                    if awaiting_frame or not ranged:
+                        awaiting_frame = False
+                        img = np.frombuffer(data, np.uint8, h * w, FRAME_S.size).reshape(h, w)
+                        yield Frame(img, int(s), int(e), float(gain), int(seq))
+                elif kind in (IMU, TRIGGERS):
+                    arr = np.frombuffer(data, dtype=IMU_DTYPE if kind == IMU else TRIGGER_DTYPE)
+                    if ranged and arr.size:
+                        arr = arr[(arr["t"] >= lo) & (arr["t"] <= hi)]
+                    if arr.size:
+                        yield ImuBatch(arr) if kind == IMU else TriggerBatch(arr)
+                elif kind == COMMAND:
+                    commands.append(self._command(data))
+                elif kind == ANNOTATION:
+                    notes.append(self._annotation(data, off))
+                elif kind == END:
+                    complete = True
+                    break
+                elif kind == HEADER:
+                    raise self.error("second header chunk (two recordings concatenated?)", off)
+            except (ValueError, struct.error) as exc:
+                if isinstance(exc, RecordingError):
+                    raise
+                raise self.error(f"malformed {_NAMES[kind]} chunk ({exc})", off) from None
+            off = next_off
+        if off_sensor:
+            self.warn(f"{off_sensor} events dropped: coordinates outside the {w}x{h} sensor")
+        if complete and not ranged and self._index is None:
+            self._commands, self._annotations = commands, notes

@@ -1,0 +1,283 @@
+"""The ``necviz calibrate`` command: its argument parser, the argument parsing helpers and :func:`run`."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+from necviz.calibrate.fit import DEFAULT_LOSS, DEFAULT_SLOW_RATE, _resolve_fit
+from necviz.calibrate.pairs import DEFAULTS
+from necviz.calibrate.recordings import calibrate_from_recordings
+from necviz.calibrate.simulate import calibrate_from_simulation
+from necviz.core.camera_profile import CameraProfile
+from necviz.core.errors import ParameterError
+from necviz.core.event_model import TediParams
+from necviz.core.sensor import DAVIS346, SensorGeometry
+from necviz.profiles import load_profile
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``"3"`` -> [3]; ``"0..4"`` -> [0, 1, 2, 3, 4] (inclusive); ``"1,5,9"`` -> [1, 5, 9]."""
+    s = str(text).strip()
+    try:
+        if ".." in s:
+            a, b = s.split("..", 1)
+            lo, hi = int(a), int(b)
+            if hi < lo:
+                raise ValueError
+            out = list(range(lo, hi + 1))
+        else:
+            out = [int(v) for v in s.split(",") if v.strip() != ""]
+    except ValueError:
+        raise ParameterError(f"--seeds expects N, a..b or a,b,c (non-negative integers), got {text!r}") from None
+    if not out or any(v < 0 for v in out) or len(out) > 1000:
+        raise ParameterError(f"--seeds expects N, a..b or a,b,c (non-negative integers, at most 1000), got {text!r}")
+    return out
+
+
+def _parse_init(text: str, base: TediParams) -> TediParams:
+    parts = [p.strip() for p in str(text).split(",")]
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        c_on, c_off = float(parts[0]), float(parts[1])
+    except ValueError:
+        raise ParameterError(
+            f"--init expects c_on,c_off (two numbers in ln units, e.g. 0.26,0.24), got {text!r}"
+        ) from None
+    return TediParams(c_on, c_off, base.a_on, base.b_on, base.a_off, base.b_off)
+
+
+def _parse_sensor(text: str) -> SensorGeometry:
+    if text.upper() == "DAVIS346":
+        return DAVIS346
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ParameterError(f"--sensor expects WIDTHxHEIGHT (e.g. 346x260), got {text!r}") from None
+    if not (8 <= w <= 2048 and 8 <= h <= 2048):
+        raise ParameterError(f"--sensor {text}: width and height must lie in 8..2048")
+    return SensorGeometry(w, h, f"{w}x{h}")
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Register ``necviz calibrate`` on an ``argparse`` subparsers object; returns the parser."""
+    p = subparsers.add_parser(
+        "calibrate",
+        help="fit a camera profile (TEDI c±, a±, b± by Eq. 7; response from brackets) from recordings or the simulator",
+        description="Fits the six TEDI parameters by frame-to-frame consistency (Eq. 7) on recordings (any "
+        "supported format) or simulator runs, and the camera response (Debevec-Malik) where the data hold "
+        "exposure brackets of a static scene; writes a camera profile (JSON) for --profile.",
+    )
+    p.add_argument(
+        "files", nargs="*", metavar="FILE", help="recordings (necviz, AEDAT 4/3.1/2.0, ROS bag, HDF5, RPG text)"
+    )
+    p.add_argument(
+        "--sim",
+        metavar="SCENARIO[,..]",
+        default=None,
+        help="calibrate on simulator runs instead: 'calibration' (the held-out calibration scene) and/or presets",
+    )
+    p.add_argument("--seeds", default="0", metavar="a..b", help="with --sim: seeds (N, a..b or a,b,c; default 0)")
+    p.add_argument("--duration", type=float, default=None, metavar="S", help="with --sim: simulated seconds per run")
+    p.add_argument("--sensor", default="DAVIS346", metavar="WxH", help="with --sim: sensor size (default DAVIS346)")
+    p.add_argument("--out", required=True, metavar="PROFILE.json", help="the camera profile to write")
+    p.add_argument("--force", action="store_true", help="replace --out / --json if they exist")
+    p.add_argument(
+        "--json",
+        metavar="REPORT.json",
+        default=None,
+        help="also write a report: fitted values, standard errors, residuals, per-pair statistics",
+    )
+    p.add_argument(
+        "--profile",
+        metavar="FILE",
+        default=None,
+        help="starting profile (response, limits, initial parameters; default: DAVIS346 defaults)",
+    )
+    p.add_argument(
+        "--init",
+        metavar="c_on,c_off",
+        default=None,
+        help="initial contrast thresholds in ln units (default: the starting profile's, 0.26,0.24)",
+    )
+    p.add_argument(
+        "--fit",
+        default="all",
+        metavar="WHICH",
+        help="parameters to fit: all (default), c (thresholds only) or names, e.g. c_on,c_off,a_on,b_on",
+    )
+    p.add_argument(
+        "--crf",
+        choices=("auto", "keep"),
+        default="auto",
+        help="auto: fit the response when the data hold exposure brackets of a static scene (default)",
+    )
+    p.add_argument("--exposure-us", type=float, default=None, help="exposure for formats that do not store it")
+    p.add_argument(
+        "--min-change",
+        type=float,
+        default=DEFAULTS["min_change"],
+        metavar="LN",
+        help=f"use pixels whose frame-measured change is at least this (ln units; default {DEFAULTS['min_change']})",
+    )
+    p.add_argument(
+        "--min-pixels",
+        type=int,
+        default=DEFAULTS["min_pixels"],
+        metavar="N",
+        help=f"use a frame pair when at least N pixels qualify (default {DEFAULTS['min_pixels']})",
+    )
+    p.add_argument(
+        "--max-pixels",
+        type=int,
+        default=DEFAULTS["max_pixels"],
+        metavar="N",
+        help=f"pixels per pair at most, an even subsample (default {DEFAULTS['max_pixels']})",
+    )
+    p.add_argument(
+        "--max-pairs",
+        type=int,
+        default=DEFAULTS["max_pairs"],
+        metavar="N",
+        help=f"pairs kept at most, spread evenly over the data (default {DEFAULTS['max_pairs']})",
+    )
+    p.add_argument(
+        "--max-lag",
+        type=int,
+        default=DEFAULTS["max_lag"],
+        metavar="K",
+        help=f"pair a frame with up to K frames back when consecutive frames changed too little "
+        f"(default {DEFAULTS['max_lag']}; 1 = consecutive frames only)",
+    )
+    p.add_argument(
+        "--no-continuation",
+        action="store_true",
+        help="also use pixels whose change reverses the direction of their previous event "
+        "(biases the thresholds up; for recordings with too few events)",
+    )
+    p.add_argument(
+        "--max-event-rate",
+        type=float,
+        default=None,
+        metavar="MEV_S",
+        help="the sensor's bus ceiling in Mev/s: pairs that reached 90 %% of it are left out of the "
+        "threshold fit (default: 12 for DAVIS346/DAVIS240 recordings, the simulator's own with "
+        "--sim; 0 = unknown)",
+    )
+    p.add_argument(
+        "--slow-rate",
+        type=float,
+        default=DEFAULT_SLOW_RATE,
+        metavar="EV_S",
+        help=f"lower bound of the compensation knee b/a, events per pixel per second (default {DEFAULT_SLOW_RATE:g})",
+    )
+    p.add_argument(
+        "--loss",
+        choices=("linear", "soft_l1", "huber", "cauchy"),
+        default=DEFAULT_LOSS,
+        help=f"least-squares loss (default {DEFAULT_LOSS}: squared residuals)",
+    )
+    p.add_argument("--name", default=None, help="profile name (default: derived from the inputs)")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    from necviz.outputs import check_distinct, check_output, write_json
+
+    files = list(args.files or [])
+    if files and args.sim:
+        raise ParameterError("give recordings (FILE...) or --sim, not both")
+    if not files and not args.sim:
+        raise ParameterError("nothing to calibrate on: give recordings (FILE...) or --sim SCENARIO")
+    inputs = files + ([args.profile] if args.profile else [])
+    out = check_output(args.out, "--out", inputs=inputs, force=args.force, suffixes=(".json",))
+    rep = None
+    if args.json:
+        rep = check_output(args.json, "--json", inputs=inputs, force=args.force, suffixes=(".json",))
+        check_distinct({"--out": args.out, "--json": args.json})
+    for f in files:
+        if not Path(f).exists():
+            raise ParameterError(f"{f}: no such file or directory")
+    base = load_profile(args.profile) if args.profile else None
+    fit = _resolve_fit(args.fit)
+    init = _parse_init(args.init, (base or CameraProfile()).tedi) if args.init else None
+    sel = {
+        "min_change": args.min_change,
+        "min_pixels": args.min_pixels,
+        "max_pixels": args.max_pixels,
+        "max_pairs": args.max_pairs,
+        "max_lag": args.max_lag,
+        "continuation": not args.no_continuation,
+        "slow_rate": args.slow_rate,
+        "loss": args.loss,
+    }
+    if args.max_event_rate is not None:
+        if not (math.isfinite(args.max_event_rate) and args.max_event_rate >= 0):
+            raise ParameterError(f"--max-event-rate must be a number of Mev/s >= 0, got {args.max_event_rate}")
+        rate = args.max_event_rate * 1e6 or None
+    else:
+        rate = "auto"
+    live = sys.stderr.isatty()
+
+    def progress(text):
+        if live:
+            print("\r  " + text[:100].ljust(100), end="", file=sys.stderr, flush=True)
+
+    try:
+        if files:
+            name = args.name or f"calibrated from {', '.join(Path(f).name for f in files)}"[:120]
+            result = calibrate_from_recordings(
+                files,
+                profile=base,
+                init=init,
+                fit=fit,
+                crf=args.crf,
+                exposure_us=args.exposure_us,
+                name=name,
+                max_event_rate=rate,
+                progress=progress,
+                **sel,
+            )
+        else:
+            from necviz.drivers.sim.calibration_scene import CALIBRATION_SCENE
+            from necviz.drivers.sim.scenes import SCENARIOS
+
+            scen = [s.strip() for s in args.sim.split(",") if s.strip()]
+            bad = [s for s in scen if s != CALIBRATION_SCENE and s not in SCENARIOS]
+            if not scen or bad:
+                raise ParameterError(
+                    f"--sim: unknown scenario(s) {', '.join(bad) or '(none given)'}; available: "
+                    f"{CALIBRATION_SCENE}, {', '.join(sorted(SCENARIOS))}"
+                )
+            seeds = parse_seeds(args.seeds)
+            sensor = _parse_sensor(args.sensor)
+            name = args.name or f"simulated {sensor.width}x{sensor.height} ({','.join(scen)}, seeds {args.seeds})"
+            if base is not None and (base.sensor.width, base.sensor.height) != (sensor.width, sensor.height):
+                base = CameraProfile(base.name, sensor, base.crf, base.tedi, base.limits)
+            result = calibrate_from_simulation(
+                scen,
+                seeds,
+                args.duration,
+                sensor=sensor,
+                profile=base,
+                init=init,
+                fit=fit,
+                crf=args.crf,
+                name=name,
+                max_event_rate=rate,
+                progress=progress,
+                **sel,
+            )
+    finally:
+        if live:
+            print("\r" + " " * 104 + "\r", end="", file=sys.stderr, flush=True)
+    write_json(out, result.profile.to_dict(), indent=1)
+    if rep is not None:
+        write_json(rep, result.to_dict())
+    print(result.summary())
+    print(f"wrote {out}" + (f" and {rep}" if rep is not None else ""))
+    return 0

@@ -1,0 +1,579 @@
+"""The ``necviz`` command: argparse mapped onto the library's option objects (:mod:`necviz.options`).
+
+Exit codes: 0 success; 2 a user mistake or bad input (one line ``necviz: error: …``); 3 an
+internal error (one line saying it is a bug, with the traceback saved to a file for the report);
+130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from necviz import __version__
+
+EXIT_USER = 2
+EXIT_BUG = 3
+LAYOUT_NAMES = ("live", "inspect", "compare")  # necviz.options.LAYOUT_NAMES, without importing it for --help
+FORMATS = ("necviz", "aedat4", "aedat3", "aedat2", "rosbag1", "rosbag2", "hdf5", "rpg-text")
+
+
+# -- shared option groups -----------------------------------------------------------------------
+def _controllers():
+    from necviz.core.control import CONTROLLERS
+
+    return sorted(CONTROLLERS)
+
+
+def _controller_list(text: str):
+    from necviz.core.errors import ParameterError
+    from necviz.options import parse_controllers
+
+    try:
+        return parse_controllers(text)
+    except ParameterError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
+def add_scene_args(parser, emulated: bool = False) -> None:
+    """``--scenario`` (a preset or a TOML file), ``--seed``, ``--duration`` and ``--set KEY=VALUE``."""
+    from necviz.drivers.sim.scenes import SCENARIOS
+
+    g = parser.add_argument_group("emulated scene" if emulated else "scene")
+    g.add_argument(
+        "--scenario",
+        default="tunnel_exit",
+        metavar="NAME|FILE.toml",
+        help=f"a preset ({', '.join(sorted(SCENARIOS))}) or a TOML scenario file (default tunnel_exit)",
+    )
+    g.add_argument("--seed", type=int, default=None, help="scene and noise seed (default: the file's, or 0)")
+    if not emulated:
+        g.add_argument(
+            "--duration", type=float, default=None, metavar="S", help="simulated seconds (default: the scenario's)"
+        )
+    g.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a scenario parameter (repeatable), e.g. --set step_db=90",
+    )
+
+
+def scene_options(args, duration_s=None, *, scene_duration: bool = True):
+    """The scene flags as :class:`SceneOptions`; ``scene_duration=False`` (``live``): ``--duration`` is the
+    session's length, not the simulated scene's (an emulated camera streams as long as the session)."""
+    from necviz.options import SceneOptions, parse_setting
+
+    params = dict(parse_setting(s) for s in args.set)
+    duration = getattr(args, "duration", duration_s) if scene_duration else None
+    return SceneOptions(args.scenario, args.seed, duration, params)
+
+
+def add_show_args(parser, tuning: bool = True) -> None:
+    from necviz.dashboard.viewer import add_viewer_args
+
+    add_viewer_args(parser, LAYOUT_NAMES)
+    g = parser.add_argument_group("run")
+    g.add_argument(
+        "--speed",
+        default="auto",
+        help="'max' (as fast as possible), 1 (real time) or xN; default: real time when a viewer "
+        "watches, max when only saving",
+    )
+    g.add_argument("--event-window-ms", type=float, default=33.3, help="event image window (default 33.3 ms)")
+    g.add_argument(
+        "--event-points",
+        type=int,
+        default=0,
+        metavar="N",
+        help="also log up to N raw events per window as points (default 0: images only)",
+    )
+    g.add_argument("--profile", metavar="FILE.json", help="camera profile (CRF, TEDI thresholds and compensation)")
+    g.add_argument("--force", action="store_true", help="replace existing output files")
+    if tuning:
+        g.add_argument("--tune-file", metavar="FILE", help="watch FILE for 'key = value' changes while running")
+        g.add_argument("--no-prompt", action="store_true", help="do not read tuning commands from the terminal")
+
+
+def _show(args):
+    from necviz.options import ShowOptions
+
+    return ShowOptions(args.speed, args.event_window_ms, args.event_points)
+
+
+def _tune(args):
+    from pathlib import Path
+
+    from necviz.core.errors import ParameterError
+    from necviz.options import TuneOptions
+
+    if args.tune_file and not Path(args.tune_file).is_file():
+        raise ParameterError(f"--tune-file: {args.tune_file!r} is not a file")
+    return TuneOptions(prompt=not args.no_prompt, file=args.tune_file)
+
+
+# -- commands -----------------------------------------------------------------------------------
+def _cmd_info(args) -> int:
+    if args.file:
+        return _info_file(args)
+    import platform
+
+    from necviz.commands.info import collect_info
+
+    info = collect_info()
+    print(f"necviz {info['necviz']}  (Python {platform.python_version()}, {info['cpu_count']} CPU cores)")
+    print("packages:")
+    for name, v in info["packages"].items():
+        print(f"  {name:24s} {v}")
+    print(f"numba threading layer:    {info['numba_threading_layer']}")
+    print(f"controllers:              {', '.join(info['controllers']) or 'none'}")
+    print(f"sources:                  {', '.join(info['sources']) or 'none'}")
+    print(f"simulator scenarios:      {', '.join(info['scenarios'])}")
+    return 0
+
+
+def _info_file(args) -> int:
+    from necviz.drivers.recordings import describe
+    from necviz.outputs import check_output, write_json
+
+    if args.json:
+        check_output(args.json, "--json", inputs=[args.file], force=args.force)
+
+    def progress(events, frames, seconds):
+        print(f"\r  reading: {events:,} events, {frames} frames, {seconds:.1f} s", end="", file=sys.stderr, flush=True)
+
+    live = sys.stderr.isatty()
+    info = describe(args.file, progress=progress if live else None, exposure_us=args.exposure_us)
+    if live:
+        print("\r" + " " * 72 + "\r", end="", file=sys.stderr, flush=True)
+    if args.json:
+        write_json(args.json, info.to_dict())
+    print(info.to_text())
+    return 0
+
+
+def _cmd_demo(args) -> int:
+    from necviz.commands.demo import run
+    from necviz.dashboard.viewer import viewer_options
+    from necviz.options import DemoOptions
+
+    run(
+        DemoOptions(
+            scene_options(args), args.controllers, args.record, args.force, args.profile, _show(args), _tune(args)
+        ),
+        viewer_options(args),
+    )
+    return 0
+
+
+def _cmd_replay(args) -> int:
+    from necviz.commands.replay import run
+    from necviz.dashboard.viewer import viewer_options
+    from necviz.options import ReplayOptions
+
+    run(
+        ReplayOptions(
+            args.file,
+            args.start,
+            args.end,
+            args.exposure_us,
+            args.format,
+            args.controller,
+            args.json,
+            args.force,
+            args.profile,
+            _show(args),
+        ),
+        viewer_options(args),
+    )
+    return 0
+
+
+def _cmd_live(args) -> int:
+    from necviz.commands.live import run
+    from necviz.dashboard.viewer import viewer_options
+    from necviz.options import LiveOptions
+
+    run(
+        LiveOptions(
+            args.device,
+            args.serial,
+            args.reconnect,
+            args.controller,
+            args.duration,
+            scene_options(args, scene_duration=False),
+            args.emulate_unplug,
+            args.record,
+            args.force,
+            args.profile,
+            show=_show(args),
+            tune=_tune(args),
+        ),
+        viewer_options(args),
+    )
+    return 0
+
+
+def _cmd_compare(args) -> int:
+    from necviz.commands.compare import run
+    from necviz.options import CompareOptions, parse_params
+
+    sim = {f"{model}.{k}": v for model, kv in parse_params(args.sim, "--sim").items() for k, v in kv.items()}
+    run(
+        CompareOptions(
+            scene_options(args),
+            args.controllers,
+            args.seeds,
+            not args.no_sift,
+            args.json,
+            args.save,
+            args.force,
+            args.profile,
+            parse_params(args.param),
+            sim,
+        )
+    )
+    return 0
+
+
+def _cmd_devices(args) -> int:
+    from necviz.commands.devices import run
+
+    return run(include_emulated=not args.no_emulated)
+
+
+def _bench_json(args):
+    if args.json:
+        from necviz.outputs import check_output
+
+        check_output(args.json, "--json", force=args.force)
+    return args.json
+
+
+def _cmd_bench_decode(args) -> int:
+    from necviz.bench.decode_speed import run
+
+    run(seconds=args.seconds, repeats=args.repeats, seed=args.seed, json_path=_bench_json(args))
+    return 0
+
+
+def _cmd_bench_pipeline(args) -> int:
+    from necviz.bench.pipeline_speed import run
+
+    run(
+        duration_s=args.duration,
+        rate_mev_s=args.rate,
+        fps=args.fps,
+        batch_us=args.batch_us,
+        seed=args.seed,
+        repeats=args.repeats,
+        json_path=_bench_json(args),
+    )
+    return 0
+
+
+def _cmd_bench_estimators(args) -> int:
+    from necviz.bench.estimator_speed import run
+
+    run(
+        events=args.events,
+        duration_s=args.duration,
+        fps=args.fps,
+        exposure_us=args.exposure_us,
+        repeats=args.repeats,
+        edi_samples=args.edi_samples,
+        seed=args.seed,
+        json_path=_bench_json(args),
+    )
+    return 0
+
+
+def _cmd_bench_sim(args) -> int:
+    from necviz.bench.sim_speed import run
+
+    run(duration_s=args.duration or 5.0, cameras=args.cameras, scene=scene_options(args), json_path=_bench_json(args))
+    return 0
+
+
+# -- the parser ---------------------------------------------------------------------------------
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="necviz", description="Neuromorphic exposure control: estimators, controllers, dashboard."
+    )
+    p.add_argument("--version", action="version", version=f"necviz {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    controllers = _controllers()
+
+    info = sub.add_parser("info", help="versions and capabilities; with FILE, what a recording holds")
+    info.add_argument("file", nargs="?", metavar="FILE", help="a recording (any supported format)")
+    info.add_argument(
+        "--exposure-us",
+        type=float,
+        default=None,
+        help="exposure for formats that do not store it (AEDAT 2.0, text, HDF5, bags)",
+    )
+    info.add_argument("--json", metavar="OUT", help="with FILE: also write the summary as JSON")
+    info.add_argument("--force", action="store_true", help="replace an existing --json file")
+    info.set_defaults(func=_cmd_info)
+
+    cmp_ = sub.add_parser("compare", help="NEC versus the baselines in closed loop on one simulated scene")
+    add_scene_args(cmp_)
+    cmp_.add_argument(
+        "--controllers",
+        type=_controller_list,
+        default="nec,nec-raw,navid,shim,begin,builtin,fixed",
+        help=f"comma-separated, from {', '.join(controllers)} (default: all seven)",
+    )
+    cmp_.add_argument("--seeds", type=int, default=1, help="repeat over this many seeds: mean ± 95 %% CI")
+    cmp_.add_argument("--json", metavar="FILE", help="write the results as JSON")
+    cmp_.add_argument("--save", metavar="FILE.rrd", help="write a Rerun recording (the demo's schema and layout)")
+    cmp_.add_argument("--no-sift", action="store_true", help="skip the SIFT inlier metric (the slowest part)")
+    cmp_.add_argument("--profile", metavar="FILE.json", help="camera profile (CRF, TEDI thresholds and compensation)")
+    cmp_.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME.KEY=VALUE",
+        help="a controller parameter (repeatable), e.g. --param nec.goal=110 --param navid.target_msv=3",
+    )
+    cmp_.add_argument(
+        "--sim",
+        action="append",
+        default=[],
+        metavar="MODEL.KEY=VALUE",
+        help="a simulator model parameter (repeatable), e.g. --sim dvs.max_event_rate=1e9",
+    )
+    cmp_.add_argument("--force", action="store_true", help="replace existing output files")
+    cmp_.set_defaults(func=_cmd_compare)
+
+    demo = sub.add_parser(
+        "demo",
+        help="the dashboard on the simulator: tunnel_exit, NEC versus the baselines side by side",
+        description="A simulated scene (tunnel_exit by default), every controller driving its own "
+        "camera, shown in the compare layout. No hardware or files needed.",
+    )
+    add_scene_args(demo)
+    demo.add_argument(
+        "--controllers",
+        type=_controller_list,
+        default="nec,navid,shim,begin,builtin,fixed",
+        help=f"comma-separated, from {', '.join(controllers)} (default: all six)",
+    )
+    demo.add_argument(
+        "--record",
+        metavar="FILE.necrec",
+        help="also record the first controller's camera (events, frames, commands) to a crash-safe native file",
+    )
+    add_show_args(demo)
+    demo.set_defaults(func=_cmd_demo)
+
+    rep = sub.add_parser(
+        "replay",
+        help="a recording in open loop: frames, events, P-TEDI vs frames, what NEC would do",
+        description="Replays FILE (necviz, AEDAT 4/3.1/2.0, ROS bag, RPG text, HDF5) through P-TEDI "
+        "and a controller in open loop, in the inspect layout, and reports the per-frame "
+        "prediction error and saturated frames.",
+    )
+    rep.add_argument("file", metavar="FILE", help="the recording")
+    rep.add_argument("--start", type=float, default=None, metavar="S", help="start S seconds into the recording")
+    rep.add_argument("--end", type=float, default=None, metavar="S", help="stop S seconds into the recording")
+    rep.add_argument(
+        "--exposure-us",
+        type=float,
+        default=None,
+        help="exposure for formats that do not store it (AEDAT 2.0 estimates it from frame timing)",
+    )
+    rep.add_argument("--format", default=None, choices=FORMATS, help="skip detection")
+    rep.add_argument("--controller", default="nec", choices=controllers, help="shown in open loop (default nec)")
+    rep.add_argument("--json", metavar="OUT", help="write the summary (per-frame detail included) as JSON")
+    add_show_args(rep, tuning=False)
+    rep.set_defaults(func=_cmd_replay)
+
+    live = sub.add_parser(
+        "live",
+        help="a DAVIS camera (USB or emulated) with NEC closing the loop",
+        description="Runs a controller (NEC by default) in closed loop on a DAVIS346/DAVIS240 over "
+        "USB, or on a virtual DAVIS346 (--device emulated), in the live layout.",
+    )
+    live.add_argument(
+        "--device",
+        choices=("usb", "emulated"),
+        default="usb",
+        help="usb (a real camera) or emulated (the same driver on a virtual DAVIS346)",
+    )
+    live.add_argument("--serial", default=None, help="which camera when several are attached")
+    live.add_argument("--reconnect", action="store_true", help="if the camera is unplugged, wait for it to return")
+    live.add_argument(
+        "--controller", default="nec", choices=controllers, help="the controller that drives the camera (default nec)"
+    )
+    live.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="stop after S seconds of sensor time (emulated: the scene's length)",
+    )
+    live.add_argument(
+        "--emulate-unplug",
+        type=float,
+        default=None,
+        metavar="S",
+        help="emulated device: unplug it after S seconds (shows what an unplug does)",
+    )
+    live.add_argument(
+        "--record", metavar="FILE.necrec", help="record events, frames and commands to a crash-safe native file"
+    )
+    add_scene_args(live, emulated=True)
+    add_show_args(live)
+    live.set_defaults(func=_cmd_live)
+
+    dev = sub.add_parser("devices", help="attached (and emulated) DAVIS cameras: serial, firmware, logic version")
+    dev.add_argument("--no-emulated", action="store_true", help="list real cameras only")
+    dev.set_defaults(func=_cmd_devices)
+
+    _add_bench(sub)
+    _add_optional(sub)
+    return p
+
+
+def _add_bench(sub) -> None:
+    bench = sub.add_parser("bench", help="speed benchmarks (print a table, optionally write JSON)")
+    bsub = bench.add_subparsers(dest="bench", metavar="BENCH", required=True)
+
+    def common(b):
+        b.add_argument("--json", metavar="FILE", help="write the results as JSON")
+        b.add_argument("--force", action="store_true", help="replace an existing --json file")
+
+    est = bsub.add_parser(
+        "estimators", help="Table 1 of the paper: EDI, mEDI, Fast-EDI, TEDI, P-TEDI and a read-only floor"
+    )
+    common(est)
+    est.add_argument(
+        "--events", type=int, default=10_000_000, help="events in the synthetic 346x260 stream (default 10M)"
+    )
+    est.add_argument("--duration", type=float, default=2.0, help="stream length in seconds (default 2.0)")
+    est.add_argument("--fps", type=float, default=50.0, help="APS frame rate, 25-100 (default 50)")
+    est.add_argument("--exposure-us", type=int, default=5_000, help="APS exposure (default 5000 µs)")
+    est.add_argument("--repeats", type=int, default=3, help="timed runs per method after a warm-up (default 3)")
+    est.add_argument("--edi-samples", type=int, default=64, help="samples per exposure for EDI and mEDI (default 64)")
+    est.add_argument("--seed", type=int, default=0)
+    est.set_defaults(func=_cmd_bench_estimators)
+    sim = bsub.add_parser("sim", help="closed-loop simulator speed: a scenario with several cameras")
+    common(sim)
+    add_scene_args(sim)
+    sim.add_argument("--cameras", type=int, default=6, help="cameras sharing the scene (default 6)")
+    sim.set_defaults(func=_cmd_bench_sim)
+    dec = bsub.add_parser("decode", help="DAVIS stream decoder throughput on a 12 Mev/s-style stream")
+    common(dec)
+    dec.add_argument("--seconds", type=float, default=1.0, help="stream length in seconds (default 1)")
+    dec.add_argument("--repeats", type=int, default=5, help="timed runs (default 5)")
+    dec.add_argument("--seed", type=int, default=0)
+    dec.set_defaults(func=_cmd_bench_decode)
+    pipe = bsub.add_parser(
+        "pipeline", help="the whole dashboard path at 12 Mev/s: real-time factor and control latency"
+    )
+    common(pipe)
+    pipe.add_argument("--duration", type=float, default=10.0, help="stream length in seconds (default 10)")
+    pipe.add_argument("--rate", type=float, default=12.0, help="event rate in Mev/s (default 12)")
+    pipe.add_argument("--fps", type=float, default=50.0, help="frame rate (default 50)")
+    pipe.add_argument("--batch-us", type=int, default=1_000, help="event batch period (default 1000 µs)")
+    pipe.add_argument("--repeats", type=int, default=3, help="runs per configuration; the median is reported")
+    pipe.add_argument("--seed", type=int, default=0)
+    pipe.set_defaults(func=_cmd_bench_pipeline)
+
+
+def _add_optional(sub) -> None:
+    """Commands that live in their own modules and bring their own parsers."""
+    import importlib
+
+    for module in ("necviz.commands.calibrate", "necviz.commands.repair", "necviz.commands.sweep"):
+        try:
+            mod = importlib.import_module(module)
+        except ModuleNotFoundError as e:
+            if e.name != module and not module.startswith(str(e.name)):
+                raise
+            continue
+        mod.add_parser(sub)
+
+
+# -- running ------------------------------------------------------------------------------------
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 0
+    from necviz.core.errors import NecvizError
+
+    _terminate_as_interrupt()
+    try:
+        return int(args.func(args) or 0)
+    except NecvizError as e:
+        print(f"necviz: error: {_one_line(e)}", file=sys.stderr)
+        return EXIT_USER
+    except KeyboardInterrupt:
+        print("necviz: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:  # output piped into `head` and the like: not an error
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    except OSError as e:  # a file or device the user named: missing, unreadable, full disk
+        if e.filename is None and not isinstance(e, (FileNotFoundError, PermissionError)):
+            return _bug(e, argv)
+        print(f"necviz: error: {e.strerror or e}{f': {e.filename}' if e.filename else ''}", file=sys.stderr)
+        return EXIT_USER
+    except (SystemExit, GeneratorExit):
+        raise
+    except BaseException as e:  # noqa: BLE001 - the last resort (a Rust panic derives from BaseException)
+        return _bug(e, argv)
+
+
+def _one_line(e: BaseException) -> str:
+    return " ".join(str(e).split()) or type(e).__name__
+
+
+def _bug(e: BaseException, argv) -> int:
+    """An exception necviz did not expect: one line for the user, the traceback in a file for the report."""
+    import tempfile
+    import time
+    import traceback
+
+    text = "".join(traceback.format_exception(e))
+    try:
+        fd, path = tempfile.mkstemp(prefix=f"necviz-bug-{time.strftime('%Y%m%d-%H%M%S')}-", suffix=".txt")
+        with open(fd, "w", encoding="utf-8") as f:
+            f.write(f"necviz {__version__}\ncommand: necviz {' '.join(argv if argv is not None else sys.argv[1:])}\n\n")
+            f.write(text)
+        where = f"; details in {path}"
+    except OSError:
+        where = ""
+    print(
+        f"necviz: internal error: {type(e).__name__}: {_one_line(e)} — this is a bug in necviz, please report it "
+        f"with the command you ran{where}",
+        file=sys.stderr,
+    )
+    return EXIT_BUG
+
+
+def _terminate_as_interrupt() -> None:
+    """SIGTERM stops a run like Ctrl-C does, so recordings are flushed (an .rrd killed mid-write has no footer)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return
+
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+
+    try:
+        signal.signal(signal.SIGTERM, handler)
+    except (ValueError, OSError):  # pragma: no cover - not in the main thread of the main interpreter
+        pass
+
+
+if __name__ == "__main__":
+    sys.exit(main())

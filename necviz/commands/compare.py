@@ -1,0 +1,216 @@
+"""``necviz compare``: every controller in closed loop on the same simulated scene.
+
+All cameras share one scene and one event stream (:class:`~necviz.drivers.sim.rig.SimRig`);
+each controller drives its own camera through the same :class:`~necviz.pipeline.Pipeline` as
+``necviz demo``, so a comparison and a demo of the same scene produce the same recording
+(``--save``: the same entity schema and the ``compare`` layout, written losslessly). NEC sees
+events and frames, the image-only baselines see their frames (they receive the event batches
+too, and ignore them). Every controller starts from the same exposure (right for the scene's
+first instant) under the same camera limits.
+
+With ``seeds > 1`` every metric is reported as the mean over seeds with a 95 % confidence
+interval (Student's t on the per-seed values). Each controller's ``saturation_causes`` counts its
+saturated frames by diagnosed cause (:mod:`necviz.core.diagnosis`), as the mean per run over seeds;
+with one seed every frame's cause is in ``frames_detail``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from necviz.core.metrics import confidence_interval
+from necviz.options import CompareOptions
+from necviz.outputs import check_distinct, check_output, write_json
+from necviz.pipeline import Pipeline
+from necviz.progress import output
+from necviz.runs import run_once
+
+METRICS = (
+    "frames",
+    "saturated_frames_50",
+    "saturated_frames_10",
+    "mean_over_exposed_rate",
+    "mean_under_exposed_rate",
+    "recovery_ms",
+    "sift_inliers_mean",
+    "sift_inliers_normalised_mean",
+    "true_valid_fraction_mean",
+    "rank_correlation_mean",
+    "pedestrian_valid_fraction",
+    "pedestrian_well_exposed",
+)
+
+
+def run_pipeline(pipe: Pipeline, label: str, expected_s: float, out) -> dict:
+    """Run ``pipe`` on its thread with a live count on ``out``; Ctrl-C stops it (what ran is kept)."""
+    from necviz.progress import LiveLine
+
+    line = LiveLine(out)
+    pipe.start()
+    t0 = time.perf_counter()
+    try:
+        while not pipe.wait(0.5):
+            t = ((pipe.now_us or 0) - (pipe.first_us or 0)) / 1e6
+            line.show(f"  {label}: {t:5.2f}/{expected_s:g} s simulated ({time.perf_counter() - t0:4.1f} s)")
+    except KeyboardInterrupt:
+        pipe.stop()
+        pipe.finish()
+        raise
+    line.clear()
+    return pipe.finish()
+
+
+def _fmt(v, ci=None, digits=1):
+    if v is None:
+        return "—"
+    s = f"{v:.{digits}f}" if isinstance(v, float) else str(v)
+    if ci:
+        s += f" ± {ci:.{digits}f}"
+    return s
+
+
+def run(options: CompareOptions | None = None, out=...) -> dict:
+    """Run the comparison (``options.seeds`` runs from the scene's seed); print a table; write JSON / .rrd."""
+    out = output(out)
+    options = options or CompareOptions()
+    outputs = {"--json": options.json, "--save": options.save}
+    check_distinct(outputs)
+    for flag, path in outputs.items():
+        if path is not None:
+            check_output(path, flag, force=options.force, suffixes=(".rrd",) if flag == "--save" else None)
+    profile = _profile(options.profile)
+    names = list(options.controllers)
+    sc = options.scene
+    seed0 = sc.resolved_seed
+    runs = []
+    for k in range(options.seeds):
+        observers = ()
+        if k == 0 and options.save:
+            observers = (lambda rig, lanes: _file_sink(options, rig, lanes),)
+        runs.append(
+            run_once(
+                replace(sc, seed=seed0 + k),
+                names,
+                options.sift,
+                profile,
+                observers,
+                options.controller_params,
+                options.sim,
+                progress=lambda pipe, label, s: run_pipeline(pipe, label, s, out),
+            )
+        )
+    table = {}
+    for n in names:
+        row = {}
+        for key in METRICS:
+            vals = [r["results"][n][key] for r in runs]
+            if any(v is None for v in vals):
+                row[key] = row[key + "_std"] = row[key + "_ci95"] = None
+                row[key + "_missing"] = sum(v is None for v in vals)
+            else:
+                mean, ci = confidence_interval(vals)
+                row[key] = vals[0] if options.seeds == 1 else mean
+                row[key + "_std"] = float(np.std(vals, ddof=1)) if options.seeds > 1 else 0.0
+                row[key + "_ci95"] = ci
+            if options.seeds > 1:
+                row[key + "_per_seed"] = vals
+        causes = [r["results"][n].get("saturation_causes") or {} for r in runs]
+        row["saturation_causes"] = {
+            c: sum(k.get(c, 0) for k in causes) / len(runs) for c in dict.fromkeys(c for k in causes for c in k)
+        }
+        if options.seeds > 1:
+            row["saturation_causes_per_seed"] = causes
+        if options.seeds == 1:
+            for key in ("recovery_ms_per_step", "exposure_trace_us", "gain_trace", "frame_starts_us", "frames_detail"):
+                row[key] = runs[0]["results"][n][key]
+        table[n] = row
+    result = {
+        "scenario": sc.name,
+        "seed": seed0,
+        "seeds": options.seeds,
+        "duration_s": runs[0]["duration_s"],
+        "scenario_params": sc.params,
+        "controller_params": options.controller_params,
+        "sim": options.sim,
+        "profile": str(options.profile) if options.profile else None,
+        "lighting_steps_us": runs[0]["steps_us"],
+        "controllers": table,
+    }
+    if out is not None:
+        print_table(result, out)
+    if options.json:
+        write_json(options.json, result, indent=1)
+        if out is not None:
+            print(f"wrote {options.json}", file=out)
+    if options.save and out is not None:
+        print(f"wrote {options.save} (open it with: rerun {options.save})", file=out)
+    return result
+
+
+def print_table(result: dict, out) -> None:
+    seeds = result["seeds"]
+    print(
+        f"\n{result['scenario']}, {result['duration_s']:g} s, seed {result['seed']}"
+        + (f" (+{seeds - 1} more; mean ± 95 % CI)" if seeds > 1 else ""),
+        file=out,
+    )
+    table = result["controllers"]
+    w = max(10, *(len(n) for n in table))  # controller names registered by users may be longer
+    print(
+        f"{'controller':{w}s} {'frames':>6s} {'sat>50%':>12s} {'sat>10%':>12s} {'mean over':>14s} "
+        f"{'mean under':>14s} {'recovery ms':>14s} {'SIFT inliers':>14s} {'SIFT norm.':>14s} "
+        f"{'true valid':>14s} {'rank ρ':>14s} {'pedestrian':>14s}",
+        file=out,
+    )
+    for n, r in table.items():
+        c = lambda k: r.get(k + "_ci95")  # noqa: E731
+        ped = r.get("pedestrian_valid_fraction")
+        print(
+            f"{n:{w}s} {_fmt(r['frames'], digits=0):>6s} {_fmt(r['saturated_frames_50'], c('saturated_frames_50')):>12s} "
+            f"{_fmt(r['saturated_frames_10'], c('saturated_frames_10')):>12s} "
+            f"{_fmt(r['mean_over_exposed_rate'], c('mean_over_exposed_rate'), 3):>14s} "
+            f"{_fmt(r['mean_under_exposed_rate'], c('mean_under_exposed_rate'), 3):>14s} "
+            f"{_fmt(r['recovery_ms'], c('recovery_ms')):>14s} "
+            f"{_fmt(r['sift_inliers_mean'], c('sift_inliers_mean')):>14s} "
+            f"{_fmt(r.get('sift_inliers_normalised_mean'), c('sift_inliers_normalised_mean')):>14s} "
+            f"{_fmt(r.get('true_valid_fraction_mean'), c('true_valid_fraction_mean'), 3):>14s} "
+            f"{_fmt(r.get('rank_correlation_mean'), c('rank_correlation_mean'), 3):>14s} "
+            f"{_fmt(None if ped is None else float(ped), c('pedestrian_valid_fraction'), 2):>14s}",
+            file=out,
+        )
+    print("saturated frames by diagnosed cause" + (" (mean per run)" if seeds > 1 else "") + ":", file=out)
+    for n, r in table.items():
+        causes = r.get("saturation_causes") or {}
+        text = (
+            ", ".join(f"{k} {_fmt(float(v), digits=1 if seeds > 1 else 0)}" for k, v in causes.items() if v) or "none"
+        )
+        print(f"  {n:{w}s} {text}", file=out)
+
+
+def _profile(path):
+    if path is None:
+        return None
+    from necviz.profiles import load_profile
+
+    return load_profile(path)
+
+
+def _file_sink(options: CompareOptions, rig, lanes):
+    """The dashboard's sink, writing losslessly to ``options.save`` with the ``compare`` layout."""
+    from necviz.dashboard.sink import open_file_sink
+
+    sc = options.scene
+    props = {
+        "command": "compare",
+        "scenario": sc.name,
+        "seed": sc.resolved_seed,
+        "scenario_params": sc.params,
+        "controllers": ",".join(ln.name for ln in lanes),
+        "profile": options.profile or "default",
+    }
+    return open_file_sink(
+        options.save, [ln.name for ln in lanes], rig.sensor, "compare", f"necviz compare: {sc.name}", props
+    )

@@ -1,0 +1,62 @@
+"""``necviz demo``: the embedded default — a simulated ``tunnel_exit``, NEC against the baselines.
+
+Every controller drives its own simulated camera; all cameras share one scene and one event
+stream (:class:`~necviz.drivers.sim.rig.SimRig`), as in ``necviz compare``, shown side by side
+in the ``compare`` layout. No hardware and no files needed. From Python::
+
+    import necviz
+    necviz.run_demo(necviz.DemoOptions(necviz.SceneOptions("indoor_outdoor")),
+                    necviz.ViewerOptions(save="demo.rrd"))
+"""
+
+from __future__ import annotations
+
+from necviz.dashboard.recorders import open_recorder
+from necviz.dashboard.session import Session, preflight, run_session
+from necviz.options import DemoOptions, ViewerOptions
+from necviz.progress import output
+from necviz.runs import build_rig
+
+
+def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None, out=..., stdin=None) -> dict:
+    """Run the demo; returns the run's summary (see :func:`necviz.dashboard.session.run_session`)."""
+    out = output(out)
+    options = options or DemoOptions()
+    viewer, profile = preflight(
+        "demo", viewer, {"--record": options.record}, options.force, profile=options.profile
+    )  # before anything starts
+    sc = options.scene
+    scene, rig, lanes, limits = build_rig(sc, options.controllers, profile)
+    props = {
+        "command": "demo",
+        "scenario": sc.name,
+        "seed": sc.resolved_seed,
+        "duration_s": scene.duration_us / 1e6,
+        "scenario_params": sc.params,
+        "controllers": ",".join(options.controllers),
+        "camera_limits": limits,
+        "camera_profile": str(options.profile) if options.profile else "default DAVIS346 response",
+    }
+    recorder = None
+    if options.record is not None:
+        recorder = open_recorder(options.record, rig.sensor, {**props, "recorded_lane": lanes[0].name})
+    print(f"  demo: {sc.name}, {', '.join(ln.name for ln in lanes)} ({props['duration_s']:g} s simulated)", file=out)
+    return run_session(
+        Session(
+            "demo",
+            rig,
+            lanes,
+            "compare",
+            f"necviz demo: {sc.name}",
+            props,
+            viewer,
+            options.show,
+            options.tune,
+            recorder,
+            lanes[0].camera or lanes[0].name,
+            lossless=True,
+            expected_duration_s=props["duration_s"],
+        ),
+        out,
+        stdin,
+    )

@@ -1,0 +1,99 @@
+"""``necviz live``: a DAVIS camera with a controller closing the loop, in the ``live`` layout.
+
+``device="usb"`` opens a real DAVIS346/DAVIS240 (pyusb); ``device="emulated"`` runs the same
+driver against a virtual DAVIS346 fed by the simulator (no hardware). The controller drives the
+camera: every command goes to the APS exposure register between frames. While it runs, the
+terminal prompt (or a tuning file) changes parameters and ``drive NAME`` switches controller.
+
+If the camera is unplugged, everything recorded so far is flushed (the ``.rrd`` and the
+``--record`` file stay readable) and the run ends with a one-line error — or, with
+``reconnect``, waits for the camera to come back. Per-frame telemetry keeps the last
+``LiveOptions.history`` frames, so memory does not grow with the length of a session.
+"""
+
+from __future__ import annotations
+
+from necviz.core.control import make_controller
+from necviz.dashboard.recorders import open_recorder
+from necviz.dashboard.session import Session, preflight, run_session
+from necviz.options import LiveOptions, ViewerOptions
+from necviz.pipeline import Lane
+from necviz.progress import output
+
+LANE = "camera"
+
+
+def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None, out=..., stdin=None) -> dict:
+    out = output(out)
+    options = options or LiveOptions()
+    viewer, profile = preflight(
+        "live", viewer, {"--record": options.record}, options.force, profile=options.profile
+    )  # before the camera is opened
+    from necviz.drivers.davis import open_camera
+
+    backend = None
+    if options.device == "emulated":
+        from necviz.drivers.davis.emulator import EmulatedDavis346, Faults
+
+        spec = options.scene.spec()
+        faults = Faults(unplug_after_s=options.emulate_unplug_s) if options.emulate_unplug_s is not None else None
+        backend = EmulatedDavis346(
+            scenario=spec["name"],
+            seed=options.scene.resolved_seed,
+            duration_s=options.duration_s,
+            faults=faults,
+            scenario_params={**spec["params"], **options.scene.params},
+        )
+    camera = open_camera(options.device, options.serial, reconnect=options.reconnect, backend=backend)
+    info, limits, sensor = camera.info, camera.limits, camera.sensor
+    kw = {} if profile is None else {"tedi": profile.tedi, "crf": profile.crf}
+    lane = Lane(LANE, make_controller(options.controller, sensor=sensor, limits=limits, **kw))
+    props = {
+        "command": "live",
+        "device": options.device,
+        "serial": info.get("serial"),
+        "firmware": info.get("firmware"),
+        "logic": info.get("logic_version", info.get("logic")),
+        "controller": options.controller,
+        "camera_limits": limits,
+        "camera_profile": str(options.profile) if options.profile else "default DAVIS346 response",
+        **({"scenario": options.scene.name} if options.device == "emulated" else {}),
+    }
+    recorder = None
+    try:
+        if options.record is not None:
+            recorder = open_recorder(options.record, sensor, props)
+    except BaseException:
+        camera.close()
+        raise
+    print(
+        f"  live: {sensor.name or 'DAVIS'} {info.get('serial', '')} ({options.device}), {options.controller} drives "
+        f"the exposure ({limits.exposure_min_us:g}..{limits.exposure_max_us:g} µs, digital gain ≤ "
+        f"{limits.gain_max:g})",
+        file=out,
+    )
+    try:
+        return run_session(
+            Session(
+                "live",
+                camera,
+                [lane],
+                "live",
+                f"necviz live: {info.get('serial', '')}",
+                props,
+                viewer,
+                options.show,
+                options.tune,
+                recorder,
+                LANE,
+                lossless=False,
+                history=options.history,
+                expected_duration_s=options.duration_s,
+                stop_after_s=options.duration_s,
+            ),
+            out,
+            stdin,
+        )
+    finally:
+        if options.record is not None:
+            print(f"  recorded to {options.record} (replay it with: necviz replay {options.record})", file=out)

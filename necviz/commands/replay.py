@@ -1,0 +1,145 @@
+"""``necviz replay FILE``: a recording in open loop, in the ``inspect`` layout.
+
+The file's packets go through P-TEDI and a controller (NEC by default) exactly as live, but the
+commands only show what the controller *would* have done: the recorded exposures are what they
+are. For every frame the replay reports what the frame measured (ln Pbar), what P-TEDI predicted
+for that exposure from the events before it (``ln P(s) + ln E_p(s)``, the prediction at the
+exposure start carried across the exposure by its events) and their difference, and flags
+frames more than 50 % saturated.
+
+``json`` writes ``{"frames", "events", "duration_s", "saturated_frames_50",
+"prediction_error_rmse", "prediction_error_frames", "saturation_causes", "frames_detail": [...]}``;
+each saturated frame in ``frames_detail`` carries its diagnosed ``saturation_cause`` and
+``saturation_explanation`` (:mod:`necviz.core.diagnosis`), ``saturation_causes`` counts them.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from necviz.core.control import CameraLimits, make_controller
+from necviz.core.errors import ParameterError
+from necviz.dashboard.session import Session, preflight, run_session
+from necviz.options import ReplayOptions, ViewerOptions
+from necviz.outputs import write_json
+from necviz.pipeline import Lane, packet_time_us
+from necviz.progress import output
+
+LANE = "camera"
+
+
+def _first_time_us(path, open_kwargs) -> int | None:
+    """The first packet time of a recording (opens it briefly; streams are lazy)."""
+    from necviz.drivers.recordings import open_recording
+
+    rec = open_recording(path, **open_kwargs)
+    try:
+        for packet in rec:
+            t = packet_time_us(packet)
+            if t is not None:
+                return t
+        return None
+    finally:
+        rec.close()
+
+
+def open_for_replay(path, exposure_us=None, start_s=None, end_s=None, fmt=None):
+    """Open ``path`` restricted to ``[start_s, end_s]`` seconds from its first timestamp.
+
+    Returns ``(recording, origin_us)``.
+    """
+    from necviz.drivers.recordings import open_recording
+
+    kw = {"exposure_us": exposure_us, "format": fmt}
+    origin = _first_time_us(path, kw)
+    if origin is None:
+        raise ParameterError(f"{path}: the recording holds no events or frames")
+    start_us = None if start_s is None else origin + int(round(start_s * 1e6))
+    end_us = None if end_s is None else origin + int(round(end_s * 1e6))
+    return open_recording(path, start_us=start_us, end_us=end_us, **kw), origin
+
+
+def summarise(stats: dict, lane: str = LANE) -> dict:
+    """The replay's JSON summary from the run's statistics (telemetry included)."""
+    tel = stats["telemetry"][lane]
+    s = tel.summary()
+    return {
+        "frames": s["frames"],
+        "events": stats["events"],
+        "duration_s": stats["duration_s"],
+        "saturated_frames_50": s["saturated_frames_50"],
+        "prediction_error_rmse": s["prediction_error_rmse"],
+        "prediction_error_frames": s["prediction_error_frames"],
+        "saturation_causes": s["saturation_causes"],
+        "frames_detail": tel.table.rows(),
+    }
+
+
+def run(options: ReplayOptions, viewer: ViewerOptions | None = None, out=...) -> dict:
+    out = output(out)
+    path = Path(options.file)
+    viewer, profile = preflight(
+        "replay", viewer, {"--json": options.json}, options.force, inputs=[path], profile=options.profile
+    )  # before anything is opened
+    recording, origin = open_for_replay(path, options.exposure_us, options.start_s, options.end_s, options.format)
+    sensor = recording.sensor
+    limits = CameraLimits()
+    kw = {} if profile is None else {"tedi": profile.tedi, "crf": profile.crf}
+    lane = Lane(LANE, make_controller(options.controller, sensor=sensor, limits=limits, **kw), drives=False)
+    props = {
+        "command": "replay",
+        "file": str(path),
+        "format": recording.format,
+        "exposure_source": recording.exposure_source,
+        "controller": options.controller,
+        "camera_limits": limits,
+        "camera_profile": str(options.profile) if options.profile else "default DAVIS346 response",
+        **{f"recorded.{k}": v for k, v in getattr(recording, "properties", {}).items()},
+    }
+    print(
+        f"  replay: {path} ({recording.format}, {sensor.width}x{sensor.height}, exposure "
+        f"{recording.exposure_source}); {options.controller} in open loop",
+        file=out,
+    )
+    stats = run_session(
+        Session(
+            "replay",
+            recording,
+            [lane],
+            "inspect",
+            f"necviz replay: {path.name}",
+            props,
+            viewer,
+            options.show,
+            None,
+            origin_us=origin,
+            lossless=True,
+        ),
+        out,
+    )
+    summary = summarise(stats)
+    if not summary["events"] and not summary["frames"] and (options.start_s is not None or options.end_s is not None):
+        raise ParameterError(
+            f"nothing in the selected range (--start {options.start_s} --end {options.end_s} s): it "
+            f"lies past the end of {path.name}; `necviz info {path}` shows its duration"
+        )
+    for w in getattr(recording, "warnings", []):
+        print(f"  warning: {w}", file=out)
+    rmse = summary["prediction_error_rmse"]
+    print(
+        f"  prediction error (P-TEDI vs frame, ln): RMSE {rmse:.3f} over {summary['prediction_error_frames']} frames"
+        if rmse is not None
+        else "  prediction error: no frame pair to compare (need two usable frames)",
+        file=out,
+    )
+    sat = [d["sequence"] for d in summary["frames_detail"] if d["saturated"]]
+    if sat:
+        shown = ", ".join(map(str, sat[:12])) + (" …" if len(sat) > 12 else "")
+        print(f"  saturated frames (>50 %): {len(sat)}: {shown}", file=out)
+        causes = ", ".join(f"{k} {v}" for k, v in summary["saturation_causes"].items() if v)
+        if causes:
+            print(f"  diagnosed causes: {causes}", file=out)
+    if options.json is not None:
+        write_json(options.json, summary)
+        print(f"  wrote {options.json}", file=out)
+    return summary

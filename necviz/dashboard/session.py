@@ -1,0 +1,254 @@
+"""What ``demo``, ``replay`` and ``live`` share: open the viewer, run the loop, show progress.
+
+:func:`run_session` opens the Rerun recording the :class:`~necviz.options.ViewerOptions` ask for
+(with the command's layout), logs run properties and series styles, runs the
+:class:`~necviz.pipeline.Pipeline` on its streaming thread with a :class:`~necviz.dashboard.sink.RerunSink`
+(and a native recorder, if asked), offers live tuning (a prompt and/or a watched file), shows a
+live count until the source ends or Ctrl-C, then flushes everything and prints a summary.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass, field
+
+import rerun as rr
+
+from necviz.dashboard.sink import RerunSink
+from necviz.dashboard.telemetry import Telemetry
+from necviz.dashboard.tuning import TuningConsole, TuningFile
+from necviz.dashboard.viewer import FILE_FLUSH_S, open_viewer
+from necviz.layouts import make_blueprint, style_series
+from necviz.memory import bound_heap_retention
+from necviz.options import ShowOptions, TuneOptions, ViewerOptions
+from necviz.pipeline import Lane, Pipeline, RecorderObserver
+from necviz.progress import LiveLine, output
+
+
+@dataclass
+class Session:
+    """One dashboard run: a source, its lanes and how to show them.
+
+    ``recorder``: a native :class:`~necviz.drivers.recordings.native.Recorder` keeping ``record_camera``
+    (default: the first lane's camera). ``lossless``: keep every frame and event image when the
+    run is not paced (a simulation or replay into a file). ``history``: frames of per-frame
+    telemetry kept per lane (``None``: all). ``origin_us``: sensor time shown as 0.
+    """
+
+    command: str
+    source: object
+    lanes: list[Lane]
+    layout: str
+    title: str
+    properties: dict
+    viewer: ViewerOptions = field(default_factory=ViewerOptions)
+    show: ShowOptions = field(default_factory=ShowOptions)
+    tune: TuneOptions | None = None
+    recorder: object = None
+    record_camera: str | None = None
+    lossless: bool = True
+    history: int | None = None
+    origin_us: int = 0
+    expected_duration_s: float | None = None
+    stop_after_s: float | None = None
+
+
+def preflight(command: str, viewer: ViewerOptions | None, outputs: dict, force: bool, inputs=(), profile=None):
+    """Everything a dashboard command checks before it opens a camera, a file or a viewer.
+
+    ``outputs`` maps flags to paths (``{"--record": ..., "--json": ...}``); returns the resolved
+    viewer options (the headless default filled in, ``--save`` checked) and the camera profile.
+    """
+    from necviz.dashboard.viewer import resolve
+    from necviz.outputs import check_distinct, check_output
+
+    viewer = resolve(viewer or ViewerOptions(), command, inputs=inputs)
+    check_distinct({**outputs, "--save": viewer.save})
+    suffixes = {"--record": (".necrec",), "--json": (".json",)}
+    for flag, path in outputs.items():
+        if path is not None:
+            check_output(path, flag, inputs=inputs, force=force, suffixes=suffixes.get(flag))
+    if profile is not None:
+        from necviz.profiles import load_profile
+
+        profile = load_profile(profile)
+    return viewer, profile
+
+
+def run_session(session: Session, out=..., stdin=None) -> dict:
+    """Run the session; returns the pipeline's summary (with ``"rrd"``, the file written, if any).
+
+    On any failure before the pipeline takes over, the source and the recorder are closed, so a
+    recording stays readable and a camera does not keep streaming.
+    """
+    out = output(out)
+    bound_heap_retention()  # a burst of events must not stay resident for the rest of a long session
+    try:
+        return _run(session, out, stdin)
+    except BaseException:
+        if session.recorder is not None and not getattr(session.recorder, "closed", False):
+            session.recorder.close()
+        if hasattr(session.source, "close"):
+            session.source.close()
+        raise
+
+
+def _run(ss: Session, out, stdin) -> dict:
+    v = ss.viewer
+    layout = v.layout or ss.layout
+    names = [lane.name for lane in ss.lanes]
+    sensor = ss.source.sensor
+    viewer = open_viewer(v, ss.command, make_blueprint(layout, names, sensor.width, sensor.height), ss.title)
+    for m in viewer.messages:
+        print(f"  {m}", file=out)
+    speed = ss.show.speed
+    if speed == "auto":
+        speed = 1.0 if v.watched else None
+    rec = viewer.rec
+    rec.send_property("run", rr.AnyValues(**{k: str(val) for k, val in ss.properties.items()}, layout=layout))
+    style_series(rec, names)
+    lossless = ss.lossless and speed is None and not v.watched
+    # a live session only saved to a file: series in 2 s chunks (Rerun's file sink indexes every chunk)
+    flush = FILE_FLUSH_S if not (lossless or v.watched) else None
+    sink = RerunSink(
+        rec,
+        names,
+        sensor.height,
+        sensor.width,
+        event_window_us=int(ss.show.event_window_ms * 1000),
+        raw_points=ss.show.event_points,
+        origin_us=ss.origin_us,
+        lossless=lossless,
+        flush_period_s=flush,
+    )
+    observers = [sink]
+    if ss.recorder is not None:
+        cam = ss.record_camera or ss.lanes[0].camera or ss.lanes[0].name
+        driver = next((ln.name for ln in ss.lanes if ln.drives and (ln.camera or ln.name) == cam), cam)
+        observers.append(RecorderObserver(ss.recorder, cam, driver))
+    pipe = Pipeline(
+        ss.source,
+        ss.lanes,
+        telemetry=Telemetry(names, history=ss.history),
+        observers=observers,
+        speed=speed,
+        stop_after_s=ss.stop_after_s,
+    )
+    tune_file = console = None
+    t0 = time.perf_counter()
+
+    def status() -> str:
+        return progress_line(ss.command, pipe, ss.expected_duration_s, time.perf_counter() - t0)
+
+    try:
+        if ss.tune is not None and ss.tune.file:
+            tune_file = TuningFile(pipe, ss.tune.file, out=out)
+        stream = stdin if stdin is not None else sys.stdin
+        if (
+            ss.tune is not None
+            and ss.tune.prompt
+            and stream is not None
+            and (stdin is not None or (hasattr(stream, "isatty") and stream.isatty()))
+        ):
+            console = TuningConsole(pipe, stream, out=out, status=status, on_interrupt=pipe.stop)
+        pipe.start()
+        if tune_file is not None:
+            tune_file.start()
+        if console is not None:
+            if not console.interactive:
+                print("  tuning: type commands and Enter (help lists them)", file=out)
+            console.start()
+        line = LiveLine(out if console is None or not console.interactive else None)  # else: the prompt's status bar
+        try:
+            while not pipe.wait(0.5):
+                line.show(status())
+        except KeyboardInterrupt:
+            print("\n  stopping (Ctrl-C): flushing the recording…", file=out, flush=True)
+            pipe.stop()
+        if console is not None:
+            console.close()
+        if out is not None:
+            line.clear()
+            print(status(), file=out, flush=True)
+    finally:
+        if tune_file is not None:
+            tune_file.stop()
+        try:
+            stats = pipe.finish()
+        except BaseException:
+            if viewer.save_path is not None:  # the error ends the run; what was seen is flushed and readable
+                print(f"  recording so far: {viewer.save_path} (open it with: rerun {viewer.save_path})", file=out)
+            raise
+        finally:
+            viewer.close()
+    source_stats = getattr(ss.source, "stats", None)
+    if isinstance(source_stats, dict) and "dropped_events" in source_stats:  # a camera: what the device lost
+        stats["source"] = {k: v for k, v in source_stats.items() if isinstance(v, (int, float))}
+    print_summary(out, stats)
+    if viewer.save_path is not None:
+        print(f"  recording: {viewer.save_path} (open it with: rerun {viewer.save_path})", file=out)
+    stats["rrd"] = str(viewer.save_path) if viewer.save_path is not None else None
+    stats["telemetry"] = pipe.telemetry
+    if viewer.url is not None:
+        _keep_serving(viewer, out)
+    return stats
+
+
+def _keep_serving(viewer, out) -> None:
+    """The run is over but the web viewer is still being watched: serve until Ctrl-C (or SIGTERM)."""
+    print(f"  still serving the recording at {viewer.url}; press Ctrl-C to stop", file=out, flush=True)
+    try:
+        while viewer.server is not None and viewer.server.poll() is None:
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        print("  stopped serving", file=out)
+    finally:
+        viewer.stop_serving()
+
+
+def progress_line(command: str, pipe: Pipeline, expected: float | None, wall: float) -> str:
+    t = ((pipe.now_us or 0) - (pipe.first_us or 0)) / 1e6
+    of = f"/{expected:g}" if expected else ""
+    return (
+        f"  {command}: {t:6.2f}{of} s sensor time · {pipe.events / 1e6:7.2f} M events · {pipe.frames} frames"
+        f" · {wall:5.1f} s"
+    )
+
+
+def print_summary(out, stats: dict) -> None:
+    if out is None:
+        return
+    print(
+        f"  {stats['events']:,} events, {stats['frames']} frames over {stats['duration_s']:.2f} s "
+        f"({stats['event_rate_mev_s']:.2f} Mev/s) in {stats['wall_s']:.1f} s wall",
+        file=out,
+    )
+    for name, s in stats["lanes"].items():
+        print(
+            f"  {name:8s} {s['frames']:4d} frames, {s['saturated_frames_50']:3d} saturated, {s['commands']:5d} "
+            f"commands, latency p50 {_us(s['latency_p50_us'])} p99 {_us(s['latency_p99_us'])}",
+            file=out,
+        )
+    src = stats.get("source")
+    if src:
+        lost = src.get("dropped_events", 0)
+        print(
+            f"  camera: {lost:,} events dropped by the device"
+            + (" (its FIFO overflowed while the host was not reading, or its bus was saturated)" if lost else "")
+            + f"; {src.get('skipped_words', 0):,} stream "
+            f"words skipped; {src.get('reconnects', 0)} reconnects",
+            file=out,
+        )
+    sk = stats.get("sink")
+    if sk:
+        print(
+            f"  viewer: {sk['frames_logged']} frames, {sk['event_images']} event images; dropped "
+            f"{sk['frames_dropped']} frames and {sk['event_batches_dropped']} event batches; "
+            f"{sk['events_decimated']:,} of {sk['events_seen']:,} events not drawn (decimation)",
+            file=out,
+        )
+
+
+def _us(v: float) -> str:
+    return "—" if v != v else f"{v:.0f} µs"

@@ -1,0 +1,607 @@
+"""The Rerun sink: everything the dashboard shows, logged from a worker thread.
+
+:class:`RerunSink` is a pipeline :class:`~necviz.pipeline.Observer`. The control path never waits
+for visualisation: the streaming thread hands the sink what it saw through calls that only
+append to memory:
+
+* event batches and frames go into bounded queues; when the worker falls behind, the oldest
+  entries are dropped and counted (``frames_dropped``, ``event_batches_dropped`` in :meth:`summary`);
+* scalars (exposure, gain, irradiance, rates, latency) go into a queue that the worker sends as
+  columns every ``flush_period_s`` (a handful of ``send_columns`` calls instead of one
+  ``rr.log`` per value); they are never dropped.
+
+Encodings. Frames are JPEG with a near-flat quantisation table (:data:`FRAME_QTABLE`, chosen by
+SSIM; see there); a live sink skips the Huffman optimisation (same pixels, ~20 % more bytes, less
+than half the time). Event images hold at most ``2K + 1`` colours (5 by default), so they are logged
+as paletted PNG built straight from the per-pixel net counts (:class:`EventPalette`): lossless,
+about a third of the bytes of the JPEG they replaced.
+
+Chunking. A live sink logs every image as it comes and sends the series every
+``flush_period_s`` (0.1 s), so the viewer stays current; a live session that only writes a file
+sends them every 2 s (:data:`necviz.dashboard.viewer.FILE_FLUSH_S`): Rerun's file sink keeps an index entry in
+memory for every chunk until the file is closed, and ~130 series chunks a second grew a
+one-hour session by ~400 MB. A ``lossless`` sink (a file nobody
+watches live) writes fewer, larger chunks, since every chunk carries its own Arrow schema
+(~1 KB): a series is sent when it holds ``chunk_rows`` values, an entity's encoded images when
+they reach ``image_chunk_bytes``, and everything left at :meth:`close` (memory stays bounded by
+those sizes per entity; the chunking depends only on the data, not on wall time, so two runs of
+the same simulation give the same chunks: their files differ by a few hundred bytes of ids and
+log times).
+
+Events are shared by every lane of a source, so they are logged once (``events``, ``event_rate``)
+as event images (:mod:`necviz.core.event_image`) over windows of ``event_window_us`` sensor time.
+At most ``max_events_per_window`` are drawn per window: above that every k-th event is drawn; and
+when the worker is behind (more than ``max_backlog`` batches waiting, or the last image was drawn
+less than ``1 / max_rate_hz`` ago in wall time) a window's image is skipped. Both are counted
+(``events_decimated``, ``event_images_skipped``); the event rate is logged for every window
+regardless. Frames follow the same wall-clock rate cap. With ``lossless=True`` nothing is dropped
+or skipped (simulations and replays written to a file).
+
+Every entity is on both timelines: ``t`` (sensor time) and ``frame`` (the newest frame of the lane
+at that moment; for the shared events, of the first lane), so no view is blank on either.
+Entity paths follow :mod:`necviz.dashboard.schema`.
+"""
+
+from __future__ import annotations
+
+import bisect
+import io
+import math
+import struct
+import threading
+import time
+import zlib
+from collections import defaultdict, deque
+
+import numpy as np
+import rerun as rr
+
+from necviz.core.event_image import BACKGROUND_RGB, OFF_RGB, ON_RGB, EventImage, colour_table, palette_rows
+from necviz.core.frames import Frame
+from necviz.dashboard import schema as S
+from necviz.dashboard.telemetry import FrameRecord
+from necviz.pipeline import Observer
+
+
+def _ramp_table(base: int, slope: float) -> list[int]:
+    """An 8 x 8 JPEG quantisation table in natural (row-major) order: ``base + slope (u + v)`` for
+    DCT frequency indices ``u, v`` in 0..7, rounded, clipped to 1..255."""
+    u = np.add.outer(np.arange(8), np.arange(8))
+    return np.clip(np.round(base + slope * u), 1, 255).astype(int).ravel().tolist()
+
+
+#: Quantisation table of the frames' JPEG: a gentle ramp (10 at DC to 24 at the highest frequency)
+#: instead of the scaled table of the JPEG standard (ITU-T T.81 Annex K), which quantises the
+#: highest frequencies up to ~10x coarser than the lowest. APS frames carry sensor noise at every
+#: frequency; the standard table smooths it away, which lowers SSIM (Wang, Bovik, Sheikh &
+#: Simoncelli, IEEE Trans. Image Processing 13(4), 2004) more per byte saved than a near-flat
+#: table does. Measured on the 2 s six-controller demo (all 600 frames,
+#: ``benchmarks/recording_size.py``): 11.7 KB a frame at mean SSIM 0.970 (5th percentile 0.951),
+#: where the standard table needs quality 80 (13.5 KB) for the same mean and gives a 5th
+#: percentile of 0.924 (quality 75: 11.8 KB, mean 0.964).
+FRAME_QTABLE = _ramp_table(10, 1.0)
+#: Smallest SSIM (mean over a recording's frames) the frame encoding is chosen to keep: 0.97.
+FRAME_SSIM_FLOOR = 0.97
+
+
+def encode_frame(image: np.ndarray, qtable=None, quality: int | None = None, optimize: bool = True) -> bytes:
+    """An APS frame (H x W uint8 grey, :class:`~necviz.core.frames.Frame`) as a baseline JPEG
+    (Pillow/libjpeg): quantisation table ``qtable`` (default :data:`FRAME_QTABLE`), or the standard
+    table at ``quality`` (1..95) if given. ``optimize``: Huffman tables fitted to the image (a second
+    pass: ~2.2x the time for ~20 % fewer bytes; a live sink, which must keep up, skips it)."""
+    from PIL import Image  # Pillow: a dependency of matplotlib; OpenCV cannot set quantisation tables
+
+    buf = io.BytesIO()
+    opts = {"quality": int(quality)} if quality is not None else {"qtables": [qtable or FRAME_QTABLE]}
+    Image.fromarray(np.ascontiguousarray(image)).save(buf, "JPEG", optimize=bool(optimize), **opts)
+    return buf.getvalue()
+
+
+def encode_indexed_png(indices: np.ndarray, palette: np.ndarray, level: int = 6) -> bytes:
+    """A paletted PNG (ISO/IEC 15948: colour type 3, filter 0 on every row) of ``indices`` (H x W
+    uint8, each < ``len(palette)``) with ``palette`` (N x 3 uint8 RGB, N <= 256); 4 bits a pixel when
+    N <= 16, else 8. Lossless: decodes to exactly ``palette[indices]``. ``level``: zlib level."""
+    h, w = indices.shape
+    bits = _palette_bits(len(palette))
+    if bits == 4:
+        p = indices if w % 2 == 0 else np.pad(indices, ((0, 0), (0, 1)))
+        rows = (p[:, 0::2] << 4) | p[:, 1::2]
+    else:
+        rows = indices
+    raw = np.empty((h, rows.shape[1] + 1), np.uint8)
+    raw[:, 0] = 0  # filter type 0 (None): paletted images gain nothing from prediction
+    raw[:, 1:] = rows
+    return png_from_rows(raw, w, bits, palette, level)
+
+
+def _palette_bits(n: int) -> int:
+    if not 1 <= n <= 256:
+        raise ValueError(f"a PNG palette holds 1..256 colours, not {n}")
+    return 4 if n <= 16 else 8
+
+
+def png_from_rows(raw: np.ndarray, width: int, bits: int, palette: np.ndarray, level: int = 6) -> bytes:
+    """A paletted PNG from its filtered rows ``raw`` (H x (1 + row bytes) uint8, filter byte first)."""
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    return (
+        b"\x89PNG\r\n\x1a\n"
+        + chunk(b"IHDR", struct.pack(">IIBBBBB", width, raw.shape[0], bits, 3, 0, 0, 0))
+        + chunk(b"PLTE", np.ascontiguousarray(palette, np.uint8).tobytes())
+        + chunk(b"IDAT", zlib.compress(raw.tobytes(), level))
+        + chunk(b"IEND", b"")
+    )
+
+
+class EventPalette:
+    """What an :class:`~necviz.core.event_image.EventImage` renders, as a palette index per pixel:
+    ``clip(on - off, -K, K) + K`` into the table of :func:`~necviz.core.event_image.colour_table`
+    (5 colours at the default ``saturate_at = 2``), so ``palette[indices(img)] == img.render()``."""
+
+    def __init__(self, image: EventImage):
+        self.palette, self.k = colour_table(ON_RGB, OFF_RGB, BACKGROUND_RGB, image.saturate_at)
+        self._raw: np.ndarray | None = None
+
+    def indices(self, image: EventImage) -> np.ndarray:
+        d = image.counts_on - image.counts_off
+        np.clip(d, -self.k, self.k, out=d)
+        d += self.k
+        return d.astype(np.uint8)
+
+    def png(self, image: EventImage, level: int = 6) -> bytes:
+        """``encode_indexed_png(self.indices(image), self.palette, level)`` in one pass over the
+        counts (:func:`~necviz.core.event_image.palette_rows`, without the GIL)."""
+        h, w = image.counts_on.shape
+        bits = _palette_bits(len(self.palette))
+        if self._raw is None or self._raw.shape != (h, 1 + (w * bits + 7) // 8):
+            self._raw = np.empty((h, 1 + (w * bits + 7) // 8), np.uint8)
+        palette_rows(image.counts_on, image.counts_off, self.k, bits, self._raw)
+        return png_from_rows(self._raw, w, bits, self.palette, level)
+
+
+class RateLimit:
+    """A token bucket: on average ``rate_hz`` takes per wall-clock second, in bursts of up to
+    ``burst`` (sources deliver frames in bursts; a strict interval would drop them at real time)."""
+
+    def __init__(self, rate_hz: float, burst: int = 30):
+        self.rate = float(rate_hz)
+        self.burst = float(burst)
+        self.tokens = float(burst)
+        self.last = time.perf_counter()
+
+    def take(self) -> bool:
+        now = time.perf_counter()
+        self.tokens = min(self.burst, self.tokens + (now - self.last) * self.rate)
+        self.last = now
+        if self.tokens >= 1.0:
+            self.tokens -= 1.0
+            return True
+        return False
+
+
+class RerunSink(Observer):
+    """Logs a run to a Rerun recording stream from its own thread.
+
+    Parameters
+    ----------
+    rec : the recording stream (sinks already attached).
+    lanes : lane names (entity roots).
+    height, width : sensor size (event images).
+    event_window_us : sensor time per event image (33 ms: 30 images per second).
+    max_events_per_window : decimation cap for drawing events (60k: ~0.7 per pixel, already dense).
+    max_backlog : when more event batches than this wait for the worker, a finished window's
+        image is skipped (counted in ``event_images_skipped``) so the worker catches up.
+    raw_points : if > 0, also log up to this many raw events per window as points.
+    queue_size, frame_queue_size : event batches / frames waiting for the worker before the
+        oldest are dropped (counted).
+    max_rate_hz : at most this many frames per lane, and event images, per wall-clock second
+        (a viewer shows no more); faster streams (replay at xN, benchmarks) are decimated.
+    origin_us : sensor time shown as 0 on the ``t`` timeline (replays of files stamped with an
+        absolute clock start at their first timestamp).
+    lossless : never drop or skip anything; the streaming thread waits when a queue is full.
+        For runs written to a file where no camera waits for a command (simulations, replays).
+    flush_period_s : seconds of wall time between sends of the scalar series (default: 0.1 s for a
+        live sink; none for a lossless one, which sends by size, see ``chunk_rows``).
+    chunk_rows, image_chunk_bytes : lossless sinks only: send a series once it holds this many
+        values, an entity's images once their encoded bytes reach this (and everything at close).
+    jpeg_quality : ``None`` (default): frames use :data:`FRAME_QTABLE`; else the JPEG standard's
+        table at this quality (1..95).
+    png_level : zlib level of the event images (default 6 lossless, 1 live: ~4x faster, ~11 % larger).
+    """
+
+    name = "sink"
+
+    def __init__(
+        self,
+        rec: rr.RecordingStream,
+        lanes,
+        height: int,
+        width: int,
+        event_window_us: int = 33_333,
+        max_events_per_window: int = 60_000,
+        max_backlog: int = 64,
+        raw_points: int = 0,
+        queue_size: int = 8192,
+        frame_queue_size: int = 16,
+        lossless: bool = False,
+        max_rate_hz: float = 60.0,
+        burst_s: float = 0.02,
+        origin_us: int = 0,
+        flush_period_s: float | None = None,
+        chunk_rows: int = 4096,
+        image_chunk_bytes: int = 1 << 20,
+        jpeg_quality: int | None = None,
+        png_level: int | None = None,
+    ):
+        self.rec = rec
+        self.lanes = list(lanes)
+        self.event_window_us = int(event_window_us)
+        self.max_events_per_window = int(max_events_per_window)
+        self.max_backlog = int(max_backlog)
+        self.raw_points = int(raw_points)
+        self.lossless = bool(lossless)
+        if flush_period_s is None:
+            flush_period_s = math.inf if self.lossless else 0.1
+        self.flush_period_s = float(flush_period_s)
+        self.chunk_rows = max(1, int(chunk_rows))
+        self.image_chunk_bytes = max(1, int(image_chunk_bytes))
+        self.jpeg_quality = None if jpeg_quality is None else int(jpeg_quality)
+        self.png_level = int(png_level) if png_level is not None else (6 if self.lossless else 1)
+        self._events: deque = deque()
+        self._frames: deque = deque()
+        self._event_queue_size = int(queue_size)
+        self.origin_us = int(origin_us)
+        self.burst_s = float(burst_s)
+        self._frame_rate: dict[str, RateLimit] = defaultdict(lambda: RateLimit(max_rate_hz))
+        self._image_rate = RateLimit(max_rate_hz)
+        self._frame_queue_size = int(frame_queue_size)
+        # written by the streaming thread: deques (append / popleft are atomic), drained by the worker
+        self._scalar_q: deque = deque()
+        self._text_q: deque = deque()
+        self._seq = {lane: 0 for lane in self.lanes}  # newest frame per lane (the `frame` timeline)
+        self._first_lane = self.lanes[0] if self.lanes else None
+        # owned by the worker
+        self._series: dict[str, list] = defaultdict(list)  # path -> [(t_us, seq, value)]
+        self._texts: dict[str, list] = defaultdict(list)  # path -> [(t_us, seq, text, level)]
+        self._images: dict[str, list] = defaultdict(list)  # path -> [(t_us, seq, blob)] (lossless: batched)
+        self._image_bytes: dict[str, int] = defaultdict(int)
+        self._media: dict[str, str] = {}
+        self._image = EventImage(height, width)
+        self._palette = EventPalette(self._image)
+        self._window_end: int | None = None
+        self._window_seen = 0
+        self._window_seq = 0
+        self._parts: list[np.ndarray] = []
+        self._drawing = True
+        self.stats = {
+            "frames_logged": 0,
+            "events_seen": 0,
+            "events_drawn": 0,
+            "events_decimated": 0,
+            "event_images": 0,
+            "event_images_skipped": 0,
+            "scalars": 0,
+        }
+        self.dropped = {"frames": 0, "event_batches": 0, "events": 0}  # written by the streaming thread only
+        self._stop = False
+        self._error: BaseException | None = None
+        self.on_close = None  # called once the recording is flushed (a file sink completes its file)
+        self._thread = threading.Thread(target=self._run, name="necviz-rerun-sink", daemon=True)
+        self._thread.start()
+
+    # -- observer: called by the streaming thread (never blocks unless lossless) ------------------
+    def _wait_for_room(self, q: deque, size: int) -> None:
+        while len(q) >= size and self._thread.is_alive():
+            time.sleep(0.001)
+
+    def _scalar(self, lane: str, leaf: str, t_us: int, value: float) -> None:
+        self._scalar_q.append((S.path(lane, leaf), t_us, self._seq.get(lane, 0), value))
+
+    def started(self, t_us: int, initial: dict) -> None:
+        for lane, cmd in initial.items():  # the commanded series start with the setting the run began with
+            self._scalar(lane, S.EXPOSURE_COMMANDED, t_us, cmd.exposure_us)
+            self._scalar(lane, S.GAIN_COMMANDED, t_us, cmd.gain)
+
+    def events(self, batch: np.ndarray) -> None:
+        if len(batch):
+            q = self._events
+            if len(q) >= self._event_queue_size:
+                if self.lossless:
+                    self._wait_for_room(q, self._event_queue_size)
+                else:
+                    old = q.popleft()[0]
+                    self.dropped["event_batches"] += 1
+                    self.dropped["events"] += len(old)
+            q.append((batch, self._seq.get(self._first_lane, 0)))
+
+    def prediction(self, lane: str, t_us: int, log_irradiance: float) -> None:
+        self._scalar(lane, S.IRRADIANCE_PREDICTED, t_us, log_irradiance)
+
+    def command(self, lane: str, command, latency_us: float) -> None:
+        t = int(command.issue_time_us)
+        self._scalar(lane, S.EXPOSURE_COMMANDED, t, command.exposure_us)
+        self._scalar(lane, S.GAIN_COMMANDED, t, command.gain)
+        self._scalar(lane, S.LATENCY, t, latency_us)
+
+    def frame(self, lane: str, frame: Frame, record: FrameRecord) -> None:
+        self._seq[lane] = int(frame.sequence)
+        t = int(frame.exposure_start_us)
+        self._scalar(lane, S.EXPOSURE_APPLIED, t, frame.exposure_us)
+        self._scalar(lane, S.GAIN_APPLIED, t, frame.gain)
+        self._scalar(lane, S.OVER_EXPOSED, t, record.over_exposed_rate)
+        self._scalar(lane, S.UNDER_EXPOSED, t, record.under_exposed_rate)
+        if math.isfinite(record.measured_log_irradiance):
+            self._scalar(lane, S.IRRADIANCE_FRAME, t, record.measured_log_irradiance)
+        if math.isfinite(record.prediction_error):
+            self._scalar(lane, S.PREDICTION_ERROR, t, record.prediction_error)
+        if math.isfinite(record.true_valid_fraction):
+            self._scalar(lane, S.TRUE_VALID, t, record.true_valid_fraction)
+        if math.isfinite(record.rank_correlation):
+            self._scalar(lane, S.RANK_CORRELATION, t, record.rank_correlation)
+        if record.saturated:
+            worst = max(record.over_exposed_rate, record.under_exposed_rate)
+            kind = "over" if record.over_exposed_rate >= record.under_exposed_rate else "under"
+            self._scalar(lane, S.SATURATED, t, worst)
+            why = f" — {record.saturation_cause}: {record.saturation_explanation}" if record.saturation_cause else ""
+            self._text_q.append(
+                (
+                    S.path(lane, S.LOG),
+                    t,
+                    int(frame.sequence),
+                    f"frame {frame.sequence}: {worst:.0%} {kind}-exposed{why}",
+                    "WARN",
+                )
+            )
+        q = self._frames
+        if self.lossless:
+            self._wait_for_room(q, self._frame_queue_size)
+        else:
+            if not self._frame_rate[lane].take():  # faster than a viewer refreshes: skip
+                self.dropped["frames"] += 1
+                return
+            if len(q) >= self._frame_queue_size:
+                q.popleft()
+                self.dropped["frames"] += 1
+        q.append((lane, frame))
+
+    def note(self, entity: str, t_us: int, message: str, level: str = "INFO", data=None) -> None:
+        lane = entity.split("/", 1)[0]
+        self._text_q.append((entity, t_us, self._seq.get(lane, self._seq.get(self._first_lane, 0)), message, level))
+
+    # -- worker ---------------------------------------------------------------------------------
+    def _run(self) -> None:
+        """Work in bursts: drain what is queued, then sleep ``burst_s``. A worker that polled
+        continuously would fight the streaming thread for the GIL on every packet."""
+        next_flush = time.perf_counter() + self.flush_period_s
+        by_size = self.lossless and not math.isfinite(self.flush_period_s)
+        try:
+            while True:
+                stopping = self._stop
+                ev, fr = self._events, self._frames
+                while ev or fr:
+                    if ev:
+                        batches = []
+                        while ev:
+                            batches.append(ev.popleft())
+                        self._collect(batches)
+                    if fr:
+                        self._log_frame(*fr.popleft())
+                if by_size:
+                    self._flush_series(min_rows=self.chunk_rows)
+                elif time.perf_counter() >= next_flush:
+                    self._flush_series()
+                    next_flush = time.perf_counter() + self.flush_period_s
+                if stopping:
+                    break
+                time.sleep(self.burst_s)
+            self._close_window(final=True)
+            self._flush_series()
+            for entity in list(self._images):
+                self._send_images(entity)
+        except BaseException as e:  # report in close(); the control path must go on
+            self._error = e
+
+    def _collect(self, items: list) -> None:
+        """Assign queued batches (in time order) to event windows, closing windows as they end.
+
+        Work is per window, not per batch: the batch that crosses a window end is found by
+        bisection on the batches' last times, and a window that will not be drawn only counts.
+        """
+        batches = [b for b, _ in items]
+        seqs = [q for _, q in items]
+        k, n = 0, len(batches)
+        last_time = lambda b: int(b["t"][-1])  # noqa: E731
+        while k < n:
+            if self._window_end is None:
+                self._window_end = (int(batches[k]["t"][0]) // self.event_window_us + 1) * self.event_window_us
+                self._drawing = self._decide_drawing()
+            if int(batches[k]["t"][0]) >= self._window_end + self.event_window_us:  # a gap in the stream:
+                self._close_window()  # close the open window once, then jump to the next event's window
+                t0 = int(batches[k]["t"][0])
+                if t0 >= self._window_end:
+                    self._window_end = (t0 // self.event_window_us + 1) * self.event_window_us
+                continue
+            end = self._window_end
+            j = bisect.bisect_left(batches, end, lo=k, hi=n, key=last_time)  # first batch reaching the end
+            if j > k:
+                self._window_seen += sum(map(len, batches[k:j]))
+                self._window_seq = seqs[j - 1]
+                if self._drawing:
+                    self._parts.extend(batches[k:j])
+            if j == n:
+                return
+            b = batches[j]
+            self._window_seq = seqs[j]
+            cut = int(np.searchsorted(b["t"], end, side="left"))
+            if cut:
+                self._window_seen += cut
+                if self._drawing:
+                    self._parts.append(b[:cut])
+            self._close_window()
+            if cut < len(b):
+                batches[j] = b[cut:]
+                k = j
+            else:
+                k = j + 1
+
+    def _decide_drawing(self) -> bool:
+        """Draw the next window's image unless the worker is behind or a viewer could not show it."""
+        if self.lossless:
+            return True
+        return len(self._events) <= self.max_backlog and self._image_rate.take()
+
+    def _close_window(self, final: bool = False) -> None:
+        """Draw the window's events (every k-th above the cap), log the image and the event rate."""
+        if self._window_end is None:
+            return
+        end = self._window_end
+        seen = self._window_seen
+        rate = seen / (self.event_window_us / 1e6)
+        self.stats["events_seen"] += seen
+        self._series[S.EVENT_RATE].append((end, self._window_seq, rate))
+        if not self._drawing:  # behind the stream or faster than a viewer refreshes: count only
+            self.stats["event_images_skipped"] += 1
+            self.stats["events_decimated"] += seen
+        elif seen or not final:
+            stride = max(1, math.ceil(seen / self.max_events_per_window)) if self.max_events_per_window > 0 else 1
+            drawn = sum(self._image.add(p, stride) for p in self._parts)  # no copy: the kernel strides
+            self.stats["events_drawn"] += drawn
+            self.stats["events_decimated"] += seen - drawn
+            png = self._palette.png(self._image, self.png_level)
+            self._log_image(S.EVENTS, end, self._window_seq, png, "image/png")
+            if self.raw_points and self._parts:
+                pts = np.concatenate([p[::stride] for p in self._parts])[: self.raw_points]
+                if len(pts):
+                    colors = np.where(pts["p"][:, None] > 0, [[80, 170, 255]], [[255, 70, 60]]).astype(np.uint8)
+                    self._set_time(end, self._window_seq)
+                    self.rec.log(
+                        S.EVENT_POINTS,
+                        rr.Points2D(
+                            np.stack([pts["x"], pts["y"]], axis=1).astype(np.float32) + 0.5, colors=colors, radii=0.5
+                        ),
+                    )
+                    self.rec.reset_time()
+            self.stats["event_images"] += 1
+            self._image.clear()
+        self._parts = []
+        self._window_seen = 0
+        self._window_end = end + self.event_window_us
+        self._drawing = self._decide_drawing()
+
+    def _set_time(self, t_us: int, seq: int) -> None:
+        self.rec.set_time(S.TIME, duration=np.timedelta64(int(t_us) - self.origin_us, "us"))
+        self.rec.set_time(S.FRAME, sequence=int(seq))
+
+    def _log_frame(self, lane: str, frame: Frame) -> None:
+        blob = encode_frame(frame.image, quality=self.jpeg_quality, optimize=self.lossless)
+        self._log_image(S.path(lane, S.FRAME_IMAGE), frame.exposure_start_us, frame.sequence, blob, "image/jpeg")
+        self.stats["frames_logged"] += 1
+
+    def _log_image(self, entity: str, t_us: int, seq: int, blob: bytes, media_type: str) -> None:
+        """Log an encoded image now (live), or batch it with the entity's others (lossless)."""
+        if not self.lossless:
+            self._set_time(t_us, seq)
+            self.rec.log(entity, rr.EncodedImage(contents=blob, media_type=media_type))
+            self.rec.reset_time()
+            return
+        self._images[entity].append((t_us, seq, blob))
+        self._media[entity] = media_type
+        self._image_bytes[entity] += len(blob)
+        if self._image_bytes[entity] >= self.image_chunk_bytes:
+            self._send_images(entity)
+
+    def _index(self, t_us, seq) -> list:
+        t = np.asarray(t_us, dtype=np.int64)
+        # exact: whole µs as timedelta64 (seconds as float64 would be truncated to the ns below)
+        return [
+            rr.TimeColumn(S.TIME, duration=(t - self.origin_us).astype("timedelta64[us]")),
+            rr.TimeColumn(S.FRAME, sequence=np.asarray(seq, dtype=np.int64)),
+        ]
+
+    def _send_images(self, entity: str) -> None:
+        rows = self._images.pop(entity, None)
+        self._image_bytes.pop(entity, None)
+        if rows:
+            t, seq, blobs = zip(*rows)
+            self.rec.send_columns(
+                entity,
+                indexes=self._index(t, seq),
+                columns=rr.EncodedImage.columns(blob=list(blobs), media_type=[self._media[entity]] * len(blobs)),
+            )
+
+    def _flush_series(self, min_rows: int = 1) -> None:
+        """Send every series (and text log) holding at least ``min_rows`` values as one chunk each."""
+        q = self._scalar_q
+        for _ in range(len(q)):  # what is queued now; later values wait for the next flush
+            path, t, seq, value = q.popleft()
+            self._series[path].append((t, seq, value))
+        for _ in range(len(self._text_q)):
+            entity, t_us, seq, msg, level = self._text_q.popleft()
+            self._texts[entity].append((t_us, seq, msg, level))
+        for p in [p for p, pts in self._series.items() if len(pts) >= min_rows]:
+            pts = self._series.pop(p)
+            t = np.fromiter((r[0] for r in pts), np.int64, len(pts))  # exact µs (no float64 round trip)
+            seq = np.fromiter((r[1] for r in pts), np.int64, len(pts))
+            values = np.fromiter((r[2] for r in pts), np.float64, len(pts))
+            self.rec.send_columns(p, indexes=self._index(t, seq), columns=rr.Scalars.columns(scalars=values))
+            self.stats["scalars"] += len(pts)
+        for entity in [e for e, rows in self._texts.items() if len(rows) >= min_rows]:
+            t, seq, msgs, levels = zip(*self._texts.pop(entity))
+            self.rec.send_columns(
+                entity, indexes=self._index(t, seq), columns=rr.TextLog.columns(text=list(msgs), level=list(levels))
+            )
+
+    # -- shutdown -------------------------------------------------------------------------------
+    def close(self) -> dict:
+        """Drain the queue, send the last series, flush the recording; returns the stats."""
+        if not self._stop:
+            self._stop = True
+            self._thread.join()
+            self.rec.flush()
+            if self.on_close is not None:
+                self.on_close()
+        if self._error is not None:
+            err, self._error = self._error, None
+            raise err
+        return self.summary()
+
+    def summary(self) -> dict:
+        """Counters: what was logged, and what was dropped or decimated to keep up."""
+        s = dict(self.stats)
+        s["frames_dropped"] = self.dropped["frames"]
+        s["event_batches_dropped"] = self.dropped["event_batches"]
+        s["events_seen"] += self.dropped["events"]
+        s["events_decimated"] += self.dropped["events"]
+        return s
+
+
+def open_file_sink(path, lanes, sensor, layout: str, name: str, properties: dict, **options) -> RerunSink:
+    """A lossless sink writing a recording file (with ``layout`` as its blueprint) and nothing else.
+
+    The file is written as :mod:`necviz.outputs` says (check the path first with
+    :func:`~necviz.outputs.check_output`); closing the sink closes and completes the file.
+    """
+    import uuid
+
+    from necviz.dashboard.viewer import file_batching
+    from necviz.layouts import make_blueprint, style_series
+    from necviz.outputs import commit_recording, recording_target
+
+    rec = rr.RecordingStream("necviz", recording_id=str(uuid.uuid4()), batcher_config=file_batching())
+    target = recording_target(path)
+    rec.set_sinks(
+        rr.FileSink(str(target)), default_blueprint=make_blueprint(layout, list(lanes), sensor.width, sensor.height)
+    )
+    rec.send_recording_name(name)
+    rec.send_property("run", rr.AnyValues(**{k: str(v) for k, v in properties.items()}, layout=layout))
+    style_series(rec, list(lanes))
+    sink = RerunSink(rec, lanes, sensor.height, sensor.width, lossless=True, **options)
+
+    def finish():
+        rr.disconnect(rec)
+        commit_recording(target, path)
+
+    sink.on_close = finish
+    return sink
