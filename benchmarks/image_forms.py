@@ -27,7 +27,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from analytic import AnalyticScene, Trajectory, texture  # noqa: E402
 
-from necviz.core.control import CameraLimits, NECController  # noqa: E402
+from necviz.core.control import CameraLimits, NECController, NECOptions  # noqa: E402
 from necviz.core.crf import default_davis346  # noqa: E402
 from necviz.core.event_model import TediParams  # noqa: E402
 from necviz.core.ptedi import PeripheralEstimator  # noqa: E402
@@ -47,7 +47,9 @@ def measure(sigma: float, offset: float, form: str, crf, w=128, h=96) -> dict:
     for pk in interleave(scene.events(0.26, 0.24), [frame]):
         est.feed(pk)
     lp = est.predict(t0)
-    nec = NECController(est, CameraLimits(1, 1e6, 1.0), exposure_us=t0, dead_band=0.0, full_band=1e-6)
+    nec = NECController(
+        est, CameraLimits(1, 1e6, 1.0), exposure_us=t0, options=NECOptions(dead_band=0.0, full_band=1e-6)
+    )
     cmd = nec.command_for(lp, t0)
     t1 = round(cmd.exposure_us) if cmd else t0
     nxt = scene.frame(crf, 100_000, 100_000 + t1).image

@@ -30,5 +30,17 @@ class SensorGeometry:
         return self.width * self.height
 
 
+#: The DAVIS346/DAVIS240 event bus ceiling (events per second, sensor-wide): the most events the
+#: readout delivers; a change faster than this loses events.
+DAVIS_EVENT_RATE_MAX = 12e6
+
 DAVIS346 = SensorGeometry(346, 260, "DAVIS346")
 DAVIS240 = SensorGeometry(240, 180, "DAVIS240")
+
+#: Event bus ceilings of known sensors by ``(width, height)`` (events per second).
+KNOWN_EVENT_RATES = {DAVIS346.shape[::-1]: DAVIS_EVENT_RATE_MAX, DAVIS240.shape[::-1]: DAVIS_EVENT_RATE_MAX}
+
+
+def known_event_rate_max(sensor: SensorGeometry | None) -> float | None:
+    """The event bus ceiling of a known sensor (by its size), else ``None``."""
+    return None if sensor is None else KNOWN_EVENT_RATES.get((sensor.width, sensor.height))

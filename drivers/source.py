@@ -26,6 +26,7 @@ from typing import Protocol, Union, runtime_checkable
 
 import numpy as np
 
+from necviz.core.control.controller import CameraLimits
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import ImuBatch, TriggerBatch
 from necviz.core.sensor import SensorGeometry
@@ -51,12 +52,39 @@ class CommandRecord:
     applied_start_us: int | None = None
 
 
+@dataclass(frozen=True)
+class CameraInfo:
+    """What a source knows about its cameras (``None`` where it does not know, e.g. a recording).
+
+    Parameters
+    ----------
+    limits : CameraLimits, optional
+        The exposure and gain the cameras accept.
+    command_latency_us : float, optional
+        A command takes effect at the first exposure starting at least this long after it was issued.
+    event_rate_max : float, optional
+        The sensor's event bus ceiling (events per second, sensor-wide): beyond it events are lost.
+    frame_interval_us : float, optional
+        The frame period.
+    """
+
+    limits: CameraLimits | None = None
+    command_latency_us: float | None = None
+    event_rate_max: float | None = None
+    frame_interval_us: float | None = None
+
+
 @runtime_checkable
 class Source(Protocol):
-    """One camera, or a rig of cameras sharing a scene (see the module docstring)."""
+    """One camera, or a rig of cameras sharing a scene (see the module docstring).
+
+    ``camera_info`` says what the source knows about its cameras (limits, command latency, event bus
+    ceiling); ``close`` releases it (a device, a file) and may be called more than once.
+    """
 
     sensor: SensorGeometry
     cameras: tuple[str, ...]
+    camera_info: CameraInfo
 
     def packets(self) -> Iterator[tuple[str | None, Packet]]: ...
 
@@ -73,4 +101,4 @@ def route(camera: str, packets: Iterable[Packet]) -> Iterator[tuple[str | None, 
         yield (None if isinstance(packet, np.ndarray) else camera), packet
 
 
-__all__ = ["CAMERA", "CommandRecord", "Packet", "Source", "route"]
+__all__ = ["CAMERA", "CameraInfo", "CommandRecord", "Packet", "Source", "route"]

@@ -9,10 +9,10 @@ image is white. All three controllers run on one ``SimRig`` (one scene, one even
 camera each) through the same ``Pipeline`` as ``necviz compare``; the per-frame rates come from its
 ``Telemetry`` and the table from ``necviz.core.metrics.summarise``.
 
-To use it with ``necviz compare --controllers nec,navid,meanprop`` add it to ``CONTROLLERS`` in
-core/control/__init__.py (``"meanprop": MeanIntensityController``); ``make_controller`` then
-builds it and passes ``crf`` because the constructor takes one. From Python, registering at run time
-is enough: ``CONTROLLERS["meanprop"] = MeanIntensityController`` (see ``--via-compare``).
+To use it with ``necviz compare --controllers nec,navid,meanprop``, register it:
+``register_controller("meanprop", MeanIntensityController, build)`` with a builder that gets the
+camera's context (limits, starting exposure, camera response) and the controller's options; from
+then on ``make_controller`` and every command know it (see ``--via-compare``).
 
 usage: python examples/custom_controller.py [--duration-s 0.8] [--seed 1] [--k 0.8] [--via-compare]
 """
@@ -21,7 +21,7 @@ import argparse
 import math
 
 from necviz.core import Frame, SensorGeometry, default_davis346
-from necviz.core.control import CONTROLLERS, CameraLimits, Controller, ExposureCommand, make_controller
+from necviz.core.control import CameraLimits, Controller, ExposureCommand, make_controller, register_controller
 from necviz.core.errors import ParameterError
 from necviz.core.metrics import summarise
 from necviz.drivers.sim.aps import ApsParams
@@ -70,7 +70,11 @@ def main() -> None:
     if args.via_compare:
         import necviz
 
-        CONTROLLERS[MeanIntensityController.name] = MeanIntensityController  # now make_controller knows it
+        register_controller(  # now make_controller (and so compare) knows it
+            MeanIntensityController.name,
+            MeanIntensityController,
+            lambda ctx, options: MeanIntensityController(ctx.limits, ctx.exposure_us, ctx.gain, crf=ctx.crf, k=args.k),
+        )
         necviz.run_compare(
             necviz.CompareOptions(necviz.SceneOptions("tunnel_exit", args.seed, args.duration_s), names, sift=False)
         )

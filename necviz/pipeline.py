@@ -36,7 +36,7 @@ from dataclasses import replace
 import numpy as np
 
 from necviz.core.checks import check_number
-from necviz.core.control import CONTROLLERS, Controller, NECController, make_controller
+from necviz.core.control import CONTROLLERS, Controller, ControllerContext, create_controller
 from necviz.core.errors import NecvizError, ParameterError
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import ImuBatch, TriggerBatch
@@ -91,19 +91,16 @@ class Lane:
         self.camera = camera
         self.drives = bool(drives)
         self.controller = controller
-        self.passive: PeripheralEstimator | None = None if hasattr(controller, "estimator") else estimator
+        self.passive: PeripheralEstimator | None = None if controller.estimator is not None else estimator
 
     @property
     def estimator(self) -> PeripheralEstimator | None:
         """The P-TEDI estimator whose prediction this lane shows (the controller's own, or the passive one)."""
-        return self.passive if self.passive is not None else getattr(self.controller, "estimator", None)
+        return self.passive if self.passive is not None else self.controller.estimator
 
     def switch(self, controller: Controller) -> None:
         """Let ``controller`` take over; a controller without an estimator inherits the current one."""
-        if not hasattr(controller, "estimator"):
-            self.passive = self.estimator
-        else:
-            self.passive = None
+        self.passive = self.estimator if controller.estimator is None else None
         self.controller = controller
 
     def tunables(self) -> list[str]:
@@ -285,7 +282,7 @@ class Pipeline:
         targets = [ln for ln in self._targets(lane) if key in ln.tunables()]
         if not targets:
             raise ParameterError(f"no lane has a parameter {key!r}")
-        limits = getattr(self.source, "limits", None)  # what the camera itself can do, if it says
+        limits = self.source.camera_info.limits  # what the camera itself can do, if it says
         if limits is not None and key in ("exposure_min", "exposure_max", "gain_max"):
             lo, hi = (1.0, limits.gain_max) if key == "gain_max" else (limits.exposure_min_us, limits.exposure_max_us)
             if not (isinstance(value, (int, float)) and lo <= value <= hi):
@@ -315,17 +312,9 @@ class Pipeline:
         else:
             ln = self._targets(lane)[0]
         old = ln.controller
-        if controller == "nec":  # keep the lane's anchored estimator
-            new = NECController(ln.estimator, old.limits, old.exposure_us, old.gain)
-        else:
-            new = make_controller(
-                controller,
-                sensor=self.source.sensor,
-                limits=old.limits,
-                exposure_us=old.exposure_us,
-                gain=old.gain,
-                crf=ln.estimator.crf,
-            )
+        est = ln.estimator  # a controller that owns an estimator adopts the lane's anchored one
+        ctx = ControllerContext(self.source.sensor, old.limits, old.exposure_us, old.gain, est.crf, est.params, est)
+        new = create_controller(controller, ctx)
         ln.switch(new)
         self.telemetry.attach([ln], self.source)
         self._note(S.path(ln.name, S.LOG), f"controller: {old.name} -> {controller}")
@@ -445,7 +434,7 @@ class Pipeline:
                     if cmd is not None:
                         self._command(ln, cmd, t_in)
                     if est is None:
-                        est = getattr(ln.controller, "last_frame_estimate", None)
+                        est = ln.controller.last_frame_estimate
                     rec = lane_tel[ln.name].frame(packet, est, ln.estimator.min_valid_fraction)
                     for o in observers:
                         o.frame(ln.name, packet, rec)
@@ -466,7 +455,7 @@ class Pipeline:
             est = ln.estimator
             if not est.ready:
                 continue
-            lp = math.nan if ln.passive is not None else getattr(ln.controller, "last_log_irradiance", math.nan)
+            lp = math.nan if ln.passive is not None else ln.controller.last_log_irradiance
             if not math.isfinite(lp):
                 try:
                     lp = est.predict(t)
@@ -494,14 +483,14 @@ class Pipeline:
         self.stop()
         errors = []
         closed = False
-        if not self.wait(5.0) and close_source and hasattr(self.source, "close"):
+        if not self.wait(5.0) and close_source:
             try:  # the thread is blocked inside the source (a silent camera): closing it unblocks the read
                 self.source.close()
             except BaseException as e:
                 errors.append(e)
             closed = True
         self.wait()
-        if close_source and not closed and hasattr(self.source, "close"):
+        if close_source and not closed:
             try:
                 self.source.close()
             except BaseException as e:  # keep flushing

@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from dataclasses import fields, replace
 
-from necviz.core.control import CameraLimits, make_controller
+from necviz.core.control import CONTROLLERS, CameraLimits, Controller, make_controller
 from necviz.core.errors import ParameterError
 from necviz.core.metrics import summarise, summarise_details
 from necviz.dashboard.telemetry import Telemetry
@@ -47,23 +47,24 @@ def sim_models(sim: dict | None):
     return dvs, aps
 
 
-def build_controller(name: str, params: dict | None, *, sensor, limits: CameraLimits, exposure_us: float, profile=None):
+def build_controller(
+    name: str, params: dict | None, *, sensor, limits: CameraLimits, exposure_us: float, profile=None
+) -> Controller:
     """Controller ``name`` (a registered kind, or ``KIND@LABEL`` for a labelled variant) with ``params``:
-    tunable parameters are set after building (:meth:`~necviz.core.control.Controller.set_param`),
-    anything else is a constructor argument."""
+    fields of its options go to its constructor; any other tunable parameter (the fixed exposure, say)
+    is set after building (:meth:`~necviz.core.control.Controller.set_param`)."""
+    from dataclasses import fields
+
     from necviz.options import controller_kind
 
     kind = controller_kind(name)
     kw = {} if profile is None else {"tedi": profile.tedi, "crf": profile.crf}
     params = dict(params or {})
-    probe = make_controller(kind, sensor=sensor, limits=limits, exposure_us=exposure_us, **kw)
-    tunable = {k: params.pop(k) for k in list(params) if k in probe.tunables()}
-    ctrl = (
-        make_controller(kind, sensor=sensor, limits=limits, exposure_us=exposure_us, **kw, **params)
-        if params
-        else probe
-    )
-    for k, v in tunable.items():
+    entry = CONTROLLERS.get(kind)
+    option_fields = {f.name for f in fields(entry.cls.OPTIONS)} if entry and entry.cls.OPTIONS else set()
+    later = {k: params.pop(k) for k in list(params) if k not in option_fields}
+    ctrl = make_controller(kind, sensor=sensor, limits=limits, exposure_us=exposure_us, **kw, **params)
+    for k, v in later.items():
         ctrl.set_param(k, v)
     ctrl.name = name
     return ctrl
@@ -98,7 +99,7 @@ def build_rig(
             exposure_us=rig.cams[n].exposure_us,
             profile=profile,
         )
-        passive = None if hasattr(ctrl, "estimator") else PeripheralEstimator(scene.sensor, profile.tedi, profile.crf)
+        passive = None if ctrl.estimator is not None else PeripheralEstimator(scene.sensor, profile.tedi, profile.crf)
         lanes.append(Lane(n, ctrl, estimator=passive))
     return scene, rig, lanes, limits
 

@@ -13,12 +13,13 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from necviz.core.control.begin import DELTA_EVS, BeginController, newton_optimum
+from necviz.core.control.begin import DELTA_EVS, BeginController, BeginOptions, newton_optimum
 from necviz.core.control.controller import CameraLimits, ExposureCommand
 from necviz.core.control.shim import (
     GAMMA_MAX,
     GAMMA_MIN,
     ShimController,
+    ShimOptions,
     gradient_metric,
     nonlinear_ratio,
 )
@@ -82,11 +83,11 @@ def test_scene_is_fine_at_the_good_exposure_and_saturated_3ev_off():
 @pytest.mark.parametrize("rule", ["2018", "2014"])
 def test_shim_raises_exposure_when_dark_and_lowers_it_when_bright(rule):
     """Convention I_γ = I^γ (γ < 1 brightens): a dark frame wants γ̂ < 1, a bright one γ̂ > 1."""
-    dark = ShimController(LIMITS, rule=rule)
+    dark = ShimController(LIMITS, options=ShimOptions(rule=rule))
     cmd = dark.on_frame(_shot(T_GOOD / 4))
     assert dark.last_gamma < 1.0
     assert cmd.exposure_us > T_GOOD / 4 * 1.01
-    bright = ShimController(LIMITS, rule=rule)
+    bright = ShimController(LIMITS, options=ShimOptions(rule=rule))
     cmd = bright.on_frame(_shot(T_GOOD * 4))
     assert bright.last_gamma > 1.0
     assert cmd.exposure_us < T_GOOD * 4 / 1.01
@@ -102,8 +103,8 @@ def test_shim_2018_ratio_matches_the_published_values():
     c = ShimController(LIMITS)  # 2018, Kp 1.6, α = 1 below γ̂ = 1, 1/2 above
     assert c.exposure_ratio(1 / 1.9) == pytest.approx(1 + 1.6 * (nonlinear_ratio(1 / 1.9) - 1))
     assert c.exposure_ratio(1.9) == pytest.approx(1 + 0.5 * 1.6 * (nonlinear_ratio(1.9) - 1))
-    c14 = ShimController(LIMITS, rule="2014")
-    assert c14.kp == 0.2
+    c14 = ShimController(LIMITS, options=ShimOptions(rule="2014"))
+    assert c14.options.kp == 0.2
     assert c14.exposure_ratio(0.8) == pytest.approx(1 + 0.2 * 0.2)
     assert c14.exposure_ratio(1.5) == pytest.approx(1 - 0.5 * 0.2 * 0.5)
 
@@ -215,7 +216,7 @@ def test_begin_saturation_feedback_boosts_when_the_gain_beats_the_prediction():
 # ---------------------------------------------------------------------------------------------
 MAKERS = {
     "shim2018": lambda lim, t: ShimController(lim, t),
-    "shim2014": lambda lim, t: ShimController(lim, t, rule="2014"),
+    "shim2014": lambda lim, t: ShimController(lim, t, options=ShimOptions(rule="2014")),
     "begin": lambda lim, t: BeginController(lim, t),
 }
 
@@ -278,25 +279,25 @@ def test_random_images_and_limits_give_valid_commands(name, lo, span, gmax, imag
 @pytest.mark.parametrize(
     "make",
     [
-        lambda: ShimController(LIMITS, rule="2016"),
-        lambda: ShimController(LIMITS, kp=0.0),
-        lambda: ShimController(LIMITS, kp=float("nan")),
-        lambda: ShimController(LIMITS, kp=50.0),
-        lambda: ShimController(LIMITS, d=-0.1),
-        lambda: ShimController(LIMITS, delta=1.5),
-        lambda: ShimController(LIMITS, delta=-0.1),
-        lambda: ShimController(LIMITS, lam=0),
+        lambda: ShimController(LIMITS, options=ShimOptions(rule="2016")),
+        lambda: ShimController(LIMITS, options=ShimOptions(kp=0.0)),
+        lambda: ShimController(LIMITS, options=ShimOptions(kp=float("nan"))),
+        lambda: ShimController(LIMITS, options=ShimOptions(kp=50.0)),
+        lambda: ShimController(LIMITS, options=ShimOptions(d=-0.1)),
+        lambda: ShimController(LIMITS, options=ShimOptions(delta=1.5)),
+        lambda: ShimController(LIMITS, options=ShimOptions(delta=-0.1)),
+        lambda: ShimController(LIMITS, options=ShimOptions(lam=0)),
         lambda: ShimController(LIMITS, exposure_us=-5),
         lambda: ShimController("limits"),
         lambda: BeginController(LIMITS, crf="davis"),
-        lambda: BeginController(LIMITS, work_size=(0, 270)),
-        lambda: BeginController(LIMITS, work_size=(360,)),
-        lambda: BeginController(LIMITS, work_size="big"),
-        lambda: BeginController(LIMITS, sigma=300),
-        lambda: BeginController(LIMITS, lam=-1),
-        lambda: BeginController(LIMITS, w=0),
-        lambda: BeginController(LIMITS, noise_offset=float("inf")),
-        lambda: BeginController(LIMITS, feedback_gain=0.5),
+        lambda: BeginController(LIMITS, options=BeginOptions(work_size=(0, 270))),
+        lambda: BeginController(LIMITS, options=BeginOptions(work_size=(360,))),
+        lambda: BeginController(LIMITS, options=BeginOptions(work_size="big")),
+        lambda: BeginController(LIMITS, options=BeginOptions(sigma=300)),
+        lambda: BeginController(LIMITS, options=BeginOptions(lam=-1)),
+        lambda: BeginController(LIMITS, options=BeginOptions(w=0)),
+        lambda: BeginController(LIMITS, options=BeginOptions(noise_offset=float("inf"))),
+        lambda: BeginController(LIMITS, options=BeginOptions(feedback_gain=0.5)),
         lambda: BeginController(LIMITS, gain=float("nan")),
     ],
 )

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from necviz.core.control.builtin import BuiltinController
 from necviz.core.control.controller import CameraLimits, ExposureCommand
 from necviz.core.control.fixed import FixedController
-from necviz.core.control.navid import NavidController, mean_sample_value
+from necviz.core.control.navid import NavidController, NavidOptions, mean_sample_value
 from necviz.core.crf import default_davis346
 from necviz.core.errors import ParameterError
 from necviz.core.frames import Frame
@@ -140,8 +140,8 @@ def test_navid_mask_selects_region():
     img[:, 2:] = 128  # right half mid-grey (region 2 -> MSV 3), left half black (MSV 1)
     mask = np.zeros((4, 4), np.uint8)
     mask[:, 2:] = 255
-    ctrl = NavidController(limits, 5_000.0, mask=mask)
-    assert ctrl.image_fraction == 0.5 and ctrl.k_exposure == 35.0 and ctrl.k_gain == 20.0
+    ctrl = NavidController(limits, 5_000.0, options=NavidOptions(mask=mask))
+    assert ctrl.options.image_fraction == 0.5 and ctrl.options.k_exposure == 35.0 and ctrl.options.k_gain == 20.0
     cmd = ctrl.on_frame(Frame(img, 0, 5_000, 1.0))
     assert ctrl.last_msv == pytest.approx(3.0) and cmd.exposure_us < 5_000  # unmasked: MSV 2 -> longer
     with pytest.raises(ParameterError, match="mask shape"):
@@ -366,7 +366,7 @@ def test_bad_common_parameters(cls, kw):
 )
 def test_navid_bad_parameters(kw):
     with pytest.raises(ParameterError):
-        NavidController(LIM, **kw)
+        NavidOptions(**kw)
 
 
 def test_bad_limits_type():

@@ -16,6 +16,7 @@ from necviz.commands.cli import main
 from necviz.core.frames import Frame
 from necviz.dashboard import schema as S
 from necviz.drivers.recordings import open_recording
+from necviz.drivers.source import CameraInfo
 
 SAMPLE = SHARED_DATA / "davis346_sample.aedat4"
 needs_sample = pytest.mark.skipif(not SAMPLE.exists(), reason=f"real recording {SAMPLE} not available")
@@ -263,7 +264,7 @@ def test_tuned_limits_must_fit_the_camera():
     from necviz.pipeline import Pipeline
 
     src = ListSource([])
-    src.limits = CameraLimits(10, 19_000, 8.0)
+    src.camera_info = CameraInfo(CameraLimits(10, 19_000, 8.0))
     pipe = Pipeline(src, [nec_lane()])
     refused, ok = pipe.tune("exposure_max", 1_000_000), pipe.tune("exposure_max", 12_000)
     pipe._apply_changes()

@@ -8,7 +8,7 @@ from analytic import AnalyticScene, Trajectory
 from hypothesis import given
 from hypothesis import strategies as st
 
-from necviz.core.control import CONTROLLERS, CameraLimits, ExposureCommand, NECController, error_weight
+from necviz.core.control import CONTROLLERS, CameraLimits, ExposureCommand, NECController, NECOptions, error_weight
 from necviz.core.errors import ParameterError
 from necviz.core.event_model import TediParams
 from necviz.core.frames import Frame
@@ -22,7 +22,8 @@ SENSOR = SensorGeometry(64, 48)
 def _nec(crf, limits=CameraLimits(10, 20_000, 8.0), exposure_us=1_000, **kw):
     """The paper's controller (Eq. 2-4 on P-TEDI's mean, goal at the log mid-point): the law under test."""
     kw = {"metering": "paper", "goal_mode": "paper", "escape": False, **kw}
-    return NECController(PeripheralEstimator(SENSOR, TediParams(0.26, 0.24), crf), limits, exposure_us, **kw)
+    est = PeripheralEstimator(SENSOR, TediParams(0.26, 0.24), crf)
+    return NECController(est, limits, exposure_us, options=NECOptions(**kw))
 
 
 def _log_exposure_product(cmd):
@@ -152,7 +153,7 @@ def test_closed_loop_exposes_the_first_frame_after_a_step_correctly(crf):
 
 
 def test_controller_interface_and_bad_parameters(crf):
-    assert CONTROLLERS["nec"] is NECController
+    assert CONTROLLERS["nec"].cls is NECController
     nec = _nec(crf)
     assert nec.initial_command(5) == ExposureCommand(nec.exposure_us, 1.0, 5, "nec")
     f = Frame(np.full((48, 64), 90, np.uint8), 0, 1_000, 1.0)

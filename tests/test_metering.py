@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from necviz.core.control import CameraLimits, NECController, make_controller
+from necviz.core.control import CameraLimits, NECController, NECOptions, make_controller
 from necviz.core.control.nec import METERING, censored_quantiles, weighted_median
 from necviz.core.errors import ParameterError
 from necviz.core.event_model import TediParams
@@ -193,7 +193,11 @@ def test_metering_options_are_checked(crf):
     with pytest.raises(ParameterError, match="metering"):
         _controller("mean", crf)
     with pytest.raises(ParameterError, match="zone grid"):
-        NECController(PeripheralEstimator(SENSOR, TediParams(C_ON, C_OFF), crf), CameraLimits(), metering="zones")
+        NECController(
+            PeripheralEstimator(SENSOR, TediParams(C_ON, C_OFF), crf),
+            CameraLimits(),
+            options=NECOptions(metering="zones"),
+        )
     with pytest.raises(ParameterError, match="goal_mode"):
         _controller("median", crf, goal_mode="bright")
     nec = _controller("percentile", crf)
@@ -205,11 +209,11 @@ def test_nec_raw_keeps_the_metering_and_goal_of_nec(crf):
     tedi = TediParams(C_ON, C_OFF, 0.5, 25.0, 0.4, 20.0)
     kw = dict(sensor=SENSOR, limits=CameraLimits(1, 20_000, 8.0), crf=crf, tedi=tedi)
     nec, raw = make_controller("nec", **kw), make_controller("nec-raw", **kw)
-    assert (nec.metering, nec.goal_log_exposure, nec.escape, nec.edge_margin) == (
-        raw.metering,
+    assert (nec.options.metering, nec.goal_log_exposure, nec.options.escape, nec.options.edge_margin) == (
+        raw.options.metering,
         raw.goal_log_exposure,
-        raw.escape,
-        raw.edge_margin,
+        raw.options.escape,
+        raw.options.edge_margin,
     )
     assert raw.estimator.params.a_on == 0.0 and nec.estimator.params.a_on == tedi.a_on
 

@@ -12,7 +12,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from necviz.core.control import CameraLimits, NECController
+from necviz.core.control import CameraLimits, NECController, NECOptions
 from necviz.core.event_model import TediParams
 from necviz.core.events import make_events
 from necviz.core.frames import ExposureMarker, Frame
@@ -31,11 +31,7 @@ def _nec(crf, exposure_us=1_000.0):
         est,
         CameraLimits(10, 20_000, 8.0),
         exposure_us,
-        dead_band=DEAD,
-        full_band=FULL,
-        metering="paper",
-        goal_mode="paper",
-        escape=False,
+        options=NECOptions(dead_band=DEAD, full_band=FULL, metering="paper", goal_mode="paper", escape=False),
     )
 
 
@@ -96,4 +92,4 @@ def test_outstanding_setting_is_inside_the_dead_band_whenever_the_prediction_is(
             nec.last_command = cmd
             pending = cmd.exposure_us * cmd.gain
     h_opt = 1_000.0 * math.exp(-final)
-    assert abs(math.log(pending / h_opt)) <= DEAD + nec.min_command_change + 1e-9
+    assert abs(math.log(pending / h_opt)) <= DEAD + nec.options.min_command_change + 1e-9

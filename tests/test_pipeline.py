@@ -20,7 +20,7 @@ from necviz.core.sensor import SensorGeometry
 from necviz.dashboard import schema as S
 from necviz.dashboard.sink import RerunSink
 from necviz.drivers.recordings import Recorder, open_recording
-from necviz.drivers.source import route
+from necviz.drivers.source import CameraInfo, route
 from necviz.pipeline import Lane, Pipeline, RecorderObserver, packet_time_us
 
 SENSOR = SensorGeometry(32, 24, "test")
@@ -30,6 +30,7 @@ class ListSource:
     """A single-camera source over a packet list; records commands; may fail after ``fail_after`` packets."""
 
     cameras = ("camera",)
+    camera_info = CameraInfo()
 
     def __init__(self, packets, fail_after=None):
         self.sensor = SENSOR

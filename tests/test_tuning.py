@@ -54,7 +54,7 @@ def test_goal_dead_band_and_thresholds_change_the_controller():
     assert nec.goal_log_exposure == pytest.approx(float(crf.log_exposure(100.0)))
     assert nec.get_param("goal") == pytest.approx(100.0, abs=1e-6)
     apply(pipe, "set nec.dead_band 0.05")
-    assert nec.dead_band == 0.05
+    assert nec.options.dead_band == 0.05
     msg = apply(pipe, "c = 0.3")  # both lanes have an estimator (navid's is passive)
     assert "nec" in msg and "navid" in msg
     for lane in pipe.lanes.values():
@@ -63,7 +63,7 @@ def test_goal_dead_band_and_thresholds_change_the_controller():
     assert pipe.lanes["navid"].controller.limits.exposure_max_us == 4000
     assert pipe.lanes["nec"].controller.limits.exposure_max_us == 8000
     apply(pipe, "target_msv = 3")  # only navid has it: applied there
-    assert pipe.lanes["navid"].controller.target_msv == 3.0
+    assert pipe.lanes["navid"].controller.options.target_msv == 3.0
     assert "goal=100" in apply(pipe, "status") and "target_msv=3" in apply(pipe, "status")
 
 
@@ -169,7 +169,7 @@ def test_console_without_a_terminal_reads_lines_and_reports_errors():
     console.start()
     console._thread.join(5)
     runner.join()
-    assert pipe.lanes["camera"].controller.dead_band == 0.2
+    assert pipe.lanes["camera"].controller.options.dead_band == 0.2
     text = out.getvalue()
     assert "dead_band = 0.2 on camera" in text and "error: cannot read 'nonsense'" in text
 
@@ -211,6 +211,6 @@ def test_tune_file_applies_only_changed_lines(tmp_path):
     assert tf.check() == 1
     pipe._apply_changes()
     ctrl = pipe.lanes["camera"].controller
-    assert ctrl.dead_band == 0.3 and math.isclose(ctrl.get_param("goal"), 80.0, abs_tol=1e-6)
+    assert ctrl.options.dead_band == 0.3 and math.isclose(ctrl.get_param("goal"), 80.0, abs_tol=1e-6)
     with pytest.raises(ParameterError, match="not a file"):
         TuningFile(pipe, tmp_path / "missing.txt")

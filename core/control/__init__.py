@@ -2,30 +2,154 @@
 
 from __future__ import annotations
 
-import inspect
+from collections.abc import Callable
+from dataclasses import dataclass, field, fields, replace
 
-from necviz.core.control.begin import BeginController
+from necviz.core.control.begin import BeginController, BeginOptions
 from necviz.core.control.builtin import BuiltinController
-from necviz.core.control.controller import CameraLimits, Controller, ExposureCommand
+from necviz.core.control.controller import CameraLimits, Controller, ControllerOptions, ExposureCommand, Tunable
 from necviz.core.control.fixed import FixedController
-from necviz.core.control.navid import NavidController
-from necviz.core.control.nec import ZONE_GRID, NECController, error_weight
-from necviz.core.control.shim import ShimController
+from necviz.core.control.navid import NavidController, NavidOptions
+from necviz.core.control.nec import ZONE_GRID, NECController, NECOptions, error_weight
+from necviz.core.control.shim import ShimController, ShimOptions
 from necviz.core.crf import CameraResponse, default_davis346
 from necviz.core.errors import ParameterError
 from necviz.core.event_model import TediParams
+from necviz.core.ptedi import PeripheralEstimator
 from necviz.core.sensor import SensorGeometry
 
-#: name -> controller class
-CONTROLLERS: dict[str, type[Controller]] = {
-    "nec": NECController,
-    "nec-raw": NECController,  # NEC without the TEDI compensation (a± = b± = 0): shows what it adds
-    "navid": NavidController,
-    "shim": ShimController,
-    "begin": BeginController,
-    "builtin": BuiltinController,
-    "fixed": FixedController,
-}
+
+@dataclass(frozen=True)
+class ControllerContext:
+    """What building a controller for one camera needs (besides the controller's own options).
+
+    Parameters
+    ----------
+    sensor : SensorGeometry
+        The pixel array (NEC's P-TEDI estimator is built on it).
+    limits : CameraLimits
+        What the camera accepts.
+    exposure_us, gain : float
+        The camera's setting when the controller takes over.
+    crf : CameraResponse
+        The camera response (NEC, Bégin).
+    tedi : TediParams
+        Event thresholds and compensation (NEC's estimator).
+    estimator : PeripheralEstimator, optional
+        An estimator to adopt instead of building one (a lane switching to NEC keeps its anchor).
+    """
+
+    sensor: SensorGeometry
+    limits: CameraLimits
+    exposure_us: float = 5_000.0
+    gain: float = 1.0
+    crf: CameraResponse = field(default_factory=default_davis346)
+    tedi: TediParams = TediParams()
+    estimator: PeripheralEstimator | None = None
+
+
+#: A builder makes a controller from the context and its options (``None`` for a controller without options).
+Builder = Callable[[ControllerContext, "ControllerOptions | None"], Controller]
+
+
+@dataclass(frozen=True)
+class ControllerEntry:
+    """A registered controller: its class (whose ``OPTIONS`` are its settings) and how to build it."""
+
+    cls: type[Controller]
+    build: Builder
+    doc: str = ""
+
+
+def _plain(cls: type[Controller]) -> Builder:
+    """The builder of a controller that needs only the camera's limits and setting."""
+    if cls.OPTIONS is None:
+        return lambda ctx, options: cls(ctx.limits, ctx.exposure_us, ctx.gain)
+    return lambda ctx, options: cls(ctx.limits, ctx.exposure_us, ctx.gain, options)
+
+
+def _estimator(ctx: ControllerContext, options: NECOptions, tedi: TediParams) -> PeripheralEstimator:
+    """NEC's P-TEDI estimator: the context's own if it has one, else a new one with ``tedi``."""
+    if ctx.estimator is not None:
+        return ctx.estimator
+    grid = options.zone_grid or (ZONE_GRID if options.metering == "zones" else (1, 1))
+    return PeripheralEstimator(ctx.sensor, tedi, ctx.crf, grid=grid)
+
+
+def _build_nec(ctx: ControllerContext, options: NECOptions) -> Controller:
+    return NECController(_estimator(ctx, options, ctx.tedi), ctx.limits, ctx.exposure_us, ctx.gain, options)
+
+
+def _build_nec_raw(ctx: ControllerContext, options: NECOptions) -> Controller:
+    tedi = replace(ctx.tedi, a_on=0.0, b_on=0.0, a_off=0.0, b_off=0.0)
+    return NECController(_estimator(ctx, options, tedi), ctx.limits, ctx.exposure_us, ctx.gain, options)
+
+
+def _build_begin(ctx: ControllerContext, options: BeginOptions) -> Controller:
+    return BeginController(ctx.limits, ctx.exposure_us, ctx.gain, options, crf=ctx.crf)
+
+
+#: name -> registered controller (:func:`register_controller` adds one)
+CONTROLLERS: dict[str, ControllerEntry] = {}
+
+
+def register_controller(name: str, cls: type[Controller], build: Builder | None = None, doc: str = "") -> None:
+    """Make controller ``name`` known to :func:`make_controller` (and so to every command).
+
+    Parameters
+    ----------
+    name : str
+        The name commands, sweeps and the tuning prompt use.
+    cls : type of Controller
+        Its class; ``cls.OPTIONS`` (if any) holds the settings ``make_controller`` accepts.
+    build : callable, optional
+        ``build(context, options) -> Controller``; default: ``cls(limits, exposure_us, gain[, options])``.
+    doc : str
+        One line for listings.
+
+    Raises
+    ------
+    ParameterError
+        ``cls`` is not a :class:`Controller` subclass.
+    """
+    if not (isinstance(cls, type) and issubclass(cls, Controller)):
+        raise ParameterError(f"controller {name!r}: {cls!r} is not a Controller subclass")
+    CONTROLLERS[name] = ControllerEntry(cls, build or _plain(cls), doc)
+
+
+register_controller("nec", NECController, _build_nec, "NEC: P-TEDI prediction from events and frames")
+register_controller(
+    "nec-raw", NECController, _build_nec_raw, "NEC without the TEDI compensation (a± = b± = 0): what it adds"
+)
+register_controller("navid", NavidController, doc="Nourani-Vatani & Roberts 2007: histogram MSV, PI loops")
+register_controller("shim", ShimController, doc="Shim et al. 2014/2018: gradient metric over gamma images")
+register_controller("begin", BeginController, _build_begin, doc="Bégin & Hunter 2022: CRF prediction, flow, saturation")
+register_controller("builtin", BuiltinController, doc="the DAVIS built-in auto-exposure (libcaer)")
+register_controller("fixed", FixedController, doc="the starting exposure, kept")
+
+
+def make_options(name: str, params: dict | None = None) -> ControllerOptions | None:
+    """Controller ``name``'s options with ``params`` replacing the defaults.
+
+    Raises
+    ------
+    ParameterError
+        An unknown controller, a parameter it does not have, or a value its options refuse.
+    """
+    entry = CONTROLLERS.get(name)
+    if entry is None:
+        raise ParameterError(f"unknown controller {name!r}; available: {', '.join(sorted(CONTROLLERS))}")
+    params = dict(params or {})
+    cls = entry.cls.OPTIONS
+    if cls is None:
+        if params:
+            raise ParameterError(f"controller {name!r} has no option {next(iter(params))!r}")
+        return None
+    known = [f.name for f in fields(cls)]
+    unknown = [k for k in params if k not in known]
+    if unknown:
+        raise ParameterError(f"controller {name!r} has no option {unknown[0]!r}; it has {', '.join(known)}")
+    return cls(**params)
 
 
 def make_controller(
@@ -39,50 +163,65 @@ def make_controller(
     tedi: TediParams | None = None,
     **params,
 ) -> Controller:
-    """Build controller ``name`` with its documented defaults (``params`` override them).
+    """Build controller ``name`` with its documented defaults (``params`` override its options).
 
     NEC gets a whole-sensor P-TEDI estimator with ``tedi`` (thresholds and compensation), or a
     ``zone_grid`` of zones (``[columns, rows]``, default :data:`~necviz.core.control.nec.ZONE_GRID`
     for ``metering="zones"``); ``nec-raw`` is the same controller (same metering, goal and escape
     rule) with the compensation switched off (``a± = b± = 0``, the thresholds kept), so a
-    comparison shows what the compensation adds. Controllers that use
-    the camera response (Bégin) get ``crf``.
+    comparison shows what the compensation adds. Controllers that use the camera response (Bégin)
+    get ``crf``.
+
+    Parameters
+    ----------
+    name : str
+        A registered controller (:data:`CONTROLLERS`).
+    sensor, limits, exposure_us, gain, crf, tedi
+        The camera (see :class:`ControllerContext`).
+    **params
+        Fields of the controller's options (e.g. ``metering="paper"`` for NEC).
+
+    Returns
+    -------
+    Controller
+        The controller, named ``name``.
+
+    Raises
+    ------
+    ParameterError
+        An unknown controller or option, or a value its options refuse.
     """
-    if name not in CONTROLLERS:
-        raise ParameterError(f"unknown controller {name!r}; available: {', '.join(sorted(CONTROLLERS))}")
-    crf = crf or default_davis346()
-    if CONTROLLERS[name] is NECController:
-        from dataclasses import replace
+    ctx = ControllerContext(sensor, limits, exposure_us, gain, crf or default_davis346(), tedi or TediParams())
+    return create_controller(name, ctx, params)
 
-        from necviz.core.ptedi import PeripheralEstimator
 
-        tedi = tedi or TediParams()
-        if name == "nec-raw":
-            tedi = replace(tedi, a_on=0.0, b_on=0.0, a_off=0.0, b_off=0.0)
-        grid = params.pop("zone_grid", None)
-        metering = params.get("metering", inspect.signature(NECController).parameters["metering"].default)
-        if grid is None:
-            grid = ZONE_GRID if metering == "zones" else (1, 1)
-        if not (isinstance(grid, (list, tuple)) and len(grid) == 2):
-            raise ParameterError(f"controller {name!r}: zone_grid must be [columns, rows], got {grid!r}")
-        est = PeripheralEstimator(sensor, tedi, crf, grid=tuple(grid))
-        try:
-            ctrl = NECController(est, limits, exposure_us, gain, **params)
-        except TypeError as e:
-            raise ParameterError(f"controller {name!r}: {e}") from None
-        ctrl.name = name
-        return ctrl
-    cls = CONTROLLERS[name]
-    if "crf" in inspect.signature(cls).parameters:
-        params.setdefault("crf", crf)
-    try:
-        return cls(limits, exposure_us, gain, **params)
-    except TypeError as e:
-        raise ParameterError(f"controller {name!r}: {e}") from None
+def create_controller(name: str, context: ControllerContext, params: dict | None = None) -> Controller:
+    """Build registered controller ``name`` for ``context`` with ``params`` replacing its option defaults.
+
+    Raises
+    ------
+    ParameterError
+        An unknown controller or option, or a value its options refuse.
+    """
+    options = make_options(name, params)
+    ctrl = CONTROLLERS[name].build(context, options)
+    ctrl.name = name
+    return ctrl
 
 
 __all__ = [
     "CONTROLLERS",
+    "BeginOptions",
+    "ControllerContext",
+    "ControllerEntry",
+    "ControllerOptions",
+    "NECOptions",
+    "NavidOptions",
+    "ShimOptions",
+    "Tunable",
+    "create_controller",
+    "make_options",
+    "register_controller",
     "CameraLimits",
     "Controller",
     "ExposureCommand",

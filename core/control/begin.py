@@ -52,12 +52,14 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from dataclasses import dataclass
+from typing import ClassVar
 
 import cv2
 import numpy as np
 
 from necviz.core.checks import check_number as _num
-from necviz.core.control.controller import CameraLimits, Controller, ExposureCommand, Tunable
+from necviz.core.control.controller import CameraLimits, Controller, ControllerOptions, ExposureCommand, Tunable
 from necviz.core.crf import CameraResponse, default_davis346
 from necviz.core.errors import ParameterError
 from necviz.core.frames import Frame
@@ -132,45 +134,38 @@ def flow_speed(prev_small: np.ndarray, small: np.ndarray, scale_x: float, scale_
     return v if math.isfinite(v) else 0.0
 
 
-class BeginController(Controller):
-    """Bégin & Hunter 2022: CRF-predicted ΔEV maximising Shim's gradient score, motion-aware gain.
+@dataclass(frozen=True)
+class BeginOptions(ControllerOptions):
+    """Bégin's settings.
 
     Parameters
     ----------
-    limits : camera exposure/gain limits (every command is clamped to them).
-    exposure_us, gain : initial setting.
-    crf : the camera response used to predict the ΔEV images (default ``default_davis346()``).
-    work_size : (width, height) the frame is resized to (published 360×270).
-    sigma, lam : Shim-LUT threshold (8-bit gradient) and λ (published 76.5, 1000).
-    w : noise weight of the exposure/gain split (published 0.02), > 0.
-    noise_offset : the constant under the root of ``K*`` (published 8), >= 0.
-    feedback_gain : saturation feedback factor (published 1.5), >= 1.
+    work_size : tuple of int
+        (width, height) the frame is resized to (published 360×270), each in 8..4096.
+    sigma, lam : float
+        Shim-LUT threshold (8-bit gradient) and λ (published 76.5, 1000).
+    w : float
+        Noise weight of the exposure/gain split (published 0.02), > 0.
+    noise_offset : float
+        The constant under the root of ``K*`` (published 8), >= 0.
+    feedback_gain : float
+        Saturation feedback factor (published 1.5), in [1, 4].
     """
 
-    name = "begin"
-    TUNABLE = (
+    TUNABLE: ClassVar[tuple[Tunable, ...]] = (
         Tunable("feedback_gain", "1", "saturation feedback strength", 1.0, 4.0),
         Tunable("w", "1", "weight of the flow term in the exposure/gain split", 0.0, lo_open=True),
     )
 
-    def __init__(
-        self,
-        limits: CameraLimits,
-        exposure_us: float = 5_000.0,
-        gain: float = 1.0,
-        crf: CameraResponse | None = None,
-        work_size: tuple[int, int] = (360, 270),
-        sigma: float = 255 * 0.3,
-        lam: float = 1000.0,
-        w: float = 0.02,
-        noise_offset: float = 8.0,
-        feedback_gain: float = 1.5,
-    ):
-        super().__init__(limits, exposure_us, gain)
-        if crf is None:
-            crf = default_davis346()
-        if not isinstance(crf, CameraResponse):
-            raise ParameterError(f"crf must be a CameraResponse, got {type(crf).__name__}")
+    work_size: tuple[int, int] = (360, 270)
+    sigma: float = 255 * 0.3
+    lam: float = 1000.0
+    w: float = 0.02
+    noise_offset: float = 8.0
+    feedback_gain: float = 1.5
+
+    def check(self) -> None:
+        work_size = self.work_size
         try:
             ws = tuple(int(v) for v in work_size)
             ok = len(ws) == 2 and all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in work_size)
@@ -178,15 +173,45 @@ class BeginController(Controller):
             ok = False
         if not ok or not all(8 <= v <= 4096 for v in ws):
             raise ParameterError(f"work_size must be two integers (width, height) in 8..4096, got {work_size!r}")
+        object.__setattr__(self, "work_size", ws)
+        object.__setattr__(self, "sigma", _num("sigma", self.sigma, 0.0, hi=254.0))
+        object.__setattr__(self, "lam", _num("lam", self.lam, 0.0, lo_open=True))
+        object.__setattr__(self, "noise_offset", _num("noise_offset", self.noise_offset, 0.0))
+
+
+class BeginController(Controller):
+    """Bégin & Hunter 2022: CRF-predicted ΔEV maximising Shim's gradient score, motion-aware gain.
+
+    Parameters
+    ----------
+    limits : CameraLimits
+        Camera exposure/gain limits (every command is clamped to them).
+    exposure_us, gain : float
+        Initial setting.
+    options : BeginOptions, optional
+        The settings (default: the published ones).
+    crf : CameraResponse, optional
+        The camera response used to predict the ΔEV images (default ``default_davis346()``).
+    """
+
+    name = "begin"
+    OPTIONS = BeginOptions
+
+    def __init__(
+        self,
+        limits: CameraLimits,
+        exposure_us: float = 5_000.0,
+        gain: float = 1.0,
+        options: BeginOptions | None = None,
+        crf: CameraResponse | None = None,
+    ):
+        if crf is None:
+            crf = default_davis346()
+        if not isinstance(crf, CameraResponse):
+            raise ParameterError(f"crf must be a CameraResponse, got {type(crf).__name__}")
         self.crf = crf
-        self.work_size = ws
-        self.sigma = _num("sigma", sigma, 0.0, hi=254.0)
-        self.lam = _num("lam", lam, 0.0, lo_open=True)
-        self.w = _num("w", w, 0.0, lo_open=True)
-        self.noise_offset = _num("noise_offset", noise_offset, 0.0)
-        self.feedback_gain = _num("feedback_gain", feedback_gain, 1.0, hi=4.0)
+        super().__init__(limits, exposure_us, gain, options)
         self.luts = ev_luts(crf)
-        self.q = shim_lut(self.sigma, self.lam)
         self._history: deque[tuple[float, float]] = deque(maxlen=2)  # (score_0, score_pred) per frame
         self._prev_small: np.ndarray | None = None
         # diagnostics of the last frame
@@ -196,9 +221,13 @@ class BeginController(Controller):
         self.last_motion = 0.0
         self.last_ev = -math.log2(self.exposure_us * self.gain / 1e6)
 
+    def _apply_options(self, options: BeginOptions) -> None:
+        super()._apply_options(options)
+        self.q = shim_lut(options.sigma, options.lam)
+
     # -- the pieces ---------------------------------------------------------------------------
     def working_image(self, image: np.ndarray) -> np.ndarray:
-        return cv2.resize(image, self.work_size, interpolation=cv2.INTER_LINEAR)
+        return cv2.resize(image, self.options.work_size, interpolation=cv2.INTER_LINEAR)
 
     def predict(self, image: np.ndarray, delta_ev: float) -> np.ndarray:
         """The image the camera would give at ``EV + delta_ev`` (any ΔEV, via a fresh LUT)."""
@@ -236,7 +265,7 @@ class BeginController(Controller):
         predicted = pred_old - s0_old
         actual = s0 - s0_old
         if predicted > 0 and actual / (predicted + 0.1) > 1.1:
-            return self.feedback_gain
+            return self.options.feedback_gain
         return 1.0
 
     def motion(self, image: np.ndarray) -> float:
@@ -260,7 +289,7 @@ class BeginController(Controller):
         lim = self.limits
         c_us = min(max(c_us, lim.exposure_min_us), lim.exposure_max_us * lim.gain_max)
         c_ms = c_us / 1000.0
-        k_db = math.sqrt((max(v, 0.0) * c_ms + self.noise_offset) / self.w)
+        k_db = math.sqrt((max(v, 0.0) * c_ms + self.options.noise_offset) / self.options.w)
         k = 10.0 ** (min(k_db, 400.0) / 20.0)
         k = min(max(k, 1.0), lim.gain_max)
         t = min(max(c_us / k, lim.exposure_min_us), lim.exposure_max_us)

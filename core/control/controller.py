@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
@@ -17,6 +18,9 @@ from necviz.core.checks import check_number
 from necviz.core.errors import ParameterError, StreamError
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import ImuBatch, TriggerBatch
+
+if TYPE_CHECKING:
+    from necviz.core.ptedi import FrameEstimate, PeripheralEstimator
 
 
 @dataclass(frozen=True)
@@ -92,6 +96,28 @@ LIMIT_TUNABLES = (
 _LIMIT_FIELDS = {"exposure_min": "exposure_min_us", "exposure_max": "exposure_max_us", "gain_max": "gain_max"}
 
 
+@dataclass(frozen=True)
+class ControllerOptions:
+    """Base of a controller's settings: a frozen dataclass, validated once, in ``__post_init__``.
+
+    A subclass lists its tunable fields in ``TUNABLE`` (bounds, unit, meaning); ``__post_init__``
+    checks each of them against its :class:`Tunable` and then calls :meth:`check` for the rules of
+    the other fields and between fields. Changing a setting while running builds a new options
+    object with :func:`dataclasses.replace`, so the same checks apply.
+    """
+
+    TUNABLE: ClassVar[tuple[Tunable, ...]] = ()
+
+    def __post_init__(self) -> None:
+        for t in self.TUNABLE:
+            if t.name in self.__dataclass_fields__ and getattr(self, t.name) is not None:
+                object.__setattr__(self, t.name, t.check(getattr(self, t.name)))
+        self.check()
+
+    def check(self) -> None:
+        """Rules beyond the tunable bounds (choices, rules between fields); raise :class:`ParameterError`."""
+
+
 class Controller:
     """Base class: records the applied exposure from frames; subclasses decide the commands.
 
@@ -99,16 +125,51 @@ class Controller:
     :meth:`on_exposure_end`, :meth:`on_frame` (calling ``super().on_frame`` first) and return an
     :class:`ExposureCommand` or ``None``.
 
-    Tunable parameters: a subclass lists its own in ``TUNABLE`` (each one an attribute of the
-    same name unless it overrides :meth:`_get_param` / :meth:`_set_param`); the camera limits
-    (:data:`LIMIT_TUNABLES`) are tunable everywhere. :meth:`set_param` checks the bounds and
-    any rule that ties parameters together (:meth:`_check_params`).
+    Settings: a controller with settings names its :class:`ControllerOptions` subclass in
+    ``OPTIONS`` and takes an instance as ``options`` (default: the defaults); its tunable fields
+    (``OPTIONS.TUNABLE``) and the camera limits (:data:`LIMIT_TUNABLES`) may change while it runs
+    (:meth:`set_param`). Rules that need the controller's context (its camera response, say) go in
+    :meth:`_check_options`; values derived from the settings are recomputed in :meth:`_apply_options`.
+
+    Estimator: :attr:`estimator` is the P-TEDI estimator a controller owns and feeds (NEC), or
+    ``None`` for a frame-only controller; a pipeline gives a frame-only controller a passive one so
+    every lane has a prediction to show.
+
+    Parameters
+    ----------
+    limits : CameraLimits
+        What the camera accepts.
+    exposure_us : float
+        Initial exposure (µs), clamped to the limits.
+    gain : float
+        Initial linear gain, clamped to the limits.
+    options : ControllerOptions, optional
+        The controller's settings (an instance of ``OPTIONS``); default: ``OPTIONS()``.
+
+    Raises
+    ------
+    ParameterError
+        Limits, initial values or options that are not what the controller accepts.
     """
 
     name = "base"
-    TUNABLE: tuple[Tunable, ...] = ()
+    OPTIONS: ClassVar[type[ControllerOptions] | None] = None
+    #: tunable attributes of a controller without options (e.g. the fixed exposure itself)
+    TUNABLE: ClassVar[tuple[Tunable, ...]] = ()
+    #: the P-TEDI estimator this controller owns and feeds; ``None``: it uses frames only
+    estimator: PeripheralEstimator | None = None
+    #: what the owned estimator made of the last frame (``None`` without an estimator)
+    last_frame_estimate: FrameEstimate | None = None
+    #: P-TEDI's ``ln P`` at the last command decision (NaN without an estimator)
+    last_log_irradiance: float = math.nan
 
-    def __init__(self, limits: CameraLimits, exposure_us: float = 5_000.0, gain: float = 1.0):
+    def __init__(
+        self,
+        limits: CameraLimits,
+        exposure_us: float = 5_000.0,
+        gain: float = 1.0,
+        options: ControllerOptions | None = None,
+    ):
         if not isinstance(limits, CameraLimits):
             raise ParameterError("limits must be a CameraLimits")
         self.limits = limits
@@ -117,6 +178,24 @@ class Controller:
         self.exposure_us, self.gain = limits.clamp(exposure_us, gain)
         self.now_us = np.iinfo(np.int64).min
         self.last_command: ExposureCommand | None = None
+        self.options: ControllerOptions | None = None
+        cls = type(self).OPTIONS
+        if cls is None:
+            if options is not None:
+                raise ParameterError(f"controller {self.name!r} has no options")
+        else:
+            options = cls() if options is None else options
+            if not isinstance(options, cls):
+                raise ParameterError(f"controller {self.name!r} takes {cls.__name__}, got {type(options).__name__}")
+            self._apply_options(options)
+
+    def _check_options(self, options: ControllerOptions) -> None:
+        """Rules that need the controller's context (e.g. its camera response); raise ParameterError."""
+
+    def _apply_options(self, options: ControllerOptions) -> None:
+        """Adopt ``options`` (checked by :meth:`_check_options`); subclasses recompute derived values after."""
+        self._check_options(options)
+        self.options = options
 
     def initial_command(self, t_us: int = 0) -> ExposureCommand:
         """The setting to apply before the first frame."""
@@ -145,48 +224,66 @@ class Controller:
     # -- tunable parameters --------------------------------------------------------------------
     def tunables(self) -> dict[str, Tunable]:
         """Every parameter that may change while running, by name (the limits first)."""
-        return {t.name: t for t in (*LIMIT_TUNABLES, *type(self).TUNABLE)}
+        own = type(self).OPTIONS.TUNABLE if type(self).OPTIONS is not None else type(self).TUNABLE
+        return {t.name: t for t in (*LIMIT_TUNABLES, *own)}
+
+    def _spec(self, name: str) -> Tunable:
+        spec = self.tunables().get(name)
+        if spec is None:
+            raise ParameterError(f"{self.name} has no tunable parameter {name!r}; it has {', '.join(self.tunables())}")
+        return spec
 
     def get_param(self, name: str) -> float:
-        if name not in self.tunables():
-            raise ParameterError(f"{self.name} has no tunable parameter {name!r}; it has {', '.join(self.tunables())}")
+        """The current value of a tunable parameter."""
+        self._spec(name)
         if name in _LIMIT_FIELDS:
             return float(getattr(self.limits, _LIMIT_FIELDS[name]))
         return float(self._get_param(name))
 
+    def _replaced(self, name: str, value: float):
+        """The limits or options with ``name`` set to ``value`` (checked), and which of the two it is."""
+        if name in _LIMIT_FIELDS:
+            return "limits", replace(self.limits, **{_LIMIT_FIELDS[name]: value})  # CameraLimits checks min <= max
+        if self.options is None:
+            self._check_params({**self.params(), name: value})
+            return "own", value
+        new = replace(self.options, **{name: value})  # the options check themselves
+        self._check_options(new)
+        return "options", new
+
     def check_param(self, name: str, value) -> float:
         """``value`` as it would be set, or a one-line :class:`ParameterError`; changes nothing."""
-        spec = self.tunables().get(name)
-        if spec is None:
-            raise ParameterError(f"{self.name} has no tunable parameter {name!r}; it has {', '.join(self.tunables())}")
-        v = spec.check(value)
-        if name in _LIMIT_FIELDS:
-            replace(self.limits, **{_LIMIT_FIELDS[name]: v})  # CameraLimits checks min <= max
-        else:
-            self._check_params({**self.params(), name: v})
+        v = self._spec(name).check(value)
+        self._replaced(name, v)
         return v
 
     def set_param(self, name: str, value) -> float:
         """Change a tunable parameter; returns the value set. Refuses out-of-range or inconsistent values."""
-        v = self.check_param(name, value)
-        if name in _LIMIT_FIELDS:
-            self.limits = replace(self.limits, **{_LIMIT_FIELDS[name]: v})
+        v = self._spec(name).check(value)
+        kind, new = self._replaced(name, v)
+        if kind == "limits":
+            self.limits = new
+        elif kind == "options":
+            self._apply_options(new)
         else:
             self._set_param(name, v)
         return v
 
     def params(self) -> dict[str, float]:
         """Current values of the controller's own tunable parameters (without the limits)."""
-        return {t.name: float(self._get_param(t.name)) for t in type(self).TUNABLE}
+        return {name: self.get_param(name) for name in self.tunables() if name not in _LIMIT_FIELDS}
 
     def _get_param(self, name: str) -> float:
+        if self.options is not None:
+            return getattr(self.options, name)
         return getattr(self, name)
 
     def _set_param(self, name: str, value: float) -> None:
+        """Set a tunable parameter of a controller without options (its own attribute)."""
         setattr(self, name, value)
 
     def _check_params(self, params: dict[str, float]) -> None:
-        """Rules between parameters (e.g. a dead band below its full band); raise ParameterError."""
+        """Rules between the tunable parameters of a controller without options; raise ParameterError."""
 
     def feed(self, packet) -> ExposureCommand | None:
         """Dispatch one packet (event array, :class:`ExposureMarker` or :class:`Frame`)."""

@@ -51,11 +51,13 @@ gradient masks allowed) weights the histogram counts. Every command is finite an
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
 from necviz.core.checks import check_number as _num
-from necviz.core.control.controller import CameraLimits, Controller, ExposureCommand, Tunable
+from necviz.core.control.controller import CameraLimits, Controller, ControllerOptions, ExposureCommand, Tunable
 from necviz.core.errors import ParameterError
 from necviz.core.frames import Frame
 
@@ -78,29 +80,33 @@ def mean_sample_value(image: np.ndarray, weights: np.ndarray | None = None) -> f
     return float((np.arange(1, N_REGIONS + 1) * x).sum()) / total
 
 
-class NavidController(Controller):
-    """Nourani-Vatani & Roberts 2007: 5-region MSV → PI exposure loop, then PI gain loop.
+@dataclass(frozen=True, eq=False)
+class NavidOptions(ControllerOptions):
+    """Navid's settings.
 
     Parameters
     ----------
-    limits : camera exposure/gain limits (every command is clamped to them).
-    exposure_us, gain : initial setting (the paper starts with gain 1).
-    target_msv : desired MSV in (1, 5), published 2.5.
-    image_fraction : ``c`` in the published constants; ``None`` (default) = 1.0 without a mask,
-        else the fraction of mask pixels with non-zero weight. In (0, 1].
-    k_exposure, k_gain : proportional constants; ``None`` (default) = the published
-        ``30c + 20`` and ``10c + 15``. Finite, > 0.
-    ki_ratio : integral constant as a fraction of the proportional one (default 0.2), >= 0.
-    integral_limit : anti-windup clamp on ``|Σe|`` (default 3), >= 0.
-    ev_per_unit : log2 exposure (or gain) step per unit of PI output (default 0.01, see the
-        module docstring), in (0, 0.1].
-    dead_band : no change while ``|target − MSV| <= dead_band`` (default 0.1), in [0, 1).
-    mask : optional weights image (H x W, finite, >= 0, not all zero); frames must match
-        its shape.
+    target_msv : float
+        Desired MSV in (1, 5), published 2.5.
+    image_fraction : float, optional
+        ``c`` in the published constants; ``None`` (default) = 1.0 without a mask, else the
+        fraction of mask pixels with non-zero weight. In (0, 1].
+    k_exposure, k_gain : float, optional
+        Proportional constants; ``None`` (default) = the published ``30c + 20`` and ``10c + 15``.
+    ki_ratio : float
+        Integral constant as a fraction of the proportional one (default 0.2), >= 0.
+    integral_limit : float
+        Anti-windup clamp on ``|Σe|`` (default 3), >= 0.
+    ev_per_unit : float
+        log2 exposure (or gain) step per unit of PI output (default 0.01, see the module
+        docstring), in (0, 0.1].
+    dead_band : float
+        No change while ``|target − MSV| <= dead_band`` (default 0.1), in [0, 1).
+    mask : ndarray, optional
+        Weights image (H x W, finite, >= 0, not all zero); frames must match its shape.
     """
 
-    name = "navid"
-    TUNABLE = (
+    TUNABLE: ClassVar[tuple[Tunable, ...]] = (
         Tunable(
             "target_msv",
             "MSV",
@@ -116,26 +122,20 @@ class NavidController(Controller):
         Tunable("ev_per_unit", "EV", "exposure change per published PI output unit", 0.0, 0.1, lo_open=True),
     )
 
-    def __init__(
-        self,
-        limits: CameraLimits,
-        exposure_us: float = 5_000.0,
-        gain: float = 1.0,
-        target_msv: float = TARGET_MSV,
-        image_fraction: float | None = None,
-        k_exposure: float | None = None,
-        k_gain: float | None = None,
-        ki_ratio: float = 0.2,
-        integral_limit: float = 3.0,
-        ev_per_unit: float = 0.01,
-        dead_band: float = 0.1,
-        mask: np.ndarray | None = None,
-    ):
-        super().__init__(limits, exposure_us, gain)
-        self.target_msv = _num("target_msv", target_msv, 1.0, 5.0, lo_open=True, hi_open=True)
-        self.mask: np.ndarray | None = None
-        if mask is not None:
-            m = np.asarray(mask)
+    target_msv: float = TARGET_MSV
+    image_fraction: float | None = None
+    k_exposure: float | None = None
+    k_gain: float | None = None
+    ki_ratio: float = 0.2
+    integral_limit: float = 3.0
+    ev_per_unit: float = 0.01
+    dead_band: float = 0.1
+    mask: np.ndarray | None = None
+
+    def check(self) -> None:
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
+        if self.mask is not None:
+            m = np.asarray(self.mask)
             if m.ndim != 2 or not (np.issubdtype(m.dtype, np.number) or m.dtype == bool):
                 raise ParameterError(f"mask must be a 2-D numeric weights image, got {m.dtype} {m.shape}")
             m = m.astype(np.float64)
@@ -143,17 +143,43 @@ class NavidController(Controller):
                 raise ParameterError("mask weights must be finite and >= 0")
             if not m.sum() > 0:
                 raise ParameterError("mask has no pixel with non-zero weight")
-            self.mask = m
-        if image_fraction is None:
-            image_fraction = 1.0 if self.mask is None else float(np.count_nonzero(self.mask)) / self.mask.size
-        self.image_fraction = _num("image_fraction", image_fraction, 0.0, 1.0, lo_open=True)
+            set_("mask", m)
         c = self.image_fraction
-        self.k_exposure = 30.0 * c + 20.0 if k_exposure is None else _num("k_exposure", k_exposure, 0.0, lo_open=True)
-        self.k_gain = 10.0 * c + 15.0 if k_gain is None else _num("k_gain", k_gain, 0.0, lo_open=True)
-        self.ki_ratio = _num("ki_ratio", ki_ratio, 0.0)
-        self.integral_limit = _num("integral_limit", integral_limit, 0.0)
-        self.ev_per_unit = _num("ev_per_unit", ev_per_unit, 0.0, 0.1, lo_open=True)
-        self.dead_band = _num("dead_band", dead_band, 0.0, 1.0, hi_open=True)
+        if c is None:
+            c = 1.0 if self.mask is None else float(np.count_nonzero(self.mask)) / self.mask.size
+        set_("image_fraction", _num("image_fraction", c, 0.0, 1.0, lo_open=True))
+        if self.k_exposure is None:
+            set_("k_exposure", 30.0 * self.image_fraction + 20.0)
+        if self.k_gain is None:
+            set_("k_gain", 10.0 * self.image_fraction + 15.0)
+        set_("ki_ratio", _num("ki_ratio", self.ki_ratio, 0.0))
+        set_("integral_limit", _num("integral_limit", self.integral_limit, 0.0))
+
+
+class NavidController(Controller):
+    """Nourani-Vatani & Roberts 2007: 5-region MSV → PI exposure loop, then PI gain loop.
+
+    Parameters
+    ----------
+    limits : CameraLimits
+        Camera exposure/gain limits (every command is clamped to them).
+    exposure_us, gain : float
+        Initial setting (the paper starts with gain 1).
+    options : NavidOptions, optional
+        The settings (default: the published constants).
+    """
+
+    name = "navid"
+    OPTIONS = NavidOptions
+
+    def __init__(
+        self,
+        limits: CameraLimits,
+        exposure_us: float = 5_000.0,
+        gain: float = 1.0,
+        options: NavidOptions | None = None,
+    ):
+        super().__init__(limits, exposure_us, gain, options)
         self.integral_exposure = 0.0
         self.integral_gain = 0.0
         self.loop = "exposure"  # which PI loop ran last: "exposure" or "gain"
@@ -162,16 +188,16 @@ class NavidController(Controller):
 
     # -- the pieces ---------------------------------------------------------------------------
     def msv(self, image: np.ndarray) -> float:
-        if self.mask is not None and image.shape != self.mask.shape:
-            raise ParameterError(f"navid mask shape {self.mask.shape} does not match frame shape {image.shape}")
-        return mean_sample_value(image, self.mask)
+        if self.options.mask is not None and image.shape != self.options.mask.shape:
+            raise ParameterError(f"navid mask shape {self.options.mask.shape} does not match frame shape {image.shape}")
+        return mean_sample_value(image, self.options.mask)
 
     def _integrate(self, integral: float, e: float, pinned: bool) -> float:
         if integral * e < 0:  # the error changed sign: drop the wound-up history (no overshoot tail)
             integral = 0.0
         if not pinned:
             integral += e
-        return min(max(integral, -self.integral_limit), self.integral_limit)
+        return min(max(integral, -self.options.integral_limit), self.options.integral_limit)
 
     def _at_exposure_max(self) -> bool:
         # frame exposures are integer µs: allow the rounding of a non-integer T_max
@@ -185,9 +211,9 @@ class NavidController(Controller):
         self.last_msv = msv
         if not math.isfinite(msv):
             return None
-        e = self.target_msv - msv
+        e = self.options.target_msv - msv
         self.last_error = e
-        if abs(e) <= self.dead_band:
+        if abs(e) <= self.options.dead_band:
             self.integral_exposure = self.integral_gain = 0.0
             return None
         gain_loop = lim.has_gain and self._at_exposure_max() and (self.gain > 1.0 or e > 0)
@@ -196,14 +222,18 @@ class NavidController(Controller):
                 self.loop, self.integral_gain = "gain", 0.0
             pinned = (e > 0 and self.gain >= lim.gain_max) or (e < 0 and self.gain <= 1.0)
             self.integral_gain = self._integrate(self.integral_gain, e, pinned)
-            u = self.ev_per_unit * self.k_gain * (e + self.ki_ratio * self.integral_gain)
+            u = self.options.ev_per_unit * self.options.k_gain * (e + self.options.ki_ratio * self.integral_gain)
             exposure, gain = lim.exposure_max_us, self.gain * 2.0**u
         else:
             if self.loop != "exposure":
                 self.loop, self.integral_exposure = "exposure", 0.0
             pinned = (e > 0 and self._at_exposure_max()) or (e < 0 and self.exposure_us <= lim.exposure_min_us)
             self.integral_exposure = self._integrate(self.integral_exposure, e, pinned)
-            u = self.ev_per_unit * self.k_exposure * (e + self.ki_ratio * self.integral_exposure)
+            u = (
+                self.options.ev_per_unit
+                * self.options.k_exposure
+                * (e + self.options.ki_ratio * self.integral_exposure)
+            )
             # normally gain is 1 here; a frame taken with gain below T_max (a foreign start
             # setting) is corrected on the product T·K, split exposure-first
             if self.gain > 1.0:

@@ -69,17 +69,20 @@ on held-out scenes (README, "Metering, goal and the escape rule"): ``metering="m
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numba as nb
 import numpy as np
 
 from necviz.core.checks import check_number
-from necviz.core.control.controller import CameraLimits, Controller, ExposureCommand, Tunable
+from necviz.core.control.controller import CameraLimits, Controller, ControllerOptions, ExposureCommand, Tunable
 from necviz.core.crf import US_PER_S
 from necviz.core.errors import ParameterError
 from necviz.core.frames import Frame
 from necviz.core.ptedi import FrameEstimate, PeripheralEstimator
 from necviz.core.ptedi_kernels import digit_histograms
+from necviz.core.sensor import DAVIS_EVENT_RATE_MAX
 
 #: metering statistics (module docstring)
 METERING = ("paper", "median", "percentile", "zones")
@@ -88,8 +91,6 @@ GOAL_MODES = ("paper", "measured")
 #: goal digit per metering mode for ``goal_mode="measured"`` (``None``: the log mid-point), chosen by
 #: ``benchmarks/metering.py`` (README, "Metering and goal")
 MEASURED_GOAL_DN: dict[str, float | None] = {"paper": None, "median": 100.0, "percentile": None, "zones": None}
-#: the DAVIS346's event bus ceiling (events per second; the simulator's default ``max_event_rate``)
-DAVIS346_BUS_RATE = 12e6
 #: a window of events is "at the ceiling" when its rate is at least this fraction of the bus maximum
 BUS_FRACTION = 0.9
 #: ... and one polarity dominates: |ON - OFF| at least this fraction of its events
@@ -211,32 +212,41 @@ def zone_weights(estimator: PeripheralEstimator, sigma: float = 0.5) -> np.ndarr
     return np.exp(-r2 / (2 * sigma * sigma))
 
 
-class NECController(Controller):
-    """NEC: P-TEDI irradiance prediction -> exposure and gain, on every event batch and frame.
+@dataclass(frozen=True)
+class NECOptions(ControllerOptions):
+    """NEC's settings (validated here, once; :class:`NECController` adds the rules that need its camera response).
 
     Parameters
     ----------
-    estimator : the P-TEDI estimator (owned: the controller feeds it). ``metering="zones"`` needs
-        one with several zones (a grid, see :func:`necviz.core.control.make_controller`).
-    limits : camera exposure/gain limits.
-    dead_band, full_band : ``f_w`` corners on the relative error ``|ln(H_opt/H_i)|``
-        (defaults: no change below ~10 %, a full jump from ~65 % on).
-    goal_log_exposure : ``g*`` directly (overrides ``goal_mode``).
-    min_command_change : a new command is only issued if it differs from the last one by
-        more than this relative amount (avoids re-sending the same setting every batch).
-    metering : ``"paper"``, ``"median"``, ``"percentile"`` or ``"zones"`` (module docstring).
-    goal_mode : ``"paper"`` (log mid-point) or ``"measured"`` (:data:`MEASURED_GOAL_DN`).
-    percentile, highlight, floor : ``p``, ``Z_hl`` and ``Z_floor`` of ``metering="percentile"``.
-    escape : apply the escape rule at one-sided uncertainty (module docstring).
-    edge_margin : ``m`` of the escape rule (ln): how far inside the valid range's edge it aims.
-    bus_event_rate : the sensor's event-rate ceiling (events/s) for the escape rule's case (a);
-        ``None`` never suspects lost events.
+    dead_band, full_band : float
+        ``f_w`` corners on the relative error ``|ln(H_opt/H_i)|`` (defaults: no change below ~10 %,
+        a full jump from ~65 % on); ``dead_band < full_band``.
+    goal : float, optional
+        Goal intensity ``I_opt`` in DN (overrides ``goal_mode``); ``None``: from ``goal_mode``.
+    min_command_change : float
+        A new command is only issued if it differs from the last one by more than this relative
+        amount (avoids re-sending the same setting every batch).
+    metering : str
+        ``"paper"``, ``"median"``, ``"percentile"`` or ``"zones"`` (module docstring).
+    goal_mode : str
+        ``"paper"`` (log mid-point) or ``"measured"`` (:data:`MEASURED_GOAL_DN`).
+    percentile, highlight, floor : float
+        ``p``, ``Z_hl`` and ``Z_floor`` of ``metering="percentile"``.
+    escape : bool
+        Apply the escape rule at one-sided uncertainty (module docstring).
+    edge_margin : float
+        ``m`` of the escape rule (ln): how far inside the valid range's edge it aims.
+    bus_event_rate : float, optional
+        The sensor's event-rate ceiling (events/s) for the escape rule's case (a); ``None`` never
+        suspects lost events.
+    zone_grid : tuple of int, optional
+        ``(columns, rows)`` of the P-TEDI zones :func:`~necviz.core.control.make_controller` builds
+        (default: :data:`ZONE_GRID` for ``metering="zones"``, else the whole sensor).
 
     ``metering="paper", goal_mode="paper", escape=False`` is the paper's controller exactly.
     """
 
-    name = "nec"
-    TUNABLE = (
+    TUNABLE: ClassVar[tuple[Tunable, ...]] = (
         Tunable(
             "dead_band", "ln", "f_w is 0 while |ln(H_opt/H_i)| is at most this (no flicker from tiny corrections)", 0.0
         ),
@@ -276,72 +286,88 @@ class NECController(Controller):
         ),
     )
 
+    dead_band: float = 0.1
+    full_band: float = 0.5
+    goal: float | None = None
+    min_command_change: float = 0.01
+    metering: str = "median"
+    goal_mode: str = "measured"
+    percentile: float = 0.95
+    highlight: float = 235.0
+    floor: float = 30.0
+    escape: bool = True
+    edge_margin: float = 0.4
+    bus_event_rate: float | None = DAVIS_EVENT_RATE_MAX
+    zone_grid: tuple[int, int] | None = None
+
+    def check(self) -> None:
+        if self.full_band <= self.dead_band:
+            raise ParameterError(f"need dead_band < full_band, got {self.dead_band:g} and {self.full_band:g}")
+        if self.metering not in METERING:
+            raise ParameterError(f"metering must be one of {', '.join(METERING)}, got {self.metering!r}")
+        if self.goal_mode not in GOAL_MODES:
+            raise ParameterError(f"goal_mode must be one of {', '.join(GOAL_MODES)}, got {self.goal_mode!r}")
+        if not isinstance(self.escape, bool):
+            raise ParameterError(f"escape must be true or false, got {self.escape!r}")
+        if self.bus_event_rate is not None:
+            object.__setattr__(
+                self, "bus_event_rate", check_number("bus_event_rate", self.bus_event_rate, 0.0, lo_open=True)
+            )
+        if self.zone_grid is not None:
+            g = self.zone_grid
+            if not (
+                isinstance(g, (list, tuple))
+                and len(g) == 2
+                and all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in g)
+            ):
+                raise ParameterError(f"zone_grid must be [columns, rows] of positive integers, got {g!r}")
+            object.__setattr__(self, "zone_grid", tuple(g))
+
+
+class NECController(Controller):
+    """NEC: P-TEDI irradiance prediction -> exposure and gain, on every event batch and frame.
+
+    Parameters
+    ----------
+    estimator : PeripheralEstimator
+        The P-TEDI estimator (owned: the controller feeds it). ``metering="zones"`` needs one with
+        several zones (a grid, see :func:`necviz.core.control.make_controller`).
+    limits : CameraLimits
+        Camera exposure/gain limits.
+    exposure_us, gain : float
+        The initial setting.
+    options : NECOptions, optional
+        The settings (default: ``NECOptions()``, the measured defaults).
+
+    Raises
+    ------
+    ParameterError
+        An estimator that is not a :class:`PeripheralEstimator`, options that do not fit its
+        camera response (a goal outside the valid range), or zones metering on a one-zone estimator.
+    """
+
+    name = "nec"
+    OPTIONS = NECOptions
+
     def __init__(
         self,
         estimator: PeripheralEstimator,
         limits: CameraLimits,
         exposure_us: float = 5_000.0,
         gain: float = 1.0,
-        dead_band: float = 0.1,
-        full_band: float = 0.5,
-        goal_log_exposure: float | None = None,
-        min_command_change: float = 0.01,
-        metering: str = "median",
-        goal_mode: str = "measured",
-        percentile: float = 0.95,
-        highlight: float = 235.0,
-        floor: float = 30.0,
-        escape: bool = True,
-        edge_margin: float = 0.4,
-        bus_event_rate: float | None = DAVIS346_BUS_RATE,
+        options: NECOptions | None = None,
     ):
-        super().__init__(limits, exposure_us, gain)
         if not isinstance(estimator, PeripheralEstimator):
             raise ParameterError("NECController needs a PeripheralEstimator")
-        for label, v in (
-            ("dead_band", dead_band),
-            ("full_band", full_band),
-            ("min_command_change", min_command_change),
-            ("edge_margin", edge_margin),
-        ):
-            check_number(label, v, 0.0)
-        if full_band <= dead_band:
-            raise ParameterError(f"full_band ({full_band}) must exceed dead_band ({dead_band})")
-        if metering not in METERING:
-            raise ParameterError(f"metering must be one of {', '.join(METERING)}, got {metering!r}")
-        if goal_mode not in GOAL_MODES:
-            raise ParameterError(f"goal_mode must be one of {', '.join(GOAL_MODES)}, got {goal_mode!r}")
-        if metering == "zones" and estimator.num_zones < 2:
-            raise ParameterError(
-                "metering='zones' needs a P-TEDI estimator with a zone grid (make_controller builds one)"
-            )
-        if not isinstance(escape, bool):
-            raise ParameterError(f"escape must be true or false, got {escape!r}")
-        if bus_event_rate is not None:
-            check_number("bus_event_rate", bus_event_rate, 0.0, lo_open=True)
         self.estimator = estimator
-        crf = estimator.crf
-        self.dead_band = float(dead_band)
-        self.full_band = float(full_band)
-        self.metering = metering
-        self.goal_mode = goal_mode
-        if goal_log_exposure is None:
-            dn = MEASURED_GOAL_DN.get(metering) if goal_mode == "measured" else None
-            goal_log_exposure = crf.goal_log_exposure if dn is None else float(crf.log_exposure(float(dn)))
-        self.goal_log_exposure = check_number("goal_log_exposure", goal_log_exposure)
-        self.min_command_change = float(min_command_change)
-        self._check_percentile(percentile, highlight, floor)
-        self.percentile, self.highlight, self.floor = float(percentile), float(highlight), float(floor)
-        self.escape = escape
-        self.edge_margin = float(edge_margin)
-        self.bus_event_rate = None if bus_event_rate is None else float(bus_event_rate)
+        super().__init__(limits, exposure_us, gain, options)
         self.last_log_irradiance = math.nan  # P-TEDI's ln P at the last command decision
         self.last_metered = math.nan  # the metered statistic M at the last command decision
         self.last_frame_estimate: FrameEstimate | None = None
         # metering state: offsets delta per zone (NaN until a frame measured one)
         self._offset = np.full(estimator.num_zones, np.nan)
         self._offset0 = math.nan  # whole-sensor modes: the scalar used on the hot path
-        self._weights = zone_weights(estimator) if metering == "zones" else None
+        self._weights = zone_weights(estimator) if self.options.metering == "zones" else None
         # escape state
         self.escape_direction = 0  # +1 / -1 while the prediction is a lower / upper bound, else 0
         self._frame_dir = 0  # the last frame: +1 more than half over-exposed, -1 under, 0 neither
@@ -354,42 +380,49 @@ class NECController(Controller):
         self._counts_seen = (0, 0)
         self.saturated_windows = 0  # windows of events found at the bus ceiling (diagnostics)
 
-    def _check_percentile(self, p, highlight, floor) -> None:
-        check_number("percentile", p, 0.5, 1.0, lo_open=True, hi_open=True)
+    # -- settings -------------------------------------------------------------------------------
+    def _goal_log_exposure(self, options: NECOptions) -> float:
+        """``g*`` for these options: the goal digit's log exposure, else the goal mode's."""
         crf = self.estimator.crf
-        for label, v in (("highlight", highlight), ("floor", floor)):
-            check_number(label, v, crf.valid_min, crf.valid_max, lo_open=True, hi_open=True)
-        if not floor < crf.intensity(self.goal_log_exposure) < highlight:
+        dn = options.goal
+        if dn is None and options.goal_mode == "measured":
+            dn = MEASURED_GOAL_DN.get(options.metering)
+        return crf.goal_log_exposure if dn is None else float(crf.log_exposure(float(dn)))
+
+    def _check_options(self, options: NECOptions) -> None:
+        crf = self.estimator.crf
+        if options.metering == "zones" and self.estimator.num_zones < 2:
             raise ParameterError(
-                f"percentile metering needs floor < goal < highlight, got {floor:g}, "
-                f"{crf.intensity(self.goal_log_exposure):.1f}, {highlight:g} DN"
+                "metering='zones' needs a P-TEDI estimator with a zone grid (make_controller builds one)"
+            )
+        if self.options is not None and options.metering != self.options.metering:
+            raise ParameterError("the metering mode is chosen when NEC is built; it cannot change while running")
+        goal = float(crf.intensity(self._goal_log_exposure(options)))
+        if not crf.valid_min < goal < crf.valid_max:
+            raise ParameterError(
+                f"goal must lie inside the valid range {crf.valid_min}..{crf.valid_max} DN, got {goal:g}"
+            )
+        if options.metering != "percentile":
+            return  # percentile, highlight and floor are percentile metering's alone
+        for label, v in (("highlight", options.highlight), ("floor", options.floor)):
+            if not crf.valid_min < v < crf.valid_max:
+                raise ParameterError(
+                    f"percentile metering needs {crf.valid_min} < {label} < {crf.valid_max} DN, got {v:g}"
+                )
+        if not options.floor < goal < options.highlight:
+            raise ParameterError(
+                f"percentile metering needs floor < goal < highlight, got {options.floor:g}, "
+                f"{goal:.1f}, {options.highlight:g} DN"
             )
 
-    # -- tunable parameters --------------------------------------------------------------------
+    def _apply_options(self, options: NECOptions) -> None:
+        super()._apply_options(options)
+        self.goal_log_exposure = self._goal_log_exposure(options)
+
     def _get_param(self, name: str) -> float:
         if name == "goal":
             return float(self.estimator.crf.intensity(self.goal_log_exposure))
-        return getattr(self, name)
-
-    def _set_param(self, name: str, value: float) -> None:
-        if name == "goal":
-            self.goal_log_exposure = float(self.estimator.crf.log_exposure(value))
-        else:
-            setattr(self, name, value)
-
-    def _check_params(self, params: dict[str, float]) -> None:
-        if params["full_band"] <= params["dead_band"]:
-            raise ParameterError(f"need dead_band < full_band, got {params['dead_band']:g} and {params['full_band']:g}")
-        crf = self.estimator.crf
-        if not crf.valid_min < params["goal"] < crf.valid_max:
-            raise ParameterError(
-                f"goal must lie inside the valid range {crf.valid_min}..{crf.valid_max} DN, got {params['goal']:g}"
-            )
-        if self.metering == "percentile" and not params["floor"] < params["goal"] < params["highlight"]:
-            raise ParameterError(
-                f"percentile metering needs floor < goal < highlight, got {params['floor']:g}, "
-                f"{params['goal']:g}, {params['highlight']:g} DN"
-            )
+        return getattr(self.options, name)
 
     # -- the control law ----------------------------------------------------------------------
     def command_for(
@@ -410,15 +443,15 @@ class NECController(Controller):
         goal = self.goal_log_exposure if goal_log_exposure is None else goal_log_exposure
         h_i = self.exposure_us * self.gain
         h_opt = math.exp(goal - log_irradiance) * US_PER_S
-        w = error_weight(math.log(h_opt / h_i), self.dead_band, self.full_band)
+        w = error_weight(math.log(h_opt / h_i), self.options.dead_band, self.options.full_band)
         if w == 0.0:
             last = self.last_command
             if last is None:
                 return None
             h_last = last.exposure_us * last.gain
             if (
-                abs(math.log(h_last / h_i)) <= self.min_command_change
-                or abs(math.log(h_opt / h_last)) <= self.dead_band
+                abs(math.log(h_last / h_i)) <= self.options.min_command_change
+                or abs(math.log(h_opt / h_last)) <= self.options.dead_band
             ):
                 return None  # nothing outstanding, or what is outstanding is as good as H_i
             return ExposureCommand(self.exposure_us, self.gain, int(t_us), self.name)
@@ -430,7 +463,7 @@ class NECController(Controller):
         last = self.last_command
         if (
             last is not None
-            and abs(math.log(last.exposure_us * last.gain / (exposure * gain))) < self.min_command_change
+            and abs(math.log(last.exposure_us * last.gain / (exposure * gain))) < self.options.min_command_change
         ):
             return None
         return ExposureCommand(exposure, gain, int(t_us), self.name)
@@ -439,7 +472,7 @@ class NECController(Controller):
     def metered(self, t_us: int | None = None) -> float:
         """``M(t)``: the metered log irradiance (module docstring) from P-TEDI's state now."""
         est = self.estimator
-        if self.metering == "zones":
+        if self.options.metering == "zones":
             z = est.predict_zones(t_us)
             ok = np.isfinite(z)
             if ok.any():
@@ -448,7 +481,7 @@ class NECController(Controller):
             return weighted_median(z + off, self._weights)
         lp = est.predict(t_us)
         self.last_log_irradiance = lp
-        if self.metering == "paper":
+        if self.options.metering == "paper":
             return lp
         off = self._offset0
         return lp + off if off == off else lp  # before the first measured offset: P-TEDI's level
@@ -459,17 +492,17 @@ class NECController(Controller):
         :func:`censored_quantiles`. Not used by ``paper``. One 256-bin histogram per zone."""
         est, crf = self.estimator, self.estimator.crf
         z = frame.image.ravel()
-        if self.metering == "zones":
+        if self.options.metering == "zones":
             hist = digit_histograms(z, est._zone_flat, est.num_zones)
         else:
             hist = est.digit_histogram_of(frame)  # shared with P-TEDI's anchor (one pass per frame)
         med, s50 = censored_quantiles(hist, 0.5, crf.g, crf.valid_min, crf.valid_max)
-        if self.metering != "percentile":
+        if self.options.metering != "percentile":
             return med, s50
-        qp, sp = censored_quantiles(hist, self.percentile, crf.g, crf.valid_min, crf.valid_max)
+        qp, sp = censored_quantiles(hist, self.options.percentile, crf.g, crf.valid_min, crf.valid_max)
         goal = self.goal_log_exposure
-        cap = med + (goal - crf.log_exposure(self.floor))
-        m = np.minimum(np.maximum(med, qp - (crf.log_exposure(self.highlight) - goal)), cap)
+        cap = med + (goal - crf.log_exposure(self.options.floor))
+        m = np.minimum(np.maximum(med, qp - (crf.log_exposure(self.options.highlight) - goal)), cap)
         side = np.where(
             s50 == 2,
             2,
@@ -516,7 +549,7 @@ class NECController(Controller):
         if span < BUS_WINDOW_US:
             return
         if (
-            self._win_n >= BUS_FRACTION * self.bus_event_rate * span / US_PER_S
+            self._win_n >= BUS_FRACTION * self.options.bus_event_rate * span / US_PER_S
             and abs(self._win_on) >= POLARITY_DOMINANCE * self._win_n
         ):
             self._sat_t = t_last
@@ -538,7 +571,7 @@ class NECController(Controller):
 
     def _aim(self) -> float | None:
         """The goal to aim at now: ``None`` (``g*``) unless the escape rule applies."""
-        if not self.escape:
+        if not self.options.escape:
             return None
         d = self._escape_direction()
         self.escape_direction = d
@@ -546,8 +579,8 @@ class NECController(Controller):
             return None
         crf = self.estimator.crf
         if d > 0:
-            return min(self.goal_log_exposure, crf.g[crf.valid_min] + self.edge_margin)
-        return max(self.goal_log_exposure, crf.g[crf.valid_max] - self.edge_margin)
+            return min(self.goal_log_exposure, crf.g[crf.valid_min] + self.options.edge_margin)
+        return max(self.goal_log_exposure, crf.g[crf.valid_max] - self.options.edge_margin)
 
     # -- packets ------------------------------------------------------------------------------
     def _command_now(self) -> ExposureCommand | None:
@@ -564,12 +597,12 @@ class NECController(Controller):
         t = est.last_event_us
         if t > self.now_us:
             self.now_us = t
-        if self.escape and self.bus_event_rate is not None and events.size:
+        if self.options.escape and self.options.bus_event_rate is not None and events.size:
             self._watch_bus(events.size, t)
         if not est.ready:
             return None
         t = self.now_us
-        if self.metering == "paper" and not self.escape:  # the paper's controller, as it always was
+        if self.options.metering == "paper" and not self.options.escape:  # the paper's controller, as it always was
             self.last_log_irradiance = lp = est.predict(t)
             return self.command_for(lp, t)
         return self._command_now()
@@ -589,9 +622,9 @@ class NECController(Controller):
         fe = self.estimator.add_frame(frame)
         self.last_frame_estimate = fe
         determined = bool(fe.anchored.any())
-        if self.metering != "paper":
+        if self.options.metering != "paper":
             determined = self._update_offsets(frame, fe)
-        if self.escape:
+        if self.options.escape:
             valid = float(np.dot(fe.valid_fraction, self.estimator.sizes)) / float(self.estimator.sizes.sum())
             over = (
                 float(np.dot(fe.over_fraction, self.estimator.sizes)) / float(self.estimator.sizes.sum())

@@ -45,12 +45,14 @@ empty image holds the current setting. Commands are always finite and inside ``s
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import ClassVar
 
 import cv2
 import numpy as np
 
 from necviz.core.checks import check_number as _num
-from necviz.core.control.controller import CameraLimits, Controller, ExposureCommand, Tunable
+from necviz.core.control.controller import CameraLimits, Controller, ControllerOptions, ExposureCommand, Tunable
 from necviz.core.errors import ParameterError
 from necviz.core.frames import Frame
 
@@ -119,56 +121,75 @@ def best_gamma(gammas: np.ndarray, scores: np.ndarray, degree: int = 5) -> float
     return float(cands[k])
 
 
+@dataclass(frozen=True)
+class ShimOptions(ControllerOptions):
+    """Shim's settings.
+
+    Parameters
+    ----------
+    rule : str
+        ``"2018"`` (nonlinear, default) or ``"2014"`` (linear) update.
+    kp : float, optional
+        Proportional gain in (0, 10); ``None`` picks the rule's default (2018: 1.6, 2014: 0.2).
+    d : float
+        2018 nonlinearity parameter (published 0.1), > 0.
+    delta : float
+        Gradient activation threshold δ in [0, 1) (published 0.06).
+    lam : float
+        λ > 0 of the log mapping (published 1e3).
+    """
+
+    TUNABLE: ClassVar[tuple[Tunable, ...]] = (
+        Tunable("kp", "1", "proportional gain of the exposure update", 0.0, 10.0, True, True),
+        Tunable("d", "1", "damping of the 2018 update rule", 0.0, lo_open=True),
+    )
+
+    rule: str = "2018"
+    kp: float | None = None
+    d: float = 0.1
+    delta: float = 0.06
+    lam: float = 1e3
+
+    def check(self) -> None:
+        if self.rule not in DEFAULT_KP:
+            raise ParameterError(f"rule must be '2018' or '2014', got {self.rule!r}")
+        if self.kp is None:
+            object.__setattr__(self, "kp", DEFAULT_KP[self.rule])
+        object.__setattr__(self, "delta", _num("delta", self.delta, 0.0, 1.0, hi_open=True))
+        object.__setattr__(self, "lam", _num("lam", self.lam, 0.0, lo_open=True))
+
+
 class ShimController(Controller):
     """Shim et al. gradient-based AE with the Mehta et al. 2020 gain extension (image only).
 
     Parameters
     ----------
-    limits : camera exposure/gain limits (every command is clamped to them).
-    exposure_us, gain : initial setting.
-    rule : ``"2018"`` (nonlinear, default) or ``"2014"`` (linear) update.
-    kp : proportional gain; ``None`` picks the rule's default (2018: 1.6, 2014: 0.2).
-    d : 2018 nonlinearity parameter (published 0.1), > 0.
-    delta : gradient activation threshold δ in [0, 1) (published 0.06).
-    lam : λ > 0 of the log mapping (published 1e3).
+    limits : CameraLimits
+        Camera exposure/gain limits (every command is clamped to them).
+    exposure_us, gain : float
+        Initial setting.
+    options : ShimOptions, optional
+        The settings (default: the published 2018 rule).
     """
 
     name = "shim"
-    TUNABLE = (
-        Tunable("kp", "1", "proportional gain of the exposure update", 0.0, 10.0, True, True),
-        Tunable("d", "1", "damping of the 2018 update rule", 0.0, lo_open=True),
-    )
+    OPTIONS = ShimOptions
 
     def __init__(
         self,
         limits: CameraLimits,
         exposure_us: float = 5_000.0,
         gain: float = 1.0,
-        rule: str = "2018",
-        kp: float | None = None,
-        d: float = 0.1,
-        delta: float = 0.06,
-        lam: float = 1e3,
+        options: ShimOptions | None = None,
     ):
-        super().__init__(limits, exposure_us, gain)
-        if rule not in DEFAULT_KP:
-            raise ParameterError(f"rule must be '2018' or '2014', got {rule!r}")
-        self.rule = rule
-        self.kp = DEFAULT_KP[rule] if kp is None else _num("kp", kp, 0.0, lo_open=True)
-        if self.kp >= 10:
-            raise ParameterError(f"kp must be < 10 (a step of more than 10x per frame), got {self.kp}")
-        self.d = _num("d", d, 0.0, lo_open=True)
-        self.delta = _num("delta", delta, 0.0)
-        if self.delta >= 1.0:
-            raise ParameterError(f"delta must be < 1 (gradients are normalised to [0, 1]), got {self.delta}")
-        self.lam = _num("lam", lam, 0.0, lo_open=True)
+        super().__init__(limits, exposure_us, gain, options)
         self.last_scores: np.ndarray | None = None
         self.last_gamma: float = 1.0
         self.last_ratio: float = 1.0
 
     # -- the pieces ---------------------------------------------------------------------------
     def metric(self, image: np.ndarray) -> float:
-        return gradient_metric(image, self.delta, self.lam)
+        return gradient_metric(image, self.options.delta, self.options.lam)
 
     def gamma_scores(self, image: np.ndarray) -> np.ndarray:
         return np.array([self.metric(im) for im in gamma_images(image)])
@@ -185,11 +206,11 @@ class ShimController(Controller):
     def exposure_ratio(self, gamma_hat: float) -> float:
         """The multiplicative exposure update ``T_{t+1}/T_t`` for ``γ̂`` under the chosen rule."""
         alpha = 0.5 if gamma_hat >= 1.0 else 1.0
-        if self.rule == "2018":
-            step = nonlinear_ratio(gamma_hat, self.d) - 1.0
+        if self.options.rule == "2018":
+            step = nonlinear_ratio(gamma_hat, self.options.d) - 1.0
         else:
             step = 1.0 - gamma_hat
-        ratio = 1.0 + alpha * self.kp * step
+        ratio = 1.0 + alpha * self.options.kp * step
         if not math.isfinite(ratio):
             return 1.0
         return min(max(ratio, 0.05), 20.0)  # a non-positive factor (large kp) would be meaningless

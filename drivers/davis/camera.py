@@ -37,12 +37,12 @@ import numpy as np
 from necviz.core.control.controller import CameraLimits
 from necviz.core.errors import ParameterError
 from necviz.core.frames import Frame
-from necviz.core.sensor import SensorGeometry
+from necviz.core.sensor import SensorGeometry, known_event_rate_max
 from necviz.drivers.davis import protocol as P
 from necviz.drivers.davis.decoder import DavisDecoder
 from necviz.drivers.davis.device import BulkReader, DavisDevice, open_device, usb_backend
 from necviz.drivers.davis.device_errors import DeviceDisconnectedError, DeviceError, DeviceNotFoundError
-from necviz.drivers.source import CAMERA, CommandRecord, route
+from necviz.drivers.source import CAMERA, CameraInfo, CommandRecord, route
 
 #: digital gain limit of the live camera (linear)
 DIGITAL_GAIN_MAX = 8.0
@@ -227,6 +227,11 @@ class DavisCamera:
         the first exposure that used it (``commands_issued`` counts every command)."""
         with self._lock:
             return [c.record() for c in self._history]
+
+    @property
+    def camera_info(self) -> CameraInfo:
+        """The camera's limits and frame period, and the DAVIS event bus ceiling (its command latency is not known)."""
+        return CameraInfo(self.limits, None, known_event_rate_max(self.sensor), self.frame_interval_us)
 
     def close(self) -> None:
         """Stop the device (documented stop order), join the reader thread, release USB. Idempotent."""

@@ -30,8 +30,8 @@ from necviz.core.errors import NecvizError
 from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, ImuBatch, TriggerBatch
-from necviz.core.sensor import DAVIS240, DAVIS346, SensorGeometry
-from necviz.drivers.source import CAMERA, route
+from necviz.core.sensor import DAVIS240, DAVIS346, SensorGeometry, known_event_rate_max
+from necviz.drivers.source import CAMERA, CameraInfo, route
 
 #: Batch bounds of every reader (sensor time per event batch, events per batch).
 BATCH_US = 1000
@@ -222,6 +222,11 @@ class Recording:
 
     # -- Source protocol ----------------------------------------------------------------------
     cameras = (CAMERA,)
+
+    @property
+    def camera_info(self) -> CameraInfo:
+        """What a recording says about its camera: the event bus ceiling of a known sensor (replay is open loop)."""
+        return CameraInfo(event_rate_max=known_event_rate_max(self.sensor))
 
     def packets(self) -> Iterator:
         """``(camera, packet)`` pairs (:class:`~necviz.drivers.source.Source`); iterate for bare packets."""

@@ -66,7 +66,7 @@ import numpy as np
 from necviz.core.checks import check_number
 from necviz.core.errors import ParameterError
 from necviz.core.events import EVENT_DTYPE
-from necviz.core.sensor import SensorGeometry
+from necviz.core.sensor import DAVIS_EVENT_RATE_MAX, SensorGeometry
 
 THRESHOLD_MIN = 0.01  # v2e/ESIM-fork clamp of the per-pixel thresholds (ln units)
 DARK_FLOOR = 20.0 / 255.0  # v2e's (I + 20) / 275: bandwidth floor 20/275 = 0.073 of the cutoff
@@ -108,7 +108,7 @@ class DvsParams:
     leak_hz: float = 0.01
     leak_cov_decades: float = 0.1
     shot_noise_hz: float = 0.001
-    max_event_rate: float | None = 12e6
+    max_event_rate: float | None = DAVIS_EVENT_RATE_MAX
 
     def __post_init__(self) -> None:
         def check(name, lo=None, hi=None, **kw):

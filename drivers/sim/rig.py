@@ -41,6 +41,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from necviz.core.control.controller import CameraLimits
 from necviz.core.crf import CameraResponse, default_davis346
 from necviz.core.errors import ParameterError
 from necviz.core.events import EVENT_DTYPE
@@ -49,7 +50,7 @@ from necviz.core.ground_truth import TRACE_STEP, GroundTruth
 from necviz.drivers.sim.aps import ApsParams, expose, integrate_samples
 from necviz.drivers.sim.dvs import DvsParams, EventSimulator
 from necviz.drivers.sim.scene import Scene
-from necviz.drivers.source import CommandRecord
+from necviz.drivers.source import CameraInfo, CommandRecord
 
 #: commands kept per camera once applied or superseded (``SimRig.commands``); older ones are forgotten
 COMMAND_HISTORY = 4096
@@ -277,6 +278,17 @@ class SimRig:
         frame = Frame(img, int(s), int(e), float(gain), cam.seq, self._truth(lbar, s, e) if self.truth else None)
         cam.seq += 1
         return frame
+
+    @property
+    def camera_info(self) -> CameraInfo:
+        """The simulated cameras: the APS model's limits, latency and frame period, the DVS model's bus ceiling."""
+        a = self.aps
+        return CameraInfo(
+            CameraLimits(a.exposure_min_us, a.exposure_max_us, a.gain_max),
+            float(a.latency_us),
+            self.dvs_params.max_event_rate,
+            float(a.frame_interval_us),
+        )
 
     @property
     def truth_lookback_us(self) -> int:

@@ -30,8 +30,8 @@ from necviz.core.crf import US_PER_S, default_davis346
 from necviz.core.errors import ParameterError
 from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import ExposureMarker, Frame
-from necviz.core.sensor import DAVIS346
-from necviz.drivers.source import route
+from necviz.core.sensor import DAVIS346, DAVIS_EVENT_RATE_MAX
+from necviz.drivers.source import CameraInfo, route
 from necviz.progress import output
 
 C_ON, C_OFF = 0.26, 0.24
@@ -70,6 +70,7 @@ class SyntheticStream:
     """
 
     cameras = ("camera",)
+    camera_info = CameraInfo(event_rate_max=DAVIS_EVENT_RATE_MAX)
 
     def __init__(
         self,

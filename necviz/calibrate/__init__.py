@@ -30,7 +30,7 @@ from necviz.calibrate.fit import (
     calibrate_collected,
 )
 from necviz.calibrate.pairs import DEFAULTS, PairCollector
-from necviz.calibrate.recordings import KNOWN_EVENT_RATES, calibrate_from_recordings
+from necviz.calibrate.recordings import calibrate_from_recordings
 from necviz.calibrate.simulate import (
     BRACKET_OFFSETS,
     ExposureOracle,
@@ -46,7 +46,6 @@ __all__ = [
     "DEFAULT_LOSS",
     "DEFAULT_SLOW_RATE",
     "FIT_CHOICES",
-    "KNOWN_EVENT_RATES",
     "CalibrationResult",
     "ExposureOracle",
     "PairCollector",

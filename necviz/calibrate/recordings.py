@@ -18,9 +18,9 @@ from necviz.core.camera_profile import CameraProfile
 from necviz.core.errors import ParameterError
 from necviz.core.event_model import TediParams
 from necviz.core.frames import Frame
+from necviz.core.sensor import KNOWN_EVENT_RATES
 
 #: Bus ceilings (events/s) assumed for recordings of known sensors (``--max-event-rate auto``).
-KNOWN_EVENT_RATES = {(346, 260): 12e6, (240, 180): 12e6}
 
 
 def calibrate_from_recordings(

@@ -379,7 +379,7 @@ class LaneTelemetry:
             min(maxs) if maxs else None,
             min(gains) if gains else None,
             latency,
-            None if ctrl is None else hasattr(ctrl, "estimator"),
+            None if ctrl is None else ctrl.estimator is not None,
             None if lane is None else bool(lane.drives),
             tuple(self._commands),
             pred_s - anchor_s if math.isfinite(anchor_s) else math.nan,
@@ -447,16 +447,12 @@ class Telemetry:
     def attach(self, lanes, source=None) -> "Telemetry":
         """Bind pipeline lanes (by name) and the source, for the diagnosis of saturated frames: each
         lane's controller (does it see events, its commands, its limits) and whether it drives its
-        camera; the source's command latency (a simulator's ``aps.latency_us``, or a source's
-        ``command_latency_us``) and camera limits (``limits``). Safe to call again."""
-        aps = getattr(source, "aps", None)
-        latency = getattr(source, "command_latency_us", getattr(aps, "latency_us", None))
-        lim = getattr(source, "limits", None)
-        limits = None
-        if aps is not None:
-            limits = (aps.exposure_min_us, aps.exposure_max_us, aps.gain_max)
-        elif lim is not None and hasattr(lim, "exposure_min_us"):
-            limits = (lim.exposure_min_us, lim.exposure_max_us, lim.gain_max)
+        camera; the source's command latency and camera limits (its
+        :class:`~necviz.drivers.source.CameraInfo`). Safe to call again."""
+        info = source.camera_info if source is not None else None
+        latency = info.command_latency_us if info is not None else None
+        lim = info.limits if info is not None else None
+        limits = None if lim is None else (lim.exposure_min_us, lim.exposure_max_us, lim.gain_max)
         for ln in lanes:
             if ln.name in self.lanes:
                 self.lanes[ln.name].bind(ln, latency, limits)
