@@ -487,7 +487,12 @@ def _add_optional(sub) -> None:
     """Commands that live in their own modules and bring their own parsers."""
     import importlib
 
-    for module in ("necviz.commands.calibrate", "necviz.commands.repair", "necviz.commands.sweep"):
+    for module in (
+        "necviz.commands.calibrate",
+        "necviz.commands.export",
+        "necviz.commands.repair",
+        "necviz.commands.sweep",
+    ):
         try:
             mod = importlib.import_module(module)
         except ModuleNotFoundError as e:
