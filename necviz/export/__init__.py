@@ -32,25 +32,41 @@ WRITERS = {".aedat4": "aedat4", ".h5": "hdf5", ".hdf5": "hdf5", ".npz": "npz", "
 SUFFIXES = tuple(WRITERS)
 
 
+class Pending:
+    """An output being written: a temporary file beside ``path`` (:attr:`tmp`) that :meth:`commit`
+    renames over ``path`` and :meth:`abort` deletes, so nothing half-written is ever under the name.
+
+    With :func:`written`, the one place export, clip and video output is created (the atomic-output
+    helper of :mod:`necviz.outputs` can take its place without touching the writers)."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        parent = self.path.parent if str(self.path.parent) else Path(".")
+        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.stem}.", suffix=f".partial{self.path.suffix}", dir=parent)
+        os.close(fd)
+        os.chmod(tmp, 0o644)  # as any new file (mkstemp makes it private)
+        self.tmp = Path(tmp)
+
+    def commit(self) -> None:
+        os.replace(self.tmp, self.path)
+
+    def abort(self) -> None:
+        try:
+            os.unlink(self.tmp)
+        except OSError:
+            pass
+
+
 @contextmanager
 def written(path):
     """Yield a temporary path beside ``path``; rename it over ``path`` when the block succeeds, delete it
-    when it fails (nothing half-written is ever left under the target's name).
-
-    The one place export output is created (the atomic-output helper of :mod:`necviz.outputs` can take
-    its place without touching the writers)."""
-    p = Path(path)
-    parent = p.parent if str(p.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=f".partial{p.suffix}", dir=parent)
-    os.close(fd)
+    when it fails (:class:`Pending`)."""
+    pending = Pending(path)
     try:
-        yield Path(tmp)
-        os.replace(tmp, p)
+        yield pending.tmp
+        pending.commit()
     except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
+        pending.abort()
         raise
 
 
@@ -198,4 +214,4 @@ def export_recording(
     }
 
 
-__all__ = ["SUFFIXES", "WRITERS", "export_recording", "format_for", "open_writer", "written"]
+__all__ = ["Pending", "SUFFIXES", "WRITERS", "export_recording", "format_for", "open_writer", "written"]
