@@ -41,13 +41,16 @@ from pathlib import Path
 
 import numpy as np
 
-from necviz.core.frames import Frame
+from necviz.core.frames import ExposureMarker, Frame
 from necviz.pipeline import Observer, RecorderObserver, packet_time_us
 
 #: Clips waiting for the writer beyond the one being written; more are dropped (and counted).
 MAX_PENDING = 2
 #: Bytes counted for an entry that holds no array (a command, a prediction, a note).
 SMALL = 160
+#: Extra sensor time the ring keeps, so a clip still holds ``before_s`` before a saturated frame's
+#: exposure *start* when the frame is only known at its end (exposures up to this long).
+SLACK_US = 200_000
 #: Seconds around the failure the viewer of a clip loops over.
 FOCUS_S = 1.0
 
@@ -70,6 +73,27 @@ class _Clip:
     marks: int = 0
     nbytes: int = 0
     cut: bool = False
+
+
+def _from(ring, lo: int) -> list:
+    """The ring's entries from ``lo`` on, without the end marker, frame and frame record of an exposure
+    that started before ``lo`` (a clip never begins inside an exposure)."""
+    out, started = [], set()
+    for it in ring:
+        if it[0] < lo:
+            continue
+        method, args = it[2], it[3]
+        if method == "packet" and isinstance(args[1], ExposureMarker):
+            if args[1].kind == "start":
+                started.add(args[0])
+            elif args[0] not in started:
+                continue
+        elif method == "packet" and isinstance(args[1], Frame) and args[1].exposure_start_us < lo:
+            continue
+        elif method == "frame" and args[1].exposure_start_us < lo:
+            continue
+        out.append(it)
+    return out
 
 
 class FlightRecorder(Observer):
@@ -160,7 +184,7 @@ class FlightRecorder(Observer):
         ring = self._ring
         ring.append(item)
         self._ring_bytes += nbytes
-        horizon = now - self.before_us
+        horizon = now - self.before_us - SLACK_US
         while ring and ring[0][0] < horizon:
             self._ring_bytes -= ring.popleft()[1]
         while self._ring_bytes > self.budget and len(ring) > 1:  # over budget: drop the oldest, and say so
@@ -190,7 +214,8 @@ class FlightRecorder(Observer):
             clip.failures += 0 if mark else 1
             clip.marks += 1 if mark else 0
             return
-        items = list(self._ring)
+        lo = failure_us - self.before_us
+        items = _from(self._ring, lo)
         self._clip = _Clip(
             items,
             failure_us,
