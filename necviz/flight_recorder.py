@@ -20,11 +20,12 @@ extends it (overlapping clips merge). A closed clip is handed to a writer thread
 (:mod:`necviz.core.diagnosis`: ``command_latency``, ``limit_reached`` ...), ``saturated`` when none was
 named, or ``mark``.
 
-Memory stays bounded whatever the event rate: the ring holds at most ``budget_bytes`` (events and
-frame pixels counted; older entries are dropped first, and the drops are counted and reported: the
-clip then covers less than ``before_s``), a clip being collected at most twice that (it is cut there
-and a new one starts at the next failure), and at most :data:`MAX_PENDING` clips wait for the writer
-(further ones are dropped and counted). Simulated frames' ground truth is not kept. The streaming
+Memory stays bounded whatever the event rate, at three budgets (``budget_bytes``, events and frame
+pixels counted): the ring holds at most one (older entries are dropped first, and the drops are counted
+and reported: a clip then covers less than ``before_s``); a clip being collected at most one (it is cut
+there, and a new one starts at the next failure); the clips waiting for the writer at most one
+together (and at most :data:`MAX_PENDING`; a clip that does not fit is dropped and counted). At the
+DAVIS346's full 12 Mev/s, 5 s of events are 780 MB: size ``--clip-memory`` for the rate you expect. Simulated frames' ground truth is not kept. The streaming
 thread only appends to memory; files are written by the writer thread. A run without a failure or a
 mark writes nothing.
 """
@@ -151,6 +152,7 @@ class FlightRecorder(Observer):
         self._ring: deque = deque()  # (t_us, nbytes, method, args)
         self._ring_bytes = 0
         self._clip: _Clip | None = None
+        self._covered_us: int | None = None  # sensor time up to which clips have been taken
         self._now: int | None = None
         self._origin: int | None = None
         self._initial: dict = {}
@@ -197,7 +199,7 @@ class FlightRecorder(Observer):
         if clip is not None:
             clip.items.append(item)
             clip.nbytes += nbytes
-            if clip.nbytes > 2 * self.budget:  # a failure that lasts: cut the clip here
+            if clip.nbytes > self.budget:  # a failure that lasts (or a budget smaller than the window): cut here
                 clip.cut = True
                 self.stats["clips_cut"] += 1
                 self._close_clip()
@@ -215,6 +217,8 @@ class FlightRecorder(Observer):
             clip.marks += 1 if mark else 0
             return
         lo = failure_us - self.before_us
+        if self._covered_us is not None:  # never twice in two clips: start after the last one
+            lo = max(lo, self._covered_us + 1)
         items = _from(self._ring, lo)
         self._clip = _Clip(
             items,
@@ -232,8 +236,11 @@ class FlightRecorder(Observer):
         clip, self._clip = self._clip, None
         if clip is None:
             return
+        if clip.items:
+            self._covered_us = clip.items[-1][0]
         with self._lock:
-            if self._pending > MAX_PENDING:
+            # the clips waiting for the writer hold at most one budget (a lone clip is always taken)
+            if self._pending > MAX_PENDING or (self._pending and self._queued_bytes + clip.nbytes > self.budget):
                 self.stats["clips_dropped"] += 1
                 return
             self._pending += 1

@@ -181,6 +181,8 @@ class ViewerOptions:
     With nothing set: a native viewer when a display exists, else a file
     ``necviz-<command>-<time>.rrd``. ``serve`` binds the web viewer and its data port to ``bind``
     (127.0.0.1 unless the user asks otherwise). ``force`` lets ``save`` replace an existing file.
+    ``notebook``: show the viewer inline in the Jupyter cell that runs the command, streaming as the
+    run goes (``rerun-notebook``, the optional extra ``notebook``); not combined with the others.
     """
 
     spawn: bool = False
@@ -193,8 +195,13 @@ class ViewerOptions:
     bind: str = "127.0.0.1"
     grpc_port: int = 9876
     web_port: int = 9090
+    notebook: bool = False
 
     def __post_init__(self):
+        if self.notebook and (self.spawn or self.serve or self.connect or self.save):
+            raise ParameterError(
+                "notebook=True shows the viewer in the notebook; do not combine it with spawn, serve, connect or save"
+            )
         if self.layout is not None and self.layout not in LAYOUT_NAMES:
             raise ParameterError(f"unknown layout {self.layout!r}; available: {', '.join(LAYOUT_NAMES)}")
         for label in ("grpc_port", "web_port"):
@@ -202,7 +209,7 @@ class ViewerOptions:
 
     @property
     def watched(self) -> bool:
-        return bool(self.spawn or self.serve or self.connect)
+        return bool(self.spawn or self.serve or self.connect or self.notebook)
 
 
 @dataclass
