@@ -227,9 +227,8 @@ def file_batching() -> "rr.ChunkBatcherConfig":
 def _open_notebook(blueprint, name, messages) -> Viewer:
     """The viewer inline in the running Jupyter cell (``rerun-notebook``), fed as the run logs."""
     try:
-        from rerun.notebook import Viewer as NotebookViewer
-
         import rerun_notebook  # noqa: F401 - the widget itself (the optional extra)
+        from rerun.notebook import Viewer as NotebookViewer
     except ImportError:
         raise ParameterError("notebook=True needs rerun-notebook: pip install 'necviz[notebook]'") from None
     rec = rr.RecordingStream("necviz", recording_id=str(uuid.uuid4()))
