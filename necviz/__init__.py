@@ -33,6 +33,8 @@ _API = {
     **{
         n: f"necviz.options:{n}"
         for n in (
+            "ClipOptions",
+            "VideoOptions",
             "CompareOptions",
             "DemoOptions",
             "LiveOptions",

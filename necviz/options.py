@@ -181,6 +181,8 @@ class ViewerOptions:
     With nothing set: a native viewer when a display exists, else a file
     ``necviz-<command>-<time>.rrd``. ``serve`` binds the web viewer and its data port to ``bind``
     (127.0.0.1 unless the user asks otherwise). ``force`` lets ``save`` replace an existing file.
+    ``notebook``: show the viewer inline in the Jupyter cell that runs the command, streaming as the
+    run goes (``rerun-notebook``, the optional extra ``notebook``); not combined with the others.
     """
 
     spawn: bool = False
@@ -193,8 +195,13 @@ class ViewerOptions:
     bind: str = "127.0.0.1"
     grpc_port: int = 9876
     web_port: int = 9090
+    notebook: bool = False
 
     def __post_init__(self):
+        if self.notebook and (self.spawn or self.serve or self.connect or self.save):
+            raise ParameterError(
+                "notebook=True shows the viewer in the notebook; do not combine it with spawn, serve, connect or save"
+            )
         if self.layout is not None and self.layout not in LAYOUT_NAMES:
             raise ParameterError(f"unknown layout {self.layout!r}; available: {', '.join(LAYOUT_NAMES)}")
         for label in ("grpc_port", "web_port"):
@@ -202,7 +209,7 @@ class ViewerOptions:
 
     @property
     def watched(self) -> bool:
-        return bool(self.spawn or self.serve or self.connect)
+        return bool(self.spawn or self.serve or self.connect or self.notebook)
 
 
 @dataclass
@@ -229,6 +236,58 @@ class TuneOptions:
 
 
 @dataclass
+class ClipOptions:
+    """The flight recorder (``--clips DIR``): a clip around every saturated frame and every ``mark``.
+
+    ``before_s``/``after_s``: seconds kept before a failure and recorded after it; ``memory_mb``: the
+    ring buffer's budget (oldest data dropped beyond it, and counted). See :mod:`necviz.flight_recorder`.
+    """
+
+    folder: str | os.PathLike = ""
+    before_s: float = 5.0
+    after_s: float = 5.0
+    memory_mb: float = 512.0
+
+    def __post_init__(self):
+        if not str(self.folder):
+            raise ParameterError("--clips needs a folder")
+        self.before_s = check_number("--clip-before", self.before_s, 0.0, 600.0)
+        self.after_s = check_number("--clip-after", self.after_s, 0.0, 600.0)
+        self.memory_mb = check_number("--clip-memory", self.memory_mb, 1.0, 1 << 20)
+
+    def check(self) -> None:
+        """The folder exists and is writable (before anything starts)."""
+        folder = os.fspath(self.folder)
+        if not os.path.isdir(folder):
+            raise ParameterError(f"--clips: folder {folder!r} does not exist")
+        if not os.access(folder, os.W_OK):
+            raise ParameterError(f"--clips: folder {folder!r} is not writable")
+
+
+@dataclass
+class VideoOptions:
+    """``--video OUT.mp4``: an H.264 video of what the dashboard shows (:mod:`necviz.dashboard.video`).
+
+    ``speed``: video time per sensor time (0.1: ten times slower than real); ``None``: the run's own
+    ``--speed`` when it is a number, else real time. ``fps``: frames per second of the video.
+    """
+
+    path: str | os.PathLike = ""
+    speed: float | None = None
+    fps: float = 30.0
+    force: bool = False
+
+    def __post_init__(self):
+        if not str(self.path):
+            raise ParameterError("--video needs a file name")
+        if self.speed is not None:
+            self.speed = parse_speed(self.speed)
+            if self.speed is None:
+                raise ParameterError("--speed for a video must be a number (0.1 is ten times slower than real time)")
+        self.fps = check_number("--video-fps", self.fps, 1.0, 240.0)
+
+
+@dataclass
 class DemoOptions:
     """``necviz demo``: every controller drives its own simulated camera; one scene, side by side."""
 
@@ -239,6 +298,8 @@ class DemoOptions:
     profile: str | os.PathLike | None = None
     show: ShowOptions = field(default_factory=ShowOptions)
     tune: TuneOptions = field(default_factory=TuneOptions)
+    clips: ClipOptions | None = None
+    video: VideoOptions | None = None
 
     def __post_init__(self):
         self.controllers = parse_controllers(self.controllers)
@@ -258,6 +319,7 @@ class ReplayOptions:
     force: bool = False
     profile: str | os.PathLike | None = None
     show: ShowOptions = field(default_factory=ShowOptions)
+    video: VideoOptions | None = None
 
     def __post_init__(self):
         if not str(self.file):
@@ -289,6 +351,7 @@ class LiveOptions:
     history: int = 3_000  # frames of per-frame telemetry kept (a live run may last hours)
     show: ShowOptions = field(default_factory=ShowOptions)
     tune: TuneOptions = field(default_factory=TuneOptions)
+    clips: ClipOptions | None = None
 
     def __post_init__(self):
         if self.device not in ("usb", "emulated"):
@@ -327,6 +390,8 @@ class CompareOptions:
 
 
 __all__ = [
+    "ClipOptions",
+    "VideoOptions",
     "controller_kind",
     "COMPARE_CONTROLLERS",
     "CompareOptions",

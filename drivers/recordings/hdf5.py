@@ -2,7 +2,10 @@
 
 * **DSEC** (``events.h5``): ``/events/t`` (µs, relative), ``/events/x``, ``/events/y``, ``/events/p``
   (0/1 -> -1/+1), optional ``/t_offset`` (µs, added to t) and ``/ms_to_idx`` (index of the first
-  event at/after each millisecond, used for seeking; otherwise bisection on ``/events/t``). No frames.
+  event at/after each millisecond, used for seeking; otherwise bisection on ``/events/t``). DSEC's own
+  files hold no frames; files written by ``necviz export`` add ``/frames/{images, exposure_start_us,
+  exposure_end_us, gain}``, ``/imu/{t, accel, gyro, temp}`` and ``/triggers/{t, kind}`` (times relative
+  to ``/t_offset`` too; :mod:`necviz.export.hdf5_writer`), which are replayed with their stored exposures.
   DSEC's own files use Blosc (HDF5 filter 32001): they are read when ``hdf5plugin`` is installed
   (imported if present); otherwise a one-line error names the missing filter.
 * **MVSEC** (``<seq>_data.hdf5``): ``davis/left/events`` (N x 4 float64: x, y, t s, p ±1),
@@ -22,6 +25,7 @@ import numpy as np
 
 from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import Frame
+from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, TRIGGER_KINDS
 from necviz.core.sensor import DAVIS346, SensorGeometry
 from necviz.drivers.recordings.reader import (
     NO_EXPOSURE_FRAMES,
@@ -210,7 +214,60 @@ class DsecRecording(_Hdf5Recording):
                     )
             else:
                 self._read(ds["t"], slice(0, 1))
-        self.exposure_source = "none (no frames)"
+            with self._at("groups /frames, /imu, /triggers"):
+                self.n_frames = int(f["frames/exposure_start_us"].shape[0]) if "frames/exposure_start_us" in f else 0
+                self.has_imu = "imu/t" in f
+                self.has_triggers = "triggers/t" in f
+        self.exposure_source = "stored" if self.n_frames else "none (no frames)"
+
+    def _side_streams(self, f):
+        """The frames' exposures and the IMU / trigger columns of a file written by ``necviz export``."""
+        out = {}
+        if self.n_frames:
+            g = self._get(f, "frames")
+            s = np.asarray(self._read(self._get(g, "exposure_start_us"), slice(None)), np.int64) + self.t_offset
+            e = np.asarray(self._read(self._get(g, "exposure_end_us"), slice(None)), np.int64) + self.t_offset
+            gain = np.asarray(self._read(self._get(g, "gain"), slice(None)), np.float64) if "gain" in g else None
+            out["frames"] = (s, e, gain, self._get(g, "images"))
+        if self.has_imu:
+            g = self._get(f, "imu")
+            t = np.asarray(self._read(self._get(g, "t"), slice(None)), np.int64)
+            imu = np.empty(t.size, IMU_DTYPE)
+            imu["t"] = t + self.t_offset
+            acc = np.asarray(self._read(self._get(g, "accel"), slice(None)), np.float32).reshape(-1, 3)
+            gyr = np.asarray(self._read(self._get(g, "gyro"), slice(None)), np.float32).reshape(-1, 3)
+            for k, axis in enumerate("xyz"):
+                imu[f"a{axis}"], imu[f"g{axis}"] = acc[:, k], gyr[:, k]
+            imu["temp"] = self._read(self._get(g, "temp"), slice(None)) if "temp" in g else np.nan
+            out["imu"] = imu
+        if self.has_triggers:
+            g = self._get(f, "triggers")
+            t = np.asarray(self._read(self._get(g, "t"), slice(None)), np.int64)
+            trg = np.empty(t.size, TRIGGER_DTYPE)
+            trg["t"] = t + self.t_offset
+            trg["kind"] = self._read(self._get(g, "kind"), slice(None))
+            out["triggers"] = trg[(trg["kind"] >= 0) & (trg["kind"] < len(TRIGGER_KINDS))]
+        return out
+
+    def _push_side(self, asm: StreamAssembler, side: dict, cursor: dict, horizon: int | None) -> None:
+        """Push the frames, IMU samples and triggers that start before ``horizon`` (None: all that remain)."""
+        if "frames" in side:
+            s, e, gain, images = side["frames"]
+            i = cursor.get("frames", 0)
+            while i < s.size and (horizon is None or s[i] < horizon):
+                if self.in_range(int(s[i])) and self.in_range(int(e[i])) and e[i] > s[i]:
+                    img = to_gray8(np.asarray(self._read(images, i)))
+                    g = float(gain[i]) if gain is not None and np.isfinite(gain[i]) and gain[i] >= 1 else 1.0
+                    asm.push_frame(Frame(img, int(s[i]), int(e[i]), g, i))
+                i += 1
+            cursor["frames"] = i
+        for key, push in (("imu", asm.push_imu), ("triggers", asm.push_triggers)):
+            if key in side:
+                arr, i = side[key], cursor.get(key, 0)
+                j = arr.size if horizon is None else int(np.searchsorted(arr["t"], horizon, side="left"))
+                if j > i:
+                    push(arr[i:j])
+                cursor[key] = max(i, j)
 
     def _first_index(self, f) -> int:
         if self.start_us is None:
@@ -234,6 +291,8 @@ class DsecRecording(_Hdf5Recording):
         with self._open() as f:
             g = self._get(f, "events")
             ds = {k: self._get(g, k) for k in "txyp"}
+            side = self._side_streams(f)
+            cursor: dict = {}
             for i in range(self._first_index(f), self.n, CHUNK):
                 sl = slice(i, min(i + CHUNK, self.n))
                 cols = [self._read(ds[k], sl) for k in "txyp"]
@@ -250,9 +309,11 @@ class DsecRecording(_Hdf5Recording):
                         f"dataset /events row {i + bad}",
                     )
                 if ev.size:
+                    self._push_side(asm, side, cursor, int(ev["t"][-1]))
                     yield from asm.drain(int(ev["t"][-1]))
                     if self.past_end(int(ev["t"][0])):
                         break
+            self._push_side(asm, side, cursor, None if self.end_us is None else self.end_us + 1)
 
 
 class MvsecRecording(_Hdf5Recording):

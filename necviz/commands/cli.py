@@ -96,6 +96,45 @@ def add_show_args(parser, tuning: bool = True) -> None:
         g.add_argument("--no-prompt", action="store_true", help="do not read tuning commands from the terminal")
 
 
+def add_clip_args(parser) -> None:
+    """``--clips DIR`` and its bounds: the flight recorder (necviz.flight_recorder)."""
+    g = parser.add_argument_group("flight recorder (a clip around every saturated frame and every 'mark')")
+    g.add_argument("--clips", metavar="DIR", help="write a clip (.necrec + .rrd) around every failure into DIR")
+    g.add_argument("--clip-before", type=float, default=5.0, metavar="S", help="seconds kept before (default 5)")
+    g.add_argument("--clip-after", type=float, default=5.0, metavar="S", help="seconds recorded after (default 5)")
+    g.add_argument(
+        "--clip-memory", type=float, default=512.0, metavar="MB", help="buffer budget; oldest dropped beyond (512)"
+    )
+
+
+def _clips(args):
+    if not getattr(args, "clips", None):
+        return None
+    from necviz.options import ClipOptions
+
+    return ClipOptions(args.clips, args.clip_before, args.clip_after, args.clip_memory)
+
+
+def add_video_args(parser) -> None:
+    g = parser.add_argument_group("video")
+    g.add_argument(
+        "--video",
+        metavar="OUT.mp4",
+        help="also write an H.264 video of the dashboard (frames side by side, events, over-exposure, time); "
+        "--speed 0.1 makes it ten times slower than real time (needs: pip install 'necviz[video]')",
+    )
+    g.add_argument("--video-fps", type=float, default=30.0, metavar="FPS", help="video frame rate (default 30)")
+
+
+def _video(args):
+    if not getattr(args, "video", None):
+        return None
+    from necviz.options import VideoOptions
+
+    speed = None if str(args.speed).lower() in ("auto", "max", "fast", "0") else args.speed
+    return VideoOptions(args.video, speed, args.video_fps, args.force)
+
+
 def _show(args):
     from necviz.options import ShowOptions
 
@@ -160,7 +199,15 @@ def _cmd_demo(args) -> int:
 
     run(
         DemoOptions(
-            scene_options(args), args.controllers, args.record, args.force, args.profile, _show(args), _tune(args)
+            scene_options(args),
+            args.controllers,
+            args.record,
+            args.force,
+            args.profile,
+            _show(args),
+            _tune(args),
+            clips=_clips(args),
+            video=_video(args),
         ),
         viewer_options(args),
     )
@@ -184,6 +231,7 @@ def _cmd_replay(args) -> int:
             args.force,
             args.profile,
             _show(args),
+            video=_video(args),
         ),
         viewer_options(args),
     )
@@ -209,6 +257,7 @@ def _cmd_live(args) -> int:
             args.profile,
             show=_show(args),
             tune=_tune(args),
+            clips=_clips(args),
         ),
         viewer_options(args),
     )
@@ -366,6 +415,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="also record the first controller's camera (events, frames, commands) to a crash-safe native file",
     )
     add_show_args(demo)
+    add_clip_args(demo)
+    add_video_args(demo)
     demo.set_defaults(func=_cmd_demo)
 
     rep = sub.add_parser(
@@ -388,6 +439,7 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--controller", default="nec", choices=controllers, help="shown in open loop (default nec)")
     rep.add_argument("--json", metavar="OUT", help="write the summary (per-frame detail included) as JSON")
     add_show_args(rep, tuning=False)
+    add_video_args(rep)
     rep.set_defaults(func=_cmd_replay)
 
     live = sub.add_parser(
@@ -426,6 +478,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_scene_args(live, emulated=True)
     add_show_args(live)
+    add_clip_args(live)
     live.set_defaults(func=_cmd_live)
 
     dev = sub.add_parser("devices", help="attached (and emulated) DAVIS cameras: serial, firmware, logic version")
@@ -487,7 +540,12 @@ def _add_optional(sub) -> None:
     """Commands that live in their own modules and bring their own parsers."""
     import importlib
 
-    for module in ("necviz.commands.calibrate", "necviz.commands.repair", "necviz.commands.sweep"):
+    for module in (
+        "necviz.commands.calibrate",
+        "necviz.commands.export",
+        "necviz.commands.repair",
+        "necviz.commands.sweep",
+    ):
         try:
             mod = importlib.import_module(module)
         except ModuleNotFoundError as e:

@@ -18,13 +18,35 @@ from necviz.progress import output
 from necviz.runs import build_rig
 
 
+def _observers(options: DemoOptions, video) -> list:
+    out = []
+    if options.clips is not None:
+        from necviz.flight_recorder import clip_observer
+
+        out.append(clip_observer(options.clips))
+    if video is not None:
+        from necviz.dashboard.video import video_observer
+
+        out.append(video_observer(video))
+    return out
+
+
 def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None, out=..., stdin=None) -> dict:
     """Run the demo; returns the run's summary (see :func:`necviz.dashboard.session.run_session`)."""
     out = output(out)
     options = options or DemoOptions()
+    video = options.video.path if options.video is not None else None
     viewer, profile = preflight(
-        "demo", viewer, {"--record": options.record}, options.force, profile=options.profile
+        "demo", viewer, {"--record": options.record, "--video": video}, options.force, profile=options.profile
     )  # before anything starts
+    show = options.show
+    video_options = options.video
+    if video_options is not None:  # only files: the run goes as fast as it can, the video keeps its own pace
+        from necviz.dashboard.video import plan
+
+        show, video_options = plan(show, video_options, viewer)
+    if options.clips is not None:
+        options.clips.check()
     sc = options.scene
     scene, rig, lanes, limits = build_rig(sc, options.controllers, profile)
     props = {
@@ -50,12 +72,13 @@ def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None,
             f"necviz demo: {sc.name}",
             props,
             viewer,
-            options.show,
+            show,
             options.tune,
             recorder,
             lanes[0].camera or lanes[0].name,
             lossless=True,
             expected_duration_s=props["duration_s"],
+            observers=_observers(options, video_options),
         ),
         out,
         stdin,

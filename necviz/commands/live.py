@@ -16,6 +16,7 @@ from __future__ import annotations
 from necviz.core.control import make_controller
 from necviz.dashboard.recorders import open_recorder
 from necviz.dashboard.session import Session, preflight, run_session
+from necviz.flight_recorder import clip_observer
 from necviz.options import LiveOptions, ViewerOptions
 from necviz.pipeline import Lane
 from necviz.progress import output
@@ -29,6 +30,8 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     viewer, profile = preflight(
         "live", viewer, {"--record": options.record}, options.force, profile=options.profile
     )  # before the camera is opened
+    if options.clips is not None:
+        options.clips.check()
     from necviz.drivers.davis import open_camera
 
     backend = None
@@ -90,6 +93,7 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
                 history=options.history,
                 expected_duration_s=options.duration_s,
                 stop_after_s=options.duration_s,
+                observers=[clip_observer(options.clips)] if options.clips is not None else [],
             ),
             out,
             stdin,

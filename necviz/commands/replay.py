@@ -20,6 +20,7 @@ from pathlib import Path
 from necviz.core.control import CameraLimits, make_controller
 from necviz.core.errors import ParameterError
 from necviz.dashboard.session import Session, preflight, run_session
+from necviz.dashboard.video import video_observer
 from necviz.options import ReplayOptions, ViewerOptions
 from necviz.outputs import write_json
 from necviz.pipeline import Lane, packet_time_us
@@ -59,6 +60,18 @@ def open_for_replay(path, exposure_us=None, start_s=None, end_s=None, fmt=None):
     return open_recording(path, start_us=start_us, end_us=end_us, **kw), origin
 
 
+def clip_focus(properties: dict, origin_us: int) -> tuple[float, float, float] | None:
+    """A flight-recorder clip's failure as ``(start_s, end_s, failure_s)`` on the replay's time axis
+    (seconds from ``origin_us``), or None for any other recording."""
+    from necviz.flight_recorder import FOCUS_S
+
+    try:
+        t = (int(properties["clip_failure_us"]) - int(origin_us)) / 1e6
+    except (KeyError, TypeError, ValueError):
+        return None
+    return max(0.0, t - FOCUS_S), t + FOCUS_S, t
+
+
 def summarise(stats: dict, lane: str = LANE) -> dict:
     """The replay's JSON summary from the run's statistics (telemetry included)."""
     tel = stats["telemetry"][lane]
@@ -78,9 +91,21 @@ def summarise(stats: dict, lane: str = LANE) -> dict:
 def run(options: ReplayOptions, viewer: ViewerOptions | None = None, out=...) -> dict:
     out = output(out)
     path = Path(options.file)
+    video = options.video.path if options.video is not None else None
     viewer, profile = preflight(
-        "replay", viewer, {"--json": options.json}, options.force, inputs=[path], profile=options.profile
+        "replay",
+        viewer,
+        {"--json": options.json, "--video": video},
+        options.force,
+        inputs=[path],
+        profile=options.profile,
     )  # before anything is opened
+    show = options.show
+    video_options = options.video
+    if video_options is not None:  # only files: the run goes as fast as it can, the video keeps its own pace
+        from necviz.dashboard.video import plan
+
+        show, video_options = plan(show, video_options, viewer)
     recording, origin = open_for_replay(path, options.exposure_us, options.start_s, options.end_s, options.format)
     sensor = recording.sensor
     limits = CameraLimits()
@@ -101,6 +126,13 @@ def run(options: ReplayOptions, viewer: ViewerOptions | None = None, out=...) ->
         f"{recording.exposure_source}); {options.controller} in open loop",
         file=out,
     )
+    focus = clip_focus(getattr(recording, "properties", {}), origin)
+    if focus is not None:
+        print(
+            f"  clip: {recording.properties.get('clip_cause', 'failure')} at {focus[2]:.3f} s; the viewer loops over "
+            f"{focus[0]:.3f}..{focus[1]:.3f} s",
+            file=out,
+        )
     stats = run_session(
         Session(
             "replay",
@@ -110,10 +142,12 @@ def run(options: ReplayOptions, viewer: ViewerOptions | None = None, out=...) ->
             f"necviz replay: {path.name}",
             props,
             viewer,
-            options.show,
+            show,
             None,
             origin_us=origin,
             lossless=True,
+            observers=[video_observer(video_options)] if video_options is not None else [],
+            focus_s=None if focus is None else focus[:2],
         ),
         out,
     )

@@ -52,6 +52,10 @@ class Session:
     origin_us: int = 0
     expected_duration_s: float | None = None
     stop_after_s: float | None = None
+    #: more observers (the flight recorder, the video writer): factories ``f(session, layout, out)``
+    observers: list = field(default_factory=list)
+    #: ``(start_s, end_s)`` of sensor time the viewer selects and loops over (a clip's failure)
+    focus_s: tuple | None = None
 
 
 def preflight(command: str, viewer: ViewerOptions | None, outputs: dict, force: bool, inputs=(), profile=None):
@@ -65,7 +69,7 @@ def preflight(command: str, viewer: ViewerOptions | None, outputs: dict, force: 
 
     viewer = resolve(viewer or ViewerOptions(), command, inputs=inputs)
     check_distinct({**outputs, "--save": viewer.save})
-    suffixes = {"--record": (".necrec",), "--json": (".json",)}
+    suffixes = {"--record": (".necrec",), "--json": (".json",), "--video": (".mp4",)}
     for flag, path in outputs.items():
         if path is not None:
             check_output(path, flag, inputs=inputs, force=force, suffixes=suffixes.get(flag))
@@ -99,7 +103,12 @@ def _run(ss: Session, out, stdin) -> dict:
     layout = v.layout or ss.layout
     names = [lane.name for lane in ss.lanes]
     sensor = ss.source.sensor
-    viewer = open_viewer(v, ss.command, make_blueprint(layout, names, sensor.width, sensor.height), ss.title)
+    blueprint = make_blueprint(layout, names, sensor.width, sensor.height)
+    if ss.focus_s is not None:
+        from necviz.flight_recorder import focus_blueprint
+
+        blueprint = focus_blueprint(blueprint, *ss.focus_s)
+    viewer = open_viewer(v, ss.command, blueprint, ss.title)
     for m in viewer.messages:
         print(f"  {m}", file=out)
     speed = ss.show.speed
@@ -127,6 +136,8 @@ def _run(ss: Session, out, stdin) -> dict:
         cam = ss.record_camera or ss.lanes[0].camera or ss.lanes[0].name
         driver = next((ln.name for ln in ss.lanes if ln.drives and (ln.camera or ln.name) == cam), cam)
         observers.append(RecorderObserver(ss.recorder, cam, driver))
+    for make in ss.observers:
+        observers.append(make(ss, layout, out))
     pipe = Pipeline(
         ss.source,
         ss.lanes,
@@ -238,6 +249,28 @@ def print_summary(out, stats: dict) -> None:
             + (" (its FIFO overflowed while the host was not reading, or its bus was saturated)" if lost else "")
             + f"; {src.get('skipped_words', 0):,} stream "
             f"words skipped; {src.get('reconnects', 0)} reconnects",
+            file=out,
+        )
+    fr = stats.get("flight_recorder")
+    if fr:
+        dropped = (
+            f"; the {fr['buffer_bytes'] / 2**20:.0f} MB buffer dropped {fr['dropped_events']:,} events "
+            "(clips hold less than --clip-before)"
+            if fr["dropped_events"]
+            else ""
+        )
+        lost = f", {fr['clips_dropped']} dropped (writer behind)" if fr["clips_dropped"] else ""
+        errors = f", {fr['write_errors']} failed to write" if fr["write_errors"] else ""
+        print(
+            f"  clips: {fr['clips_written']} written ({fr['failures']} saturated frames, {fr['marks']} marks){lost}"
+            f"{errors}; peak buffer {fr['peak_bytes'] / 2**20:.1f} MB{dropped}",
+            file=out,
+        )
+    vd = stats.get("video")
+    if vd:
+        print(
+            f"  video: {vd['path']} ({vd['frames']} frames, {vd['duration_s']:.2f} s at x{vd['speed']:g}, "
+            f"{vd['width']}x{vd['height']})",
             file=out,
         )
     sk = stats.get("sink")

@@ -13,6 +13,7 @@ Language (``help`` prints it with every key's unit and meaning)::
     [LANE.]KEY = VALUE      e.g.  goal = 100      nec.dead_band = 0.05
     set [LANE.]KEY VALUE
     drive NAME [LANE]       switch the controller that drives the lane's camera
+    mark [TEXT]             keep a clip around this moment (with --clips; always noted in the recording)
     status                  current settings
     help
 
@@ -38,7 +39,7 @@ from necviz.core.control import CONTROLLERS
 from necviz.core.errors import NecvizError, ParameterError
 from necviz.pipeline import THRESHOLD_KEYS
 
-SYNTAX = "[LANE.]KEY = VALUE | set [LANE.]KEY VALUE | drive NAME [LANE] | status | help"
+SYNTAX = "[LANE.]KEY = VALUE | set [LANE.]KEY VALUE | drive NAME [LANE] | mark [TEXT] | status | help"
 
 _ASSIGN = re.compile(r"^(?:set\s+)?(?:(?P<lane>[A-Za-z_][\w-]*)\.)?(?P<key>[A-Za-z_]\w*)\s*(?:=|\s)\s*(?P<value>\S+)$")
 _DRIVE = re.compile(r"^drive\s+(?P<name>[\w-]+)(?:\s+(?P<lane>[\w-]+))?$")
@@ -67,6 +68,8 @@ def parse(line: str) -> Command | None:
         return Command("help", text=text)
     if text == "status":
         return Command("status", text=text)
+    if text == "mark" or text.startswith("mark "):
+        return Command("mark", text=text, key=text[4:].strip() or None)
     m = _DRIVE.match(text)
     if m:
         if m.group("name") not in CONTROLLERS:
@@ -106,6 +109,12 @@ def execute(pipeline, command: Command, timeout: float | None = 5.0) -> str:
         return help_text(pipeline)
     if command.kind == "status":
         return pipeline.status()
+    if command.kind == "mark":
+        fut = pipeline.submit(lambda p: mark(p, command.key or ""))
+        try:
+            return fut.result(timeout)
+        except TimeoutError:
+            return "mark: queued (applies at the next packet)"
     if command.kind == "set":
         lanes = pipeline.lanes if command.lane is None else {command.lane: pipeline.lanes.get(command.lane)}
         if command.lane is not None and lanes[command.lane] is None:
@@ -119,6 +128,14 @@ def execute(pipeline, command: Command, timeout: float | None = 5.0) -> str:
         return fut.result(timeout)
     except TimeoutError:
         return f"{command.text}: queued (applies at the next packet)"
+
+
+def mark(pipeline, text: str = "") -> tuple[str, dict]:
+    """``mark``: every observer that keeps clips (:class:`~necviz.flight_recorder.FlightRecorder`) opens
+    one around this moment; the mark is also noted in the recording. Runs on the streaming thread."""
+    replies = [o.mark(text) for o in pipeline.observers if callable(getattr(o, "mark", None))]
+    msg = "; ".join(replies) if replies else "mark noted in the recording (no --clips: no clip is written)"
+    return f"mark{': ' + text if text else ''} — {msg}", {"mark": {"text": text}}
 
 
 class _Reader:
@@ -201,7 +218,7 @@ class TuningConsole:
     def completer(self):
         from prompt_toolkit.completion import WordCompleter
 
-        words = ["help", "status", "set", "drive", *sorted(CONTROLLERS), *keys(self.pipeline)]
+        words = ["help", "status", "set", "drive", "mark", *sorted(CONTROLLERS), *keys(self.pipeline)]
         words += [f"{lane}.{k}" for lane, ln in self.pipeline.lanes.items() for k in ln.tunables()]
         words += list(self.pipeline.lanes)
         return WordCompleter(sorted(set(words), key=words.index), WORD=True)
@@ -314,5 +331,6 @@ __all__ = [
     "execute",
     "help_text",
     "keys",
+    "mark",
     "parse",
 ]

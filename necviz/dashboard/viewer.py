@@ -91,7 +91,7 @@ def resolve(options: ViewerOptions, command: str, inputs=()) -> ViewerOptions:
     """Fill in the headless default (a file) and check the save path before anything starts."""
     from dataclasses import replace
 
-    if not (options.spawn or options.serve or options.connect or options.save):
+    if not (options.spawn or options.serve or options.connect or options.save or options.notebook):
         if has_display():
             options = replace(options, spawn=True)
         else:
@@ -111,11 +111,13 @@ class Viewer:
     url: str | None = None
     server: subprocess.Popen | None = None
     target: Path | None = None  # where the file is written until it is complete (see necviz.outputs)
+    notebook: object = None  # the rerun.notebook.Viewer shown in the cell (it keeps what was streamed)
 
     def close(self) -> None:
-        """Flush what was logged. A served recording stays available until :meth:`stop_serving`."""
+        """Flush what was logged. A served recording stays available until :meth:`stop_serving`;
+        a notebook's viewer keeps everything it was sent."""
         self.rec.flush()
-        if self.server is None:
+        if self.server is None and self.notebook is None:
             rr.disconnect(self.rec)
         if self.target is not None and self.save_path is not None:
             commit_recording(self.target, self.save_path)
@@ -222,7 +224,24 @@ def file_batching() -> "rr.ChunkBatcherConfig":
     return rr.ChunkBatcherConfig(flush_tick=FILE_FLUSH_S, flush_num_bytes=8 << 20, flush_num_rows=100_000)
 
 
+def _open_notebook(blueprint, name, messages) -> Viewer:
+    """The viewer inline in the running Jupyter cell (``rerun-notebook``), fed as the run logs."""
+    try:
+        import rerun_notebook  # noqa: F401 - the widget itself (the optional extra)
+        from rerun.notebook import Viewer as NotebookViewer
+    except ImportError:
+        raise ParameterError("notebook=True needs rerun-notebook: pip install 'necviz[notebook]'") from None
+    rec = rr.RecordingStream("necviz", recording_id=str(uuid.uuid4()))
+    widget = NotebookViewer(recording=rec, blueprint=blueprint, width="auto", height=720)
+    widget.display()
+    rec.send_recording_name(name)
+    messages.append("showing the viewer in the notebook")
+    return Viewer(rec, messages, notebook=widget)
+
+
 def _open(options: ViewerOptions, blueprint, name, messages) -> Viewer:
+    if options.notebook:
+        return _open_notebook(blueprint, name, messages)
     viewer = bool(options.serve or options.spawn or options.connect)
     rec = rr.RecordingStream(
         "necviz", recording_id=str(uuid.uuid4()), batcher_config=None if viewer else file_batching()

@@ -1,0 +1,115 @@
+"""``necviz export IN OUT``: a recording in any format the readers accept, written as AEDAT 4, HDF5,
+NumPy or a native clip — the format chosen by OUT's suffix.
+
+``--start``/``--end`` cut the recording (seconds from its first timestamp, as in ``replay``): events,
+IMU samples and triggers inside the range, frames whose whole exposure lies inside it. The input is
+never modified and never overwritten (not even with ``--force``); the output appears only when it is
+complete. See docs/recordings.md for what each format holds.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from necviz.progress import LiveLine, output
+
+FORMATS = ("necviz", "aedat4", "aedat3", "aedat2", "rosbag1", "rosbag2", "hdf5", "rpg-text")
+
+
+def run(
+    file,
+    out_path,
+    *,
+    start_s: float | None = None,
+    end_s: float | None = None,
+    force: bool = False,
+    exposure_us: float | None = None,
+    format: str | None = None,
+    compression: str = "lz4",
+    out=...,
+) -> dict:
+    """Export ``file`` to ``out_path``; returns :func:`necviz.export.export_recording`'s statistics.
+
+    Raises
+    ------
+    ParameterError
+        For a bad output name (wrong suffix, an existing file without ``force``, the input itself),
+        a bad range, or a range that holds nothing.
+    RecordingError
+        For a missing, unreadable or damaged input (no output is left behind).
+    """
+    from necviz.commands.replay import open_for_replay
+    from necviz.export import SUFFIXES, export_recording, format_for
+    from necviz.options import ReplayOptions
+    from necviz.outputs import check_output
+
+    out = output(out)
+    ReplayOptions(file, start_s, end_s, exposure_us)  # the same checks of the range as replay
+    format_for(out_path)
+    check_output(out_path, "OUT", inputs=[file], force=force, suffixes=SUFFIXES)
+    recording, origin = open_for_replay(Path(file), exposure_us, start_s, end_s, format)
+    line = LiveLine(out if hasattr(out, "isatty") and out.isatty() else None)
+
+    def progress(events, frames, seconds):
+        line.show(f"  exporting: {events:,} events, {frames} frames, {seconds:.1f} s")
+
+    try:
+        stats = export_recording(
+            recording,
+            out_path,
+            compression=compression,
+            properties={"exported_from": str(file), "format": recording.format, **getattr(recording, "properties", {})},
+            progress=progress,
+        )
+    finally:
+        line.clear()
+        recording.close()
+    for w in getattr(recording, "warnings", []):
+        print(f"  warning: {w}", file=out)
+    c = stats["counts"]
+    span = 0.0 if stats["first_us"] is None else (stats["last_us"] - stats["first_us"]) / 1e6
+    print(
+        f"  wrote {out_path} ({stats['format']}): {c['events']:,} events, {c['frames']} frames, {c['imu']} IMU samples, "
+        f"{c['triggers']} triggers over {span:.3f} s",
+        file=out,
+    )
+    stats["origin_us"] = origin
+    return stats
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "export",
+        help="convert a recording to AEDAT 4 (DV), HDF5 (DSEC layout), NumPy .npz or a native clip",
+        description=__doc__.split("\n\n")[0].replace("``", "") + " " + __doc__.split("\n\n")[1].replace("``", ""),
+    )
+    p.add_argument("file", metavar="IN", help="the recording (any format necviz replay reads)")
+    p.add_argument("out", metavar="OUT", help="the output: .aedat4, .h5/.hdf5, .npz or .necrec")
+    p.add_argument("--start", type=float, default=None, metavar="S", help="start S seconds into the recording")
+    p.add_argument("--end", type=float, default=None, metavar="S", help="stop S seconds into the recording")
+    p.add_argument("--force", action="store_true", help="replace an existing OUT (never the input)")
+    p.add_argument("--exposure-us", type=float, default=None, help="exposure for input formats that do not store it")
+    p.add_argument("--format", default=None, choices=FORMATS, help="the input's format (skip detection)")
+    p.add_argument(
+        "--compression", default="lz4", choices=("lz4", "zstd", "none"), help="AEDAT 4 packet compression (default lz4)"
+    )
+    p.set_defaults(func=_cmd)
+
+
+def _cmd(args) -> int:
+    run(
+        args.file,
+        args.out,
+        start_s=args.start,
+        end_s=args.end,
+        force=args.force,
+        exposure_us=args.exposure_us,
+        format=args.format,
+        compression=args.compression,
+    )
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(0)

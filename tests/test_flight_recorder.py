@@ -1,0 +1,175 @@
+"""The flight recorder: bounded memory whatever the rate, a clip around every failure (merged when they
+overlap), nothing written without one, clips that replay at the failure; and ``mark`` at the prompt."""
+
+from __future__ import annotations
+
+import io
+import math
+import re
+
+import numpy as np
+import pytest
+from rrd_read import Rrd
+
+from necviz.core.control import ExposureCommand
+from necviz.core.events import EVENT_DTYPE
+from necviz.core.frames import ExposureMarker, Frame
+from necviz.core.sensor import SensorGeometry
+from necviz.dashboard.telemetry import FrameRecord
+from necviz.drivers.recordings import open_recording
+from necviz.flight_recorder import FlightRecorder, cause_slug
+
+SENSOR = SensorGeometry(32, 24, "tiny")
+BATCH_US = 1000
+
+
+def _recorder(folder, **kw) -> FlightRecorder:
+    args = dict(sensor=SENSOR, lanes={"a": "cam"}, drivers={"cam": "a"}, layout="live", before_s=0.5, after_s=0.3)
+    return FlightRecorder(folder, **{**args, **kw})
+
+
+def _batch(t0: int, n: int) -> np.ndarray:
+    ev = np.zeros(n, EVENT_DTYPE)
+    ev["t"] = t0 + np.arange(n) * BATCH_US // max(n, 1)
+    ev["x"], ev["y"] = np.arange(n) % 32, np.arange(n) % 24
+    ev["p"] = 1
+    return ev
+
+
+def _record(seq, s, e, over) -> FrameRecord:
+    return FrameRecord(
+        seq, s, e, float(e - s), 1.0, over, 0.0, saturation_cause="command_latency" if over > 0.5 else ""
+    )
+
+
+def _run(fr: FlightRecorder, seconds: float, per_batch: int, saturated_at=(), frame_period_us=20_000):
+    """Feed ``seconds`` of 1 ms event batches and a frame every 20 ms; frames starting at the times in
+    ``saturated_at`` (µs) are saturated."""
+    fr.started(0, {})
+    seq = 0
+    for k in range(int(seconds * 1e6) // BATCH_US):
+        t = k * BATCH_US
+        if t % frame_period_us == 0:  # stream order: a marker before the events at/after its time
+            fr.packet("cam", ExposureMarker(t, "start"))
+        fr.events(_batch(t, per_batch))
+        if t % frame_period_us == 4_000:
+            s, e = t - 4_000, t + BATCH_US
+            fr.packet("cam", ExposureMarker(e, "end"))
+            f = Frame(np.full((24, 32), 7, np.uint8), s, e, 1.0, seq)
+            fr.packet("cam", f)
+            fr.frame("a", f, _record(seq, s, e, 0.9 if s in saturated_at else 0.0))
+            fr.command("a", ExposureCommand(1000.0, 1.0, t), 5.0)
+            fr.prediction("a", t, 1.0)
+            seq += 1
+    return fr.close()
+
+
+def test_a_run_without_failures_writes_nothing_and_memory_follows_the_window(tmp_path):
+    fr = _recorder(tmp_path, before_s=0.2)
+    stats = _run(fr, 2.0, 100)
+    assert list(tmp_path.iterdir()) == []
+    assert stats["clips_written"] == 0 and stats["dropped_events"] == 0
+    # 0.2 s (+ the 0.2 s slack for an exposure seen at its end) of 100-event batches (13 bytes an event),
+    # frames and small entries: a fifth of the 2 s fed
+    from necviz.flight_recorder import SLACK_US
+
+    per_second = 1000 * 100 * 13 + 50 * (32 * 24 + 160) + 50 * 3 * 160
+    window = 0.2 + SLACK_US / 1e6
+    assert per_second * window * 0.95 <= stats["peak_bytes"] <= per_second * window * 1.05
+
+
+def test_the_budget_bounds_memory_whatever_the_rate_and_says_so(tmp_path):
+    budget = 1 << 20
+    fr = _recorder(tmp_path, before_s=5.0, budget_bytes=budget)
+    stats = _run(fr, 1.0, 2000, saturated_at=(600_000,))  # 26 MB/s of events against a 1 MB budget
+    assert stats["dropped_events"] > 0
+    # ring <= budget, the clip being collected <= 2 x budget (then cut)
+    assert stats["peak_bytes"] <= 3 * budget + 64 * 1024
+    assert stats["clips_written"] >= 1
+    rec = open_recording(sorted(tmp_path.glob("*.necrec"))[0])
+    n = sum(len(p) for p in rec if isinstance(p, np.ndarray))
+    assert 0 < n * 13 <= 3 * budget  # what the clip holds is what fitted in the budget
+
+
+def test_a_clip_covers_before_and_after_the_failure_and_opens_at_it(tmp_path, capsys):
+    fr = _recorder(tmp_path)
+    stats = _run(fr, 2.0, 50, saturated_at=(1_000_000,))
+    assert stats["clips_written"] == 1 and stats["failures"] == 1
+    necrec = sorted(tmp_path.glob("*.necrec"))
+    rrd = sorted(tmp_path.glob("*.rrd"))
+    assert len(necrec) == 1 and len(rrd) == 1 and necrec[0].stem == rrd[0].stem
+    assert necrec[0].stem.endswith("-t1.000s-command_latency")
+    rec = open_recording(necrec[0])
+    packets = list(rec)
+    t = np.concatenate([p["t"] for p in packets if isinstance(p, np.ndarray)])
+    # the ring kept 0.5 s before the failure (frame start 1.0 s); the clip ran 0.3 s after it
+    assert 500_000 - BATCH_US <= t[0] <= 500_000 + BATCH_US
+    assert 1_300_000 - BATCH_US <= t[-1] <= 1_300_000 + 2 * BATCH_US
+    frames = [p for p in packets if isinstance(p, Frame)]
+    assert all(f.image.shape == (24, 32) for f in frames) and len(frames) >= 35
+    assert rec.properties["clip_cause"] == "command_latency" and rec.properties["clip_failure_us"] == 1_000_000
+    assert len(rec.commands) == len(frames) or abs(len(rec.commands) - len(frames)) <= 1
+    # the .rrd: what the dashboard showed over the clip (frames, events, series)
+    view = Rrd(rrd[0])
+    assert any(e.startswith("a/") for e in view.components) and "events" in " ".join(view.components)
+    # replay of the clip opens at the failure
+    from necviz import ReplayOptions, ViewerOptions, run_replay
+
+    run_replay(ReplayOptions(necrec[0]), ViewerOptions(save=tmp_path / "replay.rrd"))
+    said = capsys.readouterr().out
+    assert re.search(r"clip: command_latency at 0\.(499|500) s; the viewer loops over 0\.000\.\.1\.(499|500) s", said)
+
+
+def test_overlapping_failures_merge_and_distant_ones_do_not(tmp_path):
+    fr = _recorder(tmp_path)
+    stats = _run(fr, 3.0, 10, saturated_at=(1_000_000, 1_200_000, 2_600_000))
+    assert stats["failures"] == 3 and stats["clips_written"] == 2
+    names = sorted(p.stem for p in tmp_path.glob("*.necrec"))
+    assert [n.split("-t")[1] for n in names] == ["1.000s-command_latency", "2.600s-command_latency"]
+    first = open_recording(tmp_path / f"{names[0]}.necrec")
+    assert first.properties["clip_failures"] == 2
+    last_t = max(int(p["t"][-1]) for p in first if isinstance(p, np.ndarray))
+    assert last_t >= 1_500_000 - BATCH_US  # extended to 0.3 s after the second failure
+
+
+def test_cause_names_are_file_name_safe():
+    assert cause_slug("command_latency") == "command_latency"
+    assert cause_slug("") == "saturated" and cause_slug("a b/c") == "a-b-c"
+
+
+def test_mark_at_the_prompt_writes_a_clip_in_a_demo(tmp_path):
+    from necviz import ClipOptions, DemoOptions, SceneOptions, TuneOptions, ViewerOptions, run_demo
+
+    clips = tmp_path / "clips"
+    clips.mkdir()
+    out = io.StringIO()
+    stats = run_demo(
+        DemoOptions(
+            SceneOptions("static_lab", duration_s=0.6),
+            ("nec",),
+            tune=TuneOptions(prompt=True),
+            clips=ClipOptions(clips, 0.2, 0.1),
+        ),
+        ViewerOptions(save=tmp_path / "demo.rrd"),
+        out=out,
+        stdin=io.StringIO("mark look here\n"),
+    )
+    fr = stats["flight_recorder"]
+    assert fr["marks"] == 1
+    marked = [p for p in clips.glob("*.necrec") if p.stem.endswith("-mark")]
+    assert len(marked) == 1, sorted(p.name for p in clips.iterdir())
+    rec = open_recording(marked[0])
+    assert any(d.get("mark", {}).get("text") == "look here" for _, d in rec.annotations)
+    assert "clips: " in out.getvalue()
+
+
+def test_clip_options_are_checked_before_anything_runs(tmp_path):
+    from necviz.commands.cli import main
+
+    assert main(["demo", "--clips", str(tmp_path / "missing"), "--save", str(tmp_path / "x.rrd")]) == 2
+    assert not (tmp_path / "x.rrd").exists()
+    with pytest.raises(Exception, match="clip-before"):
+        from necviz import ClipOptions
+
+        ClipOptions(tmp_path, before_s=-1)
+    assert math.isfinite(5.0)
