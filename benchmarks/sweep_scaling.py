@@ -32,7 +32,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from necviz.sweep import load_plan, run_sweep
+from necviz.sweeps import load_plan, run_sweep
 
 GRID = """
 name = "sweep-scaling benchmark"

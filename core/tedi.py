@@ -32,7 +32,7 @@ Two layers: :func:`prepare_pair` selects the pixels of one frame pair and keeps 
 events (:class:`CalibrationPair`, compact: nothing sensor-sized is stored per pair), and
 :func:`fit_tedi_pairs` fits on any list of such pairs — from one array of events
 (:func:`calibrate_tedi`) or streamed from long recordings and simulator runs
-(:mod:`necviz.calibrate`, which also picks the pairs).
+(:mod:`necviz.calibration`, which also picks the pairs).
 """
 
 from __future__ import annotations
@@ -256,7 +256,7 @@ def prepare_pair(
     frames, never the pair's own event counts.
 
     ``mask`` (bool, flat or (H, W)): the pixels to use, selected by the caller with the same rules
-    (:class:`necviz.calibrate.PairCollector` caches the per-frame arrays); it replaces the
+    (:class:`necviz.calibration.PairCollector` caches the per-frame arrays); it replaces the
     selection above (``min_change`` and ``last_polarity`` are then ignored).
     """
     if reference not in REFERENCES:

@@ -349,7 +349,7 @@ class FlightRecorder(Observer):
     def write_clip(self, clip: _Clip) -> list[Path]:
         """Write ``clip`` as ``<name>.necrec`` and ``<name>.rrd``; returns both paths."""
         from necviz.drivers.recordings.native import Recorder
-        from necviz.export import written
+        from necviz.writers import written
 
         name = self.clip_name(clip)
         lane = clip.lane or next(iter(self.lanes))

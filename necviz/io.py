@@ -113,7 +113,7 @@ def from_faery(events: np.ndarray) -> np.ndarray:
 
 
 def load_npz(path) -> dict:
-    """A ``necviz export`` ``.npz`` as a dict of arrays (layout: :mod:`necviz.export.npz_writer`).
+    """A ``necviz export`` ``.npz`` as a dict of arrays (layout: :mod:`necviz.writers.npz_writer`).
 
     Parameters
     ----------

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from necviz.calibrate import PairCollector, calibrate_from_recordings, calibrate_from_simulation
+from necviz.calibration import PairCollector, calibrate_from_recordings, calibrate_from_simulation
 from necviz.commands.calibrate import add_parser, parse_seeds
 from necviz.core.camera_profile import CameraProfile
 from necviz.core.crf import default_davis346
@@ -217,7 +217,7 @@ def test_seeds_syntax():
 
 def test_memory_stays_bounded_and_pairs_spread():
     """With room for 4 pairs the collector keeps at most 4, thinned evenly over the run."""
-    from necviz.calibrate import simulate_calibration_stream
+    from necviz.calibration import simulate_calibration_stream
 
     scene = CalibrationScene(SensorGeometry(32, 24), duration_us=3_000_000, seed=2)
     col = PairCollector(default_davis346(), min_pixels=20, max_pairs=4)

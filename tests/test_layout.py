@@ -39,7 +39,13 @@ def _imports(path: Path, modules: dict[str, Path]) -> set[str]:
 
 
 def test_no_two_modules_share_a_name():
-    names = Counter(p.name for p in _modules().values() if p.name not in ("__init__.py", "__main__.py"))
+    """A module's name (file or package folder) is used once across the tree (``replay.py`` beside a
+    ``replay/`` package is the confusion this prevents)."""
+    names = Counter(
+        p.parent.name if p.name == "__init__.py" else p.stem
+        for m, p in _modules().items()
+        if p.name != "__main__.py" and m not in PACKAGES.values()
+    )
     assert [n for n, k in names.items() if k > 1] == []
 
 

@@ -22,7 +22,7 @@ def test_a_killed_run_is_repaired_into_a_copy(tmp_path, capsys):
             "necviz",
             "demo",
             "--duration",
-            "10",
+            "30",
             "--controllers",
             "nec,fixed",
             "--save",
@@ -33,13 +33,15 @@ def test_a_killed_run_is_repaired_into_a_copy(tmp_path, capsys):
         ],
         cwd=tmp_path,
         stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
+        stderr=open(tmp_path / "stderr.txt", "w"),  # noqa: SIM115 - closed with the process
     )
     deadline = time.time() + 120
     while time.time() < deadline and (not rrd.exists() or rrd.stat().st_size < 200_000):
         time.sleep(0.2)
+    still_running = proc.poll() is None
     proc.send_signal(signal.SIGKILL)
     proc.wait(30)
+    assert still_running, f"the demo ended before it was killed: {(tmp_path / 'stderr.txt').read_text()[-2000:]}"
     with pytest.warns(Warning, match="no footer"):
         reader = RrdReader(str(rrd))
     with pytest.raises(Exception, match="without footer"):

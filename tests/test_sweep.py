@@ -23,9 +23,9 @@ import pyarrow.parquet as pq
 import pytest
 
 from necviz.commands.cli import main
-from necviz.sweep import load_plan, run_sweep
-from necviz.sweep.spec import spec_hash
-from necviz.sweep.store import Store
+from necviz.sweeps import load_plan, run_sweep
+from necviz.sweeps.spec import spec_hash
+from necviz.sweeps.store import Store
 
 SWEEP = """
 name = "tiny"
@@ -52,7 +52,7 @@ def _write(path: Path, text: str) -> Path:
 
 @pytest.fixture(scope="module")
 def client():
-    from necviz.sweep.engine import connect
+    from necviz.sweeps.engine import connect
 
     with connect(workers=2, dashboard=None) as c:
         yield c
@@ -168,7 +168,7 @@ def test_same_spec_gives_same_hash_and_identical_metrics_on_a_separate_scheduler
 def test_report_matches_compare(first, tmp_path):
     from necviz.commands.compare import METRICS, run
     from necviz.options import CompareOptions, SceneOptions
-    from necviz.sweep.report import report
+    from necviz.sweeps.report import report
 
     _, out, _ = first
     rep = report(out, folder=tmp_path / "rep")
@@ -215,7 +215,7 @@ def test_report_refuses_to_replace_and_unknown_metrics(first, tmp_path, capsys):
 
 def test_show_reruns_a_cell_deterministically(first, tmp_path):
     from necviz.options import ViewerOptions
-    from necviz.sweep.show import show
+    from necviz.sweeps.show import show
 
     _, out, _ = first
     h = next(iter(_ok_rows(out)))
@@ -434,7 +434,7 @@ def test_a_run_whose_worker_keeps_dying_is_recorded_failed(tmp_path):
     """With no retries allowed, one death of the worker running it makes it a failed row; the sweep goes on.
 
     Two workers, two runs: one each (a worker also holding a queued run would take that one down too)."""
-    from necviz.sweep.engine import connect
+    from necviz.sweeps.engine import connect
 
     f = _write(
         tmp_path / "two.toml",

@@ -5,7 +5,7 @@
   event at/after each millisecond, used for seeking; otherwise bisection on ``/events/t``). DSEC's own
   files hold no frames; files written by ``necviz export`` add ``/frames/{images, exposure_start_us,
   exposure_end_us, gain}``, ``/imu/{t, accel, gyro, temp}`` and ``/triggers/{t, kind}`` (times relative
-  to ``/t_offset`` too; :mod:`necviz.export.hdf5_writer`), which are replayed with their stored exposures.
+  to ``/t_offset`` too; :mod:`necviz.writers.hdf5_writer`), which are replayed with their stored exposures.
   DSEC's own files use Blosc (HDF5 filter 32001): they are read when ``hdf5plugin`` is installed
   (imported if present); otherwise a one-line error names the missing filter.
 * **MVSEC** (``<seq>_data.hdf5``): ``davis/left/events`` (N x 4 float64: x, y, t s, p ±1),

@@ -7,10 +7,10 @@ import math
 import sys
 from pathlib import Path
 
-from necviz.calibrate.fit import DEFAULT_LOSS, DEFAULT_SLOW_RATE, _resolve_fit
-from necviz.calibrate.pairs import DEFAULTS
-from necviz.calibrate.recordings import calibrate_from_recordings
-from necviz.calibrate.simulate import calibrate_from_simulation
+from necviz.calibration.fit import DEFAULT_LOSS, DEFAULT_SLOW_RATE, _resolve_fit
+from necviz.calibration.from_recordings import calibrate_from_recordings
+from necviz.calibration.from_simulation import calibrate_from_simulation
+from necviz.calibration.pairs import DEFAULTS
 from necviz.core.camera_profile import CameraProfile
 from necviz.core.errors import ParameterError
 from necviz.core.event_model import TediParams

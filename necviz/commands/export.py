@@ -29,7 +29,7 @@ def run(
     compression: str = "lz4",
     out=...,
 ) -> dict:
-    """Export ``file`` to ``out_path``; returns :func:`necviz.export.export_recording`'s statistics.
+    """Export ``file`` to ``out_path``; returns :func:`necviz.writers.export_recording`'s statistics.
 
     Raises
     ------
@@ -40,9 +40,9 @@ def run(
         For a missing, unreadable or damaged input (no output is left behind).
     """
     from necviz.commands.replay import open_for_replay
-    from necviz.export import SUFFIXES, export_recording, format_for
     from necviz.options import ReplayOptions
     from necviz.outputs import check_output
+    from necviz.writers import SUFFIXES, export_recording, format_for
 
     out = output(out)
     ReplayOptions(file, start_s, end_s, exposure_us)  # the same checks of the range as replay

@@ -1,4 +1,4 @@
-"""``necviz sweep plan|run|status|report|show``: the command line of :mod:`necviz.sweep`."""
+"""``necviz sweep plan|run|status|report|show``: the command line of :mod:`necviz.sweeps`."""
 
 from __future__ import annotations
 
@@ -8,22 +8,22 @@ import sys
 
 
 def _clock(s) -> str:
-    from necviz.sweep.engine import _clock as c
+    from necviz.sweeps.engine import _clock as c
 
     return c(s)
 
 
 def _cmd_plan(args) -> int:
-    from necviz.sweep.engine import default_workers
-    from necviz.sweep.planning import calibrate, describe, estimate
-    from necviz.sweep.spec import load_plan
+    from necviz.sweeps.engine import default_workers
+    from necviz.sweeps.planning import calibrate, describe, estimate
+    from necviz.sweeps.spec import load_plan
 
     plan = load_plan(args.file)
     desc = describe(plan)
     workers = args.workers or default_workers()
     est = None if args.no_estimate else estimate(plan, workers, calibrate(plan), desc)
     if est is not None and plan.metrics and est.get("metrics"):
-        from necviz.sweep.spec import SweepFileError
+        from necviz.sweeps.spec import SweepFileError
 
         bad = [m for m in plan.metrics if m not in est["metrics"]]
         if bad:
@@ -78,8 +78,8 @@ def _seeds(seeds) -> str:
 
 
 def _cmd_run(args) -> int:
-    from necviz.sweep.engine import run_sweep
-    from necviz.sweep.spec import load_plan
+    from necviz.sweeps.engine import run_sweep
+    from necviz.sweeps.spec import load_plan
 
     plan = load_plan(args.file)
     res = run_sweep(
@@ -106,7 +106,7 @@ def _cmd_run(args) -> int:
 
 
 def _cmd_status(args) -> int:
-    from necviz.sweep.engine import status
+    from necviz.sweeps.engine import status
 
     st = status(args.out)
     if args.json:
@@ -132,7 +132,7 @@ def _cmd_status(args) -> int:
 
 
 def _cmd_report(args) -> int:
-    from necviz.sweep.report import report
+    from necviz.sweeps.report import report
 
     metrics = [m.strip() for m in args.metrics.split(",") if m.strip()] if args.metrics else None
     plot_metrics = [m.strip() for m in args.plot.split(",") if m.strip()] if args.plot else None
@@ -149,7 +149,7 @@ def _cmd_report(args) -> int:
 
 def _cmd_show(args) -> int:
     from necviz.dashboard.viewer import viewer_options
-    from necviz.sweep.show import show
+    from necviz.sweeps.show import show
 
     show(args.out, args.run, viewer_options(args), speed=args.speed)
     return 0

@@ -108,7 +108,7 @@ class VideoWriter(Observer):
         crf: int = 20,
     ):
         self.av = require_av()
-        from necviz.export import Pending
+        from necviz.writers import Pending
 
         if not (speed > 0 and fps > 0):
             raise ParameterError(f"video speed and frame rate must be positive, got x{speed}, {fps} fps")

@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 
-from necviz.calibrate.fit import (
+from necviz.calibration.fit import (
     DEFAULT_F_SCALE,
     DEFAULT_LOSS,
     DEFAULT_SLOW_RATE,
@@ -17,7 +17,7 @@ from necviz.calibrate.fit import (
     _report,
     calibrate_collected,
 )
-from necviz.calibrate.pairs import DEFAULTS, _collector
+from necviz.calibration.pairs import DEFAULTS, _collector
 from necviz.core.camera_profile import CameraProfile
 from necviz.core.control import CameraLimits
 from necviz.core.crf import CameraResponse, default_davis346

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from necviz.calibrate.pairs import PairCollector
+from necviz.calibration.pairs import PairCollector
 from necviz.core.camera_profile import CameraProfile
 from necviz.core.control import CameraLimits
 from necviz.core.crf import CameraResponse, debevec_malik

@@ -33,8 +33,8 @@ import numpy as np
 
 from necviz.core.errors import ParameterError
 from necviz.core.metrics import confidence_interval
-from necviz.sweep.spec import cell_key
-from necviz.sweep.store import REPORT_FILES, Store, SweepDirError
+from necviz.sweeps.spec import cell_key
+from necviz.sweeps.store import REPORT_FILES, Store, SweepDirError
 
 PLOT_DEFAULT = ("saturated_frames_50", "recovery_ms")
 SPEC_FIXED = ("scenario", "duration_s", "profile", "sift", "controller")

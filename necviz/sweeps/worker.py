@@ -15,7 +15,7 @@ glibc's heap for image-sized arrays (:func:`_heap_allocations`, on workers start
 Numba kernels from their on-disk cache is not counted in the first run's time.
 
 Row columns (one row per Parquet file): ``hash``, ``status`` (``ok``/``failed``), ``error``,
-``traceback``, the spec's columns (:func:`necviz.sweep.spec.spec_columns`), ``spec_json`` (the
+``traceback``, the spec's columns (:func:`necviz.sweeps.spec.spec_columns`), ``spec_json`` (the
 exact spec, for ``sweep show``), ``sim_duration_s`` (the simulated length), timing (``wall_s``:
 the run alone, ``warmup_s`` on a worker's first task, ``started_at``, ``finished_at``), where it
 ran (``worker``: host:pid) and every scalar in the controller's result: numbers (metrics; their

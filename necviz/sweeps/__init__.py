@@ -9,7 +9,7 @@ embedded local cluster of worker processes (or an existing Dask cluster) with
 :mod:`.report` turns the rows into per-cell means with 95 % confidence intervals (Markdown, CSV,
 plots); :mod:`.show` re-runs one run in the Rerun dashboard. From Python::
 
-    from necviz.sweep import load_plan, run_sweep, report
+    from necviz.sweeps import load_plan, run_sweep, report
     plan = load_plan("benchmarks/sweeps/example.toml")
     run_sweep(plan, "out/example", workers=2)
     report("out/example")

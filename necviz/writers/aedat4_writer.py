@@ -39,7 +39,7 @@ import numpy as np
 from necviz.core.errors import ParameterError
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import ImuBatch, TriggerBatch
-from necviz.export.flatbuf import Buffer
+from necviz.writers.flatbuf import Buffer
 
 MAGIC = b"#!AER-DAT4.0\r\n"
 #: ``--compression`` names -> (IOHeader enum, XML name).

@@ -3,10 +3,10 @@
 The output format is chosen by the file's suffix (:data:`WRITERS`):
 
 * ``.aedat4`` — AEDAT 4.0 as iniVation's DV writes it: events, frames with exposure begin/end, IMU,
-  triggers (:mod:`necviz.export.aedat4_writer`);
+  triggers (:mod:`necviz.writers.aedat4_writer`);
 * ``.h5`` / ``.hdf5`` — the DSEC event layout (``/events/t,x,y,p``) plus frames with their exposure
-  intervals, IMU and triggers (:mod:`necviz.export.hdf5_writer`);
-* ``.npz`` — one structured event array, frames, exposures, IMU, triggers (:mod:`necviz.export.npz_writer`);
+  intervals, IMU and triggers (:mod:`necviz.writers.hdf5_writer`);
+* ``.npz`` — one structured event array, frames, exposures, IMU, triggers (:mod:`necviz.writers.npz_writer`);
 * ``.necrec`` — a clip in necviz's native format (:class:`~necviz.drivers.recordings.native.Recorder`),
   with the commands and annotations of a native input kept.
 
@@ -117,15 +117,15 @@ def open_writer(fmt: str, path, sensor, *, properties: dict | None = None, compr
         For an unknown format or compression.
     """
     if fmt == "aedat4":
-        from necviz.export.aedat4_writer import Aedat4Writer
+        from necviz.writers.aedat4_writer import Aedat4Writer
 
         return Aedat4Writer(path, sensor, compression=compression)
     if fmt == "hdf5":
-        from necviz.export.hdf5_writer import Hdf5Writer
+        from necviz.writers.hdf5_writer import Hdf5Writer
 
         return Hdf5Writer(path, sensor, properties=properties)
     if fmt == "npz":
-        from necviz.export.npz_writer import NpzWriter
+        from necviz.writers.npz_writer import NpzWriter
 
         return NpzWriter(path, sensor, properties=properties)
     if fmt == "necviz":

@@ -14,14 +14,14 @@ runs (:func:`simulate_calibration_stream`: the calibration scene of
 Both are consumed as one stream of packets by :class:`PairCollector`.
 
 Modules: :mod:`.pairs` (choosing the frame pairs and the exposure brackets from a stream),
-:mod:`.fit` (the least-squares fit and :class:`CalibrationResult`), :mod:`.recordings` and
-:mod:`.simulate` (the two data sources). The shipped simulated-DAVIS346 profile is
+:mod:`.fit` (the least-squares fit and :class:`CalibrationResult`), :mod:`.from_recordings` and
+:mod:`.from_simulation` (the two data sources). The shipped simulated-DAVIS346 profile is
 :func:`necviz.profiles.default_sim_profile`; the command is :mod:`necviz.commands.calibrate`.
 """
 
 from __future__ import annotations
 
-from necviz.calibrate.fit import (
+from necviz.calibration.fit import (
     DEFAULT_F_SCALE,
     DEFAULT_LOSS,
     DEFAULT_SLOW_RATE,
@@ -29,15 +29,15 @@ from necviz.calibrate.fit import (
     CalibrationResult,
     calibrate_collected,
 )
-from necviz.calibrate.pairs import DEFAULTS, PairCollector
-from necviz.calibrate.recordings import calibrate_from_recordings
-from necviz.calibrate.simulate import (
+from necviz.calibration.from_recordings import calibrate_from_recordings
+from necviz.calibration.from_simulation import (
     BRACKET_OFFSETS,
     ExposureOracle,
     calibrate_from_simulation,
     make_sim_scene,
     simulate_calibration_stream,
 )
+from necviz.calibration.pairs import DEFAULTS, PairCollector
 
 __all__ = [
     "BRACKET_OFFSETS",

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from necviz.core.errors import ParameterError
-from necviz.sweep.store import Store
+from necviz.sweeps.store import Store
 
 
 def _metrics(lane, scene) -> dict:

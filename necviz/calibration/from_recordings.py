@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from necviz.calibrate.fit import (
+from necviz.calibration.fit import (
     DEFAULT_F_SCALE,
     DEFAULT_LOSS,
     DEFAULT_SLOW_RATE,
@@ -13,7 +13,7 @@ from necviz.calibrate.fit import (
     _report,
     calibrate_collected,
 )
-from necviz.calibrate.pairs import DEFAULTS, _collector
+from necviz.calibration.pairs import DEFAULTS, _collector
 from necviz.core.camera_profile import CameraProfile
 from necviz.core.errors import ParameterError
 from necviz.core.event_model import TediParams

@@ -7,10 +7,10 @@ workers use N cores. ``scheduler="tcp://HOST:PORT"`` connects to a running clust
 Dask deployment: ``dask scheduler`` + ``dask worker``, SSH, Kubernetes, Slurm through
 dask-jobqueue); its workers need necviz installed, and the client needs the sweep's files.
 
-**Tasks.** One task per run: :func:`necviz.sweep.worker.execute` (a plain top-level function) on
+**Tasks.** One task per run: :func:`necviz.sweeps.worker.execute` (a plain top-level function) on
 the run's plain-dict spec, keyed ``necviz-run-<hash>``. The worker returns the row and the trace
 as Parquet bytes; the client writes them into ``OUT/runs/`` atomically as each task completes
-(:class:`~necviz.sweep.store.Store`), so finished runs are on disk whatever happens next.
+(:class:`~necviz.sweeps.store.Store`), so finished runs are on disk whatever happens next.
 
 **Failures and retries.** A run that raises is a row with ``status = "failed"`` (the task itself
 succeeds). A worker that dies (killed, out of memory, a crash in native code) has its task
@@ -35,9 +35,9 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 from necviz.core.errors import NecvizError, ParameterError
-from necviz.sweep.spec import Plan
-from necviz.sweep.store import Store, SweepDirError, git_revision, machine, now, prepare_out, versions
-from necviz.sweep.worker import failed_row
+from necviz.sweeps.spec import Plan
+from necviz.sweeps.store import Store, SweepDirError, git_revision, machine, now, prepare_out, versions
+from necviz.sweeps.worker import failed_row
 
 WORKER_ENV = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 DEFAULT_DASHBOARD = "127.0.0.1:8787"
@@ -167,7 +167,7 @@ def connect(
         except (OSError, RuntimeError, TimeoutError) as e:
             raise ClusterError(f"cannot start a local Dask cluster: {' '.join(str(e).split())[:200]}") from None
         client = Client(cluster, set_as_default=False)
-        from necviz.sweep.worker import IgnoreInterrupt
+        from necviz.sweeps.worker import IgnoreInterrupt
 
         client.register_plugin(IgnoreInterrupt())
         try:
@@ -440,7 +440,7 @@ def _loop(plan, store, todo, res, client, nthreads, retries, stream, poll_s):
 
     from distributed import as_completed
 
-    from necviz.sweep.worker import execute
+    from necviz.sweeps.worker import execute
 
     warm = _warmup_spec(plan)
     session = uuid.uuid4().hex[:8]  # keys unique per session: a resubmitted run never reuses a finished key

@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import time
 
-from necviz.sweep.spec import Plan
+from necviz.sweeps.spec import Plan
 
 
 def run_duration_s(spec: dict) -> float:
@@ -33,7 +33,7 @@ def run_duration_s(spec: dict) -> float:
 
 def describe(plan: Plan) -> dict:
     """Counts and the swept values of ``plan`` (plain data)."""
-    from necviz.sweep.report import is_spec_column
+    from necviz.sweeps.report import is_spec_column
 
     counts = plan.counts()
     scen_cfg = {
@@ -85,7 +85,7 @@ def calibrate(plan: Plan, cap_s: float = 2.0) -> dict | None:
     """Time one run of the grid's first spec (see the module docstring) as a sweep worker runs it."""
     from necviz.drivers.sim import rig as camera
     from necviz.runs import run_spec
-    from necviz.sweep.worker import InlineExecutor, flatten_result
+    from necviz.sweeps.worker import InlineExecutor, flatten_result
 
     if not plan.runs:
         return None
