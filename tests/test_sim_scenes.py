@@ -328,14 +328,15 @@ def test_parameter_table_in_docstring(name, scenes):
             assert float(p.default_cell()) == scenes[name].params[key]
 
 
-def test_readme_scenario_section_is_generated():
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
-    head = "### Simulator scenarios and their parameters\n\n"
+def test_docs_scenario_section_is_generated():
+    text = (Path(__file__).resolve().parents[1] / "docs" / "simulator.md").read_text(encoding="utf-8")
+    head = "## Simulator scenarios and their parameters\n\n"
     assert text.count(head) == 1
     start = text.index(head) + len(head)
-    end = start + re.search(r"^#{1,3} ", text[start:], re.M).start()
+    nxt = re.search(r"^#{1,2} ", text[start:], re.M)
+    end = start + nxt.start() if nxt else len(text)
     assert text[start:end] == scenario_params_markdown() + "\n", (
-        "README section out of date: paste necviz.drivers.sim.scenes.scenario_params_markdown()"
+        "docs/simulator.md section out of date: paste necviz.drivers.sim.scenes.scenario_params_markdown()"
     )
 
 
