@@ -17,11 +17,12 @@ from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import IMU_DTYPE, ImuBatch
 from necviz.core.sensor import SensorGeometry
+from necviz.core.stream import packet_time_us
 from necviz.dashboard import schema as S
 from necviz.dashboard.sink import RerunSink
 from necviz.drivers.recordings import Recorder, open_recording
 from necviz.drivers.source import CameraInfo, route
-from necviz.pipeline import Lane, Pipeline, RecorderObserver, packet_time_us
+from necviz.pipeline import Lane, Pipeline, RecorderObserver
 
 SENSOR = SensorGeometry(32, 24, "test")
 
