@@ -492,7 +492,7 @@ class NativeRecording(Recording):
                         if t[0] < lo or t[-1] > hi:
                             ev = ev[(t >= lo) & (t <= hi)]
                         if ev.size:
-                            yield ev
+                            yield EventBatch(ev)
                 elif kind == MARKER:
                     t, mk = MARKER_S.unpack(data)
                     if mk == 0:
