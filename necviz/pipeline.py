@@ -37,9 +37,10 @@ import numpy as np
 
 from necviz.core.checks import check_number
 from necviz.core.control import CONTROLLERS, Controller, ControllerContext, create_controller
-from necviz.core.errors import NecvizError, ParameterError
+from necviz.core.errors import NecvizError, ParameterError, StreamError
 from necviz.core.events import EventBatch
 from necviz.core.frames import ExposureMarker, Frame
+from necviz.core.imu import ImuBatch, TriggerBatch
 from necviz.core.ptedi import PeripheralEstimator
 from necviz.core.stream import packet_time_us
 from necviz.dashboard import schema as S
@@ -431,9 +432,14 @@ class Pipeline:
                         cmd = ln.controller.feed(packet)
                         if cmd is not None:
                             self._command(ln, cmd, t_in)
-                case _:  # IMU samples and triggers: for observers only; no controller uses them
+                case ImuBatch() | TriggerBatch():  # for observers only; no controller uses them
                     for o in observers:
                         o.packet(cam, packet)
+                case _:  # e.g. a bare event array from a source written before EventBatch: never drop it silently
+                    raise StreamError(
+                        f"the source yielded a {type(packet).__name__}, which is not a stream packet "
+                        "(events travel as EventBatch; see necviz.core.stream.Packet)"
+                    )
 
     def _sample(self, lanes: list[Lane], t: int) -> None:
         """Every lane's P-TEDI prediction ln P(t), for the observers."""
