@@ -1,8 +1,9 @@
 """Event arrays: the structured NumPy type every necviz component exchanges.
 
-An event batch is a 1-D structured array with fields ``t`` (int64, microseconds),
+An event array is a 1-D structured array with fields ``t`` (int64, microseconds),
 ``x``, ``y`` (uint16, pixel column and row) and ``p`` (int8, +1 ON / -1 OFF),
-sorted by ``t`` (ties allowed), following tonic's field naming.
+sorted by ``t`` (ties allowed), following tonic's field naming. Between a source and its
+consumers an event array travels as an :class:`EventBatch` packet (its ``events``), never bare.
 """
 
 from __future__ import annotations

@@ -119,9 +119,9 @@ class FrameEstimate:
 class PeripheralEstimator(FrameSideMixin, PacketHandler):
     """Streaming P-TEDI estimate of the mean log irradiance of one or more peripheral zones.
 
-    Feed it, in stream order: event batches (:meth:`update`), exposure markers
+    Feed it, in stream order: event arrays (:meth:`update`), exposure markers
     (:meth:`begin_exposure`, :meth:`end_exposure`) and frames (:meth:`add_frame`), or
-    everything through :meth:`feed`. Then :meth:`predict` gives ``ln P(t)`` for any time after
+    every stream packet (:class:`~necviz.core.events.EventBatch` and the rest) through :meth:`feed`. Then :meth:`predict` gives ``ln P(t)`` for any time after
     the last anchor.
 
     Parameters

@@ -2,8 +2,8 @@
 
 Iterating a :class:`DavisCamera` runs the start sequence, reads the bulk endpoint on a thread
 (:class:`~.device.BulkReader`), decodes each transfer (:class:`~.decoder.DavisDecoder`) and yields
-packets in stream order: event batches (at most 1 ms and 65,536 events each, so a controller can act
-between frames), ``ExposureMarker('start')``, ``ExposureMarker('end')``, then the :class:`Frame`,
+packets in stream order: event batches (:class:`~necviz.core.events.EventBatch`, at most 1 ms and
+65,536 events each, so a controller can act between frames), ``ExposureMarker('start')``, ``ExposureMarker('end')``, then the :class:`Frame`,
 plus ``ImuBatch``/``TriggerBatch``.
 
 Exposure and gain: :meth:`DavisCamera.set_exposure` clamps to :attr:`DavisCamera.limits` and writes
