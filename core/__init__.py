@@ -11,7 +11,7 @@ from necviz.core.crf import CameraResponse, debevec_malik, default_davis346
 from necviz.core.edi import edi_reconstruct, fast_edi_reconstruct, medi_reconstruct, valid_mask
 from necviz.core.errors import NecvizError
 from necviz.core.event_model import TediParams
-from necviz.core.events import EVENT_DTYPE, make_events, validate_events
+from necviz.core.events import EVENT_DTYPE, EventBatch, make_events, validate_events
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.ptedi import PeripheralEstimator
 from necviz.core.sensor import DAVIS240, DAVIS346, SensorGeometry
@@ -22,6 +22,7 @@ __all__ = [
     "DAVIS240",
     "DAVIS346",
     "EVENT_DTYPE",
+    "EventBatch",
     "ExposureMarker",
     "Frame",
     "NecvizError",

@@ -1,11 +1,14 @@
 """Event arrays: the structured NumPy type every necviz component exchanges.
 
-An event batch is a 1-D structured array with fields ``t`` (int64, microseconds),
+An event array is a 1-D structured array with fields ``t`` (int64, microseconds),
 ``x``, ``y`` (uint16, pixel column and row) and ``p`` (int8, +1 ON / -1 OFF),
-sorted by ``t`` (ties allowed), following tonic's field naming.
+sorted by ``t`` (ties allowed), following tonic's field naming. Between a source and its
+consumers an event array travels as an :class:`EventBatch` packet (its ``events``), never bare.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -13,6 +16,26 @@ from necviz.core.errors import EventFormatError
 from necviz.core.sensor import SensorGeometry
 
 EVENT_DTYPE = np.dtype([("t", "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "i1")])
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class EventBatch:
+    """Events as a stream packet: an :data:`EVENT_DTYPE` batch in time order.
+
+    Sources yield event batches beside exposure markers, frames, IMU and trigger batches; a typed
+    packet lets every consumer tell them apart with one ``match`` (:func:`necviz.core.stream.dispatch`)
+    instead of asking whether a packet is an array. Every camera of a source shares its batches.
+    """
+
+    events: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.events)
+
+    @property
+    def t_last_us(self) -> int | None:
+        """Time of the last event (``None`` for an empty batch)."""
+        return int(self.events["t"][-1]) if len(self.events) else None
 
 
 def empty_events() -> np.ndarray:

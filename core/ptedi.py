@@ -66,8 +66,7 @@ from necviz.core.crf import CameraResponse, default_davis346
 from necviz.core.errors import EventFormatError, FrameFormatError, NotAnchoredError, ParameterError, StreamError
 from necviz.core.event_model import TediParams, direct_integral
 from necviz.core.events import EVENT_DTYPE
-from necviz.core.frames import ExposureMarker, Frame
-from necviz.core.imu import ImuBatch, TriggerBatch
+from necviz.core.frames import Frame
 from necviz.core.ptedi_comp import (
     comp_between,
     comp_rebase,
@@ -82,6 +81,7 @@ from necviz.core.ptedi_frame import FrameSideMixin
 from necviz.core.ptedi_kernels import BLOCK, ptedi_close, ptedi_update, ptedi_update_whole
 from necviz.core.regions import zone_map, zone_sizes
 from necviz.core.sensor import SensorGeometry
+from necviz.core.stream import Packet, PacketHandler, dispatch
 
 __all__ = ["FrameEstimate", "IMAGE_FORMS", "PeripheralEstimator"]
 
@@ -116,12 +116,12 @@ class FrameEstimate:
     bound_side: np.ndarray | None = None
 
 
-class PeripheralEstimator(FrameSideMixin):
+class PeripheralEstimator(FrameSideMixin, PacketHandler):
     """Streaming P-TEDI estimate of the mean log irradiance of one or more peripheral zones.
 
-    Feed it, in stream order: event batches (:meth:`update`), exposure markers
+    Feed it, in stream order: event arrays (:meth:`update`), exposure markers
     (:meth:`begin_exposure`, :meth:`end_exposure`) and frames (:meth:`add_frame`), or
-    everything through :meth:`feed`. Then :meth:`predict` gives ``ln P(t)`` for any time after
+    every stream packet (:class:`~necviz.core.events.EventBatch` and the rest) through :meth:`feed`. Then :meth:`predict` gives ``ln P(t)`` for any time after
     the last anchor.
 
     Parameters
@@ -613,17 +613,15 @@ class PeripheralEstimator(FrameSideMixin):
             pred = pred + (self._kp[0] * comp[0] - self._kp[1] * comp[1]) * self._inv_n
         return pred
 
-    def feed(self, packet) -> FrameEstimate | None:
-        """Dispatch one stream packet: an event array, an :class:`ExposureMarker` or a :class:`Frame`."""
-        if isinstance(packet, np.ndarray):
-            self.update(packet)
-        elif isinstance(packet, ExposureMarker):
-            (self.begin_exposure if packet.kind == "start" else self.end_exposure)(packet.t_us)
-        elif isinstance(packet, Frame):
-            return self.add_frame(packet)
-        elif not isinstance(packet, (ImuBatch, TriggerBatch)):  # IMU and triggers carry nothing P-TEDI uses
-            raise StreamError(f"unknown packet type {type(packet).__name__}")
-        return None
+    def feed(self, packet: Packet) -> FrameEstimate | None:
+        """One stream packet to the method for its kind; a frame returns its :class:`FrameEstimate`."""
+        return dispatch(self, packet)
+
+    # PacketHandler: what dispatch calls
+    on_events = update
+    on_exposure_start = begin_exposure
+    on_exposure_end = end_exposure
+    on_frame = add_frame
 
     # -- output -----------------------------------------------------------------------------
     @property

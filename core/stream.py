@@ -1,9 +1,12 @@
-"""Stream order: interleave recorded events and frames into the packets a live source yields.
+"""Stream packets: what they are, how a consumer receives them, and the order a live source sends them in.
 
-A live source delivers, in time order: event batches, an exposure-start marker when an
-exposure begins, an exposure-end marker when it ends, and the frame some time after its end
-(readout). :func:`interleave` produces exactly that order from arrays, for offline runs,
-tests and benchmarks.
+A source delivers, in time order: event batches (:class:`~necviz.core.events.EventBatch`), an
+exposure-start marker when an exposure begins, an exposure-end marker when it ends, the frame some
+time after its end (readout), and optionally IMU and trigger batches (:data:`Packet`).
+
+:func:`dispatch` hands one packet to the method of a :class:`PacketHandler` for its kind; it is the
+one place that tells packets apart (controllers and P-TEDI are handlers). :func:`interleave`
+produces the live order from arrays, for offline runs, tests and benchmarks.
 """
 
 from __future__ import annotations
@@ -13,7 +16,78 @@ from collections.abc import Iterator, Sequence
 import numpy as np
 
 from necviz.core.errors import StreamError
+from necviz.core.events import EventBatch
 from necviz.core.frames import ExposureMarker, Frame
+from necviz.core.imu import ImuBatch, TriggerBatch
+
+#: What a source yields. Consumers that do not use IMU samples or triggers skip them.
+Packet = EventBatch | ExposureMarker | Frame | ImuBatch | TriggerBatch
+
+
+class PacketHandler:
+    """Something that receives stream packets by kind; :func:`dispatch` calls the method for each.
+
+    Every method returns what the handler makes of the packet (a controller: an exposure command
+    or ``None``); the defaults ignore the packet.
+    """
+
+    def on_events(self, events: np.ndarray):
+        """An event batch (:data:`~necviz.core.events.EVENT_DTYPE`, time-ordered)."""
+
+    def on_exposure_start(self, t_us: int):
+        """An exposure starts at ``t_us``."""
+
+    def on_exposure_end(self, t_us: int):
+        """The open exposure ends at ``t_us``."""
+
+    def on_frame(self, frame: Frame):
+        """A frame arrived (after its exposure ended)."""
+
+    def on_imu(self, batch: ImuBatch):
+        """IMU samples."""
+
+    def on_triggers(self, batch: TriggerBatch):
+        """External trigger edges."""
+
+
+def dispatch(handler: PacketHandler, packet: Packet):
+    """Call ``handler``'s method for ``packet``'s kind and return what it returns.
+
+    Raises
+    ------
+    StreamError
+        ``packet`` is none of the kinds of :data:`Packet`.
+    """
+    match packet:
+        case EventBatch():
+            return handler.on_events(packet.events)
+        case ExposureMarker(kind="start"):
+            return handler.on_exposure_start(packet.t_us)
+        case ExposureMarker():
+            return handler.on_exposure_end(packet.t_us)
+        case Frame():
+            return handler.on_frame(packet)
+        case ImuBatch():
+            return handler.on_imu(packet)
+        case TriggerBatch():
+            return handler.on_triggers(packet)
+    raise StreamError(f"unknown packet type {type(packet).__name__}")
+
+
+def packet_time_us(packet: Packet) -> int | None:
+    """Sensor time a packet completes at (events: the last event; a frame: its exposure end)."""
+    match packet:
+        case EventBatch():
+            return packet.t_last_us
+        case ExposureMarker():
+            return int(packet.t_us)
+        case Frame():
+            return int(packet.exposure_end_us)
+        case ImuBatch():
+            return int(packet.samples["t"][-1]) if len(packet) else None
+        case TriggerBatch():
+            return int(packet.triggers["t"][-1]) if len(packet) else None
+    return None
 
 
 def interleave(
@@ -21,7 +95,7 @@ def interleave(
     frames: Sequence[Frame],
     frame_delay_us: int = 0,
     batch_us: int | None = None,
-) -> Iterator[np.ndarray | ExposureMarker | Frame]:
+) -> Iterator[Packet]:
     """Yield event batches, exposure markers and frames in stream order.
 
     Events at exactly a marker's time follow the marker. A frame is delivered
@@ -50,9 +124,9 @@ def interleave(
     pos = 0
     for end, (_, _, packet) in zip(ends.tolist(), cuts):
         if end > pos:
-            yield events[pos:end]
+            yield EventBatch(events[pos:end])
             pos = end
         if packet is not None:
             yield packet
     if pos < events.size:
-        yield events[pos:]
+        yield EventBatch(events[pos:])

@@ -3,8 +3,8 @@
 A source is one or more cameras that share a sensor geometry and, where they share a scene, one
 event stream. :meth:`Source.packets` yields ``(camera, packet)`` pairs in stream order:
 
-* ``(None, events)`` for event batches (``EVENT_DTYPE`` arrays), which every camera of the source
-  shares (a single camera's events are "shared" by its one camera);
+* ``(None, batch)`` for event batches (:class:`~necviz.core.events.EventBatch`), which every camera
+  of the source shares (a single camera's events are "shared" by its one camera);
 * ``(name, packet)`` for what belongs to one camera: :class:`~necviz.core.frames.ExposureMarker`,
   :class:`~necviz.core.frames.Frame`, and optional :class:`~necviz.core.imu.ImuBatch` and
   :class:`~necviz.core.imu.TriggerBatch`.
@@ -22,17 +22,12 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
-from typing import Protocol, Union, runtime_checkable
-
-import numpy as np
+from typing import Protocol, runtime_checkable
 
 from necviz.core.control.controller import CameraLimits
-from necviz.core.frames import ExposureMarker, Frame
-from necviz.core.imu import ImuBatch, TriggerBatch
+from necviz.core.events import EventBatch
 from necviz.core.sensor import SensorGeometry
-
-#: What a source yields. Consumers that do not use IMU samples or triggers skip them.
-Packet = Union[np.ndarray, ExposureMarker, Frame, ImuBatch, TriggerBatch]
+from necviz.core.stream import Packet
 
 #: The name of the only camera of a single-camera source.
 CAMERA = "camera"
@@ -98,7 +93,7 @@ class Source(Protocol):
 def route(camera: str, packets: Iterable[Packet]) -> Iterator[tuple[str | None, Packet]]:
     """A single camera's packet stream as :meth:`Source.packets` pairs (events shared, the rest ``camera``'s)."""
     for packet in packets:
-        yield (None if isinstance(packet, np.ndarray) else camera), packet
+        yield (None if isinstance(packet, EventBatch) else camera), packet
 
 
 __all__ = ["CAMERA", "CameraInfo", "CommandRecord", "Packet", "Source", "route"]

@@ -17,7 +17,15 @@ import math
 
 import numpy as np
 
-from necviz.core import EVENT_DTYPE, Frame, PeripheralEstimator, SensorGeometry, TediParams, default_davis346
+from necviz.core import (
+    EVENT_DTYPE,
+    EventBatch,
+    Frame,
+    PeripheralEstimator,
+    SensorGeometry,
+    TediParams,
+    default_davis346,
+)
 from necviz.core.stream import interleave
 
 C_ON, C_OFF = 0.26, 0.24
@@ -76,7 +84,7 @@ def main() -> None:
     for packet in interleave(events, frames, batch_us=5_000):
         if (fe := est.feed(packet)) is not None:
             frame_ln = float(fe.log_mean_irradiance[0])
-        elif isinstance(packet, np.ndarray) and est.ready:
+        elif isinstance(packet, EventBatch) and est.ready:
             t = est.last_event_us
             trace.append((t, est.predict(t), frame_ln, true_log_mean(t)))
     tr = np.array(trace)

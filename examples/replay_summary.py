@@ -16,9 +16,7 @@ import math
 import sys
 from pathlib import Path
 
-import numpy as np
-
-from necviz.core import ExposureMarker, NecvizError, PeripheralEstimator, TediParams
+from necviz.core import EventBatch, ExposureMarker, NecvizError, PeripheralEstimator, TediParams
 from necviz.drivers.recordings import open_recording
 
 SAMPLE = Path("/work/shared/data/davis346_sample.aedat4")
@@ -47,8 +45,8 @@ def main() -> int:
         t0_us, predicted, events = None, math.nan, 0
         for packet in rec:
             fe = est.feed(packet)  # events, exposure markers and frames; IMU samples and triggers are ignored
-            if isinstance(packet, np.ndarray):
-                events += packet.size
+            if isinstance(packet, EventBatch):
+                events += len(packet)
             elif isinstance(packet, ExposureMarker) and packet.kind == "start":
                 t0_us = packet.t_us if t0_us is None else t0_us
                 predicted = est.predict(packet.t_us) if est.ready else math.nan  # before this frame anchors

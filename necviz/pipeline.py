@@ -37,30 +37,17 @@ import numpy as np
 
 from necviz.core.checks import check_number
 from necviz.core.control import CONTROLLERS, Controller, ControllerContext, create_controller
-from necviz.core.errors import NecvizError, ParameterError
+from necviz.core.errors import NecvizError, ParameterError, StreamError
+from necviz.core.events import EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import ImuBatch, TriggerBatch
 from necviz.core.ptedi import PeripheralEstimator
+from necviz.core.stream import packet_time_us
 from necviz.dashboard import schema as S
 from necviz.dashboard.telemetry import FrameRecord, Telemetry
 
 #: Thresholds of the lane's P-TEDI estimator, tunable like the controller's own parameters.
 THRESHOLD_KEYS = ("c_on", "c_off", "c")
-
-
-def packet_time_us(packet) -> int | None:
-    """Sensor time a packet completes at (events: last event; frame: exposure end)."""
-    if isinstance(packet, np.ndarray):
-        return int(packet["t"][-1]) if len(packet) else None
-    if isinstance(packet, ExposureMarker):
-        return int(packet.t_us)
-    if isinstance(packet, Frame):
-        return int(packet.exposure_end_us)
-    if isinstance(packet, ImuBatch):
-        return int(packet.samples["t"][-1]) if len(packet) else None
-    if isinstance(packet, TriggerBatch):
-        return int(packet.triggers["t"][-1]) if len(packet) else None
-    return None
 
 
 class Lane:
@@ -386,12 +373,7 @@ class Pipeline:
                 self._apply_changes()
             if self._stop.is_set():
                 break
-            if cam is None:  # events: the common case, kept short
-                if not len(packet):
-                    continue
-                t = int(packet["t"][-1])
-            else:
-                t = packet_time_us(packet)
+            t = packet_time_us(packet)
             if t is not None:
                 if tel.first_us is None:
                     tel.first_us = t
@@ -407,47 +389,57 @@ class Pipeline:
                             break
                         t_in = perf_ns()
                 tel.now_us = t
-            if cam is None:
-                tel.events += len(packet)
-                for ln in lanes:  # control first: a lossless observer may make the thread wait
-                    if ln.passive is not None:
-                        ln.passive.update(packet)
-                    cmd = ln.controller.feed(packet)
-                    if cmd is not None:
-                        self._command(ln, cmd, t_in)
-                for o in observers:
-                    o.events(packet)
-                if observers and t >= next_sample:
-                    next_sample = t + self.sample_period_us
-                    self._sample(lanes, t)
-                continue
-            for o in observers:
-                o.packet(cam, packet)
-            watchers = self._watchers.get(cam)
-            if not watchers:
-                continue
-            if isinstance(packet, Frame):
-                tel.frames += 1
-                for ln in watchers:
-                    est = ln.passive.feed(packet) if ln.passive is not None else None
-                    cmd = ln.controller.feed(packet)
-                    if cmd is not None:
-                        self._command(ln, cmd, t_in)
-                    if est is None:
-                        est = ln.controller.last_frame_estimate
-                    rec = lane_tel[ln.name].frame(packet, est, ln.estimator.min_valid_fraction)
+            match packet:
+                case EventBatch(events=batch):  # shared by every lane: the common case, kept short
+                    if not len(batch):
+                        continue
+                    tel.events += len(batch)
+                    for ln in lanes:  # control first: a lossless observer may make the thread wait
+                        if ln.passive is not None:
+                            ln.passive.update(batch)
+                        cmd = ln.controller.feed(packet)
+                        if cmd is not None:
+                            self._command(ln, cmd, t_in)
                     for o in observers:
-                        o.frame(ln.name, packet, rec)
-            elif isinstance(packet, ExposureMarker):
-                for ln in watchers:
-                    if packet.kind == "start":
-                        lane_tel[ln.name].exposure_start(packet.t_us, ln.estimator)
-                    if ln.passive is not None:
-                        ln.passive.feed(packet)
-                    cmd = ln.controller.feed(packet)
-                    if cmd is not None:
-                        self._command(ln, cmd, t_in)
-            # IMU samples and triggers: for observers only; no controller uses them
+                        o.events(batch)
+                    if observers and t >= next_sample:
+                        next_sample = t + self.sample_period_us
+                        self._sample(lanes, t)
+                case Frame():
+                    for o in observers:
+                        o.packet(cam, packet)
+                    watchers = self._watchers.get(cam)
+                    if watchers:
+                        tel.frames += 1
+                    for ln in watchers or ():
+                        est = ln.passive.add_frame(packet) if ln.passive is not None else None
+                        cmd = ln.controller.feed(packet)
+                        if cmd is not None:
+                            self._command(ln, cmd, t_in)
+                        if est is None:
+                            est = ln.controller.last_frame_estimate
+                        rec = lane_tel[ln.name].frame(packet, est, ln.estimator.min_valid_fraction)
+                        for o in observers:
+                            o.frame(ln.name, packet, rec)
+                case ExposureMarker():
+                    for o in observers:
+                        o.packet(cam, packet)
+                    for ln in self._watchers.get(cam, ()):
+                        if packet.kind == "start":
+                            lane_tel[ln.name].exposure_start(packet.t_us, ln.estimator)
+                        if ln.passive is not None:
+                            ln.passive.feed(packet)
+                        cmd = ln.controller.feed(packet)
+                        if cmd is not None:
+                            self._command(ln, cmd, t_in)
+                case ImuBatch() | TriggerBatch():  # for observers only; no controller uses them
+                    for o in observers:
+                        o.packet(cam, packet)
+                case _:  # e.g. a bare event array from a source written before EventBatch: never drop it silently
+                    raise StreamError(
+                        f"the source yielded a {type(packet).__name__}, which is not a stream packet "
+                        "(events travel as EventBatch; see necviz.core.stream.Packet)"
+                    )
 
     def _sample(self, lanes: list[Lane], t: int) -> None:
         """Every lane's P-TEDI prediction ln P(t), for the observers."""
@@ -525,7 +517,7 @@ class RecorderObserver(Observer):
         self.lane = lane or camera
 
     def events(self, batch):
-        self.recorder.write(batch)
+        self.recorder.write(EventBatch(batch))
 
     def packet(self, camera, packet):
         if camera == self.camera:

@@ -79,7 +79,7 @@ def _events(rng, n, t0, t1, w, h):
 
 
 def _native(path: Path, rng) -> None:
-    from necviz.core.events import EVENT_DTYPE
+    from necviz.core.events import EVENT_DTYPE, EventBatch
     from necviz.core.frames import ExposureMarker, Frame
     from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, ImuBatch, TriggerBatch
     from necviz.core.sensor import SensorGeometry
@@ -95,10 +95,10 @@ def _native(path: Path, rng) -> None:
             ev["x"] = rng.integers(0, 32, 300)
             ev["y"] = rng.integers(0, 24, 300)
             ev["p"] = rng.choice([-1, 1], 300)
-            rec.write(ev[:150])
+            rec.write(EventBatch(ev[:150]))
             s, e = int(ev["t"][149]), int(ev["t"][149]) + 2000
             rec.write(ExposureMarker(s, "start"))
-            rec.write(ev[150:])
+            rec.write(EventBatch(ev[150:]))
             rec.write(ExposureMarker(max(e, int(ev["t"][-1])), "end"))
             rec.write(Frame(rng.integers(0, 256, sensor.shape, dtype=np.uint8), s, max(e, int(ev["t"][-1])), 1.0, k))
             imu = np.zeros(3, IMU_DTYPE)
@@ -445,6 +445,7 @@ def read_variant(path, *, describe_too: bool = True) -> dict:
     tracemalloc peak of the read.
     """
     from necviz.core.errors import NecvizError
+    from necviz.core.events import EventBatch
     from necviz.core.frames import Frame
     from necviz.drivers.recordings import describe, open_recording
 
@@ -462,9 +463,10 @@ def read_variant(path, *, describe_too: bool = True) -> dict:
         try:
             w, h = rec.sensor.width, rec.sensor.height
             for pk in rec:
-                if isinstance(pk, np.ndarray):
-                    events += pk.size
-                    if pk.size and (int(pk["x"].max()) >= w or int(pk["y"].max()) >= h):
+                if isinstance(pk, EventBatch):
+                    ev = pk.events
+                    events += ev.size
+                    if ev.size and (int(ev["x"].max()) >= w or int(ev["y"].max()) >= h):
                         raise AssertionError(f"event off the {w}x{h} sensor")
                 elif isinstance(pk, Frame):
                     frames += 1

@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from necviz.core.control import CONTROLLERS, CameraLimits, ExposureCommand, NECController, NECOptions, error_weight
 from necviz.core.errors import ParameterError
 from necviz.core.event_model import TediParams
+from necviz.core.events import EventBatch
 from necviz.core.frames import Frame
 from necviz.core.ptedi import PeripheralEstimator
 from necviz.core.sensor import SensorGeometry
@@ -130,7 +131,7 @@ def test_closed_loop_exposes_the_first_frame_after_a_step_correctly(crf):
         while t_fed < s:
             nxt = min(s, t_fed + 1_000)
             batch = events[(events["t"] >= t_fed) & (events["t"] < nxt)]
-            cmd = nec.feed(batch)
+            cmd = nec.feed(EventBatch(batch))
             if cmd is not None and cmd.issue_time_us <= s - latency:
                 exposure, gain = cmd.exposure_us, cmd.gain
             t_fed = nxt

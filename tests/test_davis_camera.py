@@ -11,6 +11,7 @@ import pytest
 
 from necviz.core.control import make_controller
 from necviz.core.errors import NecvizError
+from necviz.core.events import EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import SensorGeometry
 from necviz.drivers.davis import (
@@ -32,7 +33,7 @@ def backend(**kw):
 
 
 def event_times(packets):
-    return np.concatenate([p["t"] for p in packets if isinstance(p, np.ndarray)] or [np.zeros(0, np.int64)])
+    return np.concatenate([p.events["t"] for p in packets if isinstance(p, EventBatch)] or [np.zeros(0, np.int64)])
 
 
 def test_unplug_yields_what_was_decoded_then_raises():
@@ -158,7 +159,8 @@ def test_source_contract_batches_and_stats():
     assert cam.sensor == SMALL and cam.limits.gain_max == 8.0 and cam.limits.exposure_max_us == 19_000
     last_t, open_start, n_frames = -1, None, 0
     for p in cam:
-        if isinstance(p, np.ndarray):
+        if isinstance(p, EventBatch):
+            p = p.events
             assert p.size <= 65536 and int(p["t"][-1]) - int(p["t"][0]) < 1000
             assert int(p["t"][0]) >= last_t
             last_t = int(p["t"][-1])

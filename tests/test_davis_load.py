@@ -11,8 +11,7 @@ of the events its sensor produced and of those its FIFO dropped.
 
 import time
 
-import numpy as np
-
+from necviz.core.events import EventBatch
 from necviz.core.sensor import SensorGeometry
 from necviz.drivers.davis import EmulatedDavis346, open_camera
 from necviz.drivers.davis.device import PEAK_BYTES_PER_S
@@ -29,9 +28,9 @@ def _run(stall_ms: float, buffer_s: float, duration_s: float = 0.12, stall_at_us
     cam = open_camera("emulated", backend=be, buffer_s=buffer_s)
     delivered, stalled = 0, False
     for p in cam:
-        if isinstance(p, np.ndarray) and p.size:
-            delivered += p.size
-            if not stalled and int(p["t"][-1]) >= stall_at_us:
+        if isinstance(p, EventBatch) and len(p):
+            delivered += len(p)
+            if not stalled and p.t_last_us >= stall_at_us:
                 stalled = True
                 time.sleep(stall_ms / 1e3 / SCALE)
     assert stalled
@@ -102,7 +101,7 @@ def test_a_long_session_keeps_the_command_lists_bounded(monkeypatch):
     cam = open_camera("emulated", backend=be, exposure_us=3000)
     frames, k, peak_pending = [], 0, 0
     for p in cam:
-        if isinstance(p, np.ndarray):
+        if isinstance(p, EventBatch):
             k += 1
             if k % 2 == 0:  # every other 1 ms batch: ~10 commands per 20 ms frame, each a distinct exposure
                 cam.set_exposure("camera", 1000 + (37 * k) % 14_000, 1.0)

@@ -17,6 +17,7 @@ import pytest
 from format_writers import write_dsec
 from fuzz_corpus import MUTATIONS, SAMPLE_AEDAT4, build_seeds, read_variant, remove, variants
 
+from necviz.core.events import EventBatch
 from necviz.drivers.recordings import RecordingError, describe, open_recording
 
 TIME_LIMIT_S = 5.0
@@ -151,7 +152,7 @@ def _patched_decoder(monkeypatch, after: int, exc: BaseException):
 def test_a_decoder_panic_becomes_a_one_line_error_after_the_packets_before_it(monkeypatch):
     if not SAMPLE_AEDAT4.is_file():
         pytest.skip(f"the real AEDAT 4 sample is not here ({SAMPLE_AEDAT4})")
-    clean = sum(p.size for p in open_recording(SAMPLE_AEDAT4) if isinstance(p, np.ndarray))
+    clean = sum(len(p) for p in open_recording(SAMPLE_AEDAT4) if isinstance(p, EventBatch))
     _patched_decoder(monkeypatch, 20, PanicException("called `Option::unwrap()` on a `None` value"))
     got = []
     with pytest.raises(RecordingError) as err:
@@ -159,7 +160,7 @@ def test_a_decoder_panic_becomes_a_one_line_error_after_the_packets_before_it(mo
             got.append(p)
     msg = str(err.value)
     assert "\n" not in msg and SAMPLE_AEDAT4.name in msg and "decoder panic" in msg and " at byte " in msg
-    n = sum(p.size for p in got if isinstance(p, np.ndarray))
+    n = sum(len(p) for p in got if isinstance(p, EventBatch))
     assert 0 < n < clean  # what the first 20 packets held was delivered (the assembler was drained)
 
 
@@ -196,7 +197,7 @@ def test_an_h5py_error_mid_file_names_the_dataset_after_the_rows_before_it(tmp_p
     msg = str(err.value)
     assert msg.startswith(f"{path}: damaged or unreadable data (KeyError: ") and "\n" not in msg
     assert msg.endswith("at dataset /events/x [3000:4000]")
-    ev = np.concatenate([p for p in got if isinstance(p, np.ndarray)])
+    ev = np.concatenate([p.events for p in got if isinstance(p, EventBatch)])
     assert np.array_equal(ev["t"], t[:3000])  # every row before the damaged slice, none invented
     info = describe(path)  # info shows the readable part and the damage as a warning
     assert info.events == 3000 and any("at dataset /events/x [3000:4000]" in w for w in info.warnings)

@@ -17,7 +17,7 @@ from necviz.core.control import CameraLimits, NECController, NECOptions, make_co
 from necviz.core.control.nec import METERING, censored_quantiles, weighted_median
 from necviz.core.errors import ParameterError
 from necviz.core.event_model import TediParams
-from necviz.core.events import make_events
+from necviz.core.events import EventBatch, make_events
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.ptedi import PeripheralEstimator
 from necviz.core.sensor import SensorGeometry
@@ -144,7 +144,7 @@ def test_a_global_step_moves_every_statistic_by_the_event_measured_change(meteri
     npix = SENSOR.width * SENSOR.height
     pix = np.tile(np.arange(npix), k)
     t = 2_000 + (np.arange(pix.size) * 1_000) // pix.size
-    nec.feed(make_events(t, pix % SENSOR.width, pix // SENSOR.width, np.ones(pix.size, np.int8)))
+    nec.feed(EventBatch(make_events(t, pix % SENSOR.width, pix // SENSOR.width, np.ones(pix.size, np.int8))))
     after = nec.metered(3_100)
     assert after - before == pytest.approx(k * C_ON, abs=1e-9)
     # the same image at an exposure shortened by exp(k c_on): the light rose by exactly that much

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from necviz.core.control import CameraLimits, NECController, NECOptions
 from necviz.core.event_model import TediParams
-from necviz.core.events import make_events
+from necviz.core.events import EventBatch, make_events
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.ptedi import PeripheralEstimator
 from necviz.core.sensor import SensorGeometry
@@ -65,9 +65,9 @@ def test_transient_inside_the_dead_band_leaves_no_stale_command(crf):
     on = _every_pixel(3, 2_000, 1_000, 1)
     off = _every_pixel(3, 4_000, 1_000, -1)
     for batch in np.array_split(on, 4):
-        feed(batch)
+        feed(EventBatch(batch))
     assert issued and math.log(setting[0] * setting[1] / 1_000) < -FULL  # the transient was commanded
-    feed(off)  # one batch: no partial step on the way back
+    feed(EventBatch(off))  # one batch: no partial step on the way back
     # back inside the dead band of the applied 1 ms: the next exposure (starting at 6 ms) must use it
     assert abs(nec.last_log_irradiance - (crf.goal_log_exposure - math.log(1e-3)) - 0.06) < 0.05
     feed(ExposureMarker(6_000, "start"))

@@ -11,17 +11,18 @@ import rerun as rr
 from rrd_read import Rrd
 
 from necviz.core.control import CameraLimits, make_controller
-from necviz.core.errors import NecvizError, ParameterError
+from necviz.core.errors import NecvizError, ParameterError, StreamError
 from necviz.core.event_image import EventImage
-from necviz.core.events import EVENT_DTYPE
+from necviz.core.events import EVENT_DTYPE, EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import IMU_DTYPE, ImuBatch
 from necviz.core.sensor import SensorGeometry
+from necviz.core.stream import packet_time_us
 from necviz.dashboard import schema as S
 from necviz.dashboard.sink import RerunSink
 from necviz.drivers.recordings import Recorder, open_recording
 from necviz.drivers.source import CameraInfo, route
-from necviz.pipeline import Lane, Pipeline, RecorderObserver, packet_time_us
+from necviz.pipeline import Lane, Pipeline, RecorderObserver
 
 SENSOR = SensorGeometry(32, 24, "test")
 
@@ -73,7 +74,7 @@ def stream(n_frames=10, period_us=10_000, exposure_us=2_000, level=120, brighten
             ev["p"] = np.where(rng.random(200) < on, 1, -1)
             if b == 0:
                 out.append(ExposureMarker(t0, "start"))
-            out.append(ev)
+            out.append(EventBatch(ev))
             if b == exposure_us // 1_000 - 1:
                 out.append(ExposureMarker(t0 + exposure_us, "end"))
                 img = np.full(SENSOR.shape, level, np.uint8)
@@ -139,7 +140,7 @@ def test_stop_ends_a_running_pipeline_promptly(tmp_path):
                 t += 1_000
                 ev = np.zeros(10, EVENT_DTYPE)
                 ev["t"] = t
-                yield ev
+                yield EventBatch(ev)
 
     pipe = Pipeline(Endless([]), [nec_lane()], speed=1.0).start()
     time.sleep(0.2)
@@ -234,10 +235,10 @@ def test_a_gap_in_the_stream_costs_one_window_not_one_per_window(tmp_path):
     a, b = stream(n_frames=2), stream(n_frames=2)
     later = []
     for p in b:  # the same packets, an hour later
-        if isinstance(p, np.ndarray):
-            q = p.copy()
+        if isinstance(p, EventBatch):
+            q = p.events.copy()
             q["t"] += 3_600_000_000
-            later.append(q)
+            later.append(EventBatch(q))
         elif isinstance(p, ExposureMarker):
             later.append(ExposureMarker(p.t_us + 3_600_000_000, p.kind))
         else:
@@ -264,9 +265,20 @@ def test_stop_is_prompt_even_inside_a_paced_gap():
     packets = stream(n_frames=1)
     tail = np.zeros(5, EVENT_DTYPE)
     tail["t"] = 3_600_000_000  # an hour later: paced at real time, the thread waits for it
-    pipe = Pipeline(ListSource(packets + [tail]), [nec_lane()], speed=1.0).start()
+    pipe = Pipeline(ListSource(packets + [EventBatch(tail)]), [nec_lane()], speed=1.0).start()
     time.sleep(0.3)
     t0 = time.perf_counter()
     stats = pipe.finish()
     assert time.perf_counter() - t0 < 2.0
     assert stats["events"] == 10 * 200 and not pipe.running
+
+
+def test_a_source_yielding_bare_event_arrays_is_an_error_not_silence():
+    """Events travel as EventBatch: a bare array (the packet of sources written before it) must end the run
+    with a clear error, not be dropped while the controllers see no events."""
+    packets = stream(n_frames=2)
+    legacy = [p.events if isinstance(p, EventBatch) else p for p in packets]
+    pipe = Pipeline(ListSource(legacy), [nec_lane()])
+    with pytest.raises(StreamError, match="the source yielded a ndarray, which is not a stream packet"):
+        pipe.run().finish()
+    assert pipe.telemetry.events == 0

@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from necviz.core.crf import default_davis346
 from necviz.core.errors import EventFormatError, FrameFormatError, NotAnchoredError, ParameterError, StreamError
 from necviz.core.event_model import TediParams
-from necviz.core.events import make_events
+from necviz.core.events import EventBatch, make_events
 from necviz.core.frames import Frame
 from necviz.core.ptedi import PeripheralEstimator
 from necviz.core.sensor import SensorGeometry
@@ -45,8 +45,8 @@ def _frames(scene, crf, starts, exposure_us=4_000, adapt=False):
 
 
 def _packet_time(pk):
-    if isinstance(pk, np.ndarray):
-        return int(pk["t"][0])
+    if isinstance(pk, EventBatch):
+        return int(pk.events["t"][0])
     return int(pk.t_us) if hasattr(pk, "t_us") else int(pk.exposure_end_us)
 
 
@@ -209,9 +209,10 @@ def test_batch_boundaries_do_not_change_the_result(cuts):
     for extra in ([], sorted(cuts)):
         est = PeripheralEstimator(sensor, params, crf)
         for pk in interleave(ev, frames):
-            if isinstance(pk, np.ndarray):  # split further at the drawn times
-                bounds = np.searchsorted(pk["t"], [c for c in extra if pk["t"][0] <= c <= pk["t"][-1]])
-                for part in np.split(pk, bounds):
+            if isinstance(pk, EventBatch):  # split further at the drawn times
+                t = pk.events["t"]
+                bounds = np.searchsorted(t, [c for c in extra if t[0] <= c <= t[-1]])
+                for part in np.split(pk.events, bounds):
                     est.update(part)
             else:
                 est.feed(pk)

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from necviz.core.event_model import TediParams
-from necviz.core.events import make_events
+from necviz.core.events import EventBatch, make_events
 from necviz.core.frames import Frame
 from necviz.core.ptedi import PeripheralEstimator
 from necviz.core.sensor import SensorGeometry
@@ -128,9 +128,9 @@ def run_and_check(seed, region, batch_us, params=PARAMS):
     n_done = 0
     fes, pred_checks = [], 0
     for i, pk in enumerate(interleave(ev, frames(), batch_us=batch_us)):
-        if isinstance(pk, np.ndarray):
-            est.update(pk)
-            n_done += pk.size
+        if isinstance(pk, EventBatch):
+            est.update(pk.events)
+            n_done += len(pk)
             if est.ready and (batch_us is None or i % 3 == 0):
                 seen = ev[:n_done]
                 t_last = int(seen["t"][-1])
@@ -231,8 +231,9 @@ def test_compensation_off_is_the_plain_model_and_can_be_switched():
     for pk in interleave(ev, frames(), batch_us=1_000):
         for est in (a, b, c):
             est.feed(pk)
-        if isinstance(pk, np.ndarray) and int(pk["t"][-1]) >= 8_000 and not c._comp:
+        if isinstance(pk, EventBatch) and pk.t_last_us >= 8_000 and not c._comp:
             c.set_params(PARAMS)
+    assert c._comp  # the switch happened mid-stream
     assert a.predict(60_000) == pytest.approx(b.predict(60_000), abs=1e-12)
     # c has the compensation on since 8 ms; from the anchors after that it matches a fresh estimator
     ref = PeripheralEstimator(SENSOR, PARAMS)

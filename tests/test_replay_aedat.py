@@ -14,6 +14,7 @@ from format_writers import (
     jaer_imu,
 )
 
+from necviz.core.events import EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import ImuBatch, TriggerBatch
 from necviz.drivers.recordings import RecordingError, describe, open_recording
@@ -27,7 +28,7 @@ def _events(seed, n, t0, t1):
 
 
 def _split(packets):
-    ev = [p for p in packets if isinstance(p, np.ndarray)]
+    ev = [p.events for p in packets if isinstance(p, EventBatch)]
     return np.concatenate(ev) if ev else np.zeros(0), [p for p in packets if isinstance(p, Frame)]
 
 

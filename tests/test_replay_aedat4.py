@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from conftest import SHARED_DATA
 
+from necviz.core.events import EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import ImuBatch, TriggerBatch
 from necviz.drivers.recordings import RecordingError, describe, detect_format, open_recording
@@ -19,7 +20,7 @@ pytestmark = pytest.mark.skipif(
 
 
 def _split(packets):
-    ev = [p for p in packets if isinstance(p, np.ndarray)]
+    ev = [p.events for p in packets if isinstance(p, EventBatch)]
     return (
         np.concatenate(ev) if ev else None,
         [p for p in packets if isinstance(p, Frame)],
@@ -53,8 +54,11 @@ def test_stream_order_contract():
     last_t = None
     open_start = None
     pending_end = None
+    batches = 0
     for p in open_recording(SAMPLE):
-        if isinstance(p, np.ndarray):
+        if isinstance(p, EventBatch):
+            batches += 1
+            p = p.events
             assert p.size <= 65536 and int(p["t"][-1]) - int(p["t"][0]) < 1000
             if last_t is not None:
                 assert p["t"][0] >= last_t
@@ -71,6 +75,7 @@ def test_stream_order_contract():
         elif isinstance(p, Frame):
             assert pending_end == p.exposure_end_us
             pending_end = None
+    assert batches > 0 and last_t is not None
 
 
 def test_seek_by_time():

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from format_writers import native_bytes, native_events
 
-from necviz.core.events import EVENT_DTYPE
+from necviz.core.events import EVENT_DTYPE, EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, ImuBatch, TriggerBatch
 from necviz.core.sensor import SensorGeometry
@@ -38,8 +38,8 @@ def _stream(seed=0, n=20000, frames=5, sensor=SMALL):
 
 def _same(a, b):
     assert type(a) is type(b)
-    if isinstance(a, np.ndarray):
-        assert np.array_equal(a, b)
+    if isinstance(a, EventBatch):
+        assert np.array_equal(a.events, b.events)
     elif isinstance(a, Frame):
         assert np.array_equal(a.image, b.image)
         assert (a.exposure_start_us, a.exposure_end_us, a.gain, a.sequence) == (
@@ -102,8 +102,8 @@ def test_reads_file_written_from_the_documented_layout(tmp_path):
     path.write_bytes(native_bytes((6, 4, "tiny"), {"k": "v"}, chunks))
     r = open_recording(path)
     out = list(r)
-    assert [type(p).__name__ for p in out] == ["ndarray", "ExposureMarker", "ndarray", "ExposureMarker", "Frame"]
-    assert out[0]["t"].tolist() == [5, 6, 9] and out[0]["p"].tolist() == [1, -1, 1]
+    assert [type(p).__name__ for p in out] == ["EventBatch", "ExposureMarker", "EventBatch", "ExposureMarker", "Frame"]
+    assert out[0].events["t"].tolist() == [5, 6, 9] and out[0].events["p"].tolist() == [1, -1, 1]
     assert out[1] == ExposureMarker(10, "start") and out[3] == ExposureMarker(20, "end")
     assert np.array_equal(out[4].image, img) and out[4].sequence == 7
     assert r.commands == [CommandRecord(3, 10.0, 1.0, 10)] and r.annotations == [(4, {"a": 1})]
@@ -118,7 +118,7 @@ def test_seek_by_time_keeps_whole_exposures_only(tmp_path):
             rec.write(p)
     lo, hi = 150_000, 330_000
     out = list(open_recording(path, start_us=lo, end_us=hi))
-    got = np.concatenate([p for p in out if isinstance(p, np.ndarray)])
+    got = np.concatenate([p.events for p in out if isinstance(p, EventBatch)])
     want = ev[(ev["t"] >= lo) & (ev["t"] <= hi)]
     assert np.array_equal(got, want)
     frames = [p for p in out if isinstance(p, Frame)]
@@ -144,7 +144,7 @@ def test_incomplete_last_chunk_is_a_warning_not_an_error(tmp_path):
     path.write_bytes(data[:cut])
     r = open_recording(path)
     out = list(r)
-    got = np.concatenate([p for p in out if isinstance(p, np.ndarray)])
+    got = np.concatenate([p.events for p in out if isinstance(p, EventBatch)])
     assert 0 < got.size < ev.size and np.array_equal(got, ev[: got.size])
     assert len(r.warnings) == 1 and "incomplete chunk at byte" in r.warnings[0]
     assert "writer stopped mid-write" in r.warnings[0]
@@ -165,7 +165,7 @@ def test_damaged_middle_chunk_raises_after_the_good_part(tmp_path):
     assert str(path) in msg and " at byte " in msg and "\n" not in msg
     offset = int(msg.rsplit(" at byte ", 1)[1])
     assert offset <= at < offset + 2_000_000
-    got = np.concatenate([p for p in out if isinstance(p, np.ndarray)])
+    got = np.concatenate([p.events for p in out if isinstance(p, EventBatch)])
     assert got.size > 0 and np.array_equal(got, ev[: got.size])
 
 
@@ -195,7 +195,7 @@ def test_wrong_magic_with_native_extension(tmp_path):
 WRITER = r"""
 import sys, time
 import numpy as np
-from necviz.core.events import EVENT_DTYPE
+from necviz.core.events import EVENT_DTYPE, EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import DAVIS346
 from necviz.drivers.recordings import Recorder
@@ -209,7 +209,7 @@ while True:
     ev["p"] = 1
     if i % 20 == 5:
         rec.write(ExposureMarker(i * 1000, "start"))
-    rec.write(ev)
+    rec.write(EventBatch(ev))
     if i % 20 == 6:
         rec.write(ExposureMarker(i * 1000 + 997, "end"))
         rec.write(Frame(img, (i - 1) * 1000, i * 1000 + 997, 1.0, i // 20))
@@ -233,7 +233,7 @@ def test_writer_killed_mid_stream_leaves_a_readable_file(tmp_path):
     assert r.properties == {"run": "crash"}
     out = list(r)
     assert any("incomplete chunk" in w or "no end chunk" in w for w in r.warnings), r.warnings
-    ev = [p for p in out if isinstance(p, np.ndarray)]
+    ev = [p.events for p in out if isinstance(p, EventBatch)]
     assert len(ev) > 100
     # every complete chunk, in order, none missing
     assert [int(e["t"][0]) for e in ev] == [1000 * k for k in range(len(ev))]
@@ -256,10 +256,24 @@ def test_flush_reaches_the_os_within_a_quarter_second(tmp_path):
     rec = Recorder(path, sensor=SMALL, properties={})
     try:
         ev = np.zeros(10, EVENT_DTYPE)
-        rec.write(ev)
+        rec.write(EventBatch(ev))
         time.sleep(0.4)  # no further writes: the background flusher must hand the chunk over
-        assert sum(p.size for p in open_recording(path) if isinstance(p, np.ndarray)) == 10
+        assert sum(len(p) for p in open_recording(path) if isinstance(p, EventBatch)) == 10
     finally:
         rec.close()
     rec.close()  # idempotent
     assert open_recording(path).warnings == []
+
+
+def test_recorder_refuses_what_is_not_a_packet_and_writes_nothing_for_it(tmp_path):
+    path = tmp_path / "r.necrec"
+    ev = np.zeros(3, EVENT_DTYPE)
+    ev["t"] = [1, 2, 3]
+    with Recorder(path, sensor=SMALL, properties={}) as rec:
+        with pytest.raises(RecordingError, match="cannot record a ndarray packet"):
+            rec.write(ev)  # a bare array is not a packet (events travel as EventBatch)
+        with pytest.raises(RecordingError, match="expected an EVENT_DTYPE event batch"):
+            rec.write(EventBatch(np.zeros(3, np.int64)))
+        rec.write(EventBatch(ev))
+    out = list(open_recording(path))
+    assert len(out) == 1 and np.array_equal(out[0].events, ev)

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from format_writers import write_dsec, write_mvsec, write_ros1_bag, write_rpg_text
 
+from necviz.core.events import EventBatch
 from necviz.core.frames import Frame
 from necviz.core.imu import ImuBatch
 from necviz.drivers.recordings import RecordingError, describe, detect_format, open_recording
@@ -20,7 +21,7 @@ def events():
 
 
 def _split(packets):
-    ev = [p for p in packets if isinstance(p, np.ndarray)]
+    ev = [p.events for p in packets if isinstance(p, EventBatch)]
     return np.concatenate(ev), [p for p in packets if isinstance(p, Frame)]
 
 
@@ -62,7 +63,7 @@ def test_rpg_text_bad_line(tmp_path, events):
     with pytest.raises(RecordingError, match=rf"events\.txt.* at byte {at}$"):
         for q in open_recording(folder):
             got.append(q)
-    assert sum(q.size for q in got if isinstance(q, np.ndarray)) == data[:at].count(b"\n")
+    assert sum(len(q) for q in got if isinstance(q, EventBatch)) == data[:at].count(b"\n")
 
 
 def test_dsec_hdf5(tmp_path, events):

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from necviz.core.errors import ParameterError
+from necviz.core.events import EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import SensorGeometry
 from necviz.drivers.sim.aps import ApsParams, expose, integrate_samples
@@ -132,13 +133,14 @@ def test_cameras_share_one_event_stream_but_not_their_exposures():
     shared, frames = [], {"a": [], "b": []}
     for name, p in rig.packets():
         if name is None:
-            shared.append(p)
+            assert isinstance(p, EventBatch)
+            shared.append(p.events)
         elif isinstance(p, Frame):
             frames[name].append(p)
     ev = np.concatenate(shared)
     assert ev.size > 0 and np.all(np.diff(ev["t"]) >= 0)
     solo = SimRig(step_scene(), ["a"], dvs=DvsParams.ideal(), aps=ApsParams(noise=False))
-    ev_solo = np.concatenate([p for n, p in solo.packets() if n is None])
+    ev_solo = np.concatenate([p.events for n, p in solo.packets() if n is None])
     assert np.array_equal(ev, ev_solo)  # events do not depend on cameras or exposures
     assert {f.exposure_us for f in frames["a"]} == {2_000} and {f.exposure_us for f in frames["b"]} == {300}
     over_a = [float((f.image == 255).mean()) for f in frames["a"]]
@@ -157,7 +159,7 @@ def test_stream_order_per_camera_is_what_the_estimator_needs():
     est = {n: PeripheralEstimator(SENSOR, TediParams(0.26, 0.24)) for n in ("a", "b")}
     last_t = -1
     for name, p in rig.packets():
-        t = int(p["t"][0]) if name is None else (p.t_us if isinstance(p, ExposureMarker) else p.exposure_end_us)
+        t = int(p.events["t"][0]) if name is None else (p.t_us if isinstance(p, ExposureMarker) else p.exposure_end_us)
         assert t >= last_t or isinstance(p, Frame)
         last_t = max(last_t, t if not isinstance(p, Frame) else last_t)
         for n in [name] if name else list(est):
@@ -169,9 +171,9 @@ def test_same_seed_same_output_different_seed_different_noise():
     def run(seed):
         cam = SimRig(static_scene(50_000), {"camera": (2_000, 1.0)}, seed=seed)
         return [
-            (p.copy() if isinstance(p, np.ndarray) else p.image.copy())
+            (p.events.copy() if isinstance(p, EventBatch) else p.image.copy())
             for _, p in cam.packets()
-            if isinstance(p, (np.ndarray, Frame))
+            if isinstance(p, (EventBatch, Frame))
         ]
 
     a, b, c = run(1), run(1), run(2)

@@ -48,7 +48,7 @@ def sim_digest(threads=None, duration_s: float = 0.3) -> str:
     for name, p in rig.packets():
         h.update(str(name).encode())
         if name is None:
-            h.update(np.ascontiguousarray(p).tobytes())
+            h.update(np.ascontiguousarray(p.events).tobytes())
         elif isinstance(p, Frame):
             h.update(p.image.tobytes())
             h.update(repr((p.exposure_start_us, p.exposure_end_us, p.gain, p.sequence)).encode())

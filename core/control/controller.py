@@ -15,9 +15,9 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 
 from necviz.core.checks import check_number
-from necviz.core.errors import ParameterError, StreamError
-from necviz.core.frames import ExposureMarker, Frame
-from necviz.core.imu import ImuBatch, TriggerBatch
+from necviz.core.errors import ParameterError
+from necviz.core.frames import Frame
+from necviz.core.stream import Packet, PacketHandler, dispatch
 
 if TYPE_CHECKING:
     from necviz.core.ptedi import FrameEstimate, PeripheralEstimator
@@ -118,7 +118,7 @@ class ControllerOptions:
         """Rules beyond the tunable bounds (choices, rules between fields); raise :class:`ParameterError`."""
 
 
-class Controller:
+class Controller(PacketHandler):
     """Base class: records the applied exposure from frames; subclasses decide the commands.
 
     Subclasses override any of :meth:`on_events`, :meth:`on_exposure_start`,
@@ -285,18 +285,9 @@ class Controller:
     def _check_params(self, params: dict[str, float]) -> None:
         """Rules between the tunable parameters of a controller without options; raise ParameterError."""
 
-    def feed(self, packet) -> ExposureCommand | None:
-        """Dispatch one packet (event array, :class:`ExposureMarker` or :class:`Frame`)."""
-        if isinstance(packet, np.ndarray):
-            cmd = self.on_events(packet)
-        elif isinstance(packet, ExposureMarker):
-            cmd = self.on_exposure_start(packet.t_us) if packet.kind == "start" else self.on_exposure_end(packet.t_us)
-        elif isinstance(packet, Frame):
-            cmd = self.on_frame(packet)
-        elif isinstance(packet, (ImuBatch, TriggerBatch)):
-            cmd = None  # no controller uses IMU samples or triggers
-        else:
-            raise StreamError(f"unknown packet type {type(packet).__name__}")
+    def feed(self, packet: Packet) -> ExposureCommand | None:
+        """One stream packet (:data:`~necviz.core.stream.Packet`) to the method for its kind; remembers a command."""
+        cmd = dispatch(self, packet)
         if cmd is not None:
             self.last_command = cmd
         return cmd

@@ -2,8 +2,8 @@
 
 Iterating a :class:`DavisCamera` runs the start sequence, reads the bulk endpoint on a thread
 (:class:`~.device.BulkReader`), decodes each transfer (:class:`~.decoder.DavisDecoder`) and yields
-packets in stream order: event batches (at most 1 ms and 65,536 events each, so a controller can act
-between frames), ``ExposureMarker('start')``, ``ExposureMarker('end')``, then the :class:`Frame`,
+packets in stream order: event batches (:class:`~necviz.core.events.EventBatch`, at most 1 ms and
+65,536 events each, so a controller can act between frames), ``ExposureMarker('start')``, ``ExposureMarker('end')``, then the :class:`Frame`,
 plus ``ImuBatch``/``TriggerBatch``.
 
 Exposure and gain: :meth:`DavisCamera.set_exposure` clamps to :attr:`DavisCamera.limits` and writes
@@ -36,7 +36,8 @@ import numpy as np
 
 from necviz.core.control.controller import CameraLimits
 from necviz.core.errors import ParameterError
-from necviz.core.frames import Frame
+from necviz.core.events import EventBatch
+from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import SensorGeometry, known_event_rate_max
 from necviz.drivers.davis import protocol as P
 from necviz.drivers.davis.decoder import DavisDecoder
@@ -365,20 +366,20 @@ class DavisCamera:
             t = pk["t"]
             b = self.batch_us
             if (int(t[0]) // b) == (int(t[-1]) // b):
-                yield pk
+                yield EventBatch(pk)
                 return
             edges = np.arange((int(t[0]) // b + 1) * b, int(t[-1]) + 1, b)
             cuts = np.searchsorted(t, edges, side="left")
             prev = 0
             for c in cuts.tolist() + [pk.size]:
                 if c > prev:
-                    yield pk[prev:c]
+                    yield EventBatch(pk[prev:c])
                     prev = c
             return
         if isinstance(pk, Frame):
             pk = self._apply_command(pk)
             self._last_t = max(self._last_t, int(pk.exposure_end_us))
-        elif hasattr(pk, "t_us"):
+        elif isinstance(pk, ExposureMarker):
             self._last_t = max(self._last_t, int(pk.t_us))
         yield pk
 

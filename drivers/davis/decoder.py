@@ -178,8 +178,9 @@ class DavisDecoder:
     def decode(self, data) -> list:
         """Decode one transfer (bytes-like, or a uint16 word array); return its packets in order.
 
-        Packets: event batches (EVENT_DTYPE), :class:`ExposureMarker`, :class:`Frame`,
-        :class:`ImuBatch` (one per sample run between other packets) and :class:`TriggerBatch`.
+        Packets: event batches as bare EVENT_DTYPE arrays (:class:`~necviz.drivers.davis.camera.DavisCamera`
+        cuts them into :class:`~necviz.core.events.EventBatch` packets of its batch period), :class:`ExposureMarker`,
+        :class:`Frame`, :class:`ImuBatch` (one per sample run between other packets) and :class:`TriggerBatch`.
         """
         words = self.words_of(data)
         out: list = []

@@ -38,7 +38,7 @@ import time
 import numpy as np
 import usb.core
 
-from necviz.core.events import EVENT_DTYPE
+from necviz.core.events import EVENT_DTYPE, EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.drivers.davis import protocol as P
 from necviz.drivers.davis.emulator_usb import _usb_error
@@ -169,11 +169,11 @@ class DataPathMixin:
             except StopIteration:
                 self._scene_done = True
                 break
-            if isinstance(pk, np.ndarray):
+            if isinstance(pk, EventBatch):
                 if r(P.DVS.MODULE, P.DVS.RUN):
-                    ev = pk
+                    ev = pk.events
                     if self._base_us:
-                        ev = pk.copy()
+                        ev = ev.copy()
                         ev["t"] -= self._base_us
                     ev = ev[ev["t"] >= enc.now_us]
                     upto = int(ev["t"][-1]) + 1 if ev.size else self._sensor_us() + 1

@@ -59,7 +59,7 @@ from pathlib import Path
 import numpy as np
 
 from necviz.core.errors import NecvizError
-from necviz.core.events import EVENT_DTYPE
+from necviz.core.events import EVENT_DTYPE, EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, ImuBatch, TriggerBatch
 from necviz.core.sensor import SensorGeometry
@@ -178,36 +178,37 @@ class Recorder:
 
     # -- public --------------------------------------------------------------------------------
     def write(self, packet) -> None:
-        """Append one stream packet."""
-        if isinstance(packet, np.ndarray):
-            if packet.dtype != EVENT_DTYPE or packet.ndim != 1:
-                raise RecordingError(
-                    f"{self.path}: cannot record an array of dtype {packet.dtype} (expected an EVENT_DTYPE event batch)"
+        """Append one stream packet (an :class:`~necviz.core.events.EventBatch`, marker, frame, IMU or triggers)."""
+        match packet:
+            case EventBatch(events=ev):
+                if ev.dtype != EVENT_DTYPE or ev.ndim != 1:
+                    raise RecordingError(
+                        f"{self.path}: cannot record an array of dtype {ev.dtype} (expected an EVENT_DTYPE event batch)"
+                    )
+                for i in range(0, ev.size, MAX_EVENTS_PER_CHUNK):
+                    self._append(EVENTS, np.ascontiguousarray(ev[i : i + MAX_EVENTS_PER_CHUNK]).tobytes())
+            case ExposureMarker():
+                self._append(MARKER, MARKER_S.pack(int(packet.t_us), 0 if packet.kind == "start" else 1))
+            case Frame():
+                h, w = packet.image.shape
+                self._append(
+                    FRAME,
+                    FRAME_S.pack(
+                        int(packet.exposure_start_us),
+                        int(packet.exposure_end_us),
+                        float(packet.gain),
+                        int(packet.sequence),
+                        h,
+                        w,
+                    )
+                    + np.ascontiguousarray(packet.image).tobytes(),
                 )
-            for i in range(0, packet.size, MAX_EVENTS_PER_CHUNK):
-                self._append(EVENTS, np.ascontiguousarray(packet[i : i + MAX_EVENTS_PER_CHUNK]).tobytes())
-        elif isinstance(packet, ExposureMarker):
-            self._append(MARKER, MARKER_S.pack(int(packet.t_us), 0 if packet.kind == "start" else 1))
-        elif isinstance(packet, Frame):
-            h, w = packet.image.shape
-            self._append(
-                FRAME,
-                FRAME_S.pack(
-                    int(packet.exposure_start_us),
-                    int(packet.exposure_end_us),
-                    float(packet.gain),
-                    int(packet.sequence),
-                    h,
-                    w,
-                )
-                + np.ascontiguousarray(packet.image).tobytes(),
-            )
-        elif isinstance(packet, ImuBatch):
-            self._append(IMU, np.ascontiguousarray(packet.samples, dtype=IMU_DTYPE).tobytes())
-        elif isinstance(packet, TriggerBatch):
-            self._append(TRIGGERS, np.ascontiguousarray(packet.triggers, dtype=TRIGGER_DTYPE).tobytes())
-        else:
-            raise RecordingError(f"{self.path}: cannot record a {type(packet).__name__} packet")
+            case ImuBatch():
+                self._append(IMU, np.ascontiguousarray(packet.samples, dtype=IMU_DTYPE).tobytes())
+            case TriggerBatch():
+                self._append(TRIGGERS, np.ascontiguousarray(packet.triggers, dtype=TRIGGER_DTYPE).tobytes())
+            case _:
+                raise RecordingError(f"{self.path}: cannot record a {type(packet).__name__} packet")
 
     def command(self, record: CommandRecord) -> None:
         """Append an exposure command (issue time µs, exposure µs, linear gain, applied start µs)."""
@@ -491,7 +492,7 @@ class NativeRecording(Recording):
                         if t[0] < lo or t[-1] > hi:
                             ev = ev[(t >= lo) & (t <= hi)]
                         if ev.size:
-                            yield ev
+                            yield EventBatch(ev)
                 elif kind == MARKER:
                     t, mk = MARKER_S.unpack(data)
                     if mk == 0:

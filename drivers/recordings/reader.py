@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from necviz.core.errors import NecvizError
-from necviz.core.events import EVENT_DTYPE
+from necviz.core.events import EVENT_DTYPE, EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, ImuBatch, TriggerBatch
 from necviz.core.sensor import DAVIS240, DAVIS346, SensorGeometry, known_event_rate_max
@@ -605,7 +605,7 @@ class StreamAssembler:
             for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist()):
                 for c in range(a, b, self.max_batch):
                     chunk = ev[c : min(b, c + self.max_batch)]
-                    items.append((int(chunk["t"][0]), 3, chunk))
+                    items.append((int(chunk["t"][0]), 3, EventBatch(chunk)))
         for arr, order, cls in ((imu, 4, ImuBatch), (trg, 5, TriggerBatch)):
             if arr.size:
                 b = arr["t"] // self.batch_us

@@ -7,7 +7,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from necviz.core.frames import ExposureMarker, Frame
+from necviz.core.events import EventBatch
+from necviz.core.frames import Frame
 from necviz.core.imu import ImuBatch, TriggerBatch
 
 
@@ -108,25 +109,23 @@ def describe(path, progress=None, **open_kwargs) -> RecordingInfo:
             if progress is not None and not i & 255 and time.perf_counter() >= next_report:
                 progress(events, frames, 0.0 if t0 is None else (t1 - t0) / 1e6)
                 next_report = time.perf_counter() + 0.5
-            if isinstance(pkt, np.ndarray):
-                if pkt.size:
-                    events += pkt.size
-                    on += int(np.count_nonzero(pkt["p"] > 0))
-                    seen(int(pkt["t"][0]), int(pkt["t"][-1]))
-            elif isinstance(pkt, Frame):
-                frames += 1
-                e = pkt.exposure_us
-                emin = e if emin is None or e < emin else emin
-                emax = e if emax is None or e > emax else emax
-                seen(int(pkt.exposure_start_us), int(pkt.exposure_end_us))
-            elif isinstance(pkt, ImuBatch):
-                imu += len(pkt)
-                seen(int(pkt.samples["t"][0]), int(pkt.samples["t"][-1]))
-            elif isinstance(pkt, TriggerBatch):
-                trig += len(pkt)
-                seen(int(pkt.triggers["t"][0]), int(pkt.triggers["t"][-1]))
-            elif isinstance(pkt, ExposureMarker):
-                pass
+            match pkt:
+                case EventBatch(events=ev) if ev.size:
+                    events += ev.size
+                    on += int(np.count_nonzero(ev["p"] > 0))
+                    seen(int(ev["t"][0]), int(ev["t"][-1]))
+                case Frame():
+                    frames += 1
+                    e = pkt.exposure_us
+                    emin = e if emin is None or e < emin else emin
+                    emax = e if emax is None or e > emax else emax
+                    seen(int(pkt.exposure_start_us), int(pkt.exposure_end_us))
+                case ImuBatch():
+                    imu += len(pkt)
+                    seen(int(pkt.samples["t"][0]), int(pkt.samples["t"][-1]))
+                case TriggerBatch():
+                    trig += len(pkt)
+                    seen(int(pkt.triggers["t"][0]), int(pkt.triggers["t"][-1]))
     except RecordingError as exc:
         damage = f"stopped at damage: {exc}"
     try:

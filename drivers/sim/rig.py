@@ -44,7 +44,7 @@ import numpy as np
 from necviz.core.control.controller import CameraLimits
 from necviz.core.crf import CameraResponse, default_davis346
 from necviz.core.errors import ParameterError
-from necviz.core.events import EVENT_DTYPE
+from necviz.core.events import EVENT_DTYPE, EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.ground_truth import TRACE_STEP, GroundTruth
 from necviz.drivers.sim.aps import ApsParams, expose, integrate_samples
@@ -402,7 +402,7 @@ class SimRig:
                     cut = int(times.searchsorted(t_item, side="left"))
                     if cut > pos:
                         self.now_us = int(times[cut - 1])
-                        yield None, events[pos:cut]
+                        yield None, EventBatch(events[pos:cut])
                         pos = cut
                     cam = self.cams[name]
                     self.now_us = max(self.now_us, int(t_item))
@@ -439,7 +439,7 @@ class SimRig:
                         yield name, frame
                 if pos < events.size:
                     self.now_us = int(times[-1])
-                    yield None, events[pos:]
+                    yield None, EventBatch(events[pos:])
                 self.now_us = max(self.now_us, t1 - 1)
                 # keep samples back to the oldest exposure still to be integrated
                 oldest = min([h[4][0] for h in heap if h[1] in (_END, _FRAME)] + [t1])

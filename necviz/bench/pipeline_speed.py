@@ -28,7 +28,7 @@ from necviz.bench.timing import machine, write_result
 from necviz.core.control import CameraLimits, make_controller
 from necviz.core.crf import US_PER_S, default_davis346
 from necviz.core.errors import ParameterError
-from necviz.core.events import EVENT_DTYPE
+from necviz.core.events import EVENT_DTYPE, EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import DAVIS346, DAVIS_EVENT_RATE_MAX
 from necviz.drivers.source import CameraInfo, route
@@ -129,7 +129,7 @@ class SyntheticStream:
                 if exp_end is None and next_start < t1:
                     cut = int(np.searchsorted(ev["t"][lo:hi], next_start)) + lo
                     if cut > lo:
-                        yield ev[lo:cut]
+                        yield EventBatch(ev[lo:cut])
                     lo = cut
                     if self._pending is not None:
                         self.exposure_us, self.gain = self._pending
@@ -142,7 +142,7 @@ class SyntheticStream:
                 elif exp_end is not None and exp_end < t1:
                     cut = int(np.searchsorted(ev["t"][lo:hi], exp_end)) + lo
                     if cut > lo:
-                        yield ev[lo:cut]
+                        yield EventBatch(ev[lo:cut])
                     lo = cut
                     yield ExposureMarker(exp_end, "end")
                     yield Frame(self._image(exp_start, exp_end), exp_start, exp_end, self.gain, seq)
@@ -151,7 +151,7 @@ class SyntheticStream:
                 else:
                     break
             if hi > lo:
-                yield ev[lo:hi]
+                yield EventBatch(ev[lo:hi])
             i = hi
         del i
 

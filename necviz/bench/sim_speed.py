@@ -43,7 +43,7 @@ def run(duration_s=5.0, cameras=6, scene=None, json_path=None, out=...) -> dict:
     next_report = 0.0
     for name, p in rig.packets():
         if name is None:
-            events += p.size
+            events += len(p)
         elif isinstance(p, Frame):
             frames += 1
         now = time.perf_counter()

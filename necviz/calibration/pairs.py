@@ -39,7 +39,7 @@ import numpy as np
 from necviz.core.camera_profile import CameraProfile
 from necviz.core.crf import CameraResponse
 from necviz.core.errors import EventFormatError, ParameterError
-from necviz.core.events import EVENT_DTYPE
+from necviz.core.events import EVENT_DTYPE, EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.tedi import REFERENCES, CalibrationPair, prepare_pair
 from necviz.core.tedi_kernels import update_last_polarity
@@ -170,24 +170,26 @@ class PairCollector:
             self._run_last[:] = 0
 
     def feed(self, packet) -> None:
-        if isinstance(packet, np.ndarray):
-            if packet.dtype != EVENT_DTYPE:
-                return
-            if packet.size:
-                self._chunks.append(packet)
-                self._buffered += packet.size
-                self.events += packet.size
-                if self._buffered > self.max_buffer_events:  # frames too far apart: start over
-                    if self._recent:
-                        self.rejected["gap_or_order"] += 1
-                    self._recent = []
-                    self._close_group()
-                    self._drop_before(int(packet["t"][-1]) + 1)
-        elif isinstance(packet, ExposureMarker):
-            if packet.kind == "start" and not self._recent:
+        match packet:
+            case EventBatch(events=ev) if ev.size:
+                self._on_events(ev)
+            case ExposureMarker(kind="start") if not self._recent:
                 self._drop_before(packet.t_us)
-        elif isinstance(packet, Frame):
-            self._on_frame(packet)
+            case Frame():
+                self._on_frame(packet)
+
+    def _on_events(self, events: np.ndarray) -> None:
+        if events.dtype != EVENT_DTYPE:
+            return
+        self._chunks.append(events)
+        self._buffered += events.size
+        self.events += events.size
+        if self._buffered > self.max_buffer_events:  # frames too far apart: start over
+            if self._recent:
+                self.rejected["gap_or_order"] += 1
+            self._recent = []
+            self._close_group()
+            self._drop_before(int(events["t"][-1]) + 1)
 
     def finish(self) -> None:
         self._close_group()

@@ -19,11 +19,12 @@ from pathlib import Path
 
 from necviz.core.control import CameraLimits, make_controller
 from necviz.core.errors import ParameterError
+from necviz.core.stream import packet_time_us
 from necviz.dashboard.session import Session, preflight, run_session
 from necviz.dashboard.video import video_observer
 from necviz.options import ReplayOptions, ViewerOptions
 from necviz.outputs import write_json
-from necviz.pipeline import Lane, packet_time_us
+from necviz.pipeline import Lane
 from necviz.progress import output
 
 LANE = "camera"
