@@ -617,11 +617,18 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         """One stream packet to the method for its kind; a frame returns its :class:`FrameEstimate`."""
         return dispatch(self, packet)
 
-    # PacketHandler: what dispatch calls
-    on_events = update
-    on_exposure_start = begin_exposure
-    on_exposure_end = end_exposure
-    on_frame = add_frame
+    # PacketHandler: what dispatch calls (methods, not aliases, so a subclass's update is used)
+    def on_events(self, events: np.ndarray) -> None:
+        self.update(events)
+
+    def on_exposure_start(self, t_us: int) -> None:
+        self.begin_exposure(t_us)
+
+    def on_exposure_end(self, t_us: int) -> None:
+        self.end_exposure(t_us)
+
+    def on_frame(self, frame: Frame) -> FrameEstimate:
+        return self.add_frame(frame)
 
     # -- output -----------------------------------------------------------------------------
     @property

@@ -13,7 +13,7 @@ from necviz.commands.cli import main
 from necviz.commands.export import run as export
 from necviz.commands.replay import open_for_replay
 from necviz.core.errors import ParameterError
-from necviz.core.events import EVENT_DTYPE
+from necviz.core.events import EVENT_DTYPE, EventBatch
 from necviz.core.frames import Frame
 from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, ImuBatch, TriggerBatch
 from necviz.drivers.recordings import RecordingError, open_recording
@@ -33,8 +33,8 @@ def _content(packets) -> dict:
     """Everything a stream held: events, frames (pixels, exposure, gain), IMU samples, triggers."""
     ev, frames, imu, trg = [], [], [], []
     for p in packets:
-        if isinstance(p, np.ndarray):
-            ev.append(p)
+        if isinstance(p, EventBatch):
+            ev.append(p.events)
         elif isinstance(p, Frame):
             frames.append(p)
         elif isinstance(p, ImuBatch):

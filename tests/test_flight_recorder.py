@@ -12,7 +12,7 @@ import pytest
 from rrd_read import Rrd
 
 from necviz.core.control import ExposureCommand
-from necviz.core.events import EVENT_DTYPE
+from necviz.core.events import EVENT_DTYPE, EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import SensorGeometry
 from necviz.dashboard.telemetry import FrameRecord
@@ -87,7 +87,7 @@ def test_the_budget_bounds_memory_whatever_the_rate_and_says_so(tmp_path):
     assert stats["peak_bytes"] <= 3 * budget + 64 * 1024
     assert stats["clips_written"] >= 1
     rec = open_recording(sorted(tmp_path.glob("*.necrec"))[0])
-    n = sum(len(p) for p in rec if isinstance(p, np.ndarray))
+    n = sum(len(p) for p in rec if isinstance(p, EventBatch))
     assert 0 < n * 13 <= 3 * budget  # what the clip holds is what fitted in the budget
 
 
@@ -101,7 +101,7 @@ def test_a_clip_covers_before_and_after_the_failure_and_opens_at_it(tmp_path, ca
     assert necrec[0].stem.endswith("-t1.000s-command_latency")
     rec = open_recording(necrec[0])
     packets = list(rec)
-    t = np.concatenate([p["t"] for p in packets if isinstance(p, np.ndarray)])
+    t = np.concatenate([p.events["t"] for p in packets if isinstance(p, EventBatch)])
     # the ring kept 0.5 s before the failure (frame start 1.0 s); the clip ran 0.3 s after it
     assert 500_000 - BATCH_US <= t[0] <= 500_000 + BATCH_US
     assert 1_300_000 - BATCH_US <= t[-1] <= 1_300_000 + 2 * BATCH_US
@@ -128,7 +128,7 @@ def test_overlapping_failures_merge_and_distant_ones_do_not(tmp_path):
     assert [n.split("-t")[1] for n in names] == ["1.000s-command_latency", "2.600s-command_latency"]
     first = open_recording(tmp_path / f"{names[0]}.necrec")
     assert first.properties["clip_failures"] == 2
-    last_t = max(int(p["t"][-1]) for p in first if isinstance(p, np.ndarray))
+    last_t = max(p.t_last_us for p in first if isinstance(p, EventBatch))
     assert last_t >= 1_500_000 - BATCH_US  # extended to 0.3 s after the second failure
 
 

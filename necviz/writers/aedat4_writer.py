@@ -37,6 +37,7 @@ import struct
 import numpy as np
 
 from necviz.core.errors import ParameterError
+from necviz.core.events import EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import ImuBatch, TriggerBatch
 from necviz.writers.flatbuf import Buffer
@@ -251,6 +252,8 @@ class Aedat4Writer:
 
     def write(self, packet) -> None:
         """Append one stream packet (events, frame, IMU or trigger batch; exposure markers are implied by frames)."""
+        if isinstance(packet, EventBatch):
+            packet = packet.events
         if isinstance(packet, np.ndarray):
             if len(packet):
                 self._events.append(packet)

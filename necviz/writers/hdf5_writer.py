@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from necviz.core.events import EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import ImuBatch, TriggerBatch
 
@@ -86,6 +87,8 @@ class Hdf5Writer:
 
     def write(self, packet) -> None:
         """Append one stream packet (events, frame, IMU or trigger batch; markers are implied by frames)."""
+        if isinstance(packet, EventBatch):
+            packet = packet.events
         if isinstance(packet, np.ndarray):
             if not len(packet):
                 return

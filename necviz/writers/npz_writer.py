@@ -24,7 +24,7 @@ import zipfile
 
 import numpy as np
 
-from necviz.core.events import EVENT_DTYPE
+from necviz.core.events import EVENT_DTYPE, EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, ImuBatch, TriggerBatch
 
@@ -54,6 +54,8 @@ class NpzWriter:
 
     def write(self, packet) -> None:
         """Append one stream packet (events, frame, IMU or trigger batch; markers are implied by frames)."""
+        if isinstance(packet, EventBatch):
+            packet = packet.events
         if isinstance(packet, np.ndarray):
             self._events.write(np.ascontiguousarray(packet, EVENT_DTYPE).tobytes())
             self.counts["events"] += len(packet)
