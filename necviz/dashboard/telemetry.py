@@ -39,6 +39,7 @@ from necviz.core.errors import NecvizError
 from necviz.core.frames import Frame
 from necviz.core.ground_truth import WELL_EXPOSED, true_valid_fraction
 from necviz.core.metrics import over_exposed_rate, rank_correlation, region_valid_fraction, under_exposed_rate
+from necviz.core.prediction_skill import SkillTracker
 from necviz.image_quality import SiftMatcher
 from necviz.marker_detection import MarkerDetector
 
@@ -56,7 +57,10 @@ class FrameRecord:
 
     ``measured_log_irradiance`` is the frame's ln P̄ (frames with enough valid pixels);
     ``predicted_log_irradiance`` is P-TEDI's prediction for that exposure from the events before
-    it (ln P(s) + ln E_p(s)); ``prediction_error`` their difference. ``sift_inliers`` /
+    it (ln P(s) + ln E_p(s)); ``prediction_error`` their difference; ``persistence_error`` and
+    ``trend_error`` the errors of two predictors that see frames only (the last usable frame's ln P̄;
+    the line through the last two), ``prediction_skill`` P-TEDI's skill score against persistence
+    over the lane's frames so far (:mod:`necviz.core.prediction_skill`). ``sift_inliers`` /
     ``sift_inliers_normalised``: SIFT inliers with the previous frame, raw and with both frames
     scaled to mean 128 DN. Ground truth (simulated frames): ``true_valid_fraction`` (pixels whose
     true irradiance was recorded inside 10..249 DN), ``rank_correlation`` (Spearman's ρ of the
@@ -79,6 +83,9 @@ class FrameRecord:
     measured_log_irradiance: float = math.nan
     predicted_log_irradiance: float = math.nan
     prediction_error: float = math.nan
+    persistence_error: float = math.nan
+    trend_error: float = math.nan
+    prediction_skill: float = math.nan
     sift_inliers: float = math.nan
     sift_inliers_normalised: float = math.nan
     true_valid_fraction: float = math.nan
@@ -240,6 +247,7 @@ class LaneTelemetry:
         self.sift_normalised = SiftMatcher(normalise=True) if sift else None
         self.truth = bool(truth)
         self.markers = MarkerDetector() if markers else None
+        self.skill = SkillTracker()  # P-TEDI against predictors that see frames only
         self._marker_counts = [0, 0]  # visible markers, detected visible markers (over every frame)
         self.frames = 0
         self.saturated_50 = 0
@@ -314,6 +322,9 @@ class LaneTelemetry:
                 if math.isfinite(pred_s):
                     rec.predicted_log_irradiance = pred_s + float(np.mean(estimate.log_e))  # ln P̄ = ln P(s) + ln E_p(s)
                     rec.prediction_error = rec.predicted_log_irradiance - measured
+        rec.persistence_error, rec.trend_error, rec.prediction_skill = self.skill.update(
+            rec.measured_log_irradiance, rec.prediction_error, (s + rec.exposure_end_us) / 2
+        )
         if self.sift is not None:
             n = self.sift.next(image)
             rec.sift_inliers = math.nan if n is None else float(n)
@@ -445,6 +456,7 @@ class LaneTelemetry:
             "latency_max_us": self.latency.max_us,
             "prediction_error_rmse": float(np.sqrt(np.mean(err**2))) if err.size else None,
             "prediction_error_frames": int(err.size),
+            "prediction_skill": self.skill.summary(),
             "saturation_causes": dict(self.causes),
             **self.truth_summary(),
         }
