@@ -4,14 +4,15 @@
 For every preset (its default duration, seed 0) one closed-loop run of NEC and a fixed exposure
 with ``markers=True`` (:func:`necviz.runs.run_once`) collects every frame; then, on those frames:
 
-* the detector's time per frame (:meth:`necviz.marker_detection.MarkerDetector.detect`, wall
-  time, median and 95th percentile over the frames of both lanes) and per scoring call;
+* the detector's time per frame (:meth:`necviz.marker_detection.MarkerDetector.detect`, CPU time
+  of the process, median and 95th percentile over the frames of both lanes) and per scoring call;
 * the run's marker figures (detection rate, latency, missed pairs, corner error) per controller;
 
-and, as a same-run ratio, the wall time of the whole run with and without ``markers`` (one run
-each, interleaved, the first of a pair warmed up): how much the metric adds to a comparison.
-
-Times depend on the machine and its load (2 shared cores here): read the ratios, not the ms.
+and, as a same-run ratio, the CPU time of the whole run (every thread of the process) with and
+without ``markers`` (``--repeats`` runs each, interleaved, median): how much the metric adds to a
+comparison. CPU time rather than wall time, because the development machine's 2 cores are shared
+with other jobs (wall times there scatter by +-50 %); it still depends on the machine: read the
+ratios, not the ms.
 
 usage: python benchmarks/markers.py [--json FILE] [--repeats N]
 """
@@ -57,19 +58,20 @@ def measure(name: str, repeats: int) -> dict:
     res = run_once(sc, CONTROLLERS, sift=False, markers=True, observers=(grab,))
     det = MarkerDetector()
     t_detect, t_score = [], []
+    clock = time.process_time
     for f in grab.frames:
-        t0 = time.perf_counter()
+        t0 = clock()
         det.detect(f.image)
-        t_detect.append(time.perf_counter() - t0)
-        t0 = time.perf_counter()
+        t_detect.append(clock() - t0)
+        t0 = clock()
         det.score(f.image, f.truth.markers)
-        t_score.append(time.perf_counter() - t0)
+        t_score.append(clock() - t0)
     walls = {"off": [], "on": []}
     for _ in range(repeats):
         for key in ("off", "on"):
-            t0 = time.perf_counter()
+            t0 = clock()
             run_once(sc, CONTROLLERS, sift=False, markers=key == "on")
-            walls[key].append(time.perf_counter() - t0)
+            walls[key].append(clock() - t0)
     off, on = float(np.median(walls["off"])), float(np.median(walls["on"]))
     figures = {
         n: {
@@ -87,8 +89,8 @@ def measure(name: str, repeats: int) -> dict:
         "detect_ms_median": 1e3 * float(np.median(t_detect)),
         "detect_ms_p95": 1e3 * float(np.percentile(t_detect, 95)),
         "score_ms_median": 1e3 * float(np.median(t_score)),
-        "run_s_without_markers": off,
-        "run_s_with_markers": on,
+        "run_cpu_s_without_markers": off,
+        "run_cpu_s_with_markers": on,
         "run_time_ratio": on / off,
         "controllers": figures,
     }

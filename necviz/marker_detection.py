@@ -7,8 +7,9 @@ weights) on the dictionary the presets draw (``DICT_4X4_50``) with its default p
 sub-pixel corner refinement (``CORNER_REFINE_SUBPIX``), without which corners come out on whole
 pixels (half a pixel off the true edge).
 
-Cost: about 1-2 ms per 346 x 260 frame (``benchmarks/markers.py``), so the telemetry measures it
-only when asked (``markers=True``; ``necviz compare --markers``; ``markers = true`` in a sweep).
+Cost: about 1.6-2.6 ms of CPU per 346 x 260 frame, +9 to +76 % on a two-controller comparison
+(``benchmarks/markers.py``), so the telemetry measures it only when asked (``markers=True``;
+``necviz compare --markers``; ``markers = true`` in a sweep).
 """
 
 from __future__ import annotations

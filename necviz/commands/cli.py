@@ -334,7 +334,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--markers",
         action="store_true",
         help="detect the scene's fiducial markers on every frame: detection rate, latency after each "
-        "lighting change, corner error (about 1-2 ms a frame)",
+        "lighting change, corner error (about 2 ms a frame)",
     )
     cmp_.add_argument("--profile", metavar="FILE.json", help="camera profile (CRF, TEDI thresholds and compensation)")
     cmp_.add_argument(

@@ -234,7 +234,7 @@ class LaneTelemetry:
 
     ``truth``: compute the ground-truth metrics of frames that carry truth (simulated frames;
     about 1 ms a frame); the diagnosis of saturated frames always runs. ``markers``: detect the
-    scene's fiducial markers on frames whose truth has them (about 1-2 ms a frame).
+    scene's fiducial markers on frames whose truth has them (about 2 ms a frame).
     """
 
     def __init__(
@@ -469,7 +469,7 @@ class Telemetry:
     consecutive frames of each lane, raw and brightness-normalised (about 80 ms a frame:
     comparisons only); ``truth``: compute the ground-truth metrics of simulated frames (about
     1 ms a frame and lane); ``markers``: detect the simulated scene's fiducial markers on every
-    frame and score them against the ground truth (about 1-2 ms a frame and lane).
+    frame and score them against the ground truth (about 2 ms a frame and lane).
     """
 
     def __init__(

@@ -9,7 +9,7 @@ with a one-line :class:`~necviz.core.errors.ParameterError` naming the key)::
     seeds = "0..9"                     # "a..b" (inclusive), "1,5,9" or a list [1, 5, 9]
     duration_s = 2.0                   # optional: simulated seconds (default: each scenario's own)
     sift = false                       # SIFT inliers between frames (about 40 ms a frame: opt-in)
-    markers = true                     # fiducial-marker detection per frame (about 1-2 ms a frame; default false)
+    markers = true                     # fiducial-marker detection per frame (about 2 ms a frame; default false)
     metrics = ["saturated_frames_50", "recovery_ms"]   # what the report shows (default: every metric)
     profiles = ["default", "mismatch.json"]            # optional: camera profiles for the controllers
     sim = { "dvs.c_on" = [0.2, 0.3] }  # optional: simulator overrides for every scenario (a grid)
