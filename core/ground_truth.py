@@ -39,7 +39,9 @@ class GroundTruth:
     ``readout_us``: the frame is delivered this long after its exposure ends. ``changes``: the
     scene's documented lighting changes (:class:`~necviz.drivers.sim.scene.LightingChange`).
     ``pedestrian_box``: ``(x0, y0, x1, y1)`` (pixels, end-exclusive) of the scene's pedestrian at
-    mid-exposure, ``None`` when the scene has none or it is not visible.
+    mid-exposure, ``None`` when the scene has none or it is not visible. ``markers``: where the
+    scene's fiducial markers were at mid-exposure (:class:`~necviz.core.markers.MarkerTruth`), ``None``
+    when it has none.
     """
 
     mean_irradiance: np.ndarray
@@ -53,6 +55,7 @@ class GroundTruth:
     readout_us: float = 0.0
     changes: tuple = ()
     pedestrian_box: tuple | None = None
+    markers: object | None = None
     _log_mean: float | None = field(default=None, init=False, repr=False)
 
     def light_at(self, t_us: float) -> float:

@@ -51,6 +51,8 @@ def style_series(rec: rr.RecordingStream, lanes: list[str]) -> None:
             S.UNDER_EXPOSED: (f"{n} under", dim),
             S.LATENCY: (f"{n} latency µs", c),
             S.PREDICTION_ERROR: (f"{n} error", c),
+            S.PERSISTENCE_ERROR: (f"{n} same as last frame", dim),
+            S.PREDICTION_SKILL: (f"{n} skill vs last frame", c),
         }
         for leaf, (label, col) in lines.items():
             rec.log(S.path(n, leaf), rr.SeriesLines(colors=[col], names=[label], widths=[1.5]), static=True)

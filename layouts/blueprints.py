@@ -45,7 +45,8 @@ def inspect(lanes: list[str], width: int, height: int) -> rrb.Blueprint:
     """``inspect``: step through a recorded failure frame by frame.
 
     Frame and events on top; below, the P-TEDI prediction against the frame-measured irradiance
-    (and their difference), exposure and gain, and the saturated fractions with a marker on every
+    (and their difference, beside the error of "the same as the last frame" and P-TEDI's running
+    skill score against it), exposure and gain, and the saturated fractions with a marker on every
     saturated frame; the lane's log (saturated frames, controller switches) at the side. The
     plots show the whole recording so the cursor can be scrubbed across the failure.
     """
@@ -69,7 +70,10 @@ def inspect(lanes: list[str], width: int, height: int) -> rrb.Blueprint:
                 row_shares=[3, 2, 2, 2],
             ),
             rrb.Vertical(
-                series_view("prediction error (ln)", [p(S.PREDICTION_ERROR)]),
+                series_view(
+                    "prediction error (ln): P-TEDI, same as last frame", [p(S.PREDICTION_ERROR), p(S.PERSISTENCE_ERROR)]
+                ),
+                series_view("skill vs last frame: 1 − MSE ratio", [p(S.PREDICTION_SKILL)]),
                 rrb.TextLogView(origin="/", contents=[f"/{p(S.LOG)}", f"/{S.TUNING}"], name="log"),
             ),
             column_shares=[3, 1],

@@ -378,6 +378,7 @@ class CompareOptions:
     profile: str | os.PathLike | None = None
     controller_params: dict = field(default_factory=dict)  # {controller: {param: value}} (--param NAME.KEY=VALUE)
     sim: dict = field(default_factory=dict)  # simulator overrides {"dvs.c_on": 0.3, ...} (--sim KEY=VALUE)
+    markers: bool = False  # detect the scene's fiducial markers on every frame (--markers)
 
     def __post_init__(self):
         self.controllers = parse_controllers(self.controllers)

@@ -12,7 +12,10 @@ value (Dask workers)::
 
     {"scenario": "tunnel_exit", "seed": 3, "duration_s": 2.0, "scenario_params": {"step_db": 90},
      "controllers": ["nec"], "controller_params": {"nec": {"goal": 110}},
-     "profile": None, "sim": {"dvs.c_on": 0.3, "aps.latency_us": 2000}, "sift": False}
+     "profile": None, "sim": {"dvs.c_on": 0.3, "aps.latency_us": 2000}, "sift": False, "markers": True}
+
+``sift`` and ``markers`` (fiducial-marker detection, :mod:`necviz.marker_detection`) are per-frame
+measurements that cost time; both default to off in a run spec.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from dataclasses import fields, replace
 
 from necviz.core.control import CONTROLLERS, CameraLimits, Controller, make_controller
 from necviz.core.errors import ParameterError
+from necviz.core.markers import MARKER_KEYS, summarise_markers
 from necviz.core.metrics import summarise, summarise_details
 from necviz.dashboard.telemetry import Telemetry
 from necviz.options import SceneOptions
@@ -121,14 +125,17 @@ def run_once(
     controller_params: dict | None = None,
     sim: dict | None = None,
     progress=None,
+    markers: bool = False,
 ) -> dict:
     """One closed-loop run; returns ``{"results": {name: metrics and traces}, "duration_s", "steps_us"}``.
 
     ``observers`` are :class:`~necviz.pipeline.Observer` s or factories ``f(rig, lanes)``;
-    ``progress(pipe, label, expected_s)`` runs the pipeline (default: on this thread, silently).
+    ``progress(pipe, label, expected_s)`` runs the pipeline (default: on this thread, silently);
+    ``markers``: detect the scene's fiducial markers on every frame (the ``marker_*`` figures of
+    :func:`necviz.core.markers.summarise_markers`; ``None`` without).
     """
     scene, rig, lanes, _ = build_rig(scene_options, controllers, profile, controller_params, sim)
-    tel = Telemetry([ln.name for ln in lanes], sift=sift)
+    tel = Telemetry([ln.name for ln in lanes], sift=sift, markers=markers)
     obs = [o(rig, lanes) if callable(o) else o for o in observers]
     pipe = Pipeline(rig, lanes, telemetry=tel, observers=obs)
     if progress is None:
@@ -157,9 +164,20 @@ def run_once(
             table.column("pedestrian_valid_fraction"),
             table.column("saturation_cause"),
         )
+        marks = dict.fromkeys(MARKER_KEYS)
+        if markers:
+            marks = summarise_markers(
+                starts,
+                table.column("marker_visible_mask"),
+                table.column("marker_detected_mask"),
+                table.column("marker_corner_error_px"),
+                steps,
+                scene.duration_us,
+            )
         res[n] = {
             **m.as_dict(),
             **details,
+            **marks,
             "exposure_trace_us": table.column("exposure_us").tolist(),
             "gain_trace": table.column("gain").tolist(),
             "frame_starts_us": starts.tolist(),
@@ -178,6 +196,7 @@ SPEC_KEYS = {
     "profile",
     "sim",
     "sift",
+    "markers",
 }
 
 
@@ -210,6 +229,7 @@ def run_spec(spec: dict) -> dict:
         profile,
         controller_params=spec.get("controller_params"),
         sim=spec.get("sim"),
+        markers=bool(spec.get("markers", False)),
     )
 
 

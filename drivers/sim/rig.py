@@ -16,7 +16,8 @@ Ground truth: every frame carries ``frame.truth``, a :class:`~necviz.core.ground
 what a camera cannot know — the exposure-averaged irradiance of each pixel the frame was formed
 from, the scene's lighting trace (mean ``ln L`` at every rendered sample) from ``2 frame
 intervals + latency`` before the exposure to its end, the camera's limits and command latency,
-the scene's lighting changes and, where the scene has one, the pedestrian's box. Attaching it
+the scene's lighting changes and, where the scene has them, the pedestrian's box and the fiducial
+markers' corners at mid-exposure. Attaching it
 reads the simulation and changes nothing in it: the frames and events are the same with
 ``truth=False``.
 
@@ -144,6 +145,7 @@ class SimRig:
         self._trace_l: deque = deque()
         self._changes = tuple(scene.changes)
         self._pedestrian = getattr(scene, "pedestrian_box", None)
+        self._markers = getattr(scene, "marker_truth", None)
         self.cams: dict[str, _CamState] = {}
         for i, (name, init) in enumerate(cameras.items()):
             exp_us, gain = init if init is not None else (self._default_exposure(), 1.0)
@@ -324,6 +326,7 @@ class SimRig:
             float(a.readout_us),
             self._changes,
             box,
+            None if self._markers is None else self._markers((s + e) / 2),
         )
 
     def packets(self):

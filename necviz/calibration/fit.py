@@ -2,7 +2,8 @@
 
 **Fit** (:func:`calibrate_collected`): thresholds on the pairs that stayed below the sensor's bus
 ceiling, then the compensation with the thresholds fixed on all pairs, its knee ``b/a`` bounded
-below by ``slow_rate``.
+below by ``slow_rate``. The compensation is then validated on pairs it was not fitted on
+(:mod:`.holdout`) and kept only if it improves their residual; otherwise ``a± = b± = 0``.
 
 :func:`calibrate_collected` fits (Debevec & Malik, 1997, for the response when brackets were
 found; Eq. 7 of Lin et al. with SciPy least squares for the TEDI parameters, :mod:`necviz.core.tedi`)
@@ -18,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from necviz.calibration.holdout import BLOCK_S, validate_compensation
 from necviz.calibration.pairs import PairCollector
 from necviz.core.camera_profile import CameraProfile
 from necviz.core.control import CameraLimits
@@ -51,7 +53,9 @@ class CalibrationResult:
     when no compensation term was fitted); ``method``/``stages``: how the fit ran;
     ``crf_fitted``/``crf_info``: the response; ``data``: inputs and selection; ``pairs``: per-pair
     statistics with their RMS residual before and after; ``groups``: RMS before/after for the
-    unsaturated and the saturated pairs (see :func:`calibrate_collected`).
+    unsaturated and the saturated pairs (see :func:`calibrate_collected`); ``compensation``: whether
+    the compensation was kept and why, with its held-out residuals (:mod:`.holdout`; ``None`` when
+    no compensation parameter was fitted).
     """
 
     profile: CameraProfile
@@ -71,6 +75,7 @@ class CalibrationResult:
     pairs: list = field(default_factory=list)
     groups: dict = field(default_factory=dict)
     inactive: tuple = ()
+    compensation: dict | None = None
 
     @property
     def inactive_names(self) -> tuple:
@@ -91,6 +96,7 @@ class CalibrationResult:
                 "stages": self.stages,
                 "inactive_compensation": list(self.inactive),
                 "groups": self.groups,
+                "compensation": self.compensation,
             },
             "plain": None
             if self.plain is None
@@ -113,7 +119,10 @@ class CalibrationResult:
         for name in PARAM_NAMES:
             unit = " ev/s" if name.startswith("b_") else ""
             v, s = getattr(p, name), se.get(name, math.nan)
-            if name in self.inactive_names:
+            comp = self.compensation
+            if comp is not None and not comp["kept"] and name[:2] in ("a_", "b_"):
+                extra = " (dropped: see below)"
+            elif name in self.inactive_names:
                 extra = " (inactive: no pixel of the data changed faster than the knee)"
             elif name in self.at_bound and name.startswith("b_") and getattr(p, "a_" + name[2:]) > 0:
                 extra = f" (knee b/a = {v / getattr(p, 'a_' + name[2:]):.4g} ev/s: at its lower bound)"
@@ -140,6 +149,26 @@ class CalibrationResult:
             lines.append(
                 f"  without compensation (c± only, a = b = 0, all pairs): {self.plain.rms_after:.4f} "
                 f"(c_on {self.plain.params.c_on:.4f}, c_off {self.plain.params.c_off:.4f})"
+            )
+        comp = self.compensation
+        if comp is not None:
+            lines.append(f"compensation {'kept' if comp['kept'] else 'dropped (a = b = 0)'}: {comp['reason']}")
+            ho = comp.get("held_out")
+            if ho:
+                lines.append(
+                    f"  held out ({comp['split']}; fitted on {comp['fit_pairs']} pairs, tested on "
+                    f"{comp['held_out_pairs']}), RMS residual without -> with compensation:"
+                )
+                for key in ("all", "unsaturated", "saturated"):
+                    g = ho[key]
+                    if g["pairs"]:
+                        lines.append(f"    {key} pairs ({g['pairs']}): {g['without']:.4f} -> {g['with']:.4f}")
+            ins = comp["in_sample"]
+            lines.append(
+                "  in sample (every pair, fitted on all of them), without -> with: "
+                + ", ".join(
+                    f"{k} {g['without']:.4f} -> {g['with']:.4f}" for k, g in ins.items() if g["pairs"] and g["with"]
+                )
             )
         if self.crf_fitted:
             lines.append(
@@ -249,6 +278,7 @@ def calibrate_collected(
     extra: dict | None = None,
     progress=None,
     max_nfev: int = 200,
+    holdout_block_s: float = BLOCK_S,
 ) -> CalibrationResult:
     """Fit response (if brackets) and TEDI parameters on what ``collector`` kept; build the profile.
 
@@ -271,6 +301,13 @@ def calibrate_collected(
     all pairs. When ``a±`` and ``b±`` of a polarity are both fitted, the knee ``b±/a±`` is bounded
     below by ``slow_rate`` events per pixel per second: with a knee of zero the compensation
     ``a m`` is a mere rescaling of ``c``.
+
+    **Does the compensation earn its place?** Whenever compensation terms are fitted, the same fit is
+    repeated on alternate ``holdout_block_s`` blocks of the data and its residual compared, with and
+    without the compensation, on the blocks left out (:func:`.holdout.validate_compensation`). The
+    profile keeps the compensation only if it improves that held-out residual (overall, and not at
+    the cost of the pairs below the bus ceiling); otherwise ``a± = b± = 0`` with the thresholds of
+    the fit, and ``result.compensation["reason"]`` says why.
     """
     base = base or CameraProfile()
     init = init or base.tedi
@@ -351,6 +388,28 @@ def calibrate_collected(
         if c_names and comp_names:
             method += f" (only {len(complete)} unsaturated pairs: too few for two stages)"
     params = res.params
+    compensation = None
+    if comp_names:  # does it earn its place? (held-out pairs; .holdout)
+        label[0] = "compensation on held-out pairs"
+        compensation = validate_compensation(
+            pairs,
+            saturated,
+            crf,
+            init,
+            c_names,
+            comp_names,
+            final=params,
+            knee=knee,
+            loss=loss,
+            f_scale=f_scale,
+            max_nfev=max_nfev,
+            block_s=holdout_block_s,
+            progress=cb,
+        )
+        if not compensation["kept"]:
+            params = TediParams(params.c_on, params.c_off)
+            stderr = {k: (math.nan if k in comp_names else v) for k, v in stderr.items()}
+            at_bound = [k for k in at_bound if k not in comp_names]
     plain = None
     if comp_names:
         label[0] = "thresholds without compensation"
@@ -402,6 +461,9 @@ def calibrate_collected(
         "rms_before": rms_before,
         "rms_after": rms_after,
         "rms_without_compensation": None if plain is None else plain.rms_after,
+        "compensation": None
+        if compensation is None
+        else {k: compensation[k] for k in ("kept", "reason", "split", "held_out", "in_sample") if k in compensation},
         "pairs_saturated": int(sum(saturated)),
         "stderr": {k: _num(v) for k, v in stderr.items() if k in fit},
         "crf": "fitted (Debevec-Malik)" if crf_fitted else crf_info.get("reason", "kept"),
@@ -427,4 +489,5 @@ def calibrate_collected(
         per_pair,
         groups,
         tuple(res.inactive),
+        compensation,
     )

@@ -9,7 +9,10 @@ too, and ignore them). Every controller starts from the same exposure (right for
 first instant) under the same camera limits.
 
 With ``seeds > 1`` every metric is reported as the mean over seeds with a 95 % confidence
-interval (Student's t on the per-seed values). Each controller's ``saturation_causes`` counts its
+interval (Student's t on the per-seed values). Seeds are independent replicates: each draws its
+lighting-change times at its own phase of the frame clock (the presets' ``change_jitter_ms``,
+:mod:`necviz.drivers.sim.scenes`); ``lighting_steps_us_per_seed`` lists them (``lighting_steps_us``:
+the first seed's). Each controller's ``saturation_causes`` counts its
 saturated frames by diagnosed cause (:mod:`necviz.core.diagnosis`), as the mean per run over seeds;
 with one seed every frame's cause is in ``frames_detail``.
 """
@@ -41,6 +44,10 @@ METRICS = (
     "rank_correlation_mean",
     "pedestrian_valid_fraction",
     "pedestrian_well_exposed",
+    "marker_detection_rate",
+    "marker_latency_ms",
+    "marker_missed",
+    "marker_corner_error_px",
 )
 
 
@@ -100,6 +107,7 @@ def run(options: CompareOptions | None = None, out=...) -> dict:
                 options.controller_params,
                 options.sim,
                 progress=lambda pipe, label, s: run_pipeline(pipe, label, s, out),
+                markers=options.markers,
             )
         )
     table = {}
@@ -124,7 +132,14 @@ def run(options: CompareOptions | None = None, out=...) -> dict:
         if options.seeds > 1:
             row["saturation_causes_per_seed"] = causes
         if options.seeds == 1:
-            for key in ("recovery_ms_per_step", "exposure_trace_us", "gain_trace", "frame_starts_us", "frames_detail"):
+            for key in (
+                "recovery_ms_per_step",
+                "marker_changes",
+                "exposure_trace_us",
+                "gain_trace",
+                "frame_starts_us",
+                "frames_detail",
+            ):
                 row[key] = runs[0]["results"][n][key]
         table[n] = row
     result = {
@@ -135,8 +150,10 @@ def run(options: CompareOptions | None = None, out=...) -> dict:
         "scenario_params": sc.params,
         "controller_params": options.controller_params,
         "sim": options.sim,
+        "markers": options.markers,
         "profile": str(options.profile) if options.profile else None,
         "lighting_steps_us": runs[0]["steps_us"],
+        "lighting_steps_us_per_seed": [r["steps_us"] for r in runs],
         "controllers": table,
     }
     if out is not None:
@@ -181,6 +198,21 @@ def print_table(result: dict, out) -> None:
             f"{_fmt(None if ped is None else float(ped), c('pedestrian_valid_fraction'), 2):>14s}",
             file=out,
         )
+    if any(r.get("marker_detection_rate") is not None for r in table.values()):
+        print(
+            "fiducial markers: detection rate (detected / visible, all frames), latency after each lighting change "
+            "(ms; a marker never detected counts its whole window), missed (change, marker) pairs, corner error (px):",
+            file=out,
+        )
+        for n, r in table.items():
+            c = lambda k: r.get(k + "_ci95")  # noqa: E731
+            print(
+                f"  {n:{w}s} rate {_fmt(r.get('marker_detection_rate'), c('marker_detection_rate'), 3)}, "
+                f"latency {_fmt(r.get('marker_latency_ms'), c('marker_latency_ms'))} ms, "
+                f"missed {_fmt(r.get('marker_missed'), c('marker_missed'), 1 if seeds > 1 else 0)}, "
+                f"corner error {_fmt(r.get('marker_corner_error_px'), c('marker_corner_error_px'), 2)} px",
+                file=out,
+            )
     print("saturated frames by diagnosed cause" + (" (mean per run)" if seeds > 1 else "") + ":", file=out)
     for n, r in table.items():
         causes = r.get("saturation_causes") or {}

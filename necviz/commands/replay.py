@@ -7,8 +7,17 @@ for that exposure from the events before it (``ln P(s) + ln E_p(s)``, the predic
 exposure start carried across the exposure by its events) and their difference, and flags
 frames more than 50 % saturated.
 
+What the events add: beside P-TEDI's error the replay reports the errors of two predictors that
+see frames only — persistence, "the same as the last frame" (also what P-TEDI predicts without
+events), and the trend through the last two frames — and P-TEDI's skill score against each,
+``1 - MSE_ptedi / MSE_reference`` over the frames both predict (:mod:`necviz.core.prediction_skill`):
+in the summary text, in the JSON (``prediction_skill``) and on the dashboard
+(``NAME/prediction_error/persistence``, ``NAME/prediction_skill``).
+
 ``json`` writes ``{"frames", "events", "duration_s", "saturated_frames_50",
-"prediction_error_rmse", "prediction_error_frames", "saturation_causes", "frames_detail": [...]}``;
+"prediction_error_rmse", "prediction_error_frames", "prediction_skill", "saturation_causes",
+"frames_detail": [...]}`` (``prediction_skill``: ``{"persistence" | "trend": {"frames",
+"rmse_ptedi", "rmse_reference", "skill"}}``);
 each saturated frame in ``frames_detail`` carries its diagnosed ``saturation_cause`` and
 ``saturation_explanation`` (:mod:`necviz.core.diagnosis`), ``saturation_causes`` counts them.
 """
@@ -84,9 +93,27 @@ def summarise(stats: dict, lane: str = LANE) -> dict:
         "saturated_frames_50": s["saturated_frames_50"],
         "prediction_error_rmse": s["prediction_error_rmse"],
         "prediction_error_frames": s["prediction_error_frames"],
+        "prediction_skill": s["prediction_skill"],
         "saturation_causes": s["saturation_causes"],
         "frames_detail": tel.table.rows(),
     }
+
+
+def skill_lines(skill: dict) -> list[str]:
+    """The summary's lines on P-TEDI against the frame-only predictors (``prediction_skill``)."""
+    names = {"persistence": "same as the last frame", "trend": "trend of the last two frames"}
+    lines = []
+    for ref, label in names.items():
+        g = skill[ref]
+        if not g["frames"]:
+            lines.append(f"  against {label}: no frame to compare")
+            continue
+        sk = "undefined (the reference is exact)" if g["skill"] is None else f"{g['skill']:+.3f}"
+        lines.append(
+            f"  against {label} (frames only), {g['frames']} frames: RMSE P-TEDI {g['rmse_ptedi']:.4f} ln, "
+            f"{label} {g['rmse_reference']:.4f} ln; skill score 1 - MSE ratio = {sk}"
+        )
+    return lines
 
 
 def run(options: ReplayOptions, viewer: ViewerOptions | None = None, out=...) -> dict:
@@ -167,6 +194,8 @@ def run(options: ReplayOptions, viewer: ViewerOptions | None = None, out=...) ->
         else "  prediction error: no frame pair to compare (need two usable frames)",
         file=out,
     )
+    for line in skill_lines(summary["prediction_skill"]):
+        print(line, file=out)
     sat = [d["sequence"] for d in summary["frames_detail"] if d["saturated"]]
     if sat:
         shown = ", ".join(map(str, sat[:12])) + (" …" if len(sat) > 12 else "")

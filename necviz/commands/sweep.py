@@ -53,6 +53,7 @@ def _cmd_plan(args) -> int:
         print(f"  swept {k}: {shown}")
     print(
         f"  seeds: {_seeds(desc['seeds_list'])}; SIFT {'on' if desc['sift'] else 'off'}; "
+        f"markers {'on' if desc.get('markers') else 'off'}; "
         f"{desc['simulated_s']:,.1f} s simulated in total"
     )
     if desc["metrics"]:

@@ -25,6 +25,11 @@ path                              archetype                      meaning
 ``NAME/latency_us``               Scalars                        processing latency of each
                                                                  command (packet in -> command out)
 ``NAME/prediction_error``         Scalars                        predicted − measured ln Pbar
+``NAME/prediction_error/          Scalars                        "same as the last frame" −
+persistence``                                                    measured ln Pbar (frames only)
+``NAME/prediction_skill``         Scalars                        P-TEDI's skill score against
+                                                                 persistence so far:
+                                                                 1 − MSE_ptedi / MSE_persistence
 ``NAME/truth/valid_fraction``     Scalars                        simulated frames only: fraction of
                                                                  pixels whose true irradiance was
                                                                  recorded inside 10..249 DN
@@ -67,6 +72,8 @@ UNDER_EXPOSED = "under_exposed_rate"
 SATURATED = "saturated"
 LATENCY = "latency_us"
 PREDICTION_ERROR = "prediction_error"
+PERSISTENCE_ERROR = "prediction_error/persistence"
+PREDICTION_SKILL = "prediction_skill"
 LOG = "log"
 # ground truth of simulated frames (see necviz.core.metrics); absent for cameras and recordings
 TRUE_VALID = "truth/valid_fraction"

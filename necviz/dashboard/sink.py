@@ -336,6 +336,10 @@ class RerunSink(Observer):
             self._scalar(lane, S.IRRADIANCE_FRAME, t, record.measured_log_irradiance)
         if math.isfinite(record.prediction_error):
             self._scalar(lane, S.PREDICTION_ERROR, t, record.prediction_error)
+        if math.isfinite(record.persistence_error):
+            self._scalar(lane, S.PERSISTENCE_ERROR, t, record.persistence_error)
+        if math.isfinite(record.prediction_skill):
+            self._scalar(lane, S.PREDICTION_SKILL, t, record.prediction_skill)
         if math.isfinite(record.true_valid_fraction):
             self._scalar(lane, S.TRUE_VALID, t, record.true_valid_fraction)
         if math.isfinite(record.rank_correlation):

@@ -5,7 +5,8 @@ start and command to a :class:`Telemetry`, which computes the per-frame metrics 
 (:class:`FrameRecord`: over/under-exposed rates, the frame-measured and the predicted irradiance,
 the prediction error, optionally SIFT inliers on raw and brightness-normalised frames; on
 simulated frames the ground-truth metrics of :mod:`necviz.core.metrics`; on every saturated frame
-its diagnosed cause, :mod:`necviz.core.diagnosis`) for everyone who reads them: the Rerun sink,
+its diagnosed cause, :mod:`necviz.core.diagnosis`; optionally the fiducial-marker detection scored
+against the simulator's ground truth, :mod:`necviz.marker_detection`) for everyone who reads them: the Rerun sink,
 the JSON summaries of ``replay``, and ``compare``.
 
 The diagnosis needs to know the lanes (which controller, whether it drives its camera, the
@@ -38,7 +39,9 @@ from necviz.core.errors import NecvizError
 from necviz.core.frames import Frame
 from necviz.core.ground_truth import WELL_EXPOSED, true_valid_fraction
 from necviz.core.metrics import over_exposed_rate, rank_correlation, region_valid_fraction, under_exposed_rate
+from necviz.core.prediction_skill import SkillTracker
 from necviz.image_quality import SiftMatcher
+from necviz.marker_detection import MarkerDetector
 
 #: A frame with more than this fraction of pixels clipped (either end) is *saturated* (the paper's
 #: threshold); more than :data:`SLIGHTLY` is *slightly saturated*.
@@ -54,12 +57,19 @@ class FrameRecord:
 
     ``measured_log_irradiance`` is the frame's ln P̄ (frames with enough valid pixels);
     ``predicted_log_irradiance`` is P-TEDI's prediction for that exposure from the events before
-    it (ln P(s) + ln E_p(s)); ``prediction_error`` their difference. ``sift_inliers`` /
+    it (ln P(s) + ln E_p(s)); ``prediction_error`` their difference; ``persistence_error`` and
+    ``trend_error`` the errors of two predictors that see frames only (the last usable frame's ln P̄;
+    the line through the last two), ``prediction_skill`` P-TEDI's skill score against persistence
+    over the lane's frames so far (:mod:`necviz.core.prediction_skill`). ``sift_inliers`` /
     ``sift_inliers_normalised``: SIFT inliers with the previous frame, raw and with both frames
     scaled to mean 128 DN. Ground truth (simulated frames): ``true_valid_fraction`` (pixels whose
     true irradiance was recorded inside 10..249 DN), ``rank_correlation`` (Spearman's ρ of the
     digits against the true irradiance on valid pixels), ``pedestrian_valid_fraction`` (on the
-    first frame the scene's pedestrian is visible only). ``saturation_cause`` and
+    first frame the scene's pedestrian is visible only). Fiducial markers (simulated frames, when
+    the telemetry detects them; :mod:`necviz.core.markers`): ``marker_visible_mask`` /
+    ``marker_detected_mask`` (bit ``1 << id`` per marker visible in the ground truth / found by the
+    detector), ``marker_detection_rate`` (detected visible / visible) and ``marker_corner_error_px``
+    (mean corner error of the detected visible markers). ``saturation_cause`` and
     ``saturation_explanation``: why a saturated frame saturated (``''`` otherwise).
     """
 
@@ -73,11 +83,18 @@ class FrameRecord:
     measured_log_irradiance: float = math.nan
     predicted_log_irradiance: float = math.nan
     prediction_error: float = math.nan
+    persistence_error: float = math.nan
+    trend_error: float = math.nan
+    prediction_skill: float = math.nan
     sift_inliers: float = math.nan
     sift_inliers_normalised: float = math.nan
     true_valid_fraction: float = math.nan
     rank_correlation: float = math.nan
     pedestrian_valid_fraction: float = math.nan
+    marker_visible_mask: int = 0
+    marker_detected_mask: int = 0
+    marker_detection_rate: float = math.nan
+    marker_corner_error_px: float = math.nan
     saturation_cause: str = ""
     saturation_explanation: str = ""
 
@@ -216,16 +233,22 @@ class LaneTelemetry:
     """Telemetry of one lane (a camera and its controller).
 
     ``truth``: compute the ground-truth metrics of frames that carry truth (simulated frames;
-    about 1 ms a frame); the diagnosis of saturated frames always runs.
+    about 1 ms a frame); the diagnosis of saturated frames always runs. ``markers``: detect the
+    scene's fiducial markers on frames whose truth has them (about 2 ms a frame).
     """
 
-    def __init__(self, name: str, history: int | None = None, sift: bool = False, truth: bool = True):
+    def __init__(
+        self, name: str, history: int | None = None, sift: bool = False, truth: bool = True, markers: bool = False
+    ):
         self.name = name
         self.table = FrameTable(history)
         self.latency = LatencyHistogram()
         self.sift = SiftMatcher() if sift else None
         self.sift_normalised = SiftMatcher(normalise=True) if sift else None
         self.truth = bool(truth)
+        self.markers = MarkerDetector() if markers else None
+        self.skill = SkillTracker()  # P-TEDI against predictors that see frames only
+        self._marker_counts = [0, 0]  # visible markers, detected visible markers (over every frame)
         self.frames = 0
         self.saturated_50 = 0
         self.saturated_10 = 0
@@ -299,6 +322,9 @@ class LaneTelemetry:
                 if math.isfinite(pred_s):
                     rec.predicted_log_irradiance = pred_s + float(np.mean(estimate.log_e))  # ln P̄ = ln P(s) + ln E_p(s)
                     rec.prediction_error = rec.predicted_log_irradiance - measured
+        rec.persistence_error, rec.trend_error, rec.prediction_skill = self.skill.update(
+            rec.measured_log_irradiance, rec.prediction_error, (s + rec.exposure_end_us) / 2
+        )
         if self.sift is not None:
             n = self.sift.next(image)
             rec.sift_inliers = math.nan if n is None else float(n)
@@ -332,6 +358,14 @@ class LaneTelemetry:
             if math.isfinite(v):
                 self._truth_sums[key][0] += v
                 self._truth_sums[key][1] += 1
+        mk = getattr(truth, "markers", None)
+        if self.markers is not None and mk is not None:
+            vis, det, rate, err = self.markers.score(frame.image, mk)
+            rec.marker_visible_mask, rec.marker_detected_mask = vis, det
+            rec.marker_detection_rate, rec.marker_corner_error_px = rate, err
+            n_vis = bin(vis).count("1")
+            self._marker_counts[0] += n_vis
+            self._marker_counts[1] += bin(vis & det).count("1")
         box = getattr(truth, "pedestrian_box", None)
         if self.pedestrian is None and box is not None:
             rec.pedestrian_valid_fraction = region_valid_fraction(frame.image, box)
@@ -397,6 +431,8 @@ class LaneTelemetry:
     def truth_summary(self) -> dict:
         """Means of the ground-truth metrics over every frame that had them, and the pedestrian's first frame."""
         out = {f"{k}_mean": (t / n if n else None) for k, (t, n) in self._truth_sums.items()}
+        n_vis, n_hit = self._marker_counts
+        out["marker_detection_rate"] = n_hit / n_vis if n_vis else None
         p = self.pedestrian
         out.update(
             {
@@ -420,6 +456,7 @@ class LaneTelemetry:
             "latency_max_us": self.latency.max_us,
             "prediction_error_rmse": float(np.sqrt(np.mean(err**2))) if err.size else None,
             "prediction_error_frames": int(err.size),
+            "prediction_skill": self.skill.summary(),
             "saturation_causes": dict(self.causes),
             **self.truth_summary(),
         }
@@ -431,11 +468,14 @@ class Telemetry:
     ``history``: frames kept per lane (``None``: all); ``sift``: compute SIFT inliers between
     consecutive frames of each lane, raw and brightness-normalised (about 80 ms a frame:
     comparisons only); ``truth``: compute the ground-truth metrics of simulated frames (about
-    1 ms a frame and lane).
+    1 ms a frame and lane); ``markers``: detect the simulated scene's fiducial markers on every
+    frame and score them against the ground truth (about 2 ms a frame and lane).
     """
 
-    def __init__(self, lanes, history: int | None = None, sift: bool = False, truth: bool = True):
-        self.lanes = {name: LaneTelemetry(name, history, sift, truth) for name in lanes}
+    def __init__(
+        self, lanes, history: int | None = None, sift: bool = False, truth: bool = True, markers: bool = False
+    ):
+        self.lanes = {name: LaneTelemetry(name, history, sift, truth, markers) for name in lanes}
         self.events = 0
         self.frames = 0
         self.first_us: int | None = None

@@ -74,6 +74,7 @@ def describe(plan: Plan) -> dict:
         "profiles": len(values.get("profile", [None])),
         "seeds_list": plan.seeds,
         "sift": plan.sift,
+        "markers": plan.markers,
         "swept": swept,
         "controllers": ctrl,
         "simulated_s": sim_s,

@@ -37,7 +37,7 @@ from necviz.sweeps.spec import cell_key
 from necviz.sweeps.store import REPORT_FILES, Store, SweepDirError
 
 PLOT_DEFAULT = ("saturated_frames_50", "recovery_ms")
-SPEC_FIXED = ("scenario", "duration_s", "profile", "sift", "controller")
+SPEC_FIXED = ("scenario", "duration_s", "profile", "sift", "markers", "controller")
 SPEC_PREFIXES = ("scenario_params.", "controller_params.", "sim.")
 NOT_DATA = {"traceback", "spec_json", "__metrics__"}
 

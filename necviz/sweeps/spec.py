@@ -9,6 +9,7 @@ with a one-line :class:`~necviz.core.errors.ParameterError` naming the key)::
     seeds = "0..9"                     # "a..b" (inclusive), "1,5,9" or a list [1, 5, 9]
     duration_s = 2.0                   # optional: simulated seconds (default: each scenario's own)
     sift = false                       # SIFT inliers between frames (about 40 ms a frame: opt-in)
+    markers = true                     # fiducial-marker detection per frame (about 2 ms a frame; default false)
     metrics = ["saturated_frames_50", "recovery_ms"]   # what the report shows (default: every metric)
     profiles = ["default", "mismatch.json"]            # optional: camera profiles for the controllers
     sim = { "dvs.c_on" = [0.2, 0.3] }  # optional: simulator overrides for every scenario (a grid)
@@ -57,6 +58,7 @@ TOP_KEYS = {
     "seeds",
     "duration_s",
     "sift",
+    "markers",
     "metrics",
     "profiles",
     "sim",
@@ -94,6 +96,7 @@ class Plan:
     sift: bool
     duplicates: int = 0
     name: str = ""
+    markers: bool = False
 
     @property
     def hashes(self) -> list[str]:
@@ -254,6 +257,8 @@ def spec_columns(spec: dict, scenario_label: str, profile_label: str | None) -> 
         "profile": profile_label,
         "sift": bool(spec.get("sift", False)),
     }
+    if spec.get("markers"):  # only when on: the specs (and hashes) of sweeps without it stay as they were
+        cols["markers"] = True
     for k, v in sorted((spec.get("scenario_params") or {}).items()):
         cols[f"scenario_params.{k}"] = _scalar(v)
     for k, v in sorted(((spec.get("controller_params") or {}).get(ctrl) or {}).items()):
@@ -329,6 +334,9 @@ def expand(data: dict, base: Path = Path("."), source: str = "sweep", text: str 
     sift = data.get("sift", False)
     if not isinstance(sift, bool):
         raise SweepFileError(f"sift must be true or false, got {sift!r}")
+    markers = data.get("markers", False)
+    if not isinstance(markers, bool):
+        raise SweepFileError(f"markers must be true or false, got {markers!r}")
     metrics = _list_of(data, "metrics")
     if metrics is not None and not all(isinstance(m, str) and m for m in metrics):
         raise SweepFileError(f"metrics must be a list of metric names, got {data['metrics']!r}")
@@ -434,6 +442,8 @@ def expand(data: dict, base: Path = Path("."), source: str = "sweep", text: str 
                         "sim": dict(sim_row),
                         "sift": sift,
                     }
+                    if markers:  # only when on, so sweeps without markers keep their hashes
+                        spec["markers"] = True
                     refs = {}
                     for key in ("scenario", "profile"):
                         v = spec[key]
@@ -447,7 +457,7 @@ def expand(data: dict, base: Path = Path("."), source: str = "sweep", text: str 
                         continue
                     seen.add(h)
                     runs.append(Run(h, spec, spec_columns(spec, label, prof_label)))
-    return Plan(source, text, data, runs, seeds, metrics, sift, dup, data.get("name", Path(source).stem))
+    return Plan(source, text, data, runs, seeds, metrics, sift, dup, data.get("name", Path(source).stem), markers)
 
 
 def _duration(v, where):

@@ -25,9 +25,12 @@ Presets (``SCENARIOS``), one module each:
     handheld scan over a facade with soft sun/shadow boundaries sweeping across (40-60 dB).
 
 Each preset's parameters (default, range, meaning) are listed in its class docstring, generated
-from its ``PARAMS`` (:mod:`.base`); :func:`scenario_params_markdown` renders all of them for the
-README. Every preset takes ``change_jitter_ms`` (default 0): each lighting change moves by a seeded
-uniform offset of at most that much, to place changes at random phases of the frame clock.
+from its ``PARAMS`` (:mod:`.preset`); :func:`scenario_params_markdown` renders all of them for
+``docs/simulator.md``. Every preset takes ``change_jitter_ms`` (default half the APS frame interval,
+10 ms): each lighting change moves by a seeded uniform offset of at most that much, so each seed
+meets the frame clock at its own phase (0: the nominal times, the same for every seed); and
+``markers`` (default true): ArUco fiducial markers drawn into the scene (:mod:`.fiducials`), whose
+ground truth ``scene.marker_truth(t_us)`` gives (:class:`necviz.core.markers.MarkerTruth`).
 
 Build one with :func:`make_scenario` (``make_scenario("tunnel_exit", seed=3, step_db=90)``) or from a
 TOML description with :func:`scenario_from_toml` (keys in :mod:`.toml`)::

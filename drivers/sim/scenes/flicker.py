@@ -18,6 +18,11 @@ from necviz.drivers.sim.scenes.preset import (
 
 __all__ = ["Flicker"]
 
+#: Fiducial markers (``markers``): patch centres as fractions of the image (the third one in the
+#: lamp's pool of light), cells of ``MARKER_CELL`` px.
+MARKERS = ((0.10, 0.15), (0.72, 0.18), (0.33, 0.47), (0.86, 0.72), (0.52, 0.82))
+MARKER_CELL = 5
+
 
 class Flicker(PresetScene):
     """A static room lit by ambient light and a mains-powered lamp, plus a light switched on and off.
@@ -30,7 +35,10 @@ class Flicker(PresetScene):
 
     ``mains_hz`` is the lamp's flicker frequency, twice the mains frequency (100 Hz on 50 Hz mains).
     ``lamp_mask`` (bool image) marks where the lamp dominates. ``changes``: one per switch time
-    (moved by ``change_jitter_ms`` if set; ``times`` holds the switch times in s as applied).
+    (moved by ``change_jitter_ms``; ``times`` holds the switch times in s as applied).
+
+    Markers (``markers``): five ArUco markers (30 px, ids 0-4) on the walls, one in the lamp's pool
+    (it flickers with the lamp), static.
     """
 
     name = "flicker"
@@ -59,6 +67,7 @@ class Flicker(PresetScene):
         self.t_us = self._jittered_us("switch_times_s", [ts * US for ts in times])  # applied times, µs
         self.times = times if self._jitter_bound_us() == 0 else [t / US for t in self.t_us]
         R = _structured_texture(rng, H, W, amp=0.7, density=0.8, size=(5, 50))
+        self._paint_markers(R, self._marker_places(MARKERS, MARKER_CELL, W, H), MARKER_CELL)
         lx, ly = W * rng.uniform(0.25, 0.4), H * rng.uniform(0.3, 0.45)
         rr = ((self._xx - lx) / (0.22 * W)) ** 2 + ((self._yy - ly) / (0.3 * H)) ** 2
         w = np.exp(-(rr**2)).astype(np.float32)  # soft pool

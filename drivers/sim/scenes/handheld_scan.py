@@ -7,7 +7,9 @@ import math
 import cv2
 import numpy as np
 
+from necviz.core.markers import apply_affine
 from necviz.drivers.sim.scene import LightingChange, db_to_log
+from necviz.drivers.sim.scenes.fiducials import patch_size
 from necviz.drivers.sim.scenes.preset import (
     COMMON_PARAMS,
     US,
@@ -20,6 +22,9 @@ from necviz.drivers.sim.scenes.preset import (
 )
 
 __all__ = ["HandheldScan"]
+
+#: Texels (= px: the facade is not scaled) per cell of the fiducial markers.
+MARKER_CELL = 5
 
 
 class HandheldScan(PresetScene):
@@ -36,6 +41,10 @@ class HandheldScan(PresetScene):
     times follow from the motion (the band phase is drawn from the seed); ``change_jitter_ms``
     delays the shadow bands (not the camera) by one seeded offset of at most that much, which moves
     the crossings against the frame clock (not by exactly that offset, since the camera moves too).
+
+    Markers (``markers``): five ArUco markers (30 px, ids 0-4) on the facade, every half image width
+    along the scan path, alternately above and below its centre line; they pan, shake and cross
+    the shadow edges with the facade.
     """
 
     name = "handheld_scan"
@@ -67,6 +76,9 @@ class HandheldScan(PresetScene):
                 cv2.rectangle(tex, (x - 2, y - 2), (x + win_w + 2, y + win_h + 2), 0.7, 2)
                 cv2.line(tex, (x + win_w // 2, y), (x + win_w // 2, y + win_h), 0.5, 1)
         tex = cv2.GaussianBlur(tex, (0, 0), 0.6)
+        n = patch_size(MARKER_CELL)  # markers along the scan path, alternately above and below its centre line
+        places = [(W * (0.5 + 0.5 * k) - n / 2, fh / 2 + (0.2 if k % 2 else -0.22) * H - n / 2) for k in range(5)]
+        self._paint_markers(tex, places, MARKER_CELL)
         self.tex = (tex - tex.mean() + p["base_log"]).astype(np.float32)
         self.fshape = (fh, fw)
         self.shake = _Shake(rng, p["shake_px"], p["shake_deg"])
@@ -105,6 +117,10 @@ class HandheldScan(PresetScene):
         xc = self.x_lo + (tri if tri <= span else 2 * span - tri)
         yc = self.ycen + 0.08 * self.fshape[0] * math.sin(2 * math.pi * 0.23 * t / US)
         return (xc, yc), self.shake(t / US)
+
+    def _marker_geometry(self, t_us: float):
+        ids, corners, _ = super()._marker_geometry(t_us)
+        return ids, apply_affine(self._matrix(t_us), corners), None
 
     def _matrix(self, t: float) -> np.ndarray:
         H, W = self.sensor.shape

@@ -7,13 +7,16 @@ import math
 import cv2
 import numpy as np
 
+from necviz.core.markers import apply_affine
 from necviz.drivers.sim.scene import LightingChange, db_to_log
+from necviz.drivers.sim.scenes.fiducials import patch_size, quiet_corners
 from necviz.drivers.sim.scenes.preset import (
     COMMON_PARAMS,
     US,
     Param,
     PresetScene,
     _affine,
+    _bilinear,
     _Shake,
     _smoothstep_scalar,
     _structured_texture,
@@ -21,6 +24,12 @@ from necviz.drivers.sim.scenes.preset import (
 )
 
 __all__ = ["IndoorOutdoor"]
+
+#: Texels per cell of the fiducial markers (the textures are sampled at 2 texels per pixel at the start).
+MARKER_CELL = 10
+#: Outdoor markers: offsets of their centres from the outdoor plane's centre, in image widths/heights at
+#: the start of the walk.
+OUTDOOR_MARKERS = ((-0.28, -0.3), (0.26, -0.24), (0.04, 0.16))
 
 
 class IndoorOutdoor(PresetScene):
@@ -34,8 +43,13 @@ class IndoorOutdoor(PresetScene):
     the walk continues. Hand shake: smooth random-walk translation (``shake_px`` RMS per axis) and
     rotation (``shake_deg`` RMS) from the seed, applied to both layers.
 
-    ``changes``: one "door exit" at ``exit_s`` (moved by ``change_jitter_ms`` if set, with the
-    whole transition).
+    ``changes``: one "door exit" at ``exit_s`` (moved by ``change_jitter_ms``, with the whole
+    transition).
+
+    Markers (``markers``): ArUco markers (ids 0-1) on the wall either side of the door and three
+    (ids 2-4) on the outdoor plane, 10 texels a cell (5 px at the start); they zoom and shake with
+    their plane. A marker counts as visible only where its plane has at least 90 % of the view
+    (the door's opening, the transition's blend).
     """
 
     name = "indoor_outdoor"
@@ -92,6 +106,13 @@ class IndoorOutdoor(PresetScene):
         self.dd = 25.0  # outdoor plane behind the door, m
         oh, ow = int(H * 1.6 * os_), int(W * 1.6 * os_)
         self.tex_out = _structured_texture(rng, oh, ow, amp=0.8, density=0.6, size=(6, 70))
+        # fiducial markers: two on the wall beside the door, three on the outdoor plane
+        n = patch_size(MARKER_CELL)
+        side = dw / 2 + frame + 12 + n / 2
+        beside = [(self.door_c[0] + sgn * side - n / 2, self.door_c[1] - n / 2) for sgn in (-1, 1)]
+        nxt = self._paint_markers(tex, beside, MARKER_CELL, "inside")
+        outdoor = [(ow / 2 + fx * W * os_ - n / 2, oh / 2 + fy * H * os_ - n / 2) for fx, fy in OUTDOOR_MARKERS]
+        self._paint_markers(self.tex_out, outdoor, MARKER_CELL, "outside", nxt)
         self.shake = _Shake(rng, p["shake_px"], p["shake_deg"])
         self.off_in = np.float32(0.0)
         self.off_out = np.float32(0.0)
@@ -123,16 +144,39 @@ class IndoorOutdoor(PresetScene):
         dx, dy, rot = self.shake(t / US)
         return _affine(scale, rot, src_c, (W / 2 + dx, H / 2 + 0.1 * H + dy))
 
-    def _inside(self, t: float):
-        m = self._view(t, (self.z0 / self._dist(t)) / self.os, self.door_c)
-        return _warp(self.tex_in, m, self.sensor) + self.off_in, m
+    def _m_in(self, t: float) -> np.ndarray:
+        return self._view(t, (self.z0 / self._dist(t)) / self.os, self.door_c)
 
-    def _outside(self, t: float) -> np.ndarray:
+    def _m_out(self, t: float) -> np.ndarray:
         D0 = self.z0 + self.dd
         D = max(D0 - self.v * t, D0 / 3.0)
         oh, ow = self.tex_out.shape
-        m = self._view(t, (self.z0 + self.dd) / D / self.os * 1.0, (ow / 2, oh / 2))
-        return _warp(self.tex_out, m, self.sensor) + self.off_out
+        return self._view(t, (self.z0 + self.dd) / D / self.os * 1.0, (ow / 2, oh / 2))
+
+    def _inside(self, t: float):
+        m = self._m_in(t)
+        return _warp(self.tex_in, m, self.sensor) + self.off_in, m
+
+    def _outside(self, t: float) -> np.ndarray:
+        return _warp(self.tex_out, self._m_out(t), self.sensor) + self.off_out
+
+    def _outdoor_weight(self, t: float, points) -> np.ndarray:
+        """The outdoor view's share ``w`` (0..1) at image ``points`` (..., 2), as :meth:`log_irradiance` blends."""
+        ramp = _smoothstep_scalar((t - self.t0_tr) / self.tr_us)
+        if ramp >= 1.0:
+            return np.ones(np.shape(points)[:-1])
+        tex = apply_affine(cv2.invertAffineTransform(self._m_in(t)), points)
+        return np.maximum(_bilinear(self.door_mask, tex), ramp)
+
+    def _marker_geometry(self, t_us: float):
+        ids = np.array([m.marker_id for m in self.markers], np.int64)
+        corners, weight = np.zeros((ids.size, 4, 2)), np.zeros(ids.size)
+        m_in, m_out = self._m_in(t_us), self._m_out(t_us)
+        for i, mk in enumerate(self.markers):
+            corners[i] = apply_affine(m_in if mk.layer == "inside" else m_out, mk.corners)
+            w = self._outdoor_weight(t_us, quiet_corners(corners[i]))
+            weight[i] = (1.0 - w if mk.layer == "inside" else w).min()
+        return ids, corners, weight
 
     def log_irradiance(self, t_us: float) -> np.ndarray:
         t = self._check_t(t_us)

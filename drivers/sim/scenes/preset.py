@@ -4,10 +4,13 @@
 :class:`PresetScene` checks a preset's ``PARAMS`` (with :func:`necviz.core.checks.check_number`),
 seeds its random generator and builds its textures once; :func:`params_table` and
 :func:`params_markdown` render a ``PARAMS`` dict as a reStructuredText table (appended to every
-preset's class docstring when the class is defined) or as Markdown (the README).
+preset's class docstring when the class is defined) or as Markdown (``docs/simulator.md``).
 
 Every preset also takes the parameters of :data:`COMMON_PARAMS`: ``change_jitter_ms`` moves each
-lighting change by a seeded random offset (see :meth:`PresetScene._jitter_us`).
+lighting change by a seeded random offset (see :meth:`PresetScene._jitter_us`); by default by up to
+half the APS model's frame interval either way, so every seed meets the frame clock at its own,
+uniformly drawn phase (independent replicates); ``markers`` draws the preset's fiducial markers
+(:mod:`.fiducials`), whose ground truth :meth:`PresetScene.marker_truth` gives.
 """
 
 from __future__ import annotations
@@ -22,11 +25,17 @@ import numpy as np
 
 from necviz.core.checks import check_number, format_number
 from necviz.core.errors import ParameterError
+from necviz.core.markers import MarkerTruth, visibility
 from necviz.core.sensor import DAVIS346, SensorGeometry
+from necviz.drivers.sim.aps import ApsParams
 from necviz.drivers.sim.scene import Scene
+from necviz.drivers.sim.scenes.fiducials import PlacedMarker, paint, patch_size
 
 US = 1e6  # µs per second
 JITTER_STREAM = 0x6A17  # spawn key of the change-time jitter stream (independent of the textures' stream)
+#: Default ``change_jitter_ms``: half the APS model's default frame interval (10 ms at 50 fps), so the
+#: offsets, uniform in [-j, +j], put each change at a uniform phase of the frame clock.
+DEFAULT_JITTER_MS = ApsParams.frame_interval_us / 2 / 1000
 
 
 # ---------------------------------------------------------------------------------------------
@@ -37,7 +46,8 @@ class Param:
     """One documented preset parameter: default, accepted closed range and unit/meaning.
 
     ``kind``: ``"float"`` (a number in ``[lo, hi]``), ``"opt_float"`` (``None`` = a default derived
-    from the duration), ``"times"`` (a list of times in s) or ``"steps"`` (a list of (time s, level dB)).
+    from the duration), ``"flag"`` (true or false), ``"times"`` (a list of times in s) or ``"steps"``
+    (a list of (time s, level dB)).
     ``default_text`` and ``range_text`` replace the generated table cells where the numbers alone
     do not say it (derived defaults, lists).
     """
@@ -53,11 +63,15 @@ class Param:
     def default_cell(self) -> str:
         if self.default_text:
             return self.default_text
+        if self.kind == "flag":
+            return "true" if self.default else "false"
         return "derived" if self.default is None else format_number(self.default)
 
     def range_cell(self) -> str:
         if self.range_text:
             return self.range_text
+        if self.kind == "flag":
+            return "true, false"
         lo, hi = self.lo, self.hi
         if lo is not None and hi is not None:
             return f"[{format_number(lo)}, {format_number(hi)}]"
@@ -71,11 +85,18 @@ class Param:
 #: Parameters every preset takes (appended to each preset's own ``PARAMS``).
 COMMON_PARAMS = {
     "change_jitter_ms": Param(
-        0.0,
+        DEFAULT_JITTER_MS,
         0.0,
         1000.0,
-        "moves each lighting change by a seeded uniform offset in [-j, +j] ms (whole µs), to random phases "
-        "of the frame clock; 0: nominal times, 10: uniform phase over the default 20 ms frame",
+        "moves each lighting change by a seeded uniform offset in [-j, +j] ms (whole µs), so each seed meets "
+        "the frame clock at its own phase; default half the APS frame interval (uniform phase over the 20 ms "
+        "frame; less if changes are closer than 2j); 0: the nominal times, the same for every seed",
+    ),
+    "markers": Param(
+        True,
+        kind="flag",
+        doc="draw the preset's ArUco fiducial markers (DICT_4X4_50, ±1 ln around the local level) for the "
+        "marker-detection metrics; false: the scene without them",
     ),
 }
 
@@ -249,6 +270,23 @@ def _affine(scale: float, rot: float, src_c: tuple[float, float], dst_c: tuple[f
     )
 
 
+def _bilinear(img: np.ndarray, points) -> np.ndarray:
+    """``img`` at fractional ``(x, y)`` points (pixel centres at integers; 0 outside), bilinear."""
+    p = np.asarray(points, np.float64)
+    x, y = p[..., 0], p[..., 1]
+    x0, y0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
+    fx, fy = x - x0, y - y0
+    h, w = img.shape
+
+    def at(yy, xx):
+        ok = (xx >= 0) & (xx < w) & (yy >= 0) & (yy < h)
+        return np.where(ok, img[np.clip(yy, 0, h - 1), np.clip(xx, 0, w - 1)], 0.0)
+
+    top = at(y0, x0) * (1 - fx) + at(y0, x0 + 1) * fx
+    bot = at(y0 + 1, x0) * (1 - fx) + at(y0 + 1, x0 + 1) * fx
+    return top * (1 - fy) + bot * fy
+
+
 def _warp(tex: np.ndarray, m: np.ndarray, sensor: SensorGeometry, border=cv2.BORDER_REFLECT) -> np.ndarray:
     return cv2.warpAffine(tex, m, (sensor.width, sensor.height), flags=cv2.INTER_LINEAR, borderMode=border)
 
@@ -289,7 +327,13 @@ class PresetScene(Scene):
             v = params.get(key, spec.default)
             if spec.kind == "float" or (spec.kind == "opt_float" and v is not None):
                 v = check_number(key, v, spec.lo, spec.hi, where=self.name)
+            elif spec.kind == "flag":
+                if v not in (True, False, 0, 1) or isinstance(v, float):
+                    raise ParameterError(f"{self.name}: {key} must be true or false, got {v!r}")
+                v = bool(v)
             self.params[key] = v
+        self._jitter_given = "change_jitter_ms" in params
+        self.markers: list[PlacedMarker] = []
         self.duration_s = self.duration_us / US
         self.annotations: dict[str, Any] = {}
         self._rng = np.random.default_rng(self.seed)
@@ -362,6 +406,11 @@ class PresetScene(Scene):
         if J == 0:
             return list(nominal_us)
         gaps = np.diff(np.asarray(nominal_us, np.float64))
+        if gaps.size and gaps.min() <= 2 * J and not self._jitter_given:  # the default shrinks to fit
+            J = max(int(math.ceil(gaps.min())) // 2 - 1, 0)
+            self.params["change_jitter_ms"] = J / 1000.0
+            if J == 0:
+                return list(nominal_us)
         if gaps.size and gaps.min() <= 2 * J:
             raise ParameterError(
                 f"{self.name}: change_jitter_ms = {self.params['change_jitter_ms']:g} could "
@@ -370,3 +419,39 @@ class PresetScene(Scene):
             )
         d = self._jitter_us(len(nominal_us))
         return [min(max(t + float(x), 0.0), float(self.duration_us)) for t, x in zip(nominal_us, d)]
+
+    # fiducial markers (COMMON_PARAMS["markers"]; .fiducials)
+    def _paint_markers(self, tex: np.ndarray, places, cell: int, layer: str = "scene", first_id: int = 0) -> int:
+        """Paint markers into ``tex`` (in place) when ``markers`` is on: ``places`` are the patches'
+        top-left texels ``(x0, y0)``, ids counted from ``first_id``; a patch that does not fit is
+        skipped. Records them in ``self.markers``; returns the next free id."""
+        mid = first_id
+        if not self.params["markers"]:
+            return mid
+        for x0, y0 in places:
+            corners = paint(tex, mid, int(round(x0)), int(round(y0)), cell)
+            if corners is not None:
+                self.markers.append(PlacedMarker(mid, corners, layer))
+            mid += 1
+        return mid
+
+    def _marker_places(self, centres, cell: int, width: float, height: float) -> list[tuple[float, float]]:
+        """Patch top-left texels for patches centred at ``centres`` (fractions of ``width`` x ``height``)."""
+        n = patch_size(cell)
+        return [(fx * width - n / 2, fy * height - n / 2) for fx, fy in centres]
+
+    def _marker_geometry(self, t_us: float):
+        """``(ids, image corners (n, 4, 2), layer weights (n,) or None)`` at ``t_us``; the default is a
+        scene whose texture is the image (the corners as painted)."""
+        ids = np.array([m.marker_id for m in self.markers], np.int64)
+        corners = np.array([m.corners for m in self.markers], np.float64).reshape(-1, 4, 2)
+        return ids, corners, None
+
+    def marker_truth(self, t_us: float) -> MarkerTruth | None:
+        """Where the scene's markers are at ``t_us`` (:class:`~necviz.core.markers.MarkerTruth`), ``None``
+        without markers."""
+        if not self.markers:
+            return None
+        ids, corners, weight = self._marker_geometry(self._check_t(t_us))
+        H, W = self.sensor.shape
+        return MarkerTruth(ids, corners, visibility(corners, W, H, weight))

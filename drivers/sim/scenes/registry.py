@@ -43,7 +43,7 @@ def make_scenario(
 
 
 def scenario_params_markdown() -> str:
-    """Every preset's parameter table as Markdown (the README's "Simulator scenarios" section)."""
+    """Every preset's parameter table as Markdown (``docs/simulator.md``, "Preset parameters")."""
     out = [
         "Generated from each preset's `PARAMS` by `necviz.drivers.sim.scenes.scenario_params_markdown()`. "
         "Pass parameters as `make_scenario(name, seed=..., duration_us=..., **params)` or in the `[params]` "

@@ -28,6 +28,9 @@ DEFAULT_STEPS = ((0.2, 20.0), (0.4, -20.0), (0.6, 40.0), (0.8, 0.0))
 #: (``SimRig(first_start_us=1000)`` and ``ApsParams.frame_interval_us``).
 FIRST_START_US = 1_000
 FRAME_INTERVAL_US = ApsParams.frame_interval_us
+#: Fiducial markers (``markers``): patch centres as fractions of the image, cells of ``MARKER_CELL`` px.
+MARKERS = ((0.12, 0.17), (0.38, 0.52), (0.14, 0.80), (0.86, 0.62))
+MARKER_CELL = 5
 
 
 def between_exposures_us(t_us: float) -> float:
@@ -57,10 +60,12 @@ class StaticLab(PresetScene):
     10 ms, less the latency, to command the next exposure, which is the case event-based exposure
     control is meant to win, while a frame-based controller first sees the step in the next frame;
     a step can still fall inside a long exposure, as it would with a real camera. The placement is
-    the same for every seed; for a random phase against the frame clock set ``change_jitter_ms``
-    (10 ms spreads the phase uniformly over a 20 ms frame). Runs too short for the four mid-points
-    to be distinct (under about 0.1 s) keep the plain fractions. Steps given in ``steps`` are used
-    at the times given (plus the jitter, if set).
+    the same for every seed without jitter; ``change_jitter_ms`` moves each to a random phase
+    (the default, 10 ms, spreads the phase uniformly over a 20 ms frame; 0 keeps the mid-points).
+    Runs too short for the four mid-points to be distinct (under about 0.1 s) keep the plain
+    fractions. Steps given in ``steps`` are used at the times given (plus the jitter).
+
+    Markers (``markers``): four ArUco markers (30 px, ids 0-3) on the desk and shelves, static.
     """
 
     name = "static_lab"
@@ -124,6 +129,7 @@ class StaticLab(PresetScene):
         for k in range(3):
             y = int(H * (0.55 + 0.12 * k))
             cv2.line(tex, (0, y), (W - 1, y), -0.8, 2)
+        self._paint_markers(tex, self._marker_places(MARKERS, MARKER_CELL, W, H), MARKER_CELL)
         vign = -0.3 * (((self._xx - W / 2) / W) ** 2 + ((self._yy - H / 2) / H) ** 2) * 4
         base = tex + vign
         self.base = (base - base.mean() + p["base_log"]).astype(np.float32)

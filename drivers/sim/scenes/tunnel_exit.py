@@ -9,11 +9,13 @@ import numpy as np
 
 from necviz.core.sensor import SensorGeometry
 from necviz.drivers.sim.scene import LightingChange, db_to_log
+from necviz.drivers.sim.scenes.fiducials import PlacedMarker, paste_quad, quiet_corners
 from necviz.drivers.sim.scenes.preset import (
     COMMON_PARAMS,
     US,
     Param,
     PresetScene,
+    _bilinear,
     _blur,
     _noise,
     _smoothstep_scalar,
@@ -21,6 +23,10 @@ from necviz.drivers.sim.scenes.preset import (
 )
 
 __all__ = ["TunnelExit"]
+
+#: Fiducial-marker signs beyond the exit, facing the camera: centre ``(X, Y)`` in m (right, up from the
+#: camera), side of the marker's black border in m, distance ahead of the camera when it exits (m).
+SIGNS = ((-2.0, 2.2, 1.6, 14.0), (2.6, 2.0, 1.6, 22.0), (0.0, 3.2, 2.0, 32.0))
 
 
 class _Corridor:
@@ -118,10 +124,15 @@ class TunnelExit(PresetScene):
     compressed into a documented interval). A textured pedestrian walks into view from the right
     edge ``pedestrian_delay_ms`` after the exit and crosses laterally.
 
-    ``changes``: one "tunnel exit" at ``exit_s`` (moved by ``change_jitter_ms`` if set, with the whole
-    transition and the pedestrian) with the mean ln L change across the transition (less than
-    ``db_to_log(step_db)`` by the portal's share before it). ``annotations``: ``transition_us``
+    ``changes``: one "tunnel exit" at ``exit_s`` (moved by ``change_jitter_ms``, with the whole
+    transition, the pedestrian and the signs) with the mean ln L change across the transition (less
+    than ``db_to_log(step_db)`` by the portal's share before it). ``annotations``: ``transition_us``
     (start, end), ``pedestrian_enters_us``, ``foe`` (x, y).
+
+    Markers (``markers``): three signs beyond the exit facing the camera (:data:`SIGNS`), each an
+    ArUco marker (ids 0-2) 1.6-2 m wide, 14, 22 and 32 m ahead when the car exits, lit by the
+    outside; they grow as the car approaches (visible, :mod:`necviz.core.markers`, once 18 px wide
+    and seen through the portal or after the transition with at least 90 % weight).
     """
 
     name = "tunnel_exit"
@@ -199,6 +210,7 @@ class TunnelExit(PresetScene):
         self.out_off = np.where(to.sky, sky, np.where(to.floor, -0.3, 0.1)).astype(np.float32)
         # normalise the levels so the mean inside (t = 0) / outside (at the exit) are exact
         self.t_ped = math.inf  # (pedestrian set up below, excluded from the normalisation)
+        self._sign_ahead: list[float] = []  # (marker signs too)
         self.in_off += np.float32(p["inside_log"] - self._inside(0.0).mean())
         self.out_off += np.float32(p["inside_log"] + self.step - self._outside(self.t_exit).mean())
         # --- portal: tunnel depth at which the opening covers portal_frac of the image ---
@@ -220,6 +232,13 @@ class TunnelExit(PresetScene):
         self.ped_y = self.foe[1] + 0.28 * H - ph  # feet on the road's right side
         self.t_ped = self.t_exit + p["pedestrian_delay_ms"] * 1e3
         self.ped_x0 = W - 1.0  # enters from the right edge
+        # --- fiducial-marker signs beyond the exit (world corners: X, Y, depth ahead at the exit) ---
+        if p["markers"]:
+            for k, (X, Y, side, ahead) in enumerate(SIGNS):
+                h = side / 2
+                world = np.array([[X - h, Y + h], [X + h, Y + h], [X + h, Y - h], [X - h, Y - h]])
+                self.markers.append(PlacedMarker(k, world, f"sign at {ahead:g} m"))
+                self._sign_ahead.append(ahead)
         self.annotations = {
             "transition_us": (self.t0_tr, self.t1_tr),
             "pedestrian_enters_us": self.t_ped,
@@ -249,7 +268,38 @@ class TunnelExit(PresetScene):
             x = self.ped_x0 - self.params["pedestrian_speed_px_s"] * (t - self.t_ped) / US
             lvl = self.params["inside_log"] + self.step + self.ped_level_off
             _paste(img, self.ped_patch, self.ped_alpha, x, self.ped_y, lvl)
+        for k, corners in self._sign_corners(t):
+            paste_quad(img, k, corners)
         return img
+
+    def _sign_corners(self, t: float) -> list[tuple[int, np.ndarray]]:
+        """Image corners of every sign in front of the camera at ``t`` (pinhole projection, pixel centres
+        at integers: ``x = foe_x - 0.5 + f X / z``, as the corridor's rays)."""
+        f = 0.75 * self.sensor.width
+        out = []
+        for mk, ahead in zip(self.markers, self._sign_ahead):
+            z = ahead + self.v * (self.t_exit - t)
+            if z > 1.0:
+                xy = mk.corners
+                pts = np.stack([self.foe[0] - 0.5 + f * xy[:, 0] / z, self.foe[1] - 0.5 - f * xy[:, 1] / z], axis=1)
+                out.append((mk.marker_id, pts))
+        return out
+
+    def _outside_weight(self, t: float, points) -> np.ndarray:
+        """The outside view's share (0..1) at image ``points`` (..., 2), as :meth:`log_irradiance` blends."""
+        ramp = _smoothstep_scalar((t - self.t0_tr) / self.tr_us)
+        if ramp >= 1.0:
+            return np.ones(np.shape(points)[:-1])
+        ln_z = _bilinear(self.ln_zin, np.asarray(points))
+        w = np.clip((ln_z - math.log(self._portal_depth(t))) / self.portal_soft + 0.5, 0.0, 1.0)
+        return np.maximum(w, ramp)
+
+    def _marker_geometry(self, t_us: float):
+        signs = self._sign_corners(float(t_us))
+        ids = np.array([k for k, _ in signs], np.int64)
+        corners = np.array([c for _, c in signs], np.float64).reshape(-1, 4, 2)
+        weight = np.array([self._outside_weight(float(t_us), quiet_corners(c)).min() for c in corners])
+        return ids, corners, weight
 
     def pedestrian_box(self, t_us: float, min_visible: float = 0.5) -> tuple[int, int, int, int] | None:
         """The pedestrian's bounding box ``(x0, y0, x1, y1)`` at ``t_us`` (pixels, end-exclusive, clipped
