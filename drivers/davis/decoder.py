@@ -116,6 +116,11 @@ class DecoderOptions:
         object.__setattr__(self, "aps_orientation", int(self.aps_orientation) & 7)
         object.__setattr__(self, "imu_orientation", int(self.imu_orientation) & 7)
 
+    @property
+    def aps_shape(self) -> tuple[int, int]:
+        """``(aps_height, aps_width)``: the APS image shape."""
+        return int(self.aps_height or self.height), int(self.aps_width or self.width)
+
     def config(self) -> np.ndarray:
         """The configuration vector :func:`decode_words` reads."""
         return np.array(
@@ -161,13 +166,13 @@ class DavisDecoder:
             raise ParameterError(f"DavisDecoder takes DecoderOptions, got {type(options).__name__}")
         self.options = options
         self.width, self.height = options.width, options.height
-        self.aps_shape = (options.aps_height, options.aps_width)
+        self.aps_shape = options.aps_shape
         self.cfg = options.config()
         self.st = np.zeros(S_SIZE, np.int64)
         self.st[S_LAST_Y] = -1
         self.st[S_RTYPE] = -1
         self.st[S_OFFSET] = int(time_offset_us)
-        self._reset_buf = np.zeros(options.aps_width * options.aps_height, np.int64)
+        self._reset_buf = np.zeros(self.aps_shape[0] * self.aps_shape[1], np.int64)
         self._frame = np.zeros(self.aps_shape, np.uint8)
         self._frame_flat = self._frame.reshape(-1)
         self._carry = b""

@@ -190,7 +190,7 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         self.options = options
         o = options
         self.scenario, self.seed, self.duration_s = o.scenario, o.seed, o.duration_s
-        self.scenario_params = dict(o.scenario_params)
+        self.scenario_params = dict(o.scenario_params or {})
         self.faults = faults or Faults()
         self.realtime = o.realtime
         self.time_scale = o.time_scale
