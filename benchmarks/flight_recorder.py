@@ -57,6 +57,7 @@ def child(name: str, folder: str) -> dict:
     from necviz.dashboard.telemetry import FrameRecord
     from necviz.flight_recorder import FlightRecorder
     from necviz.memory import bound_heap_retention
+    from necviz.options import ClipOptions
 
     bound_heap_retention()  # as run_session does
     seconds, budget_mb, period, before, after = SCENARIOS[name]
@@ -65,14 +66,11 @@ def child(name: str, folder: str) -> dict:
     per_batch = int(RATE / 1000)
     base = rss_mb()
     fr = FlightRecorder(
-        folder,
+        ClipOptions(folder, before_s=before, after_s=after, memory_mb=budget_mb),
         sensor=DAVIS346,
         lanes={"camera": "camera"},
         drivers={"camera": "camera"},
         layout="live",
-        before_s=before,
-        after_s=after,
-        budget_bytes=budget_mb << 20,
     )
     fr.started(0, {})
     samples = []

@@ -183,9 +183,9 @@ class DecoderFuzz:
     def __init__(self, seed: int, pool: int = 48):
         import numpy as np
 
-        from necviz.drivers.davis import DavisDecoder
+        from necviz.drivers.davis import DavisDecoder, DecoderOptions
 
-        self.np, self.Decoder = np, DavisDecoder
+        self.np, self.Decoder, self.Format = np, DavisDecoder, DecoderOptions
         self.seed = seed
         rng = np.random.default_rng([seed, 7])
         self.pool = []
@@ -199,7 +199,7 @@ class DecoderFuzz:
             self.pool.append((w, h, words, n))
 
     def _decode(self, raw: bytes, w, h, cuts):
-        dec = self.Decoder(w, h)
+        dec = self.Decoder(self.Format(w, h))
         out, prev = [], 0
         for c in sorted(set(cuts)) + [len(raw)]:
             out += dec.decode(raw[prev:c])

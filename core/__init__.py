@@ -15,7 +15,7 @@ from necviz.core.events import EVENT_DTYPE, EventBatch, make_events, validate_ev
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.ptedi import PeripheralEstimator
 from necviz.core.sensor import DAVIS240, DAVIS346, SensorGeometry
-from necviz.core.tedi import TediCalibration, calibrate_tedi, tedi_reconstruct
+from necviz.core.tedi import PairSelection, TediCalibration, TediFitOptions, calibrate_tedi, tedi_reconstruct
 
 __all__ = [
     "CameraResponse",
@@ -39,5 +39,7 @@ __all__ = [
     "tedi_reconstruct",
     "calibrate_tedi",
     "TediCalibration",
+    "TediFitOptions",
+    "PairSelection",
     "valid_mask",
 ]

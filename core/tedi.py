@@ -26,7 +26,7 @@ Parameterisation: when both ``a±`` and ``b±`` of a polarity are fitted, the so
 directly the cost is flat in both once ``a = 0 < b``, a trap observed in practice.) Fitting
 ``b±`` alone with ``a± = 0`` fixed cannot move: the compensation is then inactive. A knee of
 zero makes the compensation ``a m`` a mere rescaling of ``c`` (``c (1 + a)``), so
-:func:`fit_tedi_pairs` can bound the knee below (``knee_min``).
+:func:`fit_tedi_pairs` can bound the knee below (:attr:`TediFitOptions.knee_min`).
 
 Two layers: :func:`prepare_pair` selects the pixels of one frame pair and keeps only their
 events (:class:`CalibrationPair`, compact: nothing sensor-sized is stored per pair), and
@@ -65,7 +65,9 @@ from necviz.core.tedi_kernels import (
 
 __all__ = [
     "CalibrationPair",
+    "PairSelection",
     "TediCalibration",
+    "TediFitOptions",
     "calibrate_tedi",
     "fit_tedi_pairs",
     "last_polarity_before",
@@ -75,6 +77,7 @@ __all__ = [
     "valid_mask",
     "PARAM_NAMES",
     "REFERENCES",
+    "LOSSES",
 ]
 
 PARAM_NAMES = ("c_on", "c_off", "a_on", "b_on", "a_off", "b_off")
@@ -222,16 +225,52 @@ def _check_count(name: str, v, allow_none: bool = False, minimum: int = 1) -> No
         raise ParameterError(f"{name} must be an integer >= {minimum}{extra}, got {v!r}")
 
 
+@dataclass(frozen=True)
+class PairSelection:
+    """Which pixels of a frame pair Eq. 7 uses (:func:`prepare_pair`); validated here, once.
+
+    Parameters
+    ----------
+    reference : str
+        The common reference time ``g``: one of :data:`REFERENCES` (``"previous_start"``, the
+        exposure start of frame ``i-1``, by default; see :func:`calibrate_tedi`).
+    max_pixels : int, optional
+        At most this many pixels per pair (an even subsample of those that qualify); ``None``: all.
+    min_change : float
+        A pixel is used only if its frame-measured change ``|ln Lbar_i - ln Lbar_{i-1}|`` is at
+        least this (ln units, >= 0).
+    min_pixels : int
+        A pair with fewer qualifying pixels is rejected (>= 1).
+
+    Raises
+    ------
+    ParameterError
+        An unknown reference, a pixel count that is not an integer >= 1, or a negative or
+        non-finite ``min_change``.
+    """
+
+    reference: str = "previous_start"
+    max_pixels: int | None = 20_000
+    min_change: float = 0.0
+    min_pixels: int = 1
+
+    def __post_init__(self) -> None:
+        if self.reference not in REFERENCES:
+            raise ParameterError(f"reference must be one of {REFERENCES}, got {self.reference!r}")
+        _check_count("max_pixels", self.max_pixels, allow_none=True)
+        _check_count("min_pixels", self.min_pixels, minimum=1)
+        c = self.min_change
+        if isinstance(c, bool) or not isinstance(c, (int, float, np.floating)) or not (np.isfinite(c) and c >= 0):
+            raise ParameterError(f"min_change must be a number >= 0 (ln units), got {c!r}")
+
+
 def prepare_pair(
     events: np.ndarray,
     prev: Frame,
     cur: Frame,
     crf: CameraResponse,
     *,
-    reference: str = "previous_start",
-    max_pixels: int | None = 20_000,
-    min_change: float = 0.0,
-    min_pixels: int = 1,
+    selection: PairSelection | None = None,
     last_polarity: np.ndarray | None = None,
     mask: np.ndarray | None = None,
     source: str = "",
@@ -239,12 +278,13 @@ def prepare_pair(
     """Select the pixels of one frame pair for Eq. 7 and keep their events; ``None`` if too few qualify.
 
     A pixel is used when its digital value is valid (``crf.valid_min..valid_max``) in both frames
-    and its frame-measured change ``|ln Lbar_i - ln Lbar_{i-1}|`` is at least ``min_change`` (ln
-    units). Selecting on the frames, not on the event counts, keeps the selection independent of
-    the event quantisation noise (selecting on counts would bias the thresholds). When more than
-    ``max_pixels`` qualify an even subsample is kept. The pair is rejected (``None``) when fewer
-    than ``min_pixels`` qualify. ``events`` must be sorted and cover ``[min(g, s_prev), max(g, e_cur))``
-    (``g`` from ``reference``, see :func:`calibrate_tedi`); they may extend beyond it.
+    and its frame-measured change ``|ln Lbar_i - ln Lbar_{i-1}|`` is at least
+    ``selection.min_change`` (ln units). Selecting on the frames, not on the event counts, keeps the
+    selection independent of the event quantisation noise (selecting on counts would bias the
+    thresholds). When more than ``selection.max_pixels`` qualify an even subsample is kept. The pair
+    is rejected (``None``) when fewer than ``selection.min_pixels`` qualify. ``events`` must be
+    sorted and cover ``[min(g, s_prev), max(g, e_cur))`` (``g`` from ``selection.reference``, see
+    :func:`calibrate_tedi`); they may extend beyond it.
 
     ``last_polarity`` (flat or (H, W) int8: each pixel's last event polarity before ``s_prev``,
     0 for none; :func:`last_polarity_before`) enables the *continuation rule*: a pixel is used only
@@ -257,18 +297,37 @@ def prepare_pair(
 
     ``mask`` (bool, flat or (H, W)): the pixels to use, selected by the caller with the same rules
     (:class:`necviz.calibration.PairCollector` caches the per-frame arrays); it replaces the
-    selection above (``min_change`` and ``last_polarity`` are then ignored).
+    selection above (``selection.min_change`` and ``last_polarity`` are then ignored).
+
+    Parameters
+    ----------
+    events : numpy.ndarray
+        Sorted events (``EVENT_DTYPE``) covering the pair's window.
+    prev, cur : Frame
+        Frames ``i-1`` and ``i`` (same shape).
+    crf : CameraResponse
+        The camera response ``g``.
+    selection : PairSelection, optional
+        Which pixels qualify (default: ``PairSelection()``).
+    last_polarity, mask : numpy.ndarray, optional
+        The continuation rule's history, or the caller's own selection (above).
+    source : str
+        Where the pair comes from (kept in :class:`CalibrationPair` for reports).
+
+    Returns
+    -------
+    CalibrationPair or None
+
+    Raises
+    ------
+    ParameterError
+        ``selection`` that is not a :class:`PairSelection`, or frames of different shapes.
     """
-    if reference not in REFERENCES:
-        raise ParameterError(f"reference must be one of {REFERENCES}, got {reference!r}")
-    _check_count("max_pixels", max_pixels, allow_none=True)
-    _check_count("min_pixels", min_pixels, minimum=1)
-    if (
-        isinstance(min_change, bool)
-        or not isinstance(min_change, (int, float, np.floating))
-        or not (np.isfinite(min_change) and min_change >= 0)
-    ):
-        raise ParameterError(f"min_change must be a number >= 0 (ln units), got {min_change!r}")
+    opts = PairSelection() if selection is None else selection
+    if not isinstance(opts, PairSelection):
+        raise ParameterError(f"selection must be a PairSelection, got {type(opts).__name__}")
+    reference, max_pixels = opts.reference, opts.max_pixels
+    min_change, min_pixels = opts.min_change, opts.min_pixels
     h, w = prev.shape
     if cur.shape != (h, w):
         raise ParameterError(f"frames {prev.sequence} and {cur.sequence} have different shapes")
@@ -336,58 +395,107 @@ def last_polarity_before(events: np.ndarray, t_us: int, shape: tuple[int, int]) 
     return last
 
 
-def _check_fit(fit) -> tuple[str, ...]:
-    fit = (fit,) if isinstance(fit, str) else tuple(fit)
-    if not fit:
-        raise ParameterError("fit names no parameter")
-    bad = [n for n in fit if n not in PARAM_NAMES]
-    if bad or len(set(fit)) != len(fit):
-        raise ParameterError(f"fit must name distinct parameters among {PARAM_NAMES}, got {fit}")
-    return fit
+LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
 
 
-def fit_tedi_pairs(
-    pairs,
-    crf: CameraResponse,
-    init: TediParams = TediParams(),
-    fit=PARAM_NAMES,
-    progress=None,
-    max_nfev: int = 200,
-    knee_min: float = 0.0,
-    loss: str = "linear",
-    f_scale: float = 1.0,
-) -> TediCalibration:
+@dataclass(frozen=True)
+class TediFitOptions:
+    """What Eq. 7's least-squares fit optimises, from where and how (validated here, once).
+
+    Parameters
+    ----------
+    init : TediParams
+        The start of the fit; the parameters not named in ``fit`` stay at their ``init`` value.
+    fit : str or tuple of str
+        The parameters to optimise, distinct names among :data:`PARAM_NAMES` (kept as a tuple).
+    max_nfev : int
+        At most this many residual evaluations (>= 1).
+    knee_min : float
+        Lower bound of the knee ``b±/a±`` (events per pixel per second, >= 0) when both of a
+        polarity are fitted (:func:`fit_tedi_pairs`).
+    loss : str
+        SciPy's loss, one of :data:`LOSSES` (``"linear"``: plain squared residuals, Eq. 7).
+    f_scale : float
+        The robust losses' scale (ln units, > 0).
+
+    Raises
+    ------
+    ParameterError
+        ``init`` that is not a :class:`TediParams`, an empty or unknown ``fit``, or a count,
+        knee, loss or scale out of its range.
+    """
+
+    init: TediParams = TediParams()
+    fit: tuple[str, ...] = PARAM_NAMES
+    max_nfev: int = 200
+    knee_min: float = 0.0
+    loss: str = "linear"
+    f_scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        check_params(self.init)
+        fit = (self.fit,) if isinstance(self.fit, str) else tuple(self.fit)
+        if not fit:
+            raise ParameterError("fit names no parameter")
+        bad = [n for n in fit if n not in PARAM_NAMES]
+        if bad or len(set(fit)) != len(fit):
+            raise ParameterError(f"fit must name distinct parameters among {PARAM_NAMES}, got {fit}")
+        object.__setattr__(self, "fit", fit)
+        _check_count("max_nfev", self.max_nfev, minimum=1)
+        k = self.knee_min
+        if isinstance(k, bool) or not isinstance(k, (int, float)) or not (np.isfinite(k) and k >= 0):
+            raise ParameterError(f"knee_min must be a number >= 0 (events per pixel per second), got {k!r}")
+        if self.loss not in LOSSES:
+            raise ParameterError(f"loss must be linear, soft_l1, huber, cauchy or arctan, got {self.loss!r}")
+        f = self.f_scale
+        if isinstance(f, bool) or not isinstance(f, (int, float)) or not (np.isfinite(f) and f > 0):
+            raise ParameterError(f"f_scale must be a positive number (ln units), got {f!r}")
+
+
+def fit_tedi_pairs(pairs, crf: CameraResponse, options: TediFitOptions | None = None, progress=None) -> TediCalibration:
     """Fit the TEDI parameters on prepared frame pairs (Eq. 7 with squared residuals).
 
     The residual of a used pixel of a pair is ``ln L_i(g,x) - ln L_{i-1}(g,x)`` (Eq. 5 on both
-    frames, the exact integral of :func:`tedi_integral_compact`). ``fit`` names the parameters
-    to optimise (the others stay at ``init``); bounds ``c in [0.01, 2]``, ``a, b >= 0``. See the
-    module docstring for the ``(a, b/a)`` parameterisation. ``knee_min`` (events per pixel per
-    second) bounds the knee ``b±/a±`` from below when both of a polarity are fitted: with a knee
-    of zero the compensation ``a m`` is only a rescaling of ``c`` (``c (1 + a)``), so thresholds
-    and compensation are separable only if pixels changing slower than the knee exist in the data
-    and the knee cannot fall below them. ``loss``/``f_scale``: SciPy's robust losses
-    (``"linear"`` = plain squared residuals, Eq. 7 as docs/method.md states it; ``"soft_l1"``,
-    ``"huber"``, ``"cauchy"`` act like squares below ``f_scale`` ln units and grow slower above,
-    so pixels the model cannot explain weigh less). ``cost`` is then the robust cost; the RMS
-    figures are always plain RMS residuals. ``progress(evaluations, rms)`` is called after every
-    residual evaluation. Each evaluation costs O(events + pixels) per pair.
+    frames, the exact integral of :func:`tedi_integral_compact`). ``options.fit`` names the
+    parameters to optimise (the others stay at ``options.init``); bounds ``c in [0.01, 2]``,
+    ``a, b >= 0``. See the module docstring for the ``(a, b/a)`` parameterisation.
+    ``options.knee_min`` (events per pixel per second) bounds the knee ``b±/a±`` from below when
+    both of a polarity are fitted: with a knee of zero the compensation ``a m`` is only a rescaling
+    of ``c`` (``c (1 + a)``), so thresholds and compensation are separable only if pixels changing
+    slower than the knee exist in the data and the knee cannot fall below them.
+    ``options.loss``/``options.f_scale``: SciPy's robust losses (``"linear"`` = plain squared
+    residuals, Eq. 7 as docs/method.md states it; ``"soft_l1"``, ``"huber"``, ``"cauchy"`` act like
+    squares below ``f_scale`` ln units and grow slower above, so pixels the model cannot explain
+    weigh less). ``cost`` is then the robust cost; the RMS figures are always plain RMS residuals.
+    Each evaluation costs O(events + pixels) per pair.
+
+    Parameters
+    ----------
+    pairs : iterable of CalibrationPair
+        The prepared pairs (:func:`prepare_pair`), at least one.
+    crf : CameraResponse
+        The camera response ``g``.
+    options : TediFitOptions, optional
+        What to fit and how (default: ``TediFitOptions()``, all six from the defaults).
+    progress : callable, optional
+        ``progress(evaluations, rms)``, called after every residual evaluation.
+
+    Returns
+    -------
+    TediCalibration
+
+    Raises
+    ------
+    ParameterError
+        A bad ``crf``, ``options`` or ``progress``, or no pairs.
     """
     check_crf(crf)
-    check_params(init)
-    fit = _check_fit(fit)
+    options = TediFitOptions() if options is None else options
+    if not isinstance(options, TediFitOptions):
+        raise ParameterError(f"options must be a TediFitOptions, got {type(options).__name__}")
+    init, fit, knee_min = options.init, options.fit, options.knee_min
     if progress is not None and not callable(progress):
         raise ParameterError("progress must be callable or None")
-    if (
-        isinstance(knee_min, bool)
-        or not isinstance(knee_min, (int, float))
-        or not (np.isfinite(knee_min) and knee_min >= 0)
-    ):
-        raise ParameterError(f"knee_min must be a number >= 0 (events per pixel per second), got {knee_min!r}")
-    if loss not in ("linear", "soft_l1", "huber", "cauchy", "arctan"):
-        raise ParameterError(f"loss must be linear, soft_l1, huber, cauchy or arctan, got {loss!r}")
-    if isinstance(f_scale, bool) or not isinstance(f_scale, (int, float)) or not (np.isfinite(f_scale) and f_scale > 0):
-        raise ParameterError(f"f_scale must be a positive number (ln units), got {f_scale!r}")
     pairs = list(pairs)
     if not pairs or not all(isinstance(pr, CalibrationPair) for pr in pairs):
         raise ParameterError("fit_tedi_pairs needs a non-empty list of CalibrationPair")
@@ -469,9 +577,9 @@ def fit_tedi_pairs(
         xtol=1e-8,
         ftol=1e-10,
         gtol=1e-10,
-        max_nfev=max_nfev,
-        loss=loss,
-        f_scale=float(f_scale),
+        max_nfev=options.max_nfev,
+        loss=options.loss,
+        f_scale=float(options.f_scale),
     )
     v = values(res.x)
     params = TediParams(**{n: float(val) for n, val in zip(names, v)})
@@ -573,44 +681,59 @@ def calibrate_tedi(
     events: np.ndarray,
     frames,
     crf: CameraResponse,
-    init: TediParams = TediParams(),
-    reference: str = "previous_start",
-    fit=PARAM_NAMES,
-    max_pixels: int | None = 20_000,
+    options: TediFitOptions | None = None,
+    selection: PairSelection | None = None,
     progress=None,
-    min_change: float = 0.0,
 ) -> TediCalibration:
     """Fit the TEDI parameters by frame-to-frame consistency (Eq. 7, squared residuals).
 
-    For each pair of consecutive frames ``(i-1, i)`` and reference ``g`` (``reference``:
+    For each pair of consecutive frames ``(i-1, i)`` and reference ``g`` (``selection.reference``:
     ``"previous_start"`` = exposure start of frame ``i-1`` (default), ``"previous_end"``,
     ``"current_start"``, ``"current_end"``), the residual of a pixel valid in both frames (and
-    whose frame-measured change is at least ``min_change``, default 0) is
-    ``ln L_i(g,x) - ln L_{i-1}(g,x)`` by :func:`tedi_reconstruct`. ``fit`` names the parameters
-    to optimise (the others stay at ``init``); bounds ``c in [0.01, 2]``, ``a, b >= 0``.
-    ``max_pixels`` caps the pixels used per pair (an even subsample of the valid ones; ``None``:
-    all). ``progress(evaluations, rms)`` is called after every residual evaluation.
-    Event slices and masks are computed once (:func:`prepare_pair`); each evaluation costs
-    O(events + pixels) per pair (:func:`fit_tedi_pairs`).
+    whose frame-measured change is at least ``selection.min_change``, default 0) is
+    ``ln L_i(g,x) - ln L_{i-1}(g,x)`` by :func:`tedi_reconstruct`. ``options.fit`` names the
+    parameters to optimise (the others stay at ``options.init``); bounds ``c in [0.01, 2]``,
+    ``a, b >= 0``. ``selection.max_pixels`` caps the pixels used per pair (an even subsample of the
+    valid ones; ``None``: all). Event slices and masks are computed once (:func:`prepare_pair`);
+    each evaluation costs O(events + pixels) per pair (:func:`fit_tedi_pairs`).
+
+    Parameters
+    ----------
+    events : numpy.ndarray
+        Sorted events (``EVENT_DTYPE``) inside the frames.
+    frames : sequence of Frame
+        At least two frames of one shape.
+    crf : CameraResponse
+        The camera response ``g``.
+    options : TediFitOptions, optional
+        What to fit and how (default: ``TediFitOptions()``).
+    selection : PairSelection, optional
+        Which pixels of each pair are used (default: ``PairSelection()``).
+    progress : callable, optional
+        ``progress(evaluations, rms)``, called after every residual evaluation.
+
+    Returns
+    -------
+    TediCalibration
+
+    Raises
+    ------
+    ParameterError
+        Fewer than two frames, bad options, or no pixel valid in two consecutive frames.
+    FrameFormatError, EventFormatError
+        Frames or events that are not what the functions accept.
     """
     frames = check_frames(frames)
     check_crf(crf)
-    check_params(init)
     check_event_array(events)
     if len(frames) < 2:
         raise ParameterError(f"TEDI calibration needs at least 2 frames, got {len(frames)}")
-    if reference not in REFERENCES:
-        raise ParameterError(f"reference must be one of {REFERENCES}, got {reference!r}")
-    fit = _check_fit(fit)
-    _check_count("max_pixels", max_pixels, allow_none=True)
-    if progress is not None and not callable(progress):
-        raise ParameterError("progress must be callable or None")
     check_events_fit(events, frames[0].shape)
     pairs = []
     for prev, cur in zip(frames[:-1], frames[1:]):
-        pr = prepare_pair(events, prev, cur, crf, reference=reference, max_pixels=max_pixels, min_change=min_change)
+        pr = prepare_pair(events, prev, cur, crf, selection=selection)
         if pr is not None:
             pairs.append(pr)
     if not pairs:
         raise ParameterError("no pixel is valid (within the camera response's valid range) in two consecutive frames")
-    return fit_tedi_pairs(pairs, crf, init, fit, progress)
+    return fit_tedi_pairs(pairs, crf, options, progress)

@@ -20,8 +20,8 @@ extends it (overlapping clips merge). A closed clip is handed to a writer thread
 (:mod:`necviz.core.diagnosis`: ``command_latency``, ``limit_reached`` ...), ``saturated`` when none was
 named, or ``mark``.
 
-Memory stays bounded whatever the event rate, at three budgets (``budget_bytes``, events and frame
-pixels counted): the ring holds at most one (older entries are dropped first, and the drops are counted
+Memory stays bounded whatever the event rate, at three budgets (:attr:`ClipOptions.memory_mb`, events
+and frame pixels counted): the ring holds at most one (older entries are dropped first, and the drops are counted
 and reported: a clip then covers less than ``before_s``); a clip being collected at most one (it is cut
 there, and a new one starts at the next failure); the clips waiting for the writer at most one
 together (and at most :data:`MAX_PENDING`; a clip that does not fit is dropped and counted). At the
@@ -42,7 +42,9 @@ from pathlib import Path
 
 import numpy as np
 
+from necviz.core.errors import ParameterError
 from necviz.core.frames import ExposureMarker, Frame
+from necviz.options import ClipOptions
 from necviz.pipeline import Observer, RecorderObserver, packet_time_us
 
 #: Clips waiting for the writer beyond the one being written; more are dropped (and counted).
@@ -102,50 +104,56 @@ class FlightRecorder(Observer):
 
     Parameters
     ----------
-    folder : where clips go (must exist and be writable; checked by the command beforehand).
-    sensor : the source's :class:`~necviz.core.sensor.SensorGeometry`.
-    lanes : ``{lane name: camera}`` of the session, in display order.
-    drivers : ``{camera: the lane that drives it}`` (whose commands a clip's native recording keeps).
-    layout : the dashboard layout the clip's ``.rrd`` opens in (``live``, ``compare`` ...).
-    before_s, after_s : seconds kept before a failure and recorded after it.
-    budget_bytes : the ring's memory budget (events and frame pixels).
-    properties : the session's properties (stored in every clip).
-    event_window_ms : the event image window of the clip's dashboard.
-    out : where a line per written clip is printed (``None``: nowhere).
+    options : ClipOptions
+        Where clips go (``folder``: must exist and be writable, :meth:`ClipOptions.check`, which the
+        command runs beforehand), the seconds kept before a failure and recorded after it
+        (``before_s``, ``after_s``) and the ring's memory budget (``memory_mb``: events and frame
+        pixels). Its ranges are checked when it is built.
+    sensor : SensorGeometry
+        The source's sensor.
+    lanes : dict
+        ``{lane name: camera}`` of the session, in display order.
+    drivers : dict
+        ``{camera: the lane that drives it}`` (whose commands a clip's native recording keeps).
+    layout : str
+        The dashboard layout the clip's ``.rrd`` opens in (``live``, ``compare`` ...).
+    properties : dict, optional
+        The session's properties (stored in every clip).
+    event_window_ms : float
+        The event image window of the clip's dashboard.
+    out : optional
+        Where a line per written clip is printed (``None``: nowhere).
 
     Raises
     ------
     ParameterError
-        For a negative duration or a budget below 1 MB.
+        ``options`` that is not a :class:`ClipOptions`.
     """
 
     name = "flight_recorder"
 
     def __init__(
         self,
-        folder,
+        options: ClipOptions,
         *,
         sensor,
         lanes: dict,
         drivers: dict,
         layout: str,
-        before_s: float = 5.0,
-        after_s: float = 5.0,
-        budget_bytes: int = 512 << 20,
         properties: dict | None = None,
         event_window_ms: float = 33.3,
         out=None,
     ):
-        from necviz.core.checks import check_number
-
-        self.folder = Path(folder)
+        if not isinstance(options, ClipOptions):
+            raise ParameterError(f"FlightRecorder takes ClipOptions, got {type(options).__name__}")
+        self.folder = Path(options.folder)
         self.sensor = sensor
         self.lanes = dict(lanes)
         self.drivers = dict(drivers)
         self.layout = layout
-        self.before_us = int(check_number("--clip-before", before_s, 0.0) * 1e6)
-        self.after_us = int(check_number("--clip-after", after_s, 0.0) * 1e6)
-        self.budget = int(check_number("--clip-memory", budget_bytes, 1 << 20))
+        self.before_us = int(options.before_s * 1e6)
+        self.after_us = int(options.after_s * 1e6)
+        self.budget = int(options.memory_mb * 2**20)
         self.properties = dict(properties or {})
         self.event_window_us = int(event_window_ms * 1000)
         self.out = out
@@ -454,14 +462,11 @@ def clip_observer(options):
             if ln.drives:
                 drivers.setdefault(ln.camera or ln.name, ln.name)
         return FlightRecorder(
-            options.folder,
+            options,
             sensor=session.source.sensor,
             lanes=lanes,
             drivers=drivers,
             layout=layout,
-            before_s=options.before_s,
-            after_s=options.after_s,
-            budget_bytes=int(options.memory_mb * 2**20),
             properties=session.properties,
             event_window_ms=session.show.event_window_ms,
             out=out,

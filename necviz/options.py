@@ -325,13 +325,59 @@ class ReplayOptions:
         if not str(self.file):
             raise ParameterError("replay needs a recording file")
         (self.controller,) = parse_controllers([self.controller])
-        for label, v in (("--start", self.start_s), ("--end", self.end_s)):
-            if v is not None:
-                check_number(label, v, 0.0)
-        if self.start_s is not None and self.end_s is not None and self.end_s <= self.start_s:
-            raise ParameterError(f"--end ({self.end_s} s) must come after --start ({self.start_s} s)")
-        if self.exposure_us is not None:
-            self.exposure_us = check_number("--exposure-us", self.exposure_us, 0.0, lo_open=True)
+        self.exposure_us = _check_reading(self.start_s, self.end_s, self.exposure_us)
+
+
+def _check_reading(start_s, end_s, exposure_us) -> float | None:
+    """``--start``/``--end``/``--exposure-us``, read the same way by replay and export; the exposure as a float."""
+    for label, v in (("--start", start_s), ("--end", end_s)):
+        if v is not None:
+            check_number(label, v, 0.0)
+    if start_s is not None and end_s is not None and end_s <= start_s:
+        raise ParameterError(f"--end ({end_s} s) must come after --start ({start_s} s)")
+    return None if exposure_us is None else check_number("--exposure-us", exposure_us, 0.0, lo_open=True)
+
+
+@dataclass(frozen=True)
+class ExportOptions:
+    """``necviz export IN OUT``: a recording rewritten in the format OUT's suffix names.
+
+    Parameters
+    ----------
+    file : str or os.PathLike
+        The recording (any format ``necviz replay`` reads).
+    out_path : str or os.PathLike
+        The output: ``.aedat4``, ``.h5``/``.hdf5``, ``.npz`` or ``.necrec``.
+    start_s, end_s : float, optional
+        The cut, in seconds from the recording's first timestamp (as in replay).
+    exposure_us : float, optional
+        The exposure of input formats that do not store it (µs, > 0).
+    format : str, optional
+        The input's format (skips detection).
+    compression : str
+        AEDAT 4 packet compression (``lz4``, ``zstd`` or ``none``; checked by the AEDAT 4 writer).
+    force : bool
+        Replace an existing output (never the input).
+
+    Raises
+    ------
+    ParameterError
+        No input or output named, or a bad range or exposure.
+    """
+
+    file: str | os.PathLike = ""
+    out_path: str | os.PathLike = ""
+    start_s: float | None = None
+    end_s: float | None = None
+    exposure_us: float | None = None
+    format: str | None = None
+    compression: str = "lz4"
+    force: bool = False
+
+    def __post_init__(self):
+        if not str(self.file) or not str(self.out_path):
+            raise ParameterError("export needs a recording and an output file")
+        object.__setattr__(self, "exposure_us", _check_reading(self.start_s, self.end_s, self.exposure_us))
 
 
 @dataclass
@@ -398,6 +444,7 @@ __all__ = [
     "CompareOptions",
     "DEFAULT_CONTROLLERS",
     "DemoOptions",
+    "ExportOptions",
     "LAYOUT_NAMES",
     "LiveOptions",
     "ReplayOptions",

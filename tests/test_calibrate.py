@@ -21,7 +21,7 @@ from necviz.core.crf import default_davis346
 from necviz.core.errors import NecvizError, ParameterError, ProfileError
 from necviz.core.event_model import TediParams
 from necviz.core.sensor import SensorGeometry
-from necviz.drivers.sim.calibration_scene import CalibrationScene
+from necviz.drivers.sim.calibration_scene import CalibrationScene, CalibrationSceneOptions
 from necviz.drivers.sim.dvs import DvsParams
 from necviz.profiles import default_sim_profile, load_profile
 
@@ -248,7 +248,7 @@ def test_calibration_scene_is_deterministic_and_goes_both_ways():
     for t in (0, 1_500_000, 2_900_000):
         assert float(a.log_irradiance(t).mean()) == pytest.approx(a.mean_log(t), abs=0.02)
     with pytest.raises(ParameterError, match="contrast"):
-        CalibrationScene(SMALL, contrast=5.0)
+        CalibrationScene(SMALL, options=CalibrationSceneOptions(contrast=5.0))
 
 
 def test_default_sim_profile_is_the_shipped_calibration():

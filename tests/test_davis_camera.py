@@ -15,10 +15,12 @@ from necviz.core.events import EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import SensorGeometry
 from necviz.drivers.davis import (
+    CameraOptions,
     DeviceDisconnectedError,
     DeviceError,
     DeviceNotFoundError,
     EmulatedDavis346,
+    EmulatorOptions,
     Faults,
     open_camera,
 )
@@ -26,10 +28,10 @@ from necviz.drivers.davis import (
 SMALL = SensorGeometry(64, 48)
 
 
-def backend(**kw):
+def backend(faults=None, **kw):
     kw.setdefault("duration_s", 0.3)
     kw.setdefault("sensor", SMALL)
-    return EmulatedDavis346(**kw)
+    return EmulatedDavis346(EmulatorOptions(**kw), faults)
 
 
 def event_times(packets):
@@ -54,7 +56,7 @@ def test_unplug_yields_what_was_decoded_then_raises():
 
 def test_reconnect_waits_for_the_same_serial_and_keeps_time_increasing():
     be = backend(duration_s=0.4, faults=Faults(unplug_after_s=0.1, replug_after_s=0.3))
-    cam = open_camera("emulated", backend=be, reconnect=True)
+    cam = open_camera("emulated", backend=be, options=CameraOptions(reconnect=True))
     states, stop = set(), threading.Event()
 
     def watch():
@@ -186,7 +188,7 @@ def test_source_contract_batches_and_stats():
 
 
 def test_nec_runs_in_closed_loop_on_the_emulated_camera():
-    cam = open_camera("emulated", backend=backend(duration_s=0.6, seed=1), exposure_us=5000)
+    cam = open_camera("emulated", backend=backend(duration_s=0.6, seed=1), options=CameraOptions(exposure_us=5000))
     ctl = make_controller("nec", sensor=cam.sensor, limits=cam.limits, exposure_us=5000)
     frames = []
     for p in cam:

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from necviz.core.events import EVENT_DTYPE, validate_events
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, TRIGGER_KINDS, ImuBatch, TriggerBatch
-from necviz.drivers.davis import DavisDecoder, StreamEncoder
+from necviz.drivers.davis import DavisDecoder, DecoderOptions, FrameTiming, StreamEncoder
 from necviz.drivers.davis.encoder import cds_pair
 
 HYP = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -173,7 +173,7 @@ def summarise(packets):
 def decode_split(words, cuts, w, h, orientation=0):
     """Decode the byte stream cut at the given byte offsets (odd offsets split words)."""
     raw = words.tobytes()
-    dec = DavisDecoder(w, h, aps_orientation=orientation)
+    dec = DavisDecoder(DecoderOptions(w, h, aps_orientation=orientation))
     packets = []
     prev = 0
     for c in sorted(set(cuts)) + [len(raw)]:
@@ -231,7 +231,7 @@ def test_full_size_frame_round_trip_on_davis346():
     reset, signal = cds_pair(z)
     enc = StreamEncoder()
     words = np.concatenate(
-        [enc.timestamp_reset(), enc.frame(10, 20, 4020, 5000, reset, signal, exposure_cycles=120960)]
+        [enc.timestamp_reset(), enc.frame(FrameTiming(10, 20, 4020, 5000), reset, signal, exposure_cycles=120960)]
     )
     dec = DavisDecoder()
     packets = dec.decode(words.tobytes())
@@ -245,8 +245,8 @@ def test_cds_rule_saturation_and_clipping():
     enc = StreamEncoder()
     reset = np.array([[383, 1023, 500, 1023]])
     signal = np.array([[10, 0, 600, 3]])  # dark reset, zero signal, signal > reset, normal
-    words = np.concatenate([enc.timestamp_reset(), enc.frame(0, 1, 2, 3, reset, signal)])
-    frame = [p for p in DavisDecoder(4, 1).decode(words) if isinstance(p, Frame)][0]
+    words = np.concatenate([enc.timestamp_reset(), enc.frame(FrameTiming(0, 1, 2, 3), reset, signal)])
+    frame = [p for p in DavisDecoder(DecoderOptions(4, 1)).decode(words) if isinstance(p, Frame)][0]
     assert frame.image.tolist() == [[255, 255, 0, (1020 >> 2)]]
 
 
@@ -257,18 +257,22 @@ def test_flips_put_pixels_in_image_coordinates(orientation):
     z = (np.arange(h * w).reshape(h, w) * 7) % 256
     reset, signal = cds_pair(z)
     enc = StreamEncoder(aps_orientation=orientation)
-    words = np.concatenate([enc.timestamp_reset(), enc.frame(0, 1, 2, 3, reset, signal)])
-    frame = [p for p in DavisDecoder(w, h, aps_orientation=orientation).decode(words) if isinstance(p, Frame)][0]
+    words = np.concatenate([enc.timestamp_reset(), enc.frame(FrameTiming(0, 1, 2, 3), reset, signal)])
+    frame = [
+        p for p in DavisDecoder(DecoderOptions(w, h, aps_orientation=orientation)).decode(words) if isinstance(p, Frame)
+    ][0]
     assert np.array_equal(frame.image, z)
     # and the same words read with no orientation give a different (transposed/flipped) picture
     if orientation:
-        other = [p for p in DavisDecoder(w, h).decode(words) if isinstance(p, Frame)]
+        other = [p for p in DavisDecoder(DecoderOptions(w, h)).decode(words) if isinstance(p, Frame)]
         assert not other or not np.array_equal(other[0].image, z)
 
 
 def test_dvs_invert_xy_swaps_row_and_column_words():
     words = np.array([0x0001, 0x8005, 0x1000 | 9, 0x3000 | 2], np.uint16)  # row word 9, column word 2
-    ev = [p for p in DavisDecoder(16, 12, dvs_invert_xy=True).decode(words) if isinstance(p, np.ndarray)][0]
+    ev = [
+        p for p in DavisDecoder(DecoderOptions(16, 12, dvs_invert_xy=True)).decode(words) if isinstance(p, np.ndarray)
+    ][0]
     assert (int(ev["x"][0]), int(ev["y"][0]), int(ev["p"][0]), int(ev["t"][0])) == (9, 2, 1, 5)
 
 
@@ -282,7 +286,7 @@ def test_timestamps_wrap_reset_and_never_decrease():
     words = np.concatenate(
         [enc.timestamp_reset(), enc.events(ev1), enc.time(250_000), enc.timestamp_reset(), enc.events(ev2)]
     )
-    dec = DavisDecoder(16, 12)
+    dec = DavisDecoder(DecoderOptions(16, 12))
     ev = np.concatenate([p for p in dec.decode(words) if isinstance(p, np.ndarray)])
     assert np.array_equal(ev["t"][:200], ev1["t"])
     # after the reset the device restarts at 0: output continues from the time reached (250 ms)
@@ -296,14 +300,14 @@ def test_many_wraps_in_one_gap_and_a_time_offset():
     ev = random_events(np.random.default_rng(0), 3, t_big, t_big + 10, 4, 4)
     words = np.concatenate([enc.timestamp_reset(), enc.events(ev)])
     assert int(np.sum((words >> 12) == 7)) == 2
-    out = DavisDecoder(4, 4, time_offset_us=1000).decode(words)
+    out = DavisDecoder(DecoderOptions(4, 4), time_offset_us=1000).decode(words)
     got = np.concatenate([p for p in out if isinstance(p, np.ndarray)])
     assert np.array_equal(got["t"], ev["t"] + 1000)
 
 
 def test_backwards_timestamp_is_skipped_and_counted():
     words = np.array([0x0001, 0x8000 | 500, 0x1003, 0x3002, 0x8000 | 200, 0x3001, 0x8000 | 600, 0x2000], np.uint16)
-    dec = DavisDecoder(8, 8)
+    dec = DavisDecoder(DecoderOptions(8, 8))
     ev = np.concatenate([p for p in dec.decode(words) if isinstance(p, np.ndarray)])
     assert ev["t"].tolist() == [500, 500, 600]
     assert dec.stats["time_regressions"] == 1 and dec.stats["skipped_words"] == 1
@@ -358,7 +362,7 @@ def test_garbage_is_skipped_counted_and_the_stream_resynchronises(seed, garbage,
 @settings(max_examples=60, deadline=None)
 @given(raw=st.binary(min_size=0, max_size=6000), cuts=st.lists(st.integers(0, 6000), max_size=5))
 def test_random_bytes_never_crash_and_never_invent_events(raw, cuts):
-    dec = DavisDecoder(16, 12)
+    dec = DavisDecoder(DecoderOptions(16, 12))
     packets = []
     prev = 0
     for c in sorted(set(min(c, len(raw)) for c in cuts)) + [len(raw)]:
@@ -378,10 +382,10 @@ def test_incomplete_frame_is_dropped_and_markers_still_pair():
     enc = StreamEncoder()
     z = np.full((3, 4), 100)
     reset, signal = cds_pair(z)
-    full = enc.frame(0, 1, 10, 20, reset, signal)
+    full = enc.frame(FrameTiming(0, 1, 10, 20), reset, signal)
     cut = np.flatnonzero(full == 0x000D)[-1]  # drop the last signal column's end word
     words = np.concatenate([StreamEncoder().timestamp_reset(), full[:cut], full[cut + 1 :]])
-    dec = DavisDecoder(4, 3)
+    dec = DavisDecoder(DecoderOptions(4, 3))
     packets = dec.decode(words)
     assert not [p for p in packets if isinstance(p, Frame)]
     assert [(p.kind, p.t_us) for p in packets if isinstance(p, ExposureMarker)] == [("start", 1), ("end", 10)]
@@ -408,7 +412,7 @@ def test_exposure_left_open_is_closed_by_the_next_frame_start():
         ],
         np.uint16,
     )
-    dec = DavisDecoder(4, 4)
+    dec = DavisDecoder(DecoderOptions(4, 4))
     markers = [(p.kind, p.t_us) for p in dec.decode(words) if isinstance(p, ExposureMarker)]
     assert markers == [("start", 7), ("end", 9)]
     assert dec.stats["exposures_aborted"] == 1 and dec.stats["frames_dropped"] == 1
@@ -418,7 +422,7 @@ def test_imu_sample_with_missing_bytes_is_dropped():
     enc = StreamEncoder()
     good = enc.imu(5, [1, 2, 3, 4, 5, 6, 7])
     words = np.concatenate([StreamEncoder().timestamp_reset(), good[:-3], good[-1:]])  # two data bytes lost
-    dec = DavisDecoder(4, 4)
+    dec = DavisDecoder(DecoderOptions(4, 4))
     assert not [p for p in dec.decode(words) if isinstance(p, ImuBatch)]
     assert dec.stats["imu_dropped"] == 1
 
@@ -426,7 +430,7 @@ def test_imu_sample_with_missing_bytes_is_dropped():
 def test_event_batches_are_bounded():
     ev = random_events(np.random.default_rng(5), 150_000, 0, 1000, 16, 12)
     words = np.concatenate([StreamEncoder().timestamp_reset(), StreamEncoder().events(ev)])
-    batches = [p for p in DavisDecoder(16, 12).decode(words) if isinstance(p, np.ndarray)]
+    batches = [p for p in DavisDecoder(DecoderOptions(16, 12)).decode(words) if isinstance(p, np.ndarray)]
     assert max(b.size for b in batches) <= 1 << 16
     assert sum(b.size for b in batches) == ev.size
 
@@ -473,7 +477,7 @@ def test_an_exposure_ending_in_the_microsecond_it_started_keeps_markers_after_it
     """Was: the end marker at 101 µs came right after the end word, ahead of the events at 100 µs."""
     words = _skew_stream()
     want = [(100, "start"), (100, "event"), (100, "event"), (101, "end"), (200, "event"), ("frame", 100, 101)]
-    dec = DavisDecoder(4, 3)
+    dec = DavisDecoder(DecoderOptions(4, 3))
     assert _timeline(dec.decode(words)) == want
     assert dec.stats["frames_dropped"] == 0 and dec.stats["skipped_words"] == 0
     # the same at every transfer boundary (the pending end survives between calls)
@@ -489,12 +493,12 @@ def test_a_pending_end_marker_is_delivered_by_finish_and_by_a_wrap():
     words = np.concatenate(
         [enc.timestamp_reset(), enc.frame_start(5, (0, 0, 1, 1)), enc.special(7, 14), enc.special(7, 15)]
     )
-    dec = DavisDecoder(2, 2)
+    dec = DavisDecoder(DecoderOptions(2, 2))
     assert _timeline(dec.decode(words)) == [(7, "start")]
     assert _timeline(dec.finish()) == [(8, "end")]
     assert dec.stats["exposures_aborted"] == 0
     # a wrap word moves time on: the end comes before the events of the new time
-    dec = DavisDecoder(2, 2)
+    dec = DavisDecoder(DecoderOptions(2, 2))
     later = np.array([(32768 + 3, 1, 1, 1)], EVENT_DTYPE)
     got = _timeline(dec.decode(np.concatenate([words, enc.events(later)])))
     assert got == [(7, "start"), (8, "end"), (32771, "event")]
@@ -513,7 +517,7 @@ def test_a_frame_start_in_the_microsecond_an_exposure_started_closes_it_in_time_
             enc.time(9),
         ]
     )
-    dec = DavisDecoder(2, 2)
+    dec = DavisDecoder(DecoderOptions(2, 2))
     packets = dec.decode(words)
     assert _timeline(packets) == [(7, "start"), (7, "event"), (8, "end")]
     assert dec.stats["exposures_aborted"] == 1

@@ -17,7 +17,7 @@ import usb.util
 from necviz.core.events import EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import SensorGeometry
-from necviz.drivers.davis import EmulatedDavis346, open_camera
+from necviz.drivers.davis import CameraOptions, EmulatedDavis346, EmulatorOptions, open_camera
 from necviz.drivers.source import Source
 
 SMALL = SensorGeometry(64, 48)
@@ -26,7 +26,7 @@ SMALL = SensorGeometry(64, 48)
 def backend(**kw):
     kw.setdefault("duration_s", 0.3)
     kw.setdefault("sensor", SMALL)
-    return EmulatedDavis346(**kw)
+    return EmulatedDavis346(EmulatorOptions(**kw))
 
 
 def read_reg(dev, module, param):
@@ -122,7 +122,7 @@ def test_start_and_stop_follow_the_documented_order_and_pauses():
 
 def test_exposure_register_is_microseconds_times_actual_adc_clock():
     be = backend()
-    cam = open_camera("emulated", backend=be, exposure_us=5000)
+    cam = open_camera("emulated", backend=be, options=CameraOptions(exposure_us=5000))
     dev = cam.device.dev
     adc = read_reg(dev, 6, 4) * read_reg(dev, 6, 6) / 1000  # SYSINFO ADC clock x deviation
     assert adc != read_reg(dev, 6, 4)  # the deviation matters in this test
@@ -147,7 +147,7 @@ def test_decoded_frames_are_the_simulators_frames():
         scene, {"camera": (3000.0, 1.0)}, aps=ApsParams(frame_interval_us=20_000, exposure_max_us=19_000), seed=4
     )
     want = [p for _, p in rig.packets() if isinstance(p, Frame)]
-    cam = open_camera("emulated", backend=backend(seed=4, duration_s=0.2), exposure_us=3000)
+    cam = open_camera("emulated", backend=backend(seed=4, duration_s=0.2), options=CameraOptions(exposure_us=3000))
     assert isinstance(cam, Source)
     got = [p for p in cam if isinstance(p, Frame)]
     assert len(got) == len(want) >= 8
@@ -159,7 +159,7 @@ def test_decoded_frames_are_the_simulators_frames():
 
 
 def test_emulator_honours_the_exposure_register_in_closed_loop_and_gain_is_digital():
-    cam = open_camera("emulated", backend=backend(duration_s=0.3), exposure_us=4000)
+    cam = open_camera("emulated", backend=backend(duration_s=0.3), options=CameraOptions(exposure_us=4000))
     frames, markers = [], []
     for p in cam:
         if isinstance(p, Frame):

@@ -13,7 +13,7 @@ import time
 
 from necviz.core.events import EventBatch
 from necviz.core.sensor import SensorGeometry
-from necviz.drivers.davis import EmulatedDavis346, open_camera
+from necviz.drivers.davis import CameraOptions, EmulatedDavis346, EmulatorOptions, open_camera
 from necviz.drivers.davis.device import PEAK_BYTES_PER_S
 
 SMALL = SensorGeometry(64, 48)
@@ -24,8 +24,10 @@ RATE = 12e6  # events/s of device time
 def _run(stall_ms: float, buffer_s: float, duration_s: float = 0.12, stall_at_us: int = 40_000):
     """Stream the emulated camera; the consumer stops reading for ``stall_ms`` of device time once the
     stream passes ``stall_at_us``. Returns (events delivered, camera stats, backend)."""
-    be = EmulatedDavis346(duration_s=duration_s, sensor=SMALL, realtime=True, time_scale=SCALE, extra_event_rate=RATE)
-    cam = open_camera("emulated", backend=be, buffer_s=buffer_s)
+    be = EmulatedDavis346(
+        EmulatorOptions(duration_s=duration_s, sensor=SMALL, realtime=True, time_scale=SCALE, extra_event_rate=RATE)
+    )
+    cam = open_camera("emulated", backend=be, options=CameraOptions(buffer_s=buffer_s))
     delivered, stalled = 0, False
     for p in cam:
         if isinstance(p, EventBatch) and len(p):
@@ -67,7 +69,9 @@ def test_the_device_fifo_holds_its_size_then_drops_and_counts():
 
     from necviz.drivers.davis.device import DavisDevice, find_devices
 
-    be = EmulatedDavis346(duration_s=0.2, sensor=SMALL, realtime=True, time_scale=SCALE, extra_event_rate=RATE)
+    be = EmulatedDavis346(
+        EmulatorOptions(duration_s=0.2, sensor=SMALL, realtime=True, time_scale=SCALE, extra_event_rate=RATE)
+    )
     dev = DavisDevice(find_devices(be)[0], be, emulated=True)
     dev.send_default_config()
     dev.start(settle_s=(0, 0, 0))
@@ -97,8 +101,8 @@ def test_a_long_session_keeps_the_command_lists_bounded(monkeypatch):
     monkeypatch.setattr(emulator_module, "TRANSFER_LOG", 100)
     # real time: a device that may run ahead of the host (as fast as the simulator goes) has streamed
     # past the last commands before they arrive, and how far depends on the machine's load
-    be = EmulatedDavis346(duration_s=0.6, sensor=SMALL, seed=1, realtime=True)
-    cam = open_camera("emulated", backend=be, exposure_us=3000)
+    be = EmulatedDavis346(EmulatorOptions(duration_s=0.6, sensor=SMALL, seed=1, realtime=True))
+    cam = open_camera("emulated", backend=be, options=CameraOptions(exposure_us=3000))
     frames, k, peak_pending = [], 0, 0
     for p in cam:
         if isinstance(p, EventBatch):

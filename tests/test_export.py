@@ -18,6 +18,7 @@ from necviz.core.frames import Frame
 from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, ImuBatch, TriggerBatch
 from necviz.drivers.recordings import RecordingError, open_recording
 from necviz.io import FAERY_DTYPE, TONIC_DTYPE, from_faery, from_tonic, load_npz, to_faery, to_tonic
+from necviz.options import ExportOptions
 
 OUTPUTS = (".aedat4", ".h5", ".npz", ".necrec")
 EXPOSURE_US = 2000.0  # for the inputs that store none (MVSEC, RPG text)
@@ -95,7 +96,7 @@ def test_every_reader_format_round_trips_through_every_writer(seeds, suffix, tmp
     for name, path in seeds.items():
         want = _read_input(path)
         out = tmp_path / (name.replace(":", "_").replace(".", "_") + suffix)
-        stats = export(path, out, exposure_us=EXPOSURE_US, out=None)
+        stats = export(ExportOptions(path, out, exposure_us=EXPOSURE_US), out=None)
         got = _read_output(out)
         _assert_same(got, want, suffix)
         assert stats["counts"]["events"] == len(want["events"])
@@ -121,7 +122,7 @@ def test_start_and_end_cut_the_same_span_as_replay(seeds, suffix, tmp_path):
         start_s, end_s = round(span * 0.25, 6), round(span * 0.75, 6)
         want = _read_input(path, start_s, end_s)
         out = tmp_path / (name.replace(":", "_").replace(".", "_") + "_cut" + suffix)
-        export(path, out, start_s=start_s, end_s=end_s, exposure_us=EXPOSURE_US, out=None)
+        export(ExportOptions(path, out, start_s=start_s, end_s=end_s, exposure_us=EXPOSURE_US), out=None)
         got = _read_output(out)
         _assert_same(got, want, suffix)
         # an independent check of the cut: exactly the events inside [start, end] of the full stream
@@ -146,11 +147,11 @@ def test_real_recording_round_trips_with_frames_imu_and_triggers(tmp_path):
     assert len(want["frames"]) == 4 and len(want["imu"]) and len(want["triggers"])
     for suffix in OUTPUTS:
         out = tmp_path / f"sample{suffix}"
-        export(SAMPLE_AEDAT4, out, out=None)
+        export(ExportOptions(SAMPLE_AEDAT4, out), out=None)
         _assert_same(_read_output(out), want, suffix)
     # and back again: the exported AEDAT 4 exported once more is the same stream
     again = tmp_path / "again.h5"
-    export(tmp_path / "sample.aedat4", again, out=None)
+    export(ExportOptions(tmp_path / "sample.aedat4", again), out=None)
     _assert_same(_read_output(again), want, ".h5")
 
 
@@ -161,7 +162,7 @@ def test_aedat4_opens_in_the_aedat_reader(tmp_path, compression):
 
     want = _read_input(SAMPLE_AEDAT4)
     out = tmp_path / "sample.aedat4"
-    export(SAMPLE_AEDAT4, out, compression=compression, out=None)
+    export(ExportOptions(SAMPLE_AEDAT4, out, compression=compression), out=None)
     streams = aedat.Decoder(str(out)).id_to_stream()
     assert sorted(s["type"] for s in streams.values()) == ["events", "frame", "imus", "triggers"]
     n, frames = 0, []
@@ -184,7 +185,7 @@ def test_aedat4_opens_in_inivation_dv_processing(tmp_path):
     )
     want = _read_input(SAMPLE_AEDAT4)
     out = tmp_path / "sample.aedat4"
-    export(SAMPLE_AEDAT4, out, out=None)
+    export(ExportOptions(SAMPLE_AEDAT4, out), out=None)
     rec = dv.io.MonoCameraRecording(str(out))
     assert rec.getEventResolution() == (346, 260)
     assert rec.isEventStreamAvailable() and rec.isFrameStreamAvailable()
@@ -219,7 +220,7 @@ def test_native_clip_keeps_commands_and_annotations(seeds, tmp_path):
     commands, notes = list(src.commands), list(src.annotations)
     src.close()
     out = tmp_path / "clip.necrec"
-    export(path, out, out=None)
+    export(ExportOptions(path, out), out=None)
     back = open_recording(out)
     assert back.commands == commands and back.annotations == notes
     assert back.properties["exported_from"] == str(path)
@@ -247,7 +248,7 @@ def test_outputs_never_destroy_inputs_and_leave_nothing_on_failure(seeds, tmp_pa
     data[len(data) // 2] ^= 0xFF
     bad.write_bytes(bytes(data))
     with pytest.raises(RecordingError):
-        export(bad, tmp_path / "bad.aedat4", out=None)
+        export(ExportOptions(bad, tmp_path / "bad.aedat4"), out=None)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.necrec", "x.h5"]
 
 
@@ -262,7 +263,7 @@ def test_export_replaces_with_force_and_reports(seeds, tmp_path, capsys):
 
 def test_empty_range_is_refused_before_writing(seeds, tmp_path):
     with pytest.raises(ParameterError, match="must come after"):
-        export(seeds["necviz:seed.necrec"], tmp_path / "a.h5", start_s=1.0, end_s=0.5, out=None)
+        export(ExportOptions(seeds["necviz:seed.necrec"], tmp_path / "a.h5", start_s=1.0, end_s=0.5), out=None)
     assert not (tmp_path / "a.h5").exists()
 
 

@@ -18,14 +18,15 @@ from necviz.core.sensor import SensorGeometry
 from necviz.dashboard.telemetry import FrameRecord
 from necviz.drivers.recordings import open_recording
 from necviz.flight_recorder import FlightRecorder, cause_slug
+from necviz.options import ClipOptions
 
 SENSOR = SensorGeometry(32, 24, "tiny")
 BATCH_US = 1000
 
 
 def _recorder(folder, **kw) -> FlightRecorder:
-    args = dict(sensor=SENSOR, lanes={"a": "cam"}, drivers={"cam": "a"}, layout="live", before_s=0.5, after_s=0.3)
-    return FlightRecorder(folder, **{**args, **kw})
+    clip = ClipOptions(folder, **{"before_s": 0.5, "after_s": 0.3, **kw})
+    return FlightRecorder(clip, sensor=SENSOR, lanes={"a": "cam"}, drivers={"cam": "a"}, layout="live")
 
 
 def _batch(t0: int, n: int) -> np.ndarray:
@@ -80,7 +81,7 @@ def test_a_run_without_failures_writes_nothing_and_memory_follows_the_window(tmp
 
 def test_the_budget_bounds_memory_whatever_the_rate_and_says_so(tmp_path):
     budget = 1 << 20
-    fr = _recorder(tmp_path, before_s=5.0, budget_bytes=budget)
+    fr = _recorder(tmp_path, before_s=5.0, memory_mb=budget / 2**20)
     stats = _run(fr, 1.0, 2000, saturated_at=(600_000,))  # 26 MB/s of events against a 1 MB budget
     assert stats["dropped_events"] > 0
     # ring <= budget, the clip being collected <= 2 x budget (then cut)

@@ -98,3 +98,93 @@ def test_top_level_folders_refuse_to_import_as_packages(folder):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=str(ROOT))
     assert out.returncode != 0
     assert f"import necviz.{folder}" in out.stderr.strip().splitlines()[-1]
+
+
+#: Expected failures of the rule below: public functions still wider than the limit, each being converted on
+#: another branch. Exact: an entry that no longer needs to be here fails the test too, so the list only shrinks.
+WIDE_ALLOWED = {  # being converted on another branch
+    "necviz/calibration/fit.py:calibrate_collected",
+    "necviz/calibration/from_simulation.py:calibrate_from_simulation",
+    "necviz/calibration/from_recordings.py:calibrate_from_recordings",
+    "necviz/calibration/pairs.py:PairCollector.__init__",
+    "necviz/sweeps/engine.py:run_sweep",
+    "necviz/dashboard/sink.py:RerunSink.__init__",
+    "necviz/bench/estimator_speed.py:run",
+    "drivers/sim/rig.py:SimRig.__init__",
+    "drivers/sim/scenes/tunnel_exit.py:_Corridor.__init__",
+    "core/ptedi.py:PeripheralEstimator.__init__",
+}
+MAX_PARAMETERS = 8
+
+
+def _is_numba_kernel(fn: ast.FunctionDef | ast.AsyncFunctionDef) -> bool:
+    """Decorated with ``njit``/``jit`` (``nb.njit``, ``numba.njit(cache=True)``, ``jit`` ...)."""
+    for dec in fn.decorator_list:
+        target = dec.func if isinstance(dec, ast.Call) else dec
+        name = target.attr if isinstance(target, ast.Attribute) else getattr(target, "id", "")
+        if name in ("njit", "jit"):
+            return True
+    return False
+
+
+def _parameter_count(fn: ast.FunctionDef | ast.AsyncFunctionDef, method: bool) -> int:
+    """Parameters a caller passes: positional, keyword-only, ``*args`` and ``**kwargs``, without self/cls."""
+    a = fn.args
+    positional = [p.arg for p in a.posonlyargs + a.args]
+    static = any(isinstance(d, ast.Name) and d.id == "staticmethod" for d in fn.decorator_list)
+    if method and not static and positional and positional[0] in ("self", "cls"):
+        positional = positional[1:]
+    return len(positional) + len(a.kwonlyargs) + (a.vararg is not None) + (a.kwarg is not None)
+
+
+def _wide_functions() -> dict[str, int]:
+    """``"folder/file.py:Class.method"`` -> parameter count, for every function or method whose name is public
+    (or ``__init__``) that takes more than :data:`MAX_PARAMETERS`; functions nested in functions are not API."""
+    wide: dict[str, int] = {}
+
+    def visit(node: ast.AST, where: str, prefix: str, in_class: bool) -> None:
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.ClassDef):
+                visit(child, where, f"{prefix}{child.name}.", True)
+            elif isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                public = not child.name.startswith("_") or child.name == "__init__"
+                if public and not _is_numba_kernel(child):
+                    n = _parameter_count(child, in_class)
+                    if n > MAX_PARAMETERS:
+                        wide[f"{where}:{prefix}{child.name}"] = n
+            elif not isinstance(child, ast.Lambda):
+                visit(child, where, prefix, in_class)  # if/try/with blocks at module or class level
+
+    for folder in PACKAGES:
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            visit(ast.parse(path.read_text(encoding="utf-8")), path.relative_to(ROOT).as_posix(), "", False)
+    return wide
+
+
+def test_parameter_count_sees_what_a_caller_passes():
+    """The counter on known shapes, so a pass of the rule below means something."""
+    src = (
+        "class C:\n"
+        "    def __init__(self, a, b, *, c, **kw): ...\n"
+        "    @staticmethod\n"
+        "    def s(a, b): ...\n"
+        "    @classmethod\n"
+        "    def k(cls, a, /, b, *args): ...\n"
+        "@nb.njit(cache=True)\n"
+        "def kern(a, b, c, d, e, f, g, h, i): ...\n"
+    )
+    tree = ast.parse(src)
+    cls, kern = tree.body
+    init, s, k = cls.body
+    assert [_parameter_count(f, True) for f in (init, s, k)] == [4, 2, 3]
+    assert _is_numba_kernel(kern) and not _is_numba_kernel(init)
+
+
+def test_no_public_function_takes_more_than_eight_parameters():
+    """Wide signatures become option objects passed whole (one place validates each rule); Numba kernels,
+    whose arguments must be plain arrays and scalars, are the exception."""
+    wide = _wide_functions()
+    unexpected = {k: n for k, n in wide.items() if k not in WIDE_ALLOWED}
+    assert unexpected == {}, "group these parameters into an options dataclass"
+    converted = sorted(WIDE_ALLOWED - set(wide))
+    assert converted == [], "converted: remove these from WIDE_ALLOWED"

@@ -29,7 +29,15 @@ from necviz.core.errors import EventFormatError, FrameFormatError, ParameterErro
 from necviz.core.event_model import TediParams
 from necviz.core.events import EVENT_DTYPE, make_events
 from necviz.core.frames import Frame
-from necviz.core.tedi import PARAM_NAMES, TediCalibration, calibrate_tedi, tedi_reconstruct, valid_mask
+from necviz.core.tedi import (
+    PARAM_NAMES,
+    PairSelection,
+    TediCalibration,
+    TediFitOptions,
+    calibrate_tedi,
+    tedi_reconstruct,
+    valid_mask,
+)
 
 TRUE = TediParams(c_on=0.25, c_off=0.22, a_on=0.6, b_on=300.0, a_off=0.4, b_off=200.0)
 LOG_CRF = CameraResponse((np.arange(256) - 128.0) / 20.0)
@@ -167,7 +175,7 @@ def test_calibration_recovers_the_true_parameters(data, init):
     """
     ev, frames, _, _, _ = data
     seen = []
-    res = calibrate_tedi(ev, frames, LOG_CRF, init=init, progress=lambda n, rms: seen.append((n, rms)))
+    res = calibrate_tedi(ev, frames, LOG_CRF, TediFitOptions(init=init), progress=lambda n, rms: seen.append((n, rms)))
     assert isinstance(res, TediCalibration) and res.success
     assert res.num_pairs == len(frames) - 1 and res.num_residuals > 2_000
     p = res.params
@@ -192,7 +200,7 @@ def test_calibration_of_a_subset_keeps_the_rest_fixed(data):
     """
     ev, frames, _, _, _ = data
     init = TediParams(0.3, 0.3, TRUE.a_on, TRUE.b_on, TRUE.a_off, TRUE.b_off)
-    res = calibrate_tedi(ev, frames, LOG_CRF, init=init, fit=("c_on", "c_off"))
+    res = calibrate_tedi(ev, frames, LOG_CRF, TediFitOptions(init=init, fit=("c_on", "c_off")))
     assert res.params.c_on == pytest.approx(TRUE.c_on, rel=0.02)
     assert res.params.c_off == pytest.approx(TRUE.c_off, rel=0.02)
     assert (res.params.a_on, res.params.b_on, res.params.a_off, res.params.b_off) == (
@@ -201,7 +209,7 @@ def test_calibration_of_a_subset_keeps_the_rest_fixed(data):
         TRUE.a_off,
         TRUE.b_off,
     )
-    plain = calibrate_tedi(ev, frames, LOG_CRF, init=TediParams(0.25, 0.22), fit=("c_on", "c_off"))
+    plain = calibrate_tedi(ev, frames, LOG_CRF, TediFitOptions(init=TediParams(0.25, 0.22), fit=("c_on", "c_off")))
     assert plain.params.a_on == 0.0 and plain.params.b_off == 0.0
     assert plain.params.c_on > 1.1 * TRUE.c_on and plain.params.c_off > 1.1 * TRUE.c_off
     assert plain.rms_after > 2 * res.rms_after
@@ -209,7 +217,13 @@ def test_calibration_of_a_subset_keeps_the_rest_fixed(data):
 
 def test_calibration_reference_and_pixel_cap(data):
     ev, frames, _, _, _ = data
-    res = calibrate_tedi(ev, frames[:6], LOG_CRF, init=TRUE, reference="current_start", max_pixels=100, fit=("c_on",))
+    res = calibrate_tedi(
+        ev,
+        frames[:6],
+        LOG_CRF,
+        TediFitOptions(init=TRUE, fit=("c_on",)),
+        PairSelection(reference="current_start", max_pixels=100),
+    )
     assert res.num_pairs == 5 and res.num_residuals == 500
     assert res.params.c_on == pytest.approx(TRUE.c_on, rel=0.05)
 
@@ -227,13 +241,13 @@ def test_calibration_bad_input(data):
     with pytest.raises(ParameterError, match="no pixel is valid"):
         calibrate_tedi(ev, dark, LOG_CRF)
     with pytest.raises(ParameterError, match="reference"):
-        calibrate_tedi(ev, frames, LOG_CRF, reference="middle")
+        calibrate_tedi(ev, frames, LOG_CRF, selection=PairSelection(reference="middle"))
     with pytest.raises(ParameterError, match="fit"):
-        calibrate_tedi(ev, frames, LOG_CRF, fit=("c_on", "gamma"))
+        calibrate_tedi(ev, frames, LOG_CRF, TediFitOptions(fit=("c_on", "gamma")))
     with pytest.raises(ParameterError, match="fit"):
-        calibrate_tedi(ev, frames, LOG_CRF, fit=())
+        calibrate_tedi(ev, frames, LOG_CRF, TediFitOptions(fit=()))
     with pytest.raises(ParameterError, match="max_pixels"):
-        calibrate_tedi(ev, frames, LOG_CRF, max_pixels=0)
+        calibrate_tedi(ev, frames, LOG_CRF, selection=PairSelection(max_pixels=0))
     outside = make_events([1_000], [500], [0], [1])
     with pytest.raises(EventFormatError, match="outside"):
         calibrate_tedi(outside, frames, LOG_CRF)

@@ -15,12 +15,12 @@ ADC cycles); that frame's start is the command's ``applied_start_us``. Memory st
 long session: commands wait for their frame in a queue of at most :data:`PENDING_COMMANDS` and
 :meth:`DavisCamera.commands` keeps the last :data:`COMMAND_HISTORY`.
 
-Loss: the reader thread buffers ``buffer_s`` (2 s) of data at the peak rate, so a consumer that
+Loss: the reader thread buffers :attr:`CameraOptions.buffer_s` (2 s) of data at the peak rate, so a consumer that
 pauses (a GC pause, a slow viewer) loses nothing; past that it stops reading and the device drops
 whole DVS events and counts them — ``stats["dropped_events"]`` (see :class:`~.device.BulkReader`).
 
 Unplugging: every packet already decoded is yielded, then iteration raises
-:class:`~.errors.DeviceDisconnectedError` — unless ``reconnect=True``: then ``state`` becomes
+:class:`~.errors.DeviceDisconnectedError` — unless ``CameraOptions(reconnect=True)``: then ``state`` becomes
 ``"waiting"``, discovery is polled every 0.5 s for the same serial, the start sequence runs again
 (with the last commanded exposure) and packets continue with timestamps offset to keep increasing.
 """
@@ -31,19 +31,25 @@ import math
 import threading
 import time
 from collections import deque
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from necviz.core.checks import check_number
 from necviz.core.control.controller import CameraLimits
 from necviz.core.errors import ParameterError
 from necviz.core.events import EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import SensorGeometry, known_event_rate_max
 from necviz.drivers.davis import protocol as P
-from necviz.drivers.davis.decoder import DavisDecoder
+from necviz.drivers.davis.decoder import DavisDecoder, DecoderOptions
 from necviz.drivers.davis.device import BulkReader, DavisDevice, open_device, usb_backend
 from necviz.drivers.davis.device_errors import DeviceDisconnectedError, DeviceError, DeviceNotFoundError
 from necviz.drivers.source import CAMERA, CameraInfo, CommandRecord, route
+
+if TYPE_CHECKING:
+    from necviz.drivers.davis.emulator import EmulatorOptions, Faults
 
 #: digital gain limit of the live camera (linear)
 DIGITAL_GAIN_MAX = 8.0
@@ -70,43 +76,96 @@ class _Command:
         return CommandRecord(self.issue_time_us, self.exposure_us, self.gain, self.applied_start_us)
 
 
+@dataclass(frozen=True)
+class CameraOptions:
+    """How a :class:`DavisCamera` streams (validated here, once).
+
+    Parameters
+    ----------
+    reconnect : bool
+        On unplugging, wait for the same serial to come back instead of raising
+        :class:`~.device_errors.DeviceDisconnectedError` (module docstring).
+    exposure_us : float
+        The exposure configured before streaming (µs; clamped to the camera's limits).
+    frame_interval_us : float
+        Time between frame starts (µs), ``2 * READOUT_ALLOWANCE_US .. FRAME_INTERVAL_MAX_US``; the
+        longest exposure is this minus :data:`READOUT_ALLOWANCE_US`.
+    batch_us : int
+        Event batches are cut at multiples of this many µs (so a controller can act between frames).
+    transfer_size : int
+        Bytes per USB bulk transfer.
+    buffer_s : float
+        How far (seconds at the peak data rate, 0..60) the consumer may fall behind before the reader
+        stops reading and the device drops (and counts) events.
+
+    Raises
+    ------
+    ParameterError
+        A frame interval, buffer, exposure, batch or transfer size out of its range.
+    """
+
+    reconnect: bool = False
+    exposure_us: float = 5000.0
+    frame_interval_us: float = 20_000.0
+    batch_us: int = 1000
+    transfer_size: int = 256 * 1024
+    buffer_s: float = 2.0
+
+    def __post_init__(self) -> None:
+        fi = self.frame_interval_us
+        if not (isinstance(fi, (int, float)) and 2 * READOUT_ALLOWANCE_US <= fi <= P.FRAME_INTERVAL_MAX_US):
+            raise ParameterError(
+                f"frame interval must be {2 * READOUT_ALLOWANCE_US}..{P.FRAME_INTERVAL_MAX_US} µs, got {fi!r}"
+            )
+        b = self.buffer_s
+        if isinstance(b, bool) or not isinstance(b, (int, float)) or not 0 < b <= 60:
+            raise ParameterError(f"buffer_s must be 0..60 seconds of data at the peak rate, got {b!r}")
+        for name, value in (
+            ("reconnect", bool(self.reconnect)),
+            ("exposure_us", check_number("exposure_us", self.exposure_us, 0.0, lo_open=True)),
+            ("frame_interval_us", float(fi)),
+            ("batch_us", check_number("batch_us", self.batch_us, 1, integer=True)),
+            ("transfer_size", check_number("transfer_size", self.transfer_size, 1, integer=True)),
+            ("buffer_s", float(b)),
+        ):
+            object.__setattr__(self, name, value)
+
+
 class DavisCamera:
     """A DAVIS camera (real or emulated) as a closed-loop source. Build it with :func:`open_camera`.
 
     Attributes: ``sensor`` (from the device's DVS size registers), ``info`` (serial, firmware, logic
     version, chip, clocks in MHz, ...), ``limits`` (:class:`CameraLimits`), ``state`` ("ready",
-    "streaming", "waiting" for a reconnect, "finished", "disconnected", "closed"), ``stats``.
+    "streaming", "waiting" for a reconnect, "finished", "disconnected", "closed"), ``stats``,
+    ``options`` (:class:`CameraOptions`).
+
+    Parameters
+    ----------
+    device : DavisDevice
+        The opened device.
+    backend
+        The pyusb backend it was found through (used again to find it after a reconnect).
+    options : CameraOptions, optional
+        How to stream (default: ``CameraOptions()``).
+
+    Raises
+    ------
+    ParameterError
+        ``options`` that is not a :class:`CameraOptions`.
     """
 
-    def __init__(
-        self,
-        device: DavisDevice,
-        backend,
-        *,
-        reconnect: bool = False,
-        exposure_us: float = 5000.0,
-        frame_interval_us: float = 20_000.0,
-        batch_us: int = 1000,
-        transfer_size: int = 256 * 1024,
-        buffer_s: float = 2.0,
-    ):
-        if not (
-            isinstance(frame_interval_us, (int, float))
-            and 2 * READOUT_ALLOWANCE_US <= frame_interval_us <= P.FRAME_INTERVAL_MAX_US
-        ):
-            raise ParameterError(
-                f"frame interval must be {2 * READOUT_ALLOWANCE_US}..{P.FRAME_INTERVAL_MAX_US} µs, "
-                f"got {frame_interval_us!r}"
-            )
+    def __init__(self, device: DavisDevice, backend, options: CameraOptions | None = None):
+        options = CameraOptions() if options is None else options
+        if not isinstance(options, CameraOptions):
+            raise ParameterError(f"DavisCamera takes CameraOptions, got {type(options).__name__}")
+        self.options = options
         self.device = device
         self.backend = backend
-        self.reconnect = bool(reconnect)
-        self.frame_interval_us = float(frame_interval_us)
-        self.batch_us = int(batch_us)
-        self.transfer_size = int(transfer_size)
-        if isinstance(buffer_s, bool) or not isinstance(buffer_s, (int, float)) or not 0 < buffer_s <= 60:
-            raise ParameterError(f"buffer_s must be 0..60 seconds of data at the peak rate, got {buffer_s!r}")
-        self.buffer_s = float(buffer_s)
+        self.reconnect = options.reconnect
+        self.frame_interval_us = options.frame_interval_us
+        self.batch_us = options.batch_us
+        self.transfer_size = options.transfer_size
+        self.buffer_s = options.buffer_s
         w, h = device.dvs_size
         self.sensor = SensorGeometry(int(w), int(h), device.kind)
         self.limits = CameraLimits(
@@ -120,7 +179,7 @@ class DavisCamera:
         self._pending: deque[_Command] = deque(maxlen=PENDING_COMMANDS)  # not yet applied, oldest first
         self.commands_issued = 0
         self._gain = 1.0
-        self._exposure_us = float(self.limits.clamp(exposure_us, 1.0)[0])
+        self._exposure_us = float(self.limits.clamp(options.exposure_us, 1.0)[0])
         self._last_t = 0
         self._reader: BulkReader | None = None
         self._decoder: DavisDecoder | None = None
@@ -299,7 +358,7 @@ class DavisCamera:
     # -- streaming ----------------------------------------------------------------------------------
     def _start_stream(self, time_offset_us: int) -> None:
         d = self.device
-        self._decoder = DavisDecoder(
+        fmt = DecoderOptions(
             d.dvs_size[0],
             d.dvs_size[1],
             aps_width=d.aps_size[0],
@@ -309,8 +368,8 @@ class DavisCamera:
             imu_orientation=d.imu_orientation,
             imu_model=d.imu_type,
             adc_shift=1 if d.kind == "DAVIS240" else 0,
-            time_offset_us=time_offset_us,
         )
+        self._decoder = DavisDecoder(fmt, time_offset_us=time_offset_us)
         self._reader = BulkReader(d, transfer_size=self.transfer_size, buffer_s=self.buffer_s)
         d.start()
         self._reader.start()
@@ -409,27 +468,43 @@ def open_camera(
     device: str = "usb",
     serial: str | None = None,
     *,
-    scenario: str = "tunnel_exit",
-    seed: int = 0,
-    duration_s: float | None = None,
-    reconnect: bool = False,
-    faults=None,
-    realtime: bool = False,
-    exposure_us: float = 5000.0,
-    frame_interval_us: float = 20_000.0,
+    options: CameraOptions | None = None,
+    emulator: EmulatorOptions | None = None,
+    faults: Faults | None = None,
     backend=None,
-    buffer_s: float = 2.0,
 ) -> DavisCamera:
     """Open a DAVIS camera: ``device="usb"`` (hardware through libusb) or ``"emulated"``.
 
-    For the emulator, ``scenario``/``seed``/``duration_s`` choose the simulated scene, ``faults`` an
-    :class:`~.emulator.Faults` and ``realtime`` paces the stream to the wall clock; ``backend`` may pass
-    an existing :class:`~.emulator.EmulatedDavis346` (or any pyusb backend). The device is configured
-    (default biases, ``exposure_us``, ``frame_interval_us``) but streams only once iterated. ``buffer_s``:
-    how far (seconds at the peak data rate) the consumer may fall behind before the reader stops
-    reading and the device drops (and counts) events.
-    Raises :class:`DeviceNotFoundError` (none attached / no such serial) or :class:`DeviceError`
-    (version mismatch, permission denied, ...).
+    The device is configured (default biases, ``options.exposure_us``, ``options.frame_interval_us``)
+    but streams only once iterated.
+
+    Parameters
+    ----------
+    device : str
+        ``"usb"`` or ``"emulated"``.
+    serial : str, optional
+        The camera's serial number (default: the first one found).
+    options : CameraOptions, optional
+        How to stream (default: ``CameraOptions()``).
+    emulator : EmulatorOptions, optional
+        For ``"emulated"`` without ``backend``: the virtual camera's scene, pacing and identity.
+    faults : Faults, optional
+        For ``"emulated"`` without ``backend``: faults the virtual camera injects.
+    backend : optional
+        An existing :class:`~.emulator.EmulatedDavis346` (or any pyusb backend) to open the camera on.
+
+    Returns
+    -------
+    DavisCamera
+
+    Raises
+    ------
+    ParameterError
+        An unknown ``device``, or options out of range.
+    DeviceNotFoundError
+        No camera attached, or none with ``serial``.
+    DeviceError
+        Version mismatch, permission denied, ...
     """
     if device not in ("usb", "emulated"):
         raise ParameterError(f"device must be 'usb' or 'emulated', got {device!r}")
@@ -438,21 +513,12 @@ def open_camera(
         if emulated:
             from necviz.drivers.davis.emulator import EmulatedDavis346
 
-            backend = EmulatedDavis346(
-                scenario=scenario, seed=seed, duration_s=duration_s, faults=faults, realtime=realtime
-            )
+            backend = EmulatedDavis346(emulator, faults)
         else:
             backend = usb_backend()
     dev = open_device(backend, serial, emulated)
     try:
-        return DavisCamera(
-            dev,
-            backend,
-            reconnect=reconnect,
-            exposure_us=exposure_us,
-            frame_interval_us=frame_interval_us,
-            buffer_s=buffer_s,
-        )
+        return DavisCamera(dev, backend, options)
     except BaseException:
         dev.close()
         raise

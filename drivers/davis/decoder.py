@@ -26,6 +26,8 @@ The decoder never raises on stream content: garbage is skipped and counted (``sk
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from necviz.core.errors import ParameterError
@@ -59,10 +61,82 @@ from necviz.drivers.davis.decoder_kernels import (
     decode_words,
 )
 
-__all__ = ["DavisDecoder"]
+__all__ = ["DavisDecoder", "DecoderOptions"]
 
 
 _IMU_FIELDS = ("ax", "ay", "az", "gx", "gy", "gz", "temp")
+
+
+@dataclass(frozen=True)
+class DecoderOptions:
+    """The format of one DAVIS stream, as the device's registers describe it (validated here, once).
+
+    Parameters
+    ----------
+    width, height : int
+        DVS array size (``SIZE_COLUMNS``/``SIZE_ROWS`` of the DVS module), 1..4096.
+    aps_width, aps_height : int, optional
+        APS array size, 1..4096 (default: the DVS size).
+    dvs_invert_xy : bool
+        DVS orientation bit 2 (row words carry x).
+    aps_orientation : int
+        APS ``ORIENTATION_INFO`` (bit2 invertXY, bit1 flipX, bit0 flipY; the low 3 bits are used).
+    imu_orientation : int
+        IMU ``ORIENTATION_INFO`` (bit2 flipX, bit1 flipY, bit0 flipZ; the low 3 bits are used).
+    imu_model : int
+        1 (MPU6050/6150) or 2 (MPU9250): selects the temperature formula.
+    adc_shift : int
+        Left shift of the ADC samples (1 on DAVIS240, as libcaer doubles them).
+
+    Raises
+    ------
+    ParameterError
+        An array size that is not an integer in 1..4096.
+    """
+
+    width: int = 346
+    height: int = 260
+    aps_width: int | None = None
+    aps_height: int | None = None
+    dvs_invert_xy: bool = False
+    aps_orientation: int = 0
+    imu_orientation: int = 0
+    imu_model: int = 1
+    adc_shift: int = 0
+
+    def __post_init__(self) -> None:
+        aps_width = self.width if self.aps_width is None else self.aps_width
+        aps_height = self.height if self.aps_height is None else self.aps_height
+        sizes = {"width": self.width, "height": self.height, "aps_width": aps_width, "aps_height": aps_height}
+        for label, v in sizes.items():
+            if not isinstance(v, (int, np.integer)) or not 0 < v <= 4096:
+                raise ParameterError(f"decoder {label} must be an integer in 1..4096, got {v!r}")
+            object.__setattr__(self, label, int(v))
+        object.__setattr__(self, "dvs_invert_xy", bool(self.dvs_invert_xy))
+        object.__setattr__(self, "aps_orientation", int(self.aps_orientation) & 7)
+        object.__setattr__(self, "imu_orientation", int(self.imu_orientation) & 7)
+
+    @property
+    def aps_shape(self) -> tuple[int, int]:
+        """``(aps_height, aps_width)``: the APS image shape."""
+        return int(self.aps_height or self.height), int(self.aps_width or self.width)
+
+    def config(self) -> np.ndarray:
+        """The configuration vector :func:`decode_words` reads."""
+        return np.array(
+            [
+                self.width,
+                self.height,
+                int(self.dvs_invert_xy),
+                self.aps_width,
+                self.aps_height,
+                self.aps_orientation,
+                self.imu_orientation,
+                self.imu_model,
+                self.adc_shift,
+            ],
+            np.int64,
+        )
 
 
 class DavisDecoder:
@@ -70,14 +144,15 @@ class DavisDecoder:
 
     Parameters
     ----------
-    width, height : DVS array size (``SIZE_COLUMNS``/``SIZE_ROWS`` of the DVS module).
-    aps_width, aps_height : APS array size (default: the DVS size).
-    dvs_invert_xy : DVS orientation bit 2 (row words carry x).
-    aps_orientation : APS ``ORIENTATION_INFO`` (bit2 invertXY, bit1 flipX, bit0 flipY).
-    imu_orientation : IMU ``ORIENTATION_INFO`` (bit2 flipX, bit1 flipY, bit0 flipZ); ``imu_model``
-        1 (MPU6050/6150) or 2 (MPU9250) selects the temperature formula.
-    adc_shift : left shift of the ADC samples (1 on DAVIS240, as libcaer doubles them).
-    time_offset_us : added to every output time (used to continue a stream after a reconnect).
+    options : DecoderOptions, optional
+        The stream's format (default: ``DecoderOptions()``, a DAVIS346).
+    time_offset_us : int
+        Added to every output time (used to continue a stream after a reconnect).
+
+    Raises
+    ------
+    ParameterError
+        ``options`` that is not a :class:`DecoderOptions`.
 
     :meth:`decode` accepts any bytes-like object; an odd trailing byte is kept for the next call.
     Frames come out as ``Frame(Z8, exposure_start_us, exposure_end_us, gain=1.0, sequence)`` with
@@ -85,46 +160,19 @@ class DavisDecoder:
     the exposure the device reported for the last frame (ADC cycles, -1 if absent).
     """
 
-    def __init__(
-        self,
-        width: int = 346,
-        height: int = 260,
-        *,
-        aps_width: int | None = None,
-        aps_height: int | None = None,
-        dvs_invert_xy: bool = False,
-        aps_orientation: int = 0,
-        imu_orientation: int = 0,
-        imu_model: int = 1,
-        adc_shift: int = 0,
-        time_offset_us: int = 0,
-    ):
-        for label, v in (("width", width), ("height", height)):
-            if not isinstance(v, (int, np.integer)) or not 0 < v <= 4096:
-                raise ParameterError(f"decoder {label} must be an integer in 1..4096, got {v!r}")
-        aps_width = width if aps_width is None else aps_width
-        aps_height = height if aps_height is None else aps_height
-        self.width, self.height = int(width), int(height)
-        self.aps_shape = (int(aps_height), int(aps_width))
-        self.cfg = np.array(
-            [
-                width,
-                height,
-                int(bool(dvs_invert_xy)),
-                aps_width,
-                aps_height,
-                aps_orientation & 7,
-                imu_orientation & 7,
-                imu_model,
-                adc_shift,
-            ],
-            np.int64,
-        )
+    def __init__(self, options: DecoderOptions | None = None, *, time_offset_us: int = 0):
+        options = DecoderOptions() if options is None else options
+        if not isinstance(options, DecoderOptions):
+            raise ParameterError(f"DavisDecoder takes DecoderOptions, got {type(options).__name__}")
+        self.options = options
+        self.width, self.height = options.width, options.height
+        self.aps_shape = options.aps_shape
+        self.cfg = options.config()
         self.st = np.zeros(S_SIZE, np.int64)
         self.st[S_LAST_Y] = -1
         self.st[S_RTYPE] = -1
         self.st[S_OFFSET] = int(time_offset_us)
-        self._reset_buf = np.zeros(int(aps_width) * int(aps_height), np.int64)
+        self._reset_buf = np.zeros(self.aps_shape[0] * self.aps_shape[1], np.int64)
         self._frame = np.zeros(self.aps_shape, np.uint8)
         self._frame_flat = self._frame.reshape(-1)
         self._carry = b""

@@ -81,70 +81,126 @@ class Faults:
     permission_denied: bool = False
 
 
+@dataclass(frozen=True)
+class EmulatorOptions:
+    """Settings of the virtual DAVIS346: its scene, its pacing and its identity (validated here, once).
+
+    Parameters
+    ----------
+    scenario : str
+        The simulator scene (:func:`~necviz.drivers.sim.scenes.make_scenario`), a name in
+        :data:`~necviz.drivers.sim.scenes.SCENARIOS`.
+    seed : int
+        The scene's seed (also seeds the ``extra_event_rate`` load generator).
+    duration_s : float, optional
+        Seconds of scene; ``None`` uses the scenario's default length.
+    scenario_params : dict, optional
+        Extra keyword parameters of the scenario (kept as a copy).
+    realtime : bool
+        Pace the stream to the wall clock.
+    time_scale : float
+        Wall-clock seconds per stream second when ``realtime`` (:mod:`.emulator_stream`).
+    fifo_bytes : int
+        Size of the device FIFO (:mod:`.emulator_stream`).
+    extra_event_rate : float
+        Load generator: extra DVS events per second on top of the scene's (0..1e9).
+    sensor : SensorGeometry
+        Array size (default DAVIS346 346 x 260; tests use a smaller one to run faster — the size
+        registers report it).
+    serial : str
+        Serial-number string (at most 8 characters).
+    aps_orientation : int
+        Value of the APS ORIENTATION_INFO register (readout order of frames; the low 3 bits).
+    bus, address : int
+        Where pyusb reports the device.
+
+    Raises
+    ------
+    ParameterError
+        An unknown scenario, a duration that is not a positive number, a serial number longer
+        than 8 characters, a ``time_scale`` or ``fifo_bytes`` that is not a positive number, or an
+        ``extra_event_rate`` outside 0..1e9 events/s.
+    """
+
+    scenario: str = "tunnel_exit"
+    seed: int = 0
+    duration_s: float | None = None
+    scenario_params: dict | None = None
+    realtime: bool = False
+    time_scale: float = 1.0
+    fifo_bytes: int = FIFO_BYTES
+    extra_event_rate: float = 0.0
+    sensor: SensorGeometry = DAVIS346
+    serial: str = EMULATED_SERIAL
+    aps_orientation: int = 0
+    bus: int = 0
+    address: int = 1
+
+    def __post_init__(self) -> None:
+        from necviz.drivers.sim.scenes import SCENARIOS
+
+        if self.scenario not in SCENARIOS:
+            raise ParameterError(f"unknown scenario {self.scenario!r}; known: {', '.join(sorted(SCENARIOS))}")
+        d = self.duration_s
+        if d is not None and not (isinstance(d, (int, float)) and d > 0):
+            raise ParameterError(f"duration must be a positive number of seconds, got {d!r}")
+        if len(self.serial) > 8:
+            raise ParameterError("a DAVIS serial number has at most 8 characters")
+        for label in ("time_scale", "fifo_bytes"):
+            v = getattr(self, label)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0 or v != v or v == float("inf"):
+                raise ParameterError(f"{label} must be a positive number, got {v!r}")
+        rate = self.extra_event_rate
+        if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not 0 <= rate < 1e9:
+            raise ParameterError(f"extra_event_rate must be 0..1e9 events/s, got {rate!r}")
+        for name, value in (
+            ("seed", int(self.seed)),
+            ("scenario_params", dict(self.scenario_params or {})),
+            ("realtime", bool(self.realtime)),
+            ("time_scale", float(self.time_scale)),
+            ("fifo_bytes", int(self.fifo_bytes)),
+            ("extra_event_rate", float(rate)),
+            ("aps_orientation", int(self.aps_orientation) & 7),
+        ):
+            object.__setattr__(self, name, value)
+
+
 class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
     """pyusb backend with one virtual DAVIS346 (see the module docstring).
 
     Parameters
     ----------
-    scenario, seed, duration_s : the simulator scene (:func:`~necviz.drivers.sim.scenes.make_scenario`);
-        ``duration_s`` None uses the scenario's default length.
-    faults : :class:`Faults` to inject (default none).
-    realtime : pace the stream to the wall clock.
-    sensor : array size (default DAVIS346 346 x 260; tests use a smaller one to run faster — the size
-        registers report it).
-    serial : serial-number string (at most 8 characters).
-    aps_orientation : value of the APS ORIENTATION_INFO register (readout order of frames).
-    scenario_params : extra keyword parameters of the scenario.
+    options : EmulatorOptions, optional
+        The scene, pacing and identity of the device (default: ``EmulatorOptions()``); its fields
+        are also readable as attributes of the backend (``scenario``, ``sensor``, ``serial`` ...).
+    faults : Faults, optional
+        Faults to inject (default none).
+
+    Raises
+    ------
+    ParameterError
+        ``options`` that is not an :class:`EmulatorOptions`.
     """
 
-    def __init__(
-        self,
-        scenario: str = "tunnel_exit",
-        seed: int = 0,
-        duration_s: float | None = None,
-        faults: Faults | None = None,
-        realtime: bool = False,
-        *,
-        sensor: SensorGeometry = DAVIS346,
-        serial: str = EMULATED_SERIAL,
-        aps_orientation: int = 0,
-        bus: int = 0,
-        address: int = 1,
-        scenario_params: dict | None = None,
-        time_scale: float = 1.0,
-        fifo_bytes: int = FIFO_BYTES,
-        extra_event_rate: float = 0.0,
-    ):
+    def __init__(self, options: EmulatorOptions | None = None, faults: Faults | None = None):
         super().__init__()
-        from necviz.drivers.sim.scenes import SCENARIOS
-
-        if scenario not in SCENARIOS:
-            raise ParameterError(f"unknown scenario {scenario!r}; known: {', '.join(sorted(SCENARIOS))}")
-        if duration_s is not None and not (isinstance(duration_s, (int, float)) and duration_s > 0):
-            raise ParameterError(f"duration must be a positive number of seconds, got {duration_s!r}")
-        if len(serial) > 8:
-            raise ParameterError("a DAVIS serial number has at most 8 characters")
-        for label, v in (("time_scale", time_scale), ("fifo_bytes", fifo_bytes)):
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0 or v != v or v == float("inf"):
-                raise ParameterError(f"{label} must be a positive number, got {v!r}")
-        if (
-            isinstance(extra_event_rate, bool)
-            or not isinstance(extra_event_rate, (int, float))
-            or not 0 <= extra_event_rate < 1e9
-        ):
-            raise ParameterError(f"extra_event_rate must be 0..1e9 events/s, got {extra_event_rate!r}")
-        self.scenario, self.seed, self.duration_s = scenario, int(seed), duration_s
-        self.scenario_params = dict(scenario_params or {})
+        options = EmulatorOptions() if options is None else options
+        if not isinstance(options, EmulatorOptions):
+            raise ParameterError(f"EmulatedDavis346 takes EmulatorOptions, got {type(options).__name__}")
+        self.options = options
+        o = options
+        self.scenario, self.seed, self.duration_s = o.scenario, o.seed, o.duration_s
+        self.scenario_params = dict(o.scenario_params or {})
         self.faults = faults or Faults()
-        self.realtime = bool(realtime)
-        self.time_scale = float(time_scale)
-        self.fifo_bytes = int(fifo_bytes)
-        self.extra_event_rate = float(extra_event_rate)
+        self.realtime = o.realtime
+        self.time_scale = o.time_scale
+        self.fifo_bytes = o.fifo_bytes
+        self.extra_event_rate = o.extra_event_rate
         self._load_rng = np.random.default_rng([self.seed, 346])
-        self.sensor = sensor
-        self.serial = serial
-        self.aps_orientation = int(aps_orientation) & 7
-        self.bus, self.address = bus, address
+        self.sensor = o.sensor
+        self.serial = o.serial
+        self.aps_orientation = o.aps_orientation
+        self.bus, self.address = o.bus, o.address
         self.lock = threading.RLock()
         #: the last TRANSFER_LOG control transfers, in order (``transfers_total`` counts them all)
         self.transfers: deque[ControlRecord] = deque(maxlen=TRANSFER_LOG)
@@ -297,6 +353,7 @@ def find_emulated(backend: EmulatedDavis346):
 
 __all__ = [
     "EmulatedDavis346",
+    "EmulatorOptions",
     "Faults",
     "ControlRecord",
     "EMULATED_CLOCKS",

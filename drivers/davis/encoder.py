@@ -13,9 +13,12 @@ differs from the previous event's. Events are encoded by a Numba kernel (two pas
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numba as nb
 import numpy as np
 
+from necviz.core.checks import check_number
 from necviz.core.errors import ParameterError
 
 #: special event codes (code 0)
@@ -92,6 +95,35 @@ def _encode_events(t, x, y, p, state, out, always_y):
 
 def _u16(seq) -> np.ndarray:
     return np.asarray(seq, dtype=np.uint16)
+
+
+@dataclass(frozen=True)
+class FrameTiming:
+    """The four times of one encoded frame (device µs): frame start, exposure start and end, frame end.
+
+    Parameters
+    ----------
+    start_us, exposure_start_us, exposure_end_us, end_us : int
+        Non-negative whole microseconds, in this order (equal times allowed).
+
+    Raises
+    ------
+    ParameterError
+        A time that is not a whole number >= 0, or times out of order.
+    """
+
+    start_us: int
+    exposure_start_us: int
+    exposure_end_us: int
+    end_us: int
+
+    def __post_init__(self) -> None:
+        times = []
+        for name in ("start_us", "exposure_start_us", "exposure_end_us", "end_us"):
+            times.append(check_number(name, getattr(self, name), 0, integer=True, where="frame timing"))
+            object.__setattr__(self, name, times[-1])
+        if times != sorted(times):
+            raise ParameterError(f"frame timing must not go back in time: {tuple(times)} µs")
 
 
 class StreamEncoder:
@@ -193,27 +225,45 @@ class StreamEncoder:
 
     def frame(
         self,
-        t_start: int,
-        t_exp_start: int,
-        t_exp_end: int,
-        t_end: int,
+        timing: FrameTiming,
         reset: np.ndarray,
         signal: np.ndarray,
         roi: tuple[int, int, int, int] | None = None,
         exposure_cycles: int | None = None,
         global_shutter: bool = True,
     ) -> np.ndarray:
-        """A whole frame with no events inside (GS order: start, reset read, exposure, signal read, end)."""
+        """A whole frame with no events inside (GS order: start, reset read, exposure, signal read, end).
+
+        Parameters
+        ----------
+        timing : FrameTiming
+            When the frame starts, its exposure starts and ends, and the frame ends (device µs).
+        reset, signal : numpy.ndarray
+            The reset and signal reads of the ROI image (h x w ADC samples; :func:`cds_pair`).
+        roi : tuple of int, optional
+            ``(c0, r0, c1, r1)`` (default: the whole image).
+        exposure_cycles : int, optional
+            The exposure the frame reports (ADC cycles; default: none).
+        global_shutter : bool
+            Frame start special 8 (global shutter) or 9 (rolling shutter).
+
+        Raises
+        ------
+        ParameterError
+            ``timing`` before the encoder's time, or samples that are not 12-bit.
+        """
+        if not isinstance(timing, FrameTiming):
+            raise ParameterError(f"frame timing must be a FrameTiming, got {type(timing).__name__}")
         h, w = np.shape(reset)
         roi = roi or (0, 0, w - 1, h - 1)
         return np.concatenate(
             [
-                self.frame_start(t_start, roi, exposure_cycles, global_shutter),
+                self.frame_start(timing.start_us, roi, exposure_cycles, global_shutter),
                 self.readout(reset, False),
-                self.special(t_exp_start, EXPOSURE_START),
-                self.special(t_exp_end, EXPOSURE_END),
+                self.special(timing.exposure_start_us, EXPOSURE_START),
+                self.special(timing.exposure_end_us, EXPOSURE_END),
                 self.readout(signal, True),
-                self.special(t_end, FRAME_END),
+                self.special(timing.end_us, FRAME_END),
             ]
         )
 

@@ -30,13 +30,15 @@ What Eq. 7 needs, and how the scene provides it:
 
 ``ln L(x, t) = base_log + T(x - m(t)) + level(t) + spot(x) spot_level(t)`` with ``T`` the
 zero-mean texture, ``m(t)`` the jitter, ``level``/``spot_level`` piecewise smoothstep ramps in ln L.
-The schedule, the texture, the lamp region and the jitter all come from ``seed``.
+The schedule, the texture, the lamp region and the jitter all come from ``seed``; the names in double
+backquotes above are fields of :class:`CalibrationSceneOptions`.
 """
 
 from __future__ import annotations
 
 import bisect
 import math
+from dataclasses import asdict, dataclass
 
 import cv2
 import numpy as np
@@ -46,7 +48,7 @@ from necviz.core.errors import ParameterError
 from necviz.core.sensor import DAVIS346, SensorGeometry
 from necviz.drivers.sim.scene import LightingChange, Scene
 
-__all__ = ["CalibrationScene", "CALIBRATION_SCENE"]
+__all__ = ["CalibrationScene", "CalibrationSceneOptions", "CALIBRATION_SCENE"]
 
 #: The name ``necviz calibrate --sim`` accepts for this scene.
 CALIBRATION_SCENE = "calibration"
@@ -74,16 +76,104 @@ class _Ramps:
         return a + (b - a) * _smoothstep((t_us - t0) / (t1 - t0))
 
 
+@dataclass(frozen=True)
+class CalibrationSceneOptions:
+    """The calibration scene's texture, lighting schedule and motion (validated here, once).
+
+    Parameters
+    ----------
+    base_log : float
+        Mean ``ln L`` at level 0 (well exposed at ~4 ms), -5..15.
+    contrast : float
+        ln standard deviation of the texture, 0..1.5.
+    motion_px : float
+        RMS jitter per axis (px), 0..20; 0 (default) is a static, tripod-mounted camera.
+    bracket_s : float
+        The static opening for exposure brackets (s, >= 0; at most the scene's duration).
+    level_range, spot_range : tuple of float
+        ``(low, high)`` of the global level and of the lamp region's extra level (ln units,
+        -10..10 each), each at least twice ``min_step`` wide.
+    ramp_ms : tuple of float
+        ``(low, high)`` of the log-uniform ramp durations (ms, 0.1..10,000).
+    hold_ms : tuple of float
+        ``(low, high)`` of the uniform hold after each ramp (ms, 1..10,000).
+    min_step : float
+        The smallest change (ln units), 0..5.
+    spot_prob : float
+        The fraction of changes that light only the lamp region, 0..1.
+
+    Raises
+    ------
+    ParameterError
+        A value out of its range, a pair that is not ``(low, high)`` with ``low <= high``, or a
+        level range narrower than twice ``min_step``.
+    """
+
+    base_log: float = 5.0
+    contrast: float = 0.35
+    motion_px: float = 0.0
+    bracket_s: float = 0.4
+    level_range: tuple[float, float] = (-2.0, 4.0)
+    spot_range: tuple[float, float] = (-1.0, 2.0)
+    ramp_ms: tuple[float, float] = (3.0, 300.0)
+    hold_ms: tuple[float, float] = (40.0, 120.0)
+    min_step: float = 0.3
+    spot_prob: float = 0.35
+
+    def __post_init__(self) -> None:
+        name = CALIBRATION_SCENE
+        checked: dict = {
+            "base_log": check_number("base_log", self.base_log, -5.0, 15.0, where=name),
+            "contrast": check_number("contrast", self.contrast, 0.0, 1.5, where=name),
+            "motion_px": check_number("motion_px", self.motion_px, 0.0, 20.0, where=name),
+            "bracket_s": check_number("bracket_s", self.bracket_s, 0.0, where=name),
+        }
+        for key, lo, hi in (
+            ("level_range", -10.0, 10.0),
+            ("spot_range", -10.0, 10.0),
+            ("ramp_ms", 0.1, 10_000.0),
+            ("hold_ms", 1.0, 10_000.0),
+        ):
+            v = getattr(self, key)
+            if not isinstance(v, (tuple, list)) or len(v) != 2:
+                raise ParameterError(f"{name}: {key} must be a (low, high) pair, got {v!r}")
+            a = check_number(f"{key}[0]", v[0], lo, hi, where=name)
+            b = check_number(f"{key}[1]", v[1], lo, hi, where=name)
+            if b < a:
+                raise ParameterError(f"{name}: {key} = {v!r} must be (low, high) with low <= high")
+            checked[key] = (a, b)
+        min_step = checked["min_step"] = check_number("min_step", self.min_step, 0.0, 5.0, where=name)
+        checked["spot_prob"] = check_number("spot_prob", self.spot_prob, 0.0, 1.0, where=name)
+        for key in ("level_range", "spot_range"):
+            lo, hi = checked[key]
+            if hi - lo < 2 * min_step:
+                raise ParameterError(f"{name}: {key} {checked[key]} is narrower than twice min_step ({min_step:g})")
+        for key, value in checked.items():
+            object.__setattr__(self, key, value)
+
+
 class CalibrationScene(Scene):
     """Textured static scene with lighting ramps of varied speed and size (module docstring).
 
-    Parameters (defaults): ``base_log`` = 5.0 (mean ln L at level 0: well exposed at ~4 ms),
-    ``contrast`` = 0.35 (ln std of the texture), ``motion_px`` = 0 (RMS jitter per axis, px; static by default),
-    ``bracket_s`` = 0.4 (static opening for exposure brackets), ``level_range`` = (-2.0, 4.0)
-    (global level, ln units), ``spot_range`` = (-1.0, 2.0) (extra level of the lamp region),
-    ``ramp_ms`` = (3, 300) (log-uniform ramp durations), ``hold_ms`` = (40, 120) (uniform hold
-    after each ramp), ``min_step`` = 0.3 (smallest change, ln units), ``spot_prob`` = 0.35.
-    Default duration 6 s. ``changes``: one :class:`LightingChange` per ramp (mean ln L change).
+    Default duration 6 s. ``changes``: one :class:`LightingChange` per ramp (mean ln L change);
+    ``params``: the options as a dict (as every scene reports its parameters).
+
+    Parameters
+    ----------
+    sensor : SensorGeometry
+        The sensor the scene is rendered for.
+    duration_us : int, optional
+        Length of the scene (µs; default :attr:`DEFAULT_DURATION_US`).
+    seed : int
+        Seeds the schedule, the texture, the lamp region and the jitter.
+    options : CalibrationSceneOptions, optional
+        Texture, lighting schedule and motion (default: ``CalibrationSceneOptions()``).
+
+    Raises
+    ------
+    ParameterError
+        A sensor that is not a :class:`SensorGeometry`, ``options`` that is not a
+        :class:`CalibrationSceneOptions`, or a bracket opening longer than the scene.
     """
 
     name = CALIBRATION_SCENE
@@ -94,65 +184,28 @@ class CalibrationScene(Scene):
         sensor: SensorGeometry = DAVIS346,
         duration_us: int | None = None,
         seed: int = 0,
-        *,
-        base_log: float = 5.0,
-        contrast: float = 0.35,
-        motion_px: float = 0.0,
-        bracket_s: float = 0.4,
-        level_range: tuple[float, float] = (-2.0, 4.0),
-        spot_range: tuple[float, float] = (-1.0, 2.0),
-        ramp_ms: tuple[float, float] = (3.0, 300.0),
-        hold_ms: tuple[float, float] = (40.0, 120.0),
-        min_step: float = 0.3,
-        spot_prob: float = 0.35,
+        options: CalibrationSceneOptions | None = None,
     ):
         if not isinstance(sensor, SensorGeometry):
             raise ParameterError(f"{self.name}: sensor must be a SensorGeometry, got {sensor!r}")
+        options = CalibrationSceneOptions() if options is None else options
+        if not isinstance(options, CalibrationSceneOptions):
+            raise ParameterError(f"{self.name}: options must be CalibrationSceneOptions, got {type(options).__name__}")
         duration_us = self.DEFAULT_DURATION_US if duration_us is None else duration_us
         super().__init__(sensor, duration_us, seed)
-        name = self.name
-        base_log = check_number("base_log", base_log, -5.0, 15.0, where=name)
-        contrast = check_number("contrast", contrast, 0.0, 1.5, where=name)
-        motion_px = check_number("motion_px", motion_px, 0.0, 20.0, where=name)
         dur_s = self.duration_us / 1e6
-        bracket_s = check_number("bracket_s", bracket_s, 0.0, dur_s, where=name)
-        pairs = {}
-        for key, v, lo, hi in (
-            ("level_range", level_range, -10.0, 10.0),
-            ("spot_range", spot_range, -10.0, 10.0),
-            ("ramp_ms", ramp_ms, 0.1, 10_000.0),
-            ("hold_ms", hold_ms, 1.0, 10_000.0),
-        ):
-            if not isinstance(v, (tuple, list)) or len(v) != 2:
-                raise ParameterError(f"{name}: {key} must be a (low, high) pair, got {v!r}")
-            a = check_number(f"{key}[0]", v[0], lo, hi, where=name)
-            b = check_number(f"{key}[1]", v[1], lo, hi, where=name)
-            if b < a:
-                raise ParameterError(f"{name}: {key} = {v!r} must be (low, high) with low <= high")
-            pairs[key] = (a, b)
-        min_step = check_number("min_step", min_step, 0.0, 5.0, where=name)
-        spot_prob = check_number("spot_prob", spot_prob, 0.0, 1.0, where=name)
-        for key in ("level_range", "spot_range"):
-            lo, hi = pairs[key]
-            if hi - lo < 2 * min_step:
-                raise ParameterError(f"{name}: {key} {pairs[key]} is narrower than twice min_step ({min_step:g})")
-        self.params = {
-            "base_log": base_log,
-            "contrast": contrast,
-            "motion_px": motion_px,
-            "bracket_s": bracket_s,
-            "level_range": pairs["level_range"],
-            "spot_range": pairs["spot_range"],
-            "ramp_ms": pairs["ramp_ms"],
-            "hold_ms": pairs["hold_ms"],
-            "min_step": min_step,
-            "spot_prob": spot_prob,
-        }
-        self.bracket_us = int(round(bracket_s * 1e6))
+        if options.bracket_s > dur_s:
+            raise ParameterError(
+                f"{self.name}: bracket_s = {options.bracket_s:g} is longer than the scene ({dur_s:g} s)"
+            )
+        self.options = options
+        self.params = asdict(options)
+        motion_px = options.motion_px
+        self.bracket_us = int(round(options.bracket_s * 1e6))
         rng = np.random.default_rng([self.seed, 0xCA1])
         H, W = sensor.shape
         self._margin = int(math.ceil(4 * motion_px)) + 2
-        self._texture = self._make_texture(rng, H + 2 * self._margin, W + 2 * self._margin, contrast)
+        self._texture = self._make_texture(rng, H + 2 * self._margin, W + 2 * self._margin, options.contrast)
         self._spot = self._make_spot(rng, H, W)
         self._jitter = self._make_jitter(rng, motion_px)
         self._global, self._lamp, self.changes = self._make_schedule(rng)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -27,7 +27,7 @@ from necviz.core.crf import CameraResponse, debevec_malik
 from necviz.core.errors import ParameterError
 from necviz.core.event_model import TediParams
 from necviz.core.sensor import SensorGeometry
-from necviz.core.tedi import PARAM_NAMES, TediCalibration, fit_tedi_pairs, pair_residuals
+from necviz.core.tedi import PARAM_NAMES, TediCalibration, TediFitOptions, fit_tedi_pairs, pair_residuals
 
 FIT_CHOICES = {"all": PARAM_NAMES, "c": ("c_on", "c_off")}
 
@@ -353,6 +353,8 @@ def calibrate_collected(
 
     c_names = tuple(n for n in fit if n.startswith("c_"))
     comp_names = tuple(n for n in fit if not n.startswith("c_"))
+    # the solver settings every fit below shares; as it stands, the thresholds-only fit without compensation
+    solver = TediFitOptions(fit=("c_on", "c_off"), max_nfev=max_nfev, loss=loss, f_scale=f_scale)
     knee = slow_rate if any(f"a_{p}" in fit and f"b_{p}" in fit for p in ("on", "off")) else 0.0
     limit = None if max_event_rate is None else 0.9 * float(max_event_rate)
     saturated = [limit is not None and pr.bus_peak_rate >= limit for pr in pairs]
@@ -361,14 +363,10 @@ def calibrate_collected(
     knee_text = f", knee b/a >= {knee:g} ev/s per pixel" if knee else ""
     if c_names and comp_names and len(complete) >= 3:
         label[0] = f"thresholds on {len(complete)} unsaturated pairs"
-        s1 = fit_tedi_pairs(
-            complete, crf, TediParams(init.c_on, init.c_off), c_names, cb, max_nfev=max_nfev, loss=loss, f_scale=f_scale
-        )
+        s1 = fit_tedi_pairs(complete, crf, replace(solver, init=TediParams(init.c_on, init.c_off), fit=c_names), cb)
         start = TediParams(s1.params.c_on, s1.params.c_off, init.a_on, init.b_on, init.a_off, init.b_off)
         label[0] = f"compensation on {len(pairs)} pairs"
-        res = fit_tedi_pairs(
-            pairs, crf, start, comp_names, cb, max_nfev=max_nfev, knee_min=knee, loss=loss, f_scale=f_scale
-        )
+        res = fit_tedi_pairs(pairs, crf, replace(solver, init=start, fit=comp_names, knee_min=knee), cb)
         stages = [
             _stage(f"{', '.join(c_names)} (a = b = 0) on the unsaturated pairs", complete, s1),
             _stage(f"{', '.join(comp_names)} (c fixed) on all pairs", pairs, res),
@@ -381,7 +379,7 @@ def calibrate_collected(
         )
     else:
         label[0] = f"{len(pairs)} pairs"
-        res = fit_tedi_pairs(pairs, crf, init, fit, cb, max_nfev=max_nfev, knee_min=knee, loss=loss, f_scale=f_scale)
+        res = fit_tedi_pairs(pairs, crf, replace(solver, init=init, fit=fit, knee_min=knee), cb)
         stages = [_stage(", ".join(fit) + " on all pairs", pairs, res)]
         stderr, at_bound = dict(res.stderr), list(res.at_bound)
         method = f"{', '.join(fit)} jointly on all {len(pairs)} pairs{robust}{knee_text}"
@@ -413,16 +411,7 @@ def calibrate_collected(
     plain = None
     if comp_names:
         label[0] = "thresholds without compensation"
-        plain = fit_tedi_pairs(
-            pairs,
-            crf,
-            TediParams(params.c_on, params.c_off),
-            ("c_on", "c_off"),
-            cb,
-            max_nfev=max_nfev,
-            loss=loss,
-            f_scale=f_scale,
-        )
+        plain = fit_tedi_pairs(pairs, crf, replace(solver, init=TediParams(params.c_on, params.c_off)), cb)
     r_before = pair_residuals(pairs, crf, init)
     r_after = pair_residuals(pairs, crf, params)
     r_plain = pair_residuals(pairs, crf, plain.params) if plain is not None else None

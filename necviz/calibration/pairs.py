@@ -41,7 +41,7 @@ from necviz.core.crf import CameraResponse
 from necviz.core.errors import EventFormatError, ParameterError
 from necviz.core.events import EVENT_DTYPE, EventBatch
 from necviz.core.frames import ExposureMarker, Frame
-from necviz.core.tedi import REFERENCES, CalibrationPair, prepare_pair
+from necviz.core.tedi import REFERENCES, CalibrationPair, PairSelection, prepare_pair
 from necviz.core.tedi_kernels import update_last_polarity
 
 DEFAULTS = {
@@ -281,8 +281,7 @@ class PairCollector:
                     prev.frame,
                     cur.frame,
                     self.crf,
-                    reference=self.reference,
-                    max_pixels=self.max_pixels,
+                    selection=PairSelection(reference=self.reference, max_pixels=self.max_pixels),
                     mask=use,
                     source=self._source,
                 )

@@ -11,44 +11,51 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from necviz.progress import LiveLine, output
+
+if TYPE_CHECKING:
+    from necviz.options import ExportOptions
 
 FORMATS = ("necviz", "aedat4", "aedat3", "aedat2", "rosbag1", "rosbag2", "hdf5", "rpg-text")
 
 
-def run(
-    file,
-    out_path,
-    *,
-    start_s: float | None = None,
-    end_s: float | None = None,
-    force: bool = False,
-    exposure_us: float | None = None,
-    format: str | None = None,
-    compression: str = "lz4",
-    out=...,
-) -> dict:
-    """Export ``file`` to ``out_path``; returns :func:`necviz.writers.export_recording`'s statistics.
+def run(options: ExportOptions, out=...) -> dict:
+    """Export ``options.file`` to ``options.out_path``; returns :func:`necviz.writers.export_recording`'s statistics.
+
+    Parameters
+    ----------
+    options : ExportOptions
+        What to export where (its range is checked when it is built).
+    out : optional
+        Where the summary is printed (default: standard output; ``None``: nowhere).
+
+    Returns
+    -------
+    dict
 
     Raises
     ------
     ParameterError
-        For a bad output name (wrong suffix, an existing file without ``force``, the input itself),
-        a bad range, or a range that holds nothing.
+        For ``options`` that are not :class:`~necviz.options.ExportOptions`, a bad output name (wrong
+        suffix, an existing file without ``force``, the input itself), or a range that holds nothing.
     RecordingError
         For a missing, unreadable or damaged input (no output is left behind).
     """
     from necviz.commands.replay import open_for_replay
-    from necviz.options import ReplayOptions
+    from necviz.core.errors import ParameterError
+    from necviz.options import ExportOptions
     from necviz.outputs import check_output
     from necviz.writers import SUFFIXES, export_recording, format_for
 
+    if not isinstance(options, ExportOptions):
+        raise ParameterError(f"export takes ExportOptions, got {type(options).__name__}")
     out = output(out)
-    ReplayOptions(file, start_s, end_s, exposure_us)  # the same checks of the range as replay
+    file, out_path = options.file, options.out_path
     format_for(out_path)
-    check_output(out_path, "OUT", inputs=[file], force=force, suffixes=SUFFIXES)
-    recording, origin = open_for_replay(Path(file), exposure_us, start_s, end_s, format)
+    check_output(out_path, "OUT", inputs=[file], force=options.force, suffixes=SUFFIXES)
+    recording, origin = open_for_replay(Path(file), options.exposure_us, options.start_s, options.end_s, options.format)
     line = LiveLine(out if hasattr(out, "isatty") and out.isatty() else None)
 
     def progress(events, frames, seconds):
@@ -58,7 +65,7 @@ def run(
         stats = export_recording(
             recording,
             out_path,
-            compression=compression,
+            compression=options.compression,
             properties={"exported_from": str(file), "format": recording.format, **getattr(recording, "properties", {})},
             progress=progress,
         )
@@ -98,15 +105,19 @@ def add_parser(sub) -> None:
 
 
 def _cmd(args) -> int:
+    from necviz.options import ExportOptions
+
     run(
-        args.file,
-        args.out,
-        start_s=args.start,
-        end_s=args.end,
-        force=args.force,
-        exposure_us=args.exposure_us,
-        format=args.format,
-        compression=args.compression,
+        ExportOptions(
+            args.file,
+            args.out,
+            start_s=args.start,
+            end_s=args.end,
+            exposure_us=args.exposure_us,
+            format=args.format,
+            compression=args.compression,
+            force=args.force,
+        )
     )
     return 0
 

@@ -32,22 +32,24 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     )  # before the camera is opened
     if options.clips is not None:
         options.clips.check()
-    from necviz.drivers.davis import open_camera
+    from necviz.drivers.davis import CameraOptions, open_camera
 
     backend = None
     if options.device == "emulated":
-        from necviz.drivers.davis.emulator import EmulatedDavis346, Faults
+        from necviz.drivers.davis.emulator import EmulatedDavis346, EmulatorOptions, Faults
 
         spec = options.scene.spec()
         faults = Faults(unplug_after_s=options.emulate_unplug_s) if options.emulate_unplug_s is not None else None
-        backend = EmulatedDavis346(
+        emulated = EmulatorOptions(
             scenario=spec["name"],
             seed=options.scene.resolved_seed,
             duration_s=options.duration_s,
-            faults=faults,
             scenario_params={**spec["params"], **options.scene.params},
         )
-    camera = open_camera(options.device, options.serial, reconnect=options.reconnect, backend=backend)
+        backend = EmulatedDavis346(emulated, faults)
+    camera = open_camera(
+        options.device, options.serial, options=CameraOptions(reconnect=options.reconnect), backend=backend
+    )
     info, limits, sensor = camera.info, camera.limits, camera.sensor
     kw = {} if profile is None else {"tedi": profile.tedi, "crf": profile.crf}
     lane = Lane(LANE, make_controller(options.controller, sensor=sensor, limits=limits, **kw))
