@@ -29,7 +29,7 @@ import numpy as np
 from necviz.drivers.sim.scenes import SCENARIOS
 from necviz.marker_detection import MarkerDetector
 from necviz.options import SceneOptions
-from necviz.runs import run_once
+from necviz.runs import RunOptions, run_once
 
 CONTROLLERS = ("nec", "fixed")
 
@@ -55,7 +55,7 @@ class _Frames:
 def measure(name: str, repeats: int) -> dict:
     sc = SceneOptions(name, seed=0)
     grab = _Frames()
-    res = run_once(sc, CONTROLLERS, sift=False, markers=True, observers=(grab,))
+    res = run_once(RunOptions(sc, tuple(CONTROLLERS), sift=False, markers=True), (grab,))
     det = MarkerDetector()
     t_detect, t_score = [], []
     clock = time.process_time
@@ -70,7 +70,7 @@ def measure(name: str, repeats: int) -> dict:
     for _ in range(repeats):
         for key in ("off", "on"):
             t0 = clock()
-            run_once(sc, CONTROLLERS, sift=False, markers=key == "on")
+            run_once(RunOptions(sc, tuple(CONTROLLERS), sift=False, markers=key == "on"))
             walls[key].append(clock() - t0)
     off, on = float(np.median(walls["off"])), float(np.median(walls["on"]))
     figures = {

@@ -21,7 +21,7 @@ measurements that cost time; both default to off in a run spec.
 from __future__ import annotations
 
 import math
-from dataclasses import fields, replace
+from dataclasses import dataclass, fields, replace
 
 from necviz.core.control import CONTROLLERS, CameraLimits, Controller, make_controller
 from necviz.core.errors import ParameterError
@@ -116,25 +116,48 @@ def simulator_profile():
     return default_sim_profile()
 
 
-def run_once(
-    scene_options: SceneOptions,
-    controllers,
-    sift: bool = True,
-    profile=None,
-    observers=(),
-    controller_params: dict | None = None,
-    sim: dict | None = None,
-    progress=None,
-    markers: bool = False,
-) -> dict:
+@dataclass(frozen=True)
+class RunOptions:
+    """One closed-loop run, as plain data.
+
+    Parameters
+    ----------
+    scene : SceneOptions
+        The scene (preset or file, seed, duration, parameters).
+    controllers : tuple of str
+        Registered controller names (or ``KIND@LABEL`` variants), one camera each.
+    sift : bool
+        Count SIFT inliers between consecutive frames (slow).
+    markers : bool
+        Detect the scene's fiducial markers on every frame (the ``marker_*`` figures of
+        :func:`necviz.core.markers.summarise_markers`; ``None`` without).
+    profile : CameraProfile, optional
+        The controllers' camera profile (default: the shipped simulator profile).
+    controller_params : dict, optional
+        ``{controller: {parameter: value}}``.
+    sim : dict, optional
+        Simulator overrides ``{"dvs.KEY" | "aps.KEY": value}``.
+    """
+
+    scene: SceneOptions
+    controllers: tuple
+    sift: bool = True
+    markers: bool = False
+    profile: object = None
+    controller_params: dict | None = None
+    sim: dict | None = None
+
+
+def run_once(options: RunOptions, observers=(), progress=None) -> dict:
     """One closed-loop run; returns ``{"results": {name: metrics and traces}, "duration_s", "steps_us"}``.
 
     ``observers`` are :class:`~necviz.pipeline.Observer` s or factories ``f(rig, lanes)``;
-    ``progress(pipe, label, expected_s)`` runs the pipeline (default: on this thread, silently);
-    ``markers``: detect the scene's fiducial markers on every frame (the ``marker_*`` figures of
-    :func:`necviz.core.markers.summarise_markers`; ``None`` without).
+    ``progress(pipe, label, expected_s)`` runs the pipeline (default: on this thread, silently).
     """
-    scene, rig, lanes, _ = build_rig(scene_options, controllers, profile, controller_params, sim)
+    scene_options, controllers, sift, markers = options.scene, options.controllers, options.sift, options.markers
+    scene, rig, lanes, _ = build_rig(
+        scene_options, controllers, options.profile, options.controller_params, options.sim
+    )
     tel = Telemetry([ln.name for ln in lanes], sift=sift, markers=markers)
     obs = [o(rig, lanes) if callable(o) else o for o in observers]
     pipe = Pipeline(rig, lanes, telemetry=tel, observers=obs)
@@ -223,14 +246,25 @@ def run_spec(spec: dict) -> dict:
     from necviz.options import parse_controllers
 
     return run_once(
-        scene,
-        parse_controllers(spec.get("controllers", ["nec"])),
-        bool(spec.get("sift", False)),
-        profile,
-        controller_params=spec.get("controller_params"),
-        sim=spec.get("sim"),
-        markers=bool(spec.get("markers", False)),
+        RunOptions(
+            scene,
+            tuple(parse_controllers(spec.get("controllers", ["nec"]))),
+            sift=bool(spec.get("sift", False)),
+            markers=bool(spec.get("markers", False)),
+            profile=profile,
+            controller_params=spec.get("controller_params"),
+            sim=spec.get("sim"),
+        )
     )
 
 
-__all__ = ["SPEC_KEYS", "build_controller", "build_rig", "run_once", "run_spec", "sim_models", "simulator_profile"]
+__all__ = [
+    "SPEC_KEYS",
+    "RunOptions",
+    "build_controller",
+    "build_rig",
+    "run_once",
+    "run_spec",
+    "sim_models",
+    "simulator_profile",
+]

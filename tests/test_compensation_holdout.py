@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from test_tedi_calibration import LOG_CRF, TRUE, undercounting_data
 
-from necviz.calibration.holdout import decide, split_pairs, validate_compensation
+from necviz.calibration.holdout import FitPlan, decide, split_pairs, validate_compensation
 from necviz.core.event_model import TediParams
-from necviz.core.tedi import fit_tedi_pairs, prepare_pair
+from necviz.core.tedi import TediFitOptions, fit_tedi_pairs, prepare_pair
 from necviz.profiles import default_sim_profile
 
 C = ("c_on", "c_off")
@@ -66,8 +66,9 @@ def test_a_compensation_the_data_need_is_kept():
     pairs = synthetic_pairs(3)
     sat = [False] * len(pairs)
     init = TediParams(TRUE.c_on, TRUE.c_off)
-    final = fit_tedi_pairs(pairs, LOG_CRF, init, COMP).params
-    res = validate_compensation(pairs, sat, LOG_CRF, init, (), COMP, final=final, block_s=0.06)
+    final = fit_tedi_pairs(pairs, LOG_CRF, TediFitOptions(init=init, fit=COMP)).params
+    plan = FitPlan(TediFitOptions(), init, (), COMP)
+    res = validate_compensation(pairs, sat, LOG_CRF, plan, final, block_s=0.06)
     assert "0.06 s blocks" in res["split"] and res["fit_pairs"] >= 6 and res["held_out_pairs"] >= 6
     ho = res["held_out"]["all"]
     assert res["kept"] and ho["with"] < 0.5 * ho["without"], res
@@ -78,7 +79,7 @@ def test_a_compensation_the_data_need_is_kept():
 
 def test_too_few_pairs_cannot_validate_it():
     pairs = synthetic_pairs(4)[:1]
-    res = validate_compensation(pairs, [False], LOG_CRF, TRUE, C, COMP, final=TRUE)
+    res = validate_compensation(pairs, [False], LOG_CRF, FitPlan(TediFitOptions(), TRUE, C, COMP), TRUE)
     assert not res["kept"] and "too few pairs" in res["reason"]
 
 

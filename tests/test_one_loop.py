@@ -50,14 +50,16 @@ def test_compare_results_are_unchanged_by_the_consolidation():
     # behaviour was changed on purpose since (the estimator and control-law fixes)
     # and the camera profile is the default DAVIS346 response the baselines used then (Bégin reads it)
     from necviz.core.camera_profile import CameraProfile
-    from necviz.runs import run_once
+    from necviz.runs import RunOptions, run_once
 
     res = run_once(
-        # the scene as it was then: the nominal exit time (no seeded phase) and no fiducial markers
-        SceneOptions("tunnel_exit", seed=3, duration_s=0.6, params={"change_jitter_ms": 0, "markers": False}),
-        ("nec", *BEFORE),
-        sift=False,
-        profile=CameraProfile(),
+        RunOptions(
+            # the scene as it was then: the nominal exit time (no seeded phase) and no fiducial markers
+            SceneOptions("tunnel_exit", seed=3, duration_s=0.6, params={"change_jitter_ms": 0, "markers": False}),
+            ("nec", *BEFORE),
+            sift=False,
+            profile=CameraProfile(),
+        )
     )
     for name, want in BEFORE.items():
         r = res["results"][name]

@@ -94,11 +94,11 @@ CONTROLLERS = ("nec", "nec-raw", "navid", "shim", "begin", "builtin", "fixed")
 
 
 def _closed_loop(threads: bool, monkeypatch):
-    from necviz.runs import run_once
+    from necviz.runs import RunOptions, run_once
 
     monkeypatch.setattr(SimRig, "THREADS", threads)
     rec = _Record()
-    res = run_once(SceneOptions("tunnel_exit", seed=0, duration_s=0.4), CONTROLLERS, sift=False, observers=(rec,))
+    res = run_once(RunOptions(SceneOptions("tunnel_exit", seed=0, duration_s=0.4), CONTROLLERS, sift=False), (rec,))
     # repr: exact floats, and NaN equal to NaN
     return repr(res), rec
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from necviz.calibration.holdout import BLOCK_S, validate_compensation
+from necviz.calibration.holdout import BLOCK_S, FitPlan, validate_compensation
 from necviz.calibration.pairs import PairCollector
 from necviz.core.camera_profile import CameraProfile
 from necviz.core.control import CameraLimits
@@ -389,21 +389,8 @@ def calibrate_collected(
     compensation = None
     if comp_names:  # does it earn its place? (held-out pairs; .holdout)
         label[0] = "compensation on held-out pairs"
-        compensation = validate_compensation(
-            pairs,
-            saturated,
-            crf,
-            init,
-            c_names,
-            comp_names,
-            final=params,
-            knee=knee,
-            loss=loss,
-            f_scale=f_scale,
-            max_nfev=max_nfev,
-            block_s=holdout_block_s,
-            progress=cb,
-        )
+        plan = FitPlan(solver, init, tuple(c_names), tuple(comp_names), knee)
+        compensation = validate_compensation(pairs, saturated, crf, plan, params, block_s=holdout_block_s, progress=cb)
         if not compensation["kept"]:
             params = TediParams(params.c_on, params.c_off)
             stderr = {k: (math.nan if k in comp_names else v) for k, v in stderr.items()}

@@ -24,11 +24,12 @@ should already hold). Otherwise the profile gets ``a± = b± = 0`` and the repor
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from necviz.core.event_model import TediParams
-from necviz.core.tedi import fit_tedi_pairs, pair_residuals
+from necviz.core.tedi import TediFitOptions, fit_tedi_pairs, pair_residuals
 
 #: Length of the alternating fit / held-out blocks (sensor time, s).
 BLOCK_S = 1.0
@@ -57,29 +58,52 @@ def _rms(residuals, idx) -> float | None:
     return float(np.sqrt(np.mean(r**2)))
 
 
-def _fit(pairs, saturated, crf, init, c_names, comp_names, *, knee, loss, f_scale, max_nfev, progress):
+@dataclass(frozen=True)
+class FitPlan:
+    """How :func:`necviz.calibration.fit.calibrate_collected` fits, so the held-out fit is the same fit.
+
+    Parameters
+    ----------
+    solver : TediFitOptions
+        The solver settings every fit shares (iterations, loss).
+    init : TediParams
+        The starting parameters.
+    c_names, comp_names : tuple of str
+        The thresholds and the compensation parameters being fitted.
+    knee : float
+        The lower bound of the knee ``b/a`` (events per pixel per second) when both of a polarity are fitted.
+    """
+
+    solver: TediFitOptions
+    init: TediParams
+    c_names: tuple[str, ...]
+    comp_names: tuple[str, ...]
+    knee: float = 0.0
+
+
+def _fit(pairs, saturated, crf, plan: FitPlan, progress) -> TediParams:
     """The fit of :func:`calibrate_collected` on ``pairs``: the fitted parameters.
 
     On a part of the data a trial step can overflow the exposure integral (a large ``a``); SciPy's
     trust region rejects such a step (its residuals are not finite), so NumPy's warning about it is
     silenced here."""
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        return _fit_stages(pairs, saturated, crf, init, c_names, comp_names, knee, loss, f_scale, max_nfev, progress)
+        return _fit_stages(pairs, saturated, crf, plan, progress)
 
 
-def _fit_stages(pairs, saturated, crf, init, c_names, comp_names, knee, loss, f_scale, max_nfev, progress):
+def _fit_stages(pairs, saturated, crf, plan: FitPlan, progress) -> TediParams:
+    init, c_names, comp_names, solver = plan.init, plan.c_names, plan.comp_names, plan.solver
     complete = [pr for pr, sat in zip(pairs, saturated) if not sat]
     if c_names and comp_names and len(complete) >= 3:
         s1 = fit_tedi_pairs(
-            complete, crf, TediParams(init.c_on, init.c_off), c_names, progress, max_nfev, loss=loss, f_scale=f_scale
+            complete, crf, replace(solver, init=TediParams(init.c_on, init.c_off), fit=c_names), progress
         )
         start = TediParams(s1.params.c_on, s1.params.c_off, init.a_on, init.b_on, init.a_off, init.b_off)
         return fit_tedi_pairs(
-            pairs, crf, start, comp_names, progress, max_nfev, knee_min=knee, loss=loss, f_scale=f_scale
+            pairs, crf, replace(solver, init=start, fit=comp_names, knee_min=plan.knee), progress
         ).params
-    return fit_tedi_pairs(
-        pairs, crf, init, c_names + comp_names, progress, max_nfev, knee_min=knee, loss=loss, f_scale=f_scale
-    ).params
+    opts = replace(solver, init=init, fit=c_names + comp_names, knee_min=plan.knee)
+    return fit_tedi_pairs(pairs, crf, opts, progress).params
 
 
 def decide(held_out: dict) -> tuple[bool, str]:
@@ -107,31 +131,17 @@ def decide(held_out: dict) -> tuple[bool, str]:
 
 
 def validate_compensation(
-    pairs,
-    saturated,
-    crf,
-    init: TediParams,
-    c_names,
-    comp_names,
-    *,
-    final: TediParams,
-    knee: float = 0.0,
-    loss: str = "linear",
-    f_scale: float = 1.0,
-    max_nfev: int = 200,
-    block_s: float = BLOCK_S,
-    progress=None,
+    pairs, saturated, crf, plan: FitPlan, final: TediParams, *, block_s: float = BLOCK_S, progress=None
 ) -> dict:
     """Whether the compensation improves the held-out residual (module docstring).
 
-    ``pairs``/``saturated``: every collected pair and whether it reached the bus ceiling;
-    ``c_names``/``comp_names``: the thresholds and compensation parameters being fitted; ``final``:
+    ``pairs``/``saturated``: every collected pair and whether it reached the bus ceiling; ``plan``:
+    how the calibration fits (the same fit runs on the fit set); ``final``:
     the parameters fitted on all pairs (for the in-sample comparison). Returns a JSON-ready dict:
     ``kept``, ``reason``, ``split``, pair counts, the parameters fitted on the fit set, and the RMS
     residuals ``{"all" | "unsaturated" | "saturated": {"with", "without", "pairs"}}`` on the held-out
     pairs (``held_out``) and, at ``final``, on all pairs (``in_sample``).
     """
-    c_names, comp_names = tuple(c_names), tuple(comp_names)
     zero = lambda p: TediParams(p.c_on, p.c_off)  # noqa: E731
     r_with, r_without = pair_residuals(pairs, crf, final), pair_residuals(pairs, crf, zero(final))
     groups = {
@@ -148,19 +158,7 @@ def validate_compensation(
         return out
     fit_idx, held_idx, how = split_pairs(pairs, block_s)
     out.update({"split": how, "fit_pairs": len(fit_idx), "held_out_pairs": len(held_idx)})
-    params = _fit(
-        [pairs[i] for i in fit_idx],
-        [saturated[i] for i in fit_idx],
-        crf,
-        init,
-        c_names,
-        comp_names,
-        knee=knee,
-        loss=loss,
-        f_scale=f_scale,
-        max_nfev=max_nfev,
-        progress=progress,
-    )
+    params = _fit([pairs[i] for i in fit_idx], [saturated[i] for i in fit_idx], crf, plan, progress)
     held = [pairs[i] for i in held_idx]
     h_with, h_without = pair_residuals(held, crf, params), pair_residuals(held, crf, zero(params))
     sat = [saturated[i] for i in held_idx]
@@ -176,4 +174,4 @@ def validate_compensation(
     return out
 
 
-__all__ = ["BLOCK_S", "decide", "split_pairs", "validate_compensation"]
+__all__ = ["BLOCK_S", "FitPlan", "decide", "split_pairs", "validate_compensation"]

@@ -29,7 +29,7 @@ from necviz.options import CompareOptions
 from necviz.outputs import check_distinct, check_output, write_json
 from necviz.pipeline import Pipeline
 from necviz.progress import output
-from necviz.runs import run_once
+from necviz.runs import RunOptions, run_once
 
 METRICS = (
     "frames",
@@ -99,15 +99,17 @@ def run(options: CompareOptions | None = None, out=...) -> dict:
             observers = (lambda rig, lanes: _file_sink(options, rig, lanes),)
         runs.append(
             run_once(
-                replace(sc, seed=seed0 + k),
-                names,
-                options.sift,
-                profile,
+                RunOptions(
+                    replace(sc, seed=seed0 + k),
+                    tuple(names),
+                    sift=options.sift,
+                    markers=options.markers,
+                    profile=profile,
+                    controller_params=options.controller_params,
+                    sim=options.sim,
+                ),
                 observers,
-                options.controller_params,
-                options.sim,
                 progress=lambda pipe, label, s: run_pipeline(pipe, label, s, out),
-                markers=options.markers,
             )
         )
     table = {}
