@@ -131,25 +131,40 @@ class Recorder:
         self._lock = threading.Lock()
         self._closed = False
         self._dirty_since: float | None = None
+        self._error: RecordingError | None = None  # a failed write (full disk): raised by every later call
         self.bytes_written = 0
-        self._write_all(MAGIC + bytes([VERSION]) + _chunk(HEADER, payload))
+        try:
+            self._write_all(MAGIC + bytes([VERSION]) + _chunk(HEADER, payload))
+        except RecordingError:
+            os.close(self._fd)
+            raise
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._flusher, name="necviz-recorder-flush", daemon=True)
         self._thread.start()
 
     # -- low level -----------------------------------------------------------------------------
     def _write_all(self, data) -> None:
+        """Write ``data`` to the file; an OS error (a full disk) becomes the recorder's
+        :class:`RecordingError`, raised now and by every later call."""
+        if self._error is not None:
+            raise self._error
         view = memoryview(data)
-        while view:
-            n = os.write(self._fd, view)
-            view = view[n:]
-            self.bytes_written += n
+        try:
+            while view:
+                n = os.write(self._fd, view)
+                view = view[n:]
+                self.bytes_written += n
+        except OSError as exc:
+            self._error = RecordingError(f"{self.path}: cannot write the recording ({exc.strerror or exc})")
+            raise self._error from None
 
     def _append(self, kind: int, payload) -> None:
         payload = bytes(payload)
         with self._lock:
             if self._closed:
                 raise RecordingError(f"{self.path}: recorder is closed")
+            if self._error is not None:
+                raise self._error
             self._buf += _chunk(kind, payload)
             if self._dirty_since is None:
                 self._dirty_since = time.monotonic()
@@ -171,10 +186,13 @@ class Recorder:
     def _flusher(self) -> None:
         while not self._stop.wait(FLUSH_S / 2):
             with self._lock:
-                if self._closed:
+                if self._closed or self._error is not None:
                     return
                 if self._dirty_since is not None and time.monotonic() - self._dirty_since >= FLUSH_S / 2:
-                    self._flush_locked()
+                    try:
+                        self._flush_locked()
+                    except RecordingError:  # kept in self._error: the writer's next call raises it
+                        return
 
     # -- public --------------------------------------------------------------------------------
     def write(self, packet) -> None:
@@ -242,14 +260,18 @@ class Recorder:
         with self._lock:
             if self._closed:
                 return
-            self._buf += _chunk(END, b"")
-            self._flush_locked()
             self._closed = True
+            self._stop.set()
             try:
-                os.fsync(self._fd)
+                self._buf += _chunk(END, b"")
+                self._flush_locked()
+                try:
+                    os.fsync(self._fd)
+                except OSError as exc:
+                    self._error = RecordingError(f"{self.path}: cannot write the recording ({exc.strerror or exc})")
+                    raise self._error from None
             finally:
                 os.close(self._fd)
-        self._stop.set()
 
     def __enter__(self):
         return self

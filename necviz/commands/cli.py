@@ -148,7 +148,7 @@ def _info_file(args) -> int:
     if live:
         print("\r" + " " * 72 + "\r", end="", file=sys.stderr, flush=True)
     if args.json:
-        write_json(args.json, info.to_dict())
+        write_json(args.json, info.to_dict(), flag="--json")
     print(info.to_text())
     return 0
 
@@ -499,6 +499,25 @@ def _add_optional(sub) -> None:
 
 # -- running ------------------------------------------------------------------------------------
 def main(argv: list[str] | None = None) -> int:
+    code = _main(argv)
+    if argv is None:  # the necviz program itself (a test passes its argv and keeps running)
+        _leave_if_wedged(code)
+    return code
+
+
+def _leave_if_wedged(code: int) -> None:
+    """A Rerun stream whose file writer failed cannot be flushed or dropped without blocking for ever
+    (:data:`necviz.dashboard.viewer.WEDGED`): after the error line, leave at once."""
+    viewer = sys.modules.get("necviz.dashboard.viewer")
+    if viewer is not None and viewer.WEDGED:
+        import os
+
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+
+
+def _main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):

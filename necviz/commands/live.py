@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from necviz.core.control import make_controller
 from necviz.dashboard.recorders import open_recorder
-from necviz.dashboard.session import Session, preflight, run_session
+from necviz.dashboard.session import Session, preflight, run_session, scene_inputs
 from necviz.options import LiveOptions, ViewerOptions
 from necviz.pipeline import Lane
 from necviz.progress import output
@@ -27,7 +27,12 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     out = output(out)
     options = options or LiveOptions()
     viewer, profile = preflight(
-        "live", viewer, {"--record": options.record}, options.force, profile=options.profile
+        "live",
+        viewer,
+        {"--record": options.record},
+        options.force,
+        inputs=scene_inputs(options.scene, options.tune),
+        profile=options.profile,
     )  # before the camera is opened
     from necviz.drivers.davis import open_camera
 
@@ -61,8 +66,8 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     }
     recorder = None
     try:
-        if options.record is not None:
-            recorder = open_recorder(options.record, sensor, props)
+        if options.record is not None:  # a camera session cannot be recorded again: kept if it fails
+            recorder = open_recorder(options.record, sensor, props, keep_partial=True)
     except BaseException:
         camera.close()
         raise
@@ -72,28 +77,25 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
         f"{limits.gain_max:g})",
         file=out,
     )
-    try:
-        return run_session(
-            Session(
-                "live",
-                camera,
-                [lane],
-                "live",
-                f"necviz live: {info.get('serial', '')}",
-                props,
-                viewer,
-                options.show,
-                options.tune,
-                recorder,
-                LANE,
-                lossless=False,
-                history=options.history,
-                expected_duration_s=options.duration_s,
-                stop_after_s=options.duration_s,
-            ),
-            out,
-            stdin,
-        )
-    finally:
-        if options.record is not None:
-            print(f"  recorded to {options.record} (replay it with: necviz replay {options.record})", file=out)
+    return run_session(
+        Session(
+            "live",
+            camera,
+            [lane],
+            "live",
+            f"necviz live: {info.get('serial', '')}",
+            props,
+            viewer,
+            options.show,
+            options.tune,
+            recorder,
+            LANE,
+            lossless=False,
+            history=options.history,
+            expected_duration_s=options.duration_s,
+            stop_after_s=options.duration_s,
+            keep_partial=True,
+        ),
+        out,
+        stdin,
+    )

@@ -101,7 +101,24 @@ def run(options: ReplayOptions, viewer: ViewerOptions | None = None, out=...) ->
         f"{recording.exposure_source}); {options.controller} in open loop",
         file=out,
     )
-    stats = run_session(
+    result = {}
+
+    def finish(stats):  # before the --save file is committed: a failure here leaves no file at all
+        summary = summarise(stats)
+        if (
+            not summary["events"]
+            and not summary["frames"]
+            and (options.start_s is not None or options.end_s is not None)
+        ):
+            raise ParameterError(
+                f"nothing in the selected range (--start {options.start_s} --end {options.end_s} s): it "
+                f"lies past the end of {path.name}; `necviz info {path}` shows its duration"
+            )
+        if options.json is not None:
+            write_json(options.json, summary, flag="--json")
+        result["summary"] = summary
+
+    run_session(
         Session(
             "replay",
             recording,
@@ -114,15 +131,11 @@ def run(options: ReplayOptions, viewer: ViewerOptions | None = None, out=...) ->
             None,
             origin_us=origin,
             lossless=True,
+            before_commit=finish,
         ),
         out,
     )
-    summary = summarise(stats)
-    if not summary["events"] and not summary["frames"] and (options.start_s is not None or options.end_s is not None):
-        raise ParameterError(
-            f"nothing in the selected range (--start {options.start_s} --end {options.end_s} s): it "
-            f"lies past the end of {path.name}; `necviz info {path}` shows its duration"
-        )
+    summary = result["summary"]
     for w in getattr(recording, "warnings", []):
         print(f"  warning: {w}", file=out)
     rmse = summary["prediction_error_rmse"]
@@ -140,6 +153,5 @@ def run(options: ReplayOptions, viewer: ViewerOptions | None = None, out=...) ->
         if causes:
             print(f"  diagnosed causes: {causes}", file=out)
     if options.json is not None:
-        write_json(options.json, summary)
         print(f"  wrote {options.json}", file=out)
     return summary

@@ -33,6 +33,7 @@ import time
 import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from necviz.core.errors import NecvizError, ParameterError
 from necviz.sweep.spec import Plan
@@ -335,6 +336,7 @@ def run_sweep(
     if retry_failed and not resume:
         raise ParameterError("--retry-failed runs the failed runs of a sweep again: it needs --resume")
     dashboard = _check_dashboard(dashboard)
+    _check_inputs(plan, out)
     store = prepare_out(out, resume=resume, force=force)
     store.lock()
     try:
@@ -516,6 +518,22 @@ def _collect(fut, task, store: Store, res: SweepResult, retries: int) -> None:
     exc = fut.exception()
     store.write_run(h, failed_row(task, _error_text(exc, retries)), None)
     res.failed += 1
+
+
+def _check_inputs(plan: Plan, out) -> None:
+    """The files a sweep writes (or deletes with ``--force``) in ``OUT`` may not be any it reads."""
+    from necviz.outputs import check_not_input
+    from necviz.sweep.store import MANIFEST
+
+    root = Path(out)
+    inputs = {plan.source}
+    for r in plan.runs:
+        for key in ("scenario", "profile"):
+            v = r.spec.get(key)
+            if isinstance(v, str) and v not in inputs and Path(v).is_file():
+                inputs.add(v)
+    for name in (MANIFEST, "sweep.toml"):
+        check_not_input({"--out": root / name}, sorted(inputs))
 
 
 # -- status ------------------------------------------------------------------------------------------
