@@ -72,6 +72,9 @@ _numba_cache_fallback()
 # Rerun's file writer logs a full disk to the terminal before necviz reports it in its own line
 # (necviz.dashboard.viewer.flush_stream); a RUST_LOG the user set is left alone.
 os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd=off")
+# OpenCV decodes images up to 2^30 pixels by default: a small PNG of a damaged recording could claim
+# gigabytes. No frame of an event camera exceeds necviz.core.sensor.MAX_PIXELS (2048 x 2048).
+os.environ.setdefault("OPENCV_IO_MAX_IMAGE_PIXELS", str(1 << 22))
 
 try:
     __version__ = version("necviz")

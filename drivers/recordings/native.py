@@ -89,6 +89,8 @@ T_S = struct.Struct("<q")
 MAX_EVENTS_PER_CHUNK = 1 << 20
 BLOCK = 1 << 16
 FLUSH_S = 0.25
+#: Longest run of zero bytes accepted as the lost tail of a crash (see ``NativeRecording._zeros_to_end``).
+ZERO_TAIL = 16 << 20
 _PACKED_EVENTS = np.dtype(
     {"names": ["t", "x", "y", "p"], "formats": ["<i8", "<u2", "<u2", "i1"], "offsets": [0, 8, 10, 12], "itemsize": 13}
 )
@@ -332,7 +334,8 @@ class NativeRecording(Recording):
     def _read_chunk(self, offset: int, payload: bool = True, peek: int = 0):
         """Read the chunk at ``offset``: (type, length, crc, payload-or-peek, status).
 
-        status: "ok", "eof" (clean end), "tail" (incomplete last chunk) or "unknown" (bad type).
+        status: "ok", "eof" (clean end), "tail" (incomplete last chunk), "unknown" (bad type) or "zeros"
+        (a run of zero bytes longer than a crash leaves: damage).
         """
         f = self._fh
         f.seek(offset)
@@ -343,8 +346,10 @@ class NativeRecording(Recording):
             return 0, 0, 0, b"", "tail"
         kind, length, crc = CHUNK_HEAD.unpack(head)
         if kind not in _NAMES:
-            if kind == 0 and self._zeros_to_end(offset):
-                return kind, length, crc, b"", "tail"
+            if kind == 0:
+                zeros = self._zeros_to_end(offset)
+                if zeros is not None:
+                    return kind, length, crc, b"", zeros
             return kind, length, crc, b"", "unknown"
         end = offset + CHUNK_HEAD.size + length
         if end > self.size:
@@ -359,14 +364,21 @@ class NativeRecording(Recording):
             return kind, length, crc, data, "ok"
         return kind, length, crc, f.read(min(peek, length)), "ok"
 
-    def _zeros_to_end(self, offset: int) -> bool:
+    def _zeros_to_end(self, offset: int) -> str | None:
+        """What a run of zero bytes at ``offset`` is: ``"tail"`` if it reaches the end of the file within
+        :data:`ZERO_TAIL` bytes (a file system that lost the last writes of a crash fills them with
+        zeros), ``"zeros"`` if it goes on longer (damage), ``None`` if it is not a run of zeros."""
         self._fh.seek(offset)
+        seen = 0
         while True:
             block = self._fh.read(1 << 20)
             if not block:
-                return True
+                return "tail"
             if block.count(0) != len(block):
-                return False
+                return None
+            seen += len(block)
+            if seen > ZERO_TAIL:
+                return "zeros"
 
     def _tail_warning(self, offset: int) -> None:
         self.warn(
@@ -375,6 +387,8 @@ class NativeRecording(Recording):
         )
 
     def _damage(self, status: str, kind: int, offset: int) -> RecordingError:
+        if status == "zeros":
+            return self.error(f"a run of more than {ZERO_TAIL >> 20} MiB of zero bytes (damaged data)", offset)
         if status == "unknown":
             return self.error(f"unknown chunk type {kind} (garbage or damaged data)", offset)
         return self.error(f"{_NAMES.get(kind, kind)} chunk fails its CRC check (damaged data)", offset)

@@ -81,7 +81,25 @@ def run(options: ReplayOptions, viewer: ViewerOptions | None = None, out=...) ->
     viewer, profile = preflight(
         "replay", viewer, {"--json": options.json}, options.force, inputs=[path], profile=options.profile
     )  # before anything is opened
-    recording, origin = open_for_replay(path, options.exposure_us, options.start_s, options.end_s, options.format)
+    from necviz.drivers.recordings import RecordingError, check_source, spool_pipe
+
+    source = path
+    if check_source(path) == "pipe":
+        if options.pipe_timeout_s is None:
+            raise RecordingError(
+                f"{path}: a named pipe, not a regular file (reading one waits for a writer for ever); "
+                "pass --pipe-timeout S to copy what it delivers"
+            )
+        source = spool_pipe(path, options.pipe_timeout_s)
+    try:
+        return _replay(options, viewer, out, path, source, profile)
+    finally:
+        if source != path:
+            source.unlink(missing_ok=True)
+
+
+def _replay(options: ReplayOptions, viewer, out, path: Path, source: Path, profile) -> dict:
+    recording, origin = open_for_replay(source, options.exposure_us, options.start_s, options.end_s, options.format)
     sensor = recording.sensor
     limits = CameraLimits()
     kw = {} if profile is None else {"tedi": profile.tedi, "crf": profile.crf}

@@ -114,6 +114,8 @@ def _cmd_status(args) -> int:
         return 0
     print(f"sweep {st['out']} ({st['name']}, from {st['sweep_file']})")
     print(f"  {st['runs']} runs: {st['ok']} ok, {st['failed']} failed, {st['missing']} missing")
+    if st["unreadable_note"]:
+        print(f"  warning: {st['unreadable_note']}")
     if st["run_s_mean"] is not None:
         print(f"  run time: {st['run_s_total']:,.1f} s in total, {st['run_s_mean']:.2f} s per run")
     for err, n in st["errors"].items():

@@ -19,7 +19,7 @@ import rerun as rr
 from necviz.dashboard.sink import RerunSink
 from necviz.dashboard.telemetry import Telemetry
 from necviz.dashboard.tuning import TuningConsole, TuningFile
-from necviz.dashboard.viewer import FILE_FLUSH_S, open_viewer
+from necviz.dashboard.viewer import FILE_FLUSH_S, open_viewer, text
 from necviz.layouts import make_blueprint, style_series
 from necviz.memory import bound_heap_retention
 from necviz.options import ShowOptions, TuneOptions, ViewerOptions
@@ -184,7 +184,7 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
     if speed == "auto":
         speed = 1.0 if v.watched else None
     rec = viewer.rec
-    rec.send_property("run", rr.AnyValues(**{k: str(val) for k, val in ss.properties.items()}, layout=layout))
+    rec.send_property("run", rr.AnyValues(**{k: text(val) for k, val in ss.properties.items()}, layout=layout))
     style_series(rec, names)
     lossless = ss.lossless and speed is None and not v.watched
     # a live session only saved to a file: series in 2 s chunks (Rerun's file sink indexes every chunk)

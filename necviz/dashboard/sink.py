@@ -592,7 +592,7 @@ def open_file_sink(
     """
     import uuid
 
-    from necviz.dashboard.viewer import file_batching
+    from necviz.dashboard.viewer import file_batching, text
     from necviz.layouts import make_blueprint, style_series
     from necviz.outputs import StreamedOutput
 
@@ -603,8 +603,8 @@ def open_file_sink(
             rr.FileSink(str(output.target)),
             default_blueprint=make_blueprint(layout, list(lanes), sensor.width, sensor.height),
         )
-        rec.send_recording_name(name)
-        rec.send_property("run", rr.AnyValues(**{k: str(v) for k, v in properties.items()}, layout=layout))
+        rec.send_recording_name(text(name))
+        rec.send_property("run", rr.AnyValues(**{k: text(v) for k, v in properties.items()}, layout=layout))
         style_series(rec, list(lanes))
         sink = RerunSink(rec, lanes, sensor.height, sensor.width, lossless=True, **options)
     except BaseException:

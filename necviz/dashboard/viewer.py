@@ -46,6 +46,12 @@ DEFAULT_CONNECT = f"rerun+http://127.0.0.1:{DEFAULT_GRPC_PORT}/proxy"
 LOOPBACK = ("127.0.0.1", "::1", "localhost")
 
 
+def text(value) -> str:
+    """``str(value)`` that Rerun accepts: a file name that is not UTF-8 (kept by Python as surrogate
+    escapes) shows its undecodable bytes as U+FFFD instead of failing to encode."""
+    return str(value).encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+
+
 def add_viewer_args(parser: argparse.ArgumentParser, layouts: tuple[str, ...] = LAYOUT_NAMES) -> None:
     g = parser.add_argument_group("viewer (combine freely; headless default: save to a file)")
     g.add_argument("--spawn", action="store_true", help="spawn a native Rerun viewer (default when a display exists)")
@@ -106,6 +112,8 @@ def resolve(options: ViewerOptions, command: str, inputs=()) -> ViewerOptions:
             options = replace(options, save=Path(f"necviz-{command}-{time.strftime('%Y%m%d-%H%M%S')}.rrd"))
     if options.save is not None:
         check_output(options.save, "--save", inputs=inputs, force=options.force, suffixes=(".rrd",))
+    if options.serve:
+        check_ports(options)  # before anything starts: a taken port is one line, not a stall
     return options
 
 
@@ -274,7 +282,7 @@ def _listener(host: str, port: int) -> str | None:
         for c in psutil.net_connections(kind="inet"):
             if c.status == psutil.CONN_LISTEN and c.laddr and c.laddr.port == port and c.pid:
                 try:
-                    cmd = " ".join(psutil.Process(c.pid).cmdline())
+                    cmd = " ".join(" ".join(psutil.Process(c.pid).cmdline()).split())
                 except psutil.Error:
                     cmd = "?"
                 return f"process {c.pid} ({cmd[:80]})"
@@ -425,7 +433,7 @@ def _open(options: ViewerOptions, blueprint, name, messages, keep_partial: bool 
             messages.append(f"saving to {options.save} (open it with: rerun {options.save})")
     try:
         rec.set_sinks(*sinks, default_blueprint=blueprint)
-        rec.send_recording_name(name)
+        rec.send_recording_name(text(name))
     except BaseException:
         if output is not None:
             output.discard()
