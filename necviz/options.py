@@ -111,6 +111,7 @@ def number(flag: str, command: str | None = None):
             raise argparse.ArgumentTypeError(str(e)) from None
 
     convert.__name__ = flag.lstrip("-").replace("-", "_")
+    convert.necviz_rule = (flag, command)  # lets tests find every numeric flag
     return convert
 
 

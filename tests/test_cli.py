@@ -82,3 +82,69 @@ def test_bench_sim_reports_speed_and_writes_json(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "real-time factor" in out and "simulated" in out
     assert main(["bench", "sim", "--cameras", "0"]) == 2
+
+
+# -- issue 23: every numeric flag refuses NaN, infinities, garbage and values out of its range -----
+def _numeric_flags():
+    import argparse
+
+    from necviz.commands.cli import build_parser
+
+    out, plain = [], []
+
+    def walk(parser, prefix):
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    walk(sub, (*prefix, name))
+            elif action.option_strings:
+                if getattr(action.type, "necviz_rule", None) is not None:
+                    out.append((prefix, action.option_strings[0], action.type.necviz_rule))
+                elif action.type in (int, float):
+                    plain.append((prefix, action.option_strings[0]))
+
+    walk(build_parser(), ())
+    return out, plain
+
+
+def test_every_numeric_flag_is_checked_through_the_one_table():
+    flags, plain = _numeric_flags()
+    assert plain == []  # no flag converts with a bare int() or float()
+    assert len(flags) > 40
+    assert {f for _, f, _ in flags} >= {"--exposure-us", "--duration", "--seed", "--event-window-ms", "--workers"}
+
+
+def test_every_numeric_flag_refuses_nan_infinity_garbage_and_out_of_range(capsys):
+    from necviz.options import NUMBER_FLAGS
+
+    flags, _ = _numeric_flags()
+    for prefix, flag, (name, command) in flags:
+        rule = NUMBER_FLAGS.get(f"{command} {name}") or NUMBER_FLAGS[name]
+        bad = ["nan", "inf", "-inf", "banana", "1e400", ""]
+        if rule.lo is not None:
+            bad.append(str(rule.lo - 1) if not rule.lo_open else str(rule.lo))  # below, or 0 where 0 means nothing
+        if rule.hi is not None:
+            bad.append(str(rule.hi * 2 + 1))
+        if rule.integer:
+            bad.append("1.5")
+        for value in bad:
+            code = main([*prefix, f"{flag}={value}"])
+            err = capsys.readouterr().err.strip()
+            assert code == 2, (prefix, flag, value)
+            assert err.startswith("necviz: error:") and "\n" not in err and flag in err, (prefix, flag, value, err)
+
+
+@pytest.mark.parametrize(
+    "argv,needle",
+    [
+        (["demo", "--speed", "0"], "--speed must be 'max'"),
+        (["demo", "--speed", "nan"], "--speed"),
+        (["demo", "--memory-limit", "banana"], "--memory-limit expects"),
+        (["info", "--exposure-us", "nan", "x.aedat4"], "--exposure-us must be finite"),
+        (["replay", "x.aedat4", "--end", "0"], "--end = 0 is out of range"),
+    ],
+)
+def test_accepted_nonsense_is_refused(argv, needle, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("necviz: error:") and needle in err and "\n" not in err, err

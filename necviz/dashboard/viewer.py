@@ -76,8 +76,10 @@ def add_viewer_args(parser: argparse.ArgumentParser, layouts: tuple[str, ...] = 
     )
     g.add_argument("--save", metavar="FILE.rrd", type=Path, help="write the recording to FILE.rrd")
     g.add_argument("--layout", choices=layouts, help="override the command's layout")
-    g.add_argument("--grpc-port", type=int, default=DEFAULT_GRPC_PORT, help=argparse.SUPPRESS)
-    g.add_argument("--web-port", type=int, default=DEFAULT_WEB_PORT, help=argparse.SUPPRESS)
+    from necviz.options import number
+
+    g.add_argument("--grpc-port", type=number("--grpc-port"), default=DEFAULT_GRPC_PORT, help=argparse.SUPPRESS)
+    g.add_argument("--web-port", type=number("--web-port"), default=DEFAULT_WEB_PORT, help=argparse.SUPPRESS)
     g.add_argument("--memory-limit", default="1GB", help="viewer / server memory limit (default 1GB)")
 
 
