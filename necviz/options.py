@@ -69,13 +69,13 @@ NUMBER_FLAGS: dict[str, NumberRule] = {
     "bench --batch-us": NumberRule(1, 1_000_000, integer=True),
     # calibration
     "calibrate --duration": NumberRule(0.0, 600.0, lo_open=True),
-    "--min-change": NumberRule(0.0, 10.0, lo_open=True),
+    "--min-change": NumberRule(0.0, 10.0),
     "--min-pixels": NumberRule(1, 1 << 22, integer=True),
     "--max-pixels": NumberRule(1, 1 << 22, integer=True),
-    "--max-pairs": NumberRule(1, 1_000_000, integer=True),
-    "--max-lag": NumberRule(1, 1000, integer=True),
+    "--max-pairs": NumberRule(2, 1_000_000, integer=True),
+    "--max-lag": NumberRule(1, 50, integer=True),
     "--max-event-rate": NumberRule(0.0, 1e4),
-    "--slow-rate": NumberRule(0.0, 1e6),
+    "--slow-rate": NumberRule(0.0, 1e6, lo_open=True),
     # sweeps
     "--workers": NumberRule(1, 1024, integer=True),
     "--retries": NumberRule(0, 100, integer=True),
