@@ -195,21 +195,25 @@ class StderrTrap:
 
 @contextmanager
 def openable_path(path):
-    """A name of ``path`` that libraries taking UTF-8 text paths (the Rust ``aedat`` decoder, SQLite)
-    can open: the path itself, or — when it is not UTF-8 (a file name in another encoding) — the
-    file opened here and named ``/proc/self/fd/N`` (Linux) for the length of the block."""
+    """A name of ``path`` that libraries taking UTF-8 text paths (the Rust ``aedat`` decoder, SQLite,
+    rosbags) can open: the path itself, or — when it is not UTF-8 (a file name in another encoding,
+    which Python keeps as surrogate escapes) — a symbolic link to it with a UTF-8 name and the same
+    extension, in a temporary folder that lasts as long as the block."""
     text = str(path)
     try:
         text.encode("utf-8")
     except UnicodeEncodeError:
-        if not os.path.isdir("/proc/self/fd"):
-            yield text
-            return
-        fd = os.open(path, os.O_RDONLY | (os.O_DIRECTORY if os.path.isdir(path) else 0))
+        folder = tempfile.mkdtemp(prefix="necviz-name-")
+        name = os.path.basename(text).encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+        link = os.path.join(folder, name.replace("\ufffd", "_") or "recording")
         try:
-            yield f"/proc/self/fd/{fd}"
+            os.symlink(os.fsencode(os.path.abspath(path)), link)
+            yield link
         finally:
-            os.close(fd)
+            try:
+                os.unlink(link)
+            finally:
+                os.rmdir(folder)
         return
     yield text
 
