@@ -148,3 +148,41 @@ def test_accepted_nonsense_is_refused(argv, needle, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("necviz: error:") and needle in err and "\n" not in err, err
+
+
+def test_numba_cache_falls_back_to_a_writable_temporary_folder(monkeypatch, tmp_path):
+    """Neither the package's __pycache__ nor ~/.cache/numba writable: the cache goes to a temporary folder."""
+    import os
+    import tempfile
+
+    import numba
+
+    import necviz
+
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    monkeypatch.setattr(numba.config, "CACHE_DIR", numba.config.CACHE_DIR)  # restored after the test
+    monkeypatch.setattr(necviz.os, "access", lambda *a, **k: False)
+    monkeypatch.setattr(tempfile, "gettempdir", lambda: str(tmp_path))
+    necviz._numba_cache_fallback()
+    folder = tmp_path / f"necviz-numba-{os.getuid()}"
+    assert os.environ["NUMBA_CACHE_DIR"] == str(folder) and folder.is_dir()
+    assert numba.config.CACHE_DIR == str(folder)  # numba was imported already: its config follows
+
+
+def test_version_and_a_numba_kernel_work_with_an_unwritable_home():
+    """As a user who can write neither the installed package nor the home folder (here: nobody)."""
+    import os
+    import shutil
+
+    if os.geteuid() != 0 or shutil.which("setpriv") is None:
+        pytest.skip("needs root and setpriv to run as an unprivileged user")
+    env = {"HOME": "/nonexistent", "PATH": "/usr/bin:/bin"}
+    for args in (["--version"], ["info"]):
+        r = subprocess.run(
+            ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", sys.executable, "-m", "necviz", *args],
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=300,
+        )
+        assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr[-1000:]

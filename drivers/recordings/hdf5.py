@@ -76,6 +76,11 @@ def _valid_rows(t, x, y, p, n: int, t_scale: float):
         z = np.zeros(0, np.int64)
         return z, z, z, z, 0
     t, x, y, p = (c.astype(np.float64) if c.dtype.kind == "f" else c for c in cols)
+    with np.errstate(over="ignore", invalid="ignore"):  # damaged values overflow here: they are refused
+        return _check_rows(t, x, y, p, n, t_scale)
+
+
+def _check_rows(t, x, y, p, n: int, t_scale: float):
     ok = np.ones(n, bool)
     for c in (t, x, y, p):
         if c.dtype.kind == "f":
@@ -84,8 +89,8 @@ def _valid_rows(t, x, y, p, n: int, t_scale: float):
         ok &= (c >= 0) & (c <= 65535)
     if t.dtype.kind == "u" and t.dtype.itemsize == 8:
         ok &= t < (1 << 62)
-    elif t.dtype.kind == "f":
-        ok &= np.abs(t) * t_scale < 9e18
+    elif t.dtype.kind == "f" or t_scale != 1.0:
+        ok &= np.abs(t.astype(np.float64)) * t_scale < 9e18
     bad = None
     if not ok.all():
         bad = int(np.argmin(ok))

@@ -246,7 +246,6 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
                 disk_full = low_space(files)
                 if disk_full is not None:  # stop while the files can still be completed
                     pipe.stop()
-                    pipe.wait()
                     break
         except KeyboardInterrupt:
             print("\n  stopping (Ctrl-C): flushing the recording…", file=out, flush=True)
