@@ -106,7 +106,7 @@ def _named(items, default: str) -> list[tuple[str, object]]:
 
 
 def check_not_input(outputs, inputs) -> None:
-    """Refuse any output that is one of the inputs (or lies inside an input folder).
+    """Refuse any output that is one of the inputs (or an existing file inside an input folder).
 
     Parameters
     ----------
@@ -119,7 +119,9 @@ def check_not_input(outputs, inputs) -> None:
     ------
     ParameterError
         One line naming the output's flag and the input it would destroy. ``--force`` never
-        lifts this: an output may not replace an input by path, symbolic link or hard link.
+        lifts this: an output may not replace an input by path, symbolic link or hard link, nor
+        an existing file inside an input folder (a ROS 2 bag, an RPG text folder); a new file may
+        be written there.
     """
     ins = _named(inputs, "input")
     for flag, out in _named(outputs, "output"):
@@ -128,9 +130,9 @@ def check_not_input(outputs, inputs) -> None:
             if same_file(out, inp):
                 link = "" if os.path.abspath(out) == os.path.abspath(inp) else " (the same file through a link)"
                 raise ParameterError(f"{flag}: {str(out)!r} is {label} {str(inp)!r}{link}; choose another name")
-            if os.path.isdir(inp) and _inside(out, inp):
+            if os.path.isdir(inp) and os.path.lexists(out) and _inside(out, inp):
                 raise ParameterError(
-                    f"{flag}: {str(out)!r} lies inside the input folder {str(inp)!r}; choose another place"
+                    f"{flag}: {str(out)!r} is a file of the input folder {str(inp)!r}; choose another name"
                 )
 
 

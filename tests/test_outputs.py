@@ -217,8 +217,9 @@ def test_check_not_input_api(tmp_path):
     check_not_input({"--out": None}, [a])
     with pytest.raises(ParameterError, match="is the input file"):
         check_not_input({"--out": tmp_path / "x" / ".." / "a.bin"}, [a])
-    with pytest.raises(ParameterError, match="inside the input folder"):
-        check_not_input({"--json": folder / "summary.json"}, [folder])
+    with pytest.raises(ParameterError, match="is a file of the input folder"):
+        check_not_input({"--json": folder / "events.txt"}, [folder])
+    check_not_input({"--json": folder / "summary.json"}, [folder])  # a new file beside the recording's
     with pytest.raises(ParameterError, match="the profile file"):
         check_not_input([a], {"profile": a})
 
