@@ -1,7 +1,8 @@
 #!/usr/bin/env python
-"""Hostile input for the DAVIS decoder and every recording reader (issue 14): counts, not timings.
+"""Hostile input for the DAVIS decoder, every recording reader and the command line (issues 14, 23):
+counts, not timings.
 
-Two parts, each run in worker processes watched by this one, so that a hard crash (a segfault, an
+Four parts, each run in worker processes watched by this one, so that a hard crash (a segfault, an
 abort inside a native library) or a hang is counted against the input that caused it and the run
 goes on with a fresh worker:
 
@@ -21,12 +22,24 @@ goes on with a fresh worker:
   to the end), *one-line error* (a NecvizError of one line naming the file) or *traceback*
   (anything else); reads over the per-file time bound are killed and counted as *hangs*; the peak
   memory of each read (Linux VmHWM growth) is checked against ``--memory-limit-mb``.
+* **replay** — ``--replay-variants`` corrupted recordings of every format through ``necviz replay``
+  (the whole dashboard path: P-TEDI, telemetry, the Rerun sink, a ``--save`` file), as a user runs
+  it (``tests/hostile.py``: the command line in the worker, file descriptor 2 captured). Outcomes:
+  *clean* (exit 0, nothing on standard error), *one-line error* (exit 2, one line) or *traceback*
+  (exit 3, several lines, a Rust panic message …); the peak memory and time bounds as above.
+* **hostile** — every case of ``tests/hostile.py``: files that declare more than they hold, gzip
+  bombs, gigabytes of zeros after valid data, pipes and devices under recording names, link loops,
+  non-UTF-8 names, the byte that makes the AEDAT 4 decoder panic, and the path cases (an output
+  naming an input directly or through a link, a folder, ``/dev/null`` …). A case passes when its
+  outcome is the one expected, within the bounds, with every input byte-identical; anything else
+  is counted as a *traceback* (with the case named in the examples).
 
 Every input is a pure function of ``--seed`` and its index (printed with each failure), so any
 failure can be reproduced alone. Prints a table and writes JSON (``benchmarks/results/fuzz.json``).
 
-usage: python benchmarks/fuzz.py [--decoder-inputs 1000000] [--file-variants 10000] [--seed 0]
-                                 [--json PATH] [--workers 2] [--time-limit 5] [--memory-limit-mb 200]
+usage: python benchmarks/fuzz.py [--decoder-inputs 1000000] [--file-variants 10000]
+                                 [--replay-variants 5000] [--no-hostile] [--seed 0] [--json PATH]
+                                 [--workers 2] [--time-limit 10] [--memory-limit-mb 512]
 """
 
 from __future__ import annotations
@@ -49,6 +62,8 @@ sys.path.insert(0, str(HERE.parent / "tests"))  # fuzz_corpus, format_writers
 
 DECODER_TASK = 2000  # decoder inputs per task sent to a worker
 FILE_TASK = 20  # file variants per task
+REPLAY_TASK = 10  # replays per task
+HOSTILE_TASK = 4  # hostile cases per task
 EXAMPLES = 20  # failures kept (with their index) in the JSON
 
 
@@ -298,18 +313,37 @@ def _worker(conn, cur, cfg, part):
     the decoder's pool of valid streams, one clean read of every seed file."""
     log = open(Path(cfg["tmp"]) / f"worker-{os.getpid()}.log", "w")
     os.dup2(log.fileno(), 2)  # OpenCV/libpng/Rust chatter about damaged input
+    os.dup2(log.fileno(), 1)  # what the commands of the replay and hostile parts print
     os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
     from fuzz_corpus import Seed, VariantMaker, read_variant, remove
 
-    dec = maker = None
+    dec = maker = cases = None
     cur.value = -1
+    work = Path(cfg["tmp"]) / f"{part}-{os.getpid()}"
     if part == "decoder":
         dec = DecoderFuzz(cfg["seed"])
+    elif part == "hostile":
+        from fuzz_corpus import SAMPLE_AEDAT4
+        from hostile import build_cases
+
+        seeds = [Seed(s["format"], Path(s["path"]), tuple(s["members"])) for s in cfg["seeds"]]
+        cases = build_cases(work / "cases", seeds, SAMPLE_AEDAT4)
+        os.chdir(work)
+        from hostile import Case, run_case
+
+        for argv in (["info", str(seeds[0].path)], ["replay", str(seeds[0].path), "--save", str(work / "w.rrd")]):
+            run_case(Case("warm-up", argv))  # imports and caches outside the measured cases
+        remove(work / "w.rrd")
     else:
         seeds = [Seed(s["format"], Path(s["path"]), tuple(s["members"])) for s in cfg["seeds"]]
-        maker = VariantMaker(seeds, cfg["seed"], Path(cfg["tmp"]) / f"variants-{os.getpid()}")
+        maker = VariantMaker(seeds, cfg["seed"], work / "variants")
         for s in seeds:
             read_variant(s.path)
+        if part == "replay":
+            from hostile import Case, run_case
+
+            run_case(Case("warm-up", ["replay", str(seeds[0].path), "--save", str(work / "warm.rrd")]))
+            remove(work / "warm.rrd")
     conn.send(("ready", None))
     while True:
         task = conn.recv()
@@ -333,6 +367,43 @@ def _worker(conn, cur, cfg, part):
                 if cfg["inject"][(part, i)] == "crash":
                     os.abort()
                 time.sleep(1e6)
+            if part in ("replay", "hostile"):
+                from hostile import Case, problems, run_case
+
+                if part == "replay":
+                    fmt, mutation, path = maker.make(i)
+                    rrd = work / f"r{i}.rrd"
+                    case = Case(f"{fmt} {mutation}", ["replay", str(path), "--save", str(rrd)], ("clean", "error"))
+                else:
+                    case = cases[i]
+                    fmt, mutation, path = case.group, case.name, None
+                r = run_case(case, cfg["time_limit"])
+                wrong = [p for p in problems(r, cfg["time_limit"], cfg["memory_limit"] / 2**20) if "grew" not in p]
+                outcome = r["outcome"]
+                if outcome in ("clean", "error") and wrong:
+                    outcome = "traceback"  # the wrong outcome, a changed input or a leftover output
+                over = r["memory_mb"] * 2**20 > cfg["memory_limit"]
+                res["over_memory"] += over
+                res["max_seconds"] = max(res["max_seconds"], r["seconds"])
+                res["max_memory"] = max(res["max_memory"], r["memory_mb"] * 2**20)
+                by = res["by"].setdefault(fmt, Counter())
+                by[outcome] += 1
+                if (outcome not in ("clean", "error") or over or wrong) and len(res["examples"]) < EXAMPLES:
+                    res["examples"].append(
+                        {
+                            "index": i,
+                            "case": case.name,
+                            "memory_mb": round(r["memory_mb"], 1),
+                            "seconds": round(r["seconds"], 2),
+                            "problem": ("; ".join(wrong) or r["stderr"].strip()[-300:] or outcome)[:300],
+                        }
+                    )
+                if path is not None:
+                    remove(path)
+                for leftover in work.glob("r*.rrd"):
+                    remove(leftover)
+                res["outcomes"][outcome] += 1
+                continue
             if part == "decoder":
                 kind, problem = dec.run(i)
                 outcome = "clean" if problem is None else "traceback"
@@ -481,6 +552,8 @@ def run(
     memory_limit_mb: float,
     out=sys.stdout,
     inject: dict | None = None,
+    replay_variants: int = 0,
+    hostile: bool = False,
 ) -> dict:
     """Run both parts (see the module docstring) and print the table; returns the JSON-ready result.
 
@@ -494,11 +567,23 @@ def run(
             "seed": seed,
             "tmp": tmp,
             "memory_limit": memory_limit_mb * 2**20,
+            "time_limit": time_limit,
             "inject": dict(inject or {}),
             "seeds": [{"format": s.format, "path": str(s.path), "members": list(s.members)} for s in seeds],
         }
         parts = {}
-        for part, n, size in (("decoder", decoder_inputs, DECODER_TASK), ("files", file_variants, FILE_TASK)):
+        n_hostile = 0
+        if hostile:
+            from hostile import build_cases
+
+            n_hostile = len(build_cases(Path(tmp) / "count", seeds, SAMPLE_AEDAT4))
+            shutil.rmtree(Path(tmp) / "count", ignore_errors=True)
+        for part, n, size in (
+            ("decoder", decoder_inputs, DECODER_TASK),
+            ("files", file_variants, FILE_TASK),
+            ("replay", replay_variants, REPLAY_TASK),
+            ("hostile", n_hostile, HOSTILE_TASK),
+        ):
             if n <= 0:
                 continue
             acc = {
@@ -547,7 +632,11 @@ def run(
             assert done + acc["hangs"] + acc["crashes"] == n, (done, acc["hangs"], acc["crashes"], n)
             parts[part] = acc
         result = {
-            "command": "python benchmarks/fuzz.py " + " ".join(sys.argv[1:]),
+            "command": (
+                f"python benchmarks/fuzz.py --decoder-inputs {decoder_inputs} --file-variants {file_variants} "
+                f"--replay-variants {replay_variants}{'' if hostile else ' --no-hostile'} --seed {seed} "
+                f"--workers {workers} --time-limit {time_limit:g} --memory-limit-mb {memory_limit_mb:g}"
+            ),
             "seed": seed,
             "workers": workers,
             "time_limit_s": time_limit,
@@ -567,18 +656,36 @@ def run(
 
 
 def _table(result: dict, out) -> None:
-    rows = [("part", "inputs", "clean", "one-line errors", "tracebacks", "hangs", "crashes", "time")]
+    rows = [
+        (
+            "part",
+            "inputs",
+            "clean",
+            "one-line errors",
+            "tracebacks",
+            "hangs",
+            "crashes",
+            "over memory",
+            "peak memory",
+            "slowest",
+            "time",
+        )
+    ]
     for name, p in result["parts"].items():
         o = p["outcomes"]
+        tb = o.get("traceback", 0) + o.get("hang", 0)
         rows.append(
             (
                 name,
                 f"{p['inputs']:,}",
                 f"{o.get('clean', 0):,}",
                 "-" if name == "decoder" else f"{o.get('error', 0):,}",
-                f"{o.get('traceback', 0):,}",
+                f"{tb:,}",
                 f"{p['hangs']:,}",
                 f"{p['crashes']:,}",
+                "-" if name == "decoder" else f"{p['over_memory']:,}",
+                "-" if name == "decoder" else f"{p['max_memory_mb']:.0f} MB",
+                "-" if name == "decoder" else f"{p['max_seconds']:.2f} s",
                 f"{p['seconds']:.0f} s",
             )
         )
@@ -586,17 +693,20 @@ def _table(result: dict, out) -> None:
     print(file=out)
     for r in rows:
         print("  " + "  ".join(c.rjust(w) if i else c.ljust(w) for i, (c, w) in enumerate(zip(r, widths))), file=out)
-    files = result["parts"].get("files")
-    if files:
+    for part in ("files", "replay", "hostile"):
+        p = result["parts"].get(part)
+        if not p:
+            continue
         print(
-            f"\n  files: slowest read {files['max_seconds']:.2f} s, largest peak memory growth "
-            f"{files['max_memory_mb']:.0f} MB, {files['over_memory']} over the limit",
+            f"\n  {part}: slowest {p['max_seconds']:.2f} s, largest peak memory growth "
+            f"{p['max_memory_mb']:.0f} MB, {p['over_memory']} over the limit",
             file=out,
         )
-        for fmt, c in sorted(files["by"].items()):
+        for fmt, c in sorted(p["by"].items()):
             print(
-                f"    {fmt:9s} {sum(c.values()):6,} variants: {c.get('clean', 0):6,} clean, "
-                f"{c.get('error', 0):6,} one-line errors, {c.get('traceback', 0):,} tracebacks",
+                f"    {fmt:9s} {sum(c.values()):6,} {'cases' if part == 'hostile' else 'variants'}: "
+                f"{c.get('clean', 0):6,} clean, {c.get('error', 0):6,} one-line errors, "
+                f"{c.get('traceback', 0) + c.get('hang', 0):,} tracebacks",
                 file=out,
             )
     for name, p in result["parts"].items():
@@ -608,10 +718,12 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--decoder-inputs", type=int, default=1_000_000)
     ap.add_argument("--file-variants", type=int, default=10_000)
+    ap.add_argument("--replay-variants", type=int, default=5_000)
+    ap.add_argument("--no-hostile", dest="hostile", action="store_false", help="skip the hostile cases")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=max(1, min(os.cpu_count() or 1, 2)))
-    ap.add_argument("--time-limit", type=float, default=5.0, help="seconds per input before it counts as a hang")
-    ap.add_argument("--memory-limit-mb", type=float, default=200.0)
+    ap.add_argument("--time-limit", type=float, default=10.0, help="seconds per input before it is over the bound")
+    ap.add_argument("--memory-limit-mb", type=float, default=512.0)
     ap.add_argument("--json", default=str(HERE / "results" / "fuzz.json"))
     ap.add_argument(
         "--inject",
@@ -627,10 +739,26 @@ def main(argv=None) -> int:
     for spec in a.inject:
         part, _, rest = spec.partition(":")
         index, _, what = rest.partition(":")
-        if part not in ("decoder", "files") or not index.isdigit() or what not in ("crash", "hang"):
+        if (
+            part not in ("decoder", "files", "replay", "hostile")
+            or not index.isdigit()
+            or what not in ("crash", "hang")
+        ):
             ap.error(f"--inject wants PART:INDEX:crash|hang, got {spec!r}")
         inject[(part, int(index))] = what
-    res = run(a.decoder_inputs, a.file_variants, a.seed, a.workers, a.time_limit, a.memory_limit_mb, inject=inject)
+    if a.replay_variants < 0:
+        ap.error("counts must be >= 0")
+    res = run(
+        a.decoder_inputs,
+        a.file_variants,
+        a.seed,
+        a.workers,
+        a.time_limit,
+        a.memory_limit_mb,
+        inject=inject,
+        replay_variants=a.replay_variants,
+        hostile=a.hostile,
+    )
     if a.json:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
         with open(a.json, "w") as f:

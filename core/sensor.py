@@ -6,6 +6,11 @@ from dataclasses import dataclass, field
 
 from necviz.core.errors import ParameterError
 
+#: Most pixels a sensor may have: 4,194,304 (2048 x 2048; today's largest event sensors have about
+#: 1.2 million). A larger size read from a file is damage, and per-pixel state would not fit the
+#: memory a replay may use.
+MAX_PIXELS = 1 << 22
+
 
 @dataclass(frozen=True)
 class SensorGeometry:
@@ -19,6 +24,11 @@ class SensorGeometry:
         for label, v in (("width", self.width), ("height", self.height)):
             if not isinstance(v, int) or isinstance(v, bool) or v <= 0 or v > 65535:
                 raise ParameterError(f"sensor {label} must be an integer in 1..65535, got {v!r}")
+        if self.width * self.height > MAX_PIXELS:
+            raise ParameterError(
+                f"a sensor of {self.width} x {self.height} pixels is larger than any event camera "
+                f"(at most {MAX_PIXELS:,} pixels)"
+            )
 
     @property
     def shape(self) -> tuple[int, int]:

@@ -16,8 +16,65 @@ The library underneath: :mod:`necviz.core` (estimators, controllers, metrics),
 loop), :mod:`necviz.dashboard.sink` (Rerun), :mod:`necviz.layouts` (blueprints).
 """
 
+import os
 from importlib import import_module
 from importlib.metadata import PackageNotFoundError, version
+
+
+def _numba_cache_fallback() -> None:
+    """Give Numba a writable cache folder when neither of its own is (before Numba is imported).
+
+    Numba caches compiled kernels (``cache=True``) in a ``__pycache__`` beside each source file, else
+    in ``$XDG_CACHE_HOME/numba`` (``~/.cache/numba``); when neither can be written (an installed
+    package and an unwritable home folder) it refuses to compile the first cached function with a
+    traceback. Then the cache goes to ``<temp>/necviz-numba-<uid>`` (``NUMBA_CACHE_DIR``).
+    """
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return
+    import tempfile
+    from importlib.util import find_spec
+
+    def writable(folder: str) -> bool:
+        probe = folder
+        while not os.path.isdir(probe):  # the nearest existing folder must let us create the rest
+            parent = os.path.dirname(probe)
+            if parent == probe:
+                return False
+            probe = parent
+        return os.access(probe, os.W_OK | os.X_OK)
+
+    roots = [os.path.dirname(__file__)]
+    for name in ("necviz.core", "necviz.drivers"):
+        try:
+            spec = find_spec(name)
+        except (ImportError, ValueError):
+            spec = None
+        if spec is not None and spec.submodule_search_locations:
+            roots += list(spec.submodule_search_locations)
+    in_tree = all(writable(os.path.join(r, "__pycache__")) for r in roots)
+    home = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    if in_tree or writable(os.path.join(home, "numba")):
+        return
+    folder = os.path.join(tempfile.gettempdir(), f"necviz-numba-{os.getuid() if hasattr(os, 'getuid') else 0}")
+    try:
+        os.makedirs(folder, mode=0o700, exist_ok=True)
+    except OSError:
+        return
+    os.environ["NUMBA_CACHE_DIR"] = folder
+    import sys
+
+    config = getattr(sys.modules.get("numba"), "config", None)
+    if config is not None:  # Numba imported before necviz: its configuration is read already
+        config.CACHE_DIR = folder
+
+
+_numba_cache_fallback()
+# Rerun's file writer logs a full disk to the terminal before necviz reports it in its own line
+# (necviz.dashboard.viewer.flush_stream); a RUST_LOG the user set is left alone.
+os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd=off")
+# OpenCV decodes images up to 2^30 pixels by default: a small PNG of a damaged recording could claim
+# gigabytes. No frame of an event camera exceeds necviz.core.sensor.MAX_PIXELS (2048 x 2048).
+os.environ.setdefault("OPENCV_IO_MAX_IMAGE_PIXELS", str(1 << 22))
 
 try:
     __version__ = version("necviz")

@@ -17,12 +17,121 @@ from dataclasses import dataclass, field
 from necviz.core.checks import check_number
 from necviz.core.control import CONTROLLERS
 from necviz.core.errors import ParameterError
+from necviz.drivers.sim.scenes.toml import MAX_DURATION_S, MAX_SEED
 
 #: NEC and the five baselines, as the demo shows them side by side.
 DEFAULT_CONTROLLERS = ("nec", "navid", "shim", "begin", "builtin", "fixed")
 #: What a comparison runs by default: NEC with and without its compensation, and the five baselines.
 COMPARE_CONTROLLERS = ("nec", "nec-raw", "navid", "shim", "begin", "builtin", "fixed")
 LAYOUT_NAMES = ("live", "inspect", "compare")
+
+
+# -- numeric flags: every rule in one place -----------------------------------------------------------
+@dataclass(frozen=True)
+class NumberRule:
+    """What a numeric flag accepts: ``[lo, hi]`` (``lo_open``: ``lo`` itself excluded), a whole
+    number if ``integer``. NaN, infinities and text that is not a number are always refused."""
+
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    integer: bool = False
+
+
+#: Every numeric flag of the command line (and the option objects behind it). A key is the flag, or
+#: ``"COMMAND --flag"`` where a command gives it another range. The parser's types (:func:`number`)
+#: and the option objects (:func:`check_flag`) both read this table.
+NUMBER_FLAGS: dict[str, NumberRule] = {
+    "--seed": NumberRule(0, MAX_SEED, integer=True),
+    "--duration": NumberRule(0.0, MAX_DURATION_S, lo_open=True),  # a simulated scene (as in scenario files)
+    "live --duration": NumberRule(0.0, 24 * 3600.0, lo_open=True),  # a camera session
+    "--seeds": NumberRule(1, 10_000, integer=True),
+    "--event-window-ms": NumberRule(0.1, 10_000.0),
+    "--event-points": NumberRule(0, 10_000_000, integer=True),
+    "--start": NumberRule(0.0, 1e9),
+    "--end": NumberRule(0.0, 1e9, lo_open=True),
+    "--exposure-us": NumberRule(0.0, 1e8, lo_open=True),
+    "--emulate-unplug": NumberRule(0.0, 24 * 3600.0, lo_open=True),
+    "--pipe-timeout": NumberRule(0.0, 24 * 3600.0, lo_open=True),
+    "--grpc-port": NumberRule(1, 65535, integer=True),
+    "--web-port": NumberRule(1, 65535, integer=True),
+    "--speed": NumberRule(1e-3, 1e4),
+    # benchmarks
+    "bench --events": NumberRule(1, 1_000_000_000, integer=True),
+    "bench --duration": NumberRule(0.0, 600.0, lo_open=True),
+    "bench --fps": NumberRule(1.0, 200.0),
+    "bench --exposure-us": NumberRule(1, 1_000_000, integer=True),
+    "bench --repeats": NumberRule(1, 100, integer=True),
+    "bench --edi-samples": NumberRule(1, 4096, integer=True),
+    "bench --cameras": NumberRule(1, 32, integer=True),
+    "bench --seconds": NumberRule(0.0, 600.0, lo_open=True),
+    "bench --rate": NumberRule(0.0, 50.0, lo_open=True),
+    "bench --batch-us": NumberRule(1, 1_000_000, integer=True),
+    # the flight recorder and videos
+    "--clip-before": NumberRule(0.0, 600.0),
+    "--clip-after": NumberRule(0.0, 600.0),
+    "--clip-memory": NumberRule(1.0, float(1 << 20)),
+    "--video-fps": NumberRule(1.0, 240.0),
+    # calibration
+    "calibrate --duration": NumberRule(0.0, 600.0, lo_open=True),
+    "--min-change": NumberRule(0.0, 10.0),
+    "--min-pixels": NumberRule(1, 1 << 22, integer=True),
+    "--max-pixels": NumberRule(1, 1 << 22, integer=True),
+    "--max-pairs": NumberRule(2, 1_000_000, integer=True),
+    "--max-lag": NumberRule(1, 50, integer=True),
+    "--max-event-rate": NumberRule(0.0, 1e4),
+    "--slow-rate": NumberRule(0.0, 1e6, lo_open=True),
+    # sweeps
+    "--workers": NumberRule(1, 1024, integer=True),
+    "--retries": NumberRule(0, 100, integer=True),
+}
+
+
+def _rule(flag: str, command: str | None) -> NumberRule:
+    if command is not None and f"{command} {flag}" in NUMBER_FLAGS:
+        return NUMBER_FLAGS[f"{command} {flag}"]
+    return NUMBER_FLAGS[flag]
+
+
+def check_flag(flag: str, value, command: str | None = None):
+    """``value`` (a number, or text as typed) checked against :data:`NUMBER_FLAGS`; returns it as a
+    float (an int for whole-number flags). Raises a one-line :class:`ParameterError`."""
+    from necviz.core.checks import parse_number
+
+    r = _rule(flag, command)
+    return parse_number(flag, value, r.lo, r.hi, lo_open=r.lo_open, integer=r.integer)
+
+
+def number(flag: str, command: str | None = None):
+    """An ``argparse`` type for ``flag`` (:data:`NUMBER_FLAGS`): the checked number, or a one-line
+    ``ArgumentTypeError``."""
+    import argparse
+
+    _rule(flag, command)  # a flag missing from the table is a bug, found when the parser is built
+
+    def convert(text):
+        try:
+            return check_flag(flag, text, command)
+        except ParameterError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+
+    convert.__name__ = flag.lstrip("-").replace("-", "_")
+    convert.necviz_rule = (flag, command)  # lets tests find every numeric flag
+    return convert
+
+
+_MEMORY = re.compile(r"^\s*(\d+(?:\.\d*)?|\.\d+)\s*(%|b|kb|mb|gb|tb|kib|mib|gib|tib)?\s*$", re.IGNORECASE)
+
+
+def parse_memory_limit(text) -> str:
+    """A viewer memory limit as Rerun takes it (``1GB``, ``500MiB``, ``75%``), checked: a positive
+    amount with a unit (B, kB, MB, GB, TB, KiB, MiB, GiB, TiB) or a percentage up to 100."""
+    m = _MEMORY.match(str(text))
+    value = float(m.group(1)) if m else 0.0
+    unit = (m.group(2) or "B").lower() if m else ""
+    if not m or not value > 0 or (unit == "%" and value > 100) or (unit == "b" and value < 1 << 20):
+        raise ParameterError(f"--memory-limit expects an amount like 1GB, 500MiB or 50% (at least 1 MB), got {text!r}")
+    return str(text).strip().replace(" ", "")
 
 
 def controller_kind(name: str) -> str:
@@ -54,18 +163,23 @@ def parse_controllers(text) -> tuple[str, ...]:
 
 
 def parse_speed(text) -> float | None:
-    """``max`` (as fast as possible) -> None; ``1`` / ``x1`` real time; ``x4`` or ``4`` four times."""
-    if text is None or str(text).lower() in ("max", "fast", "0"):
+    """``max`` (as fast as possible) -> None; ``1`` / ``x1`` real time; ``x4`` or ``4`` four times.
+
+    Zero, negative, NaN and infinite factors are refused (``0`` is no speed: ``max`` is)."""
+    if text is None or str(text).strip().lower() in ("max", "fast"):
         return None
     if isinstance(text, (int, float)) and not isinstance(text, bool):
         v = float(text)
     else:
         try:
-            v = float(str(text).lower().removeprefix("x"))
+            v = float(str(text).strip().lower().removeprefix("x"))
         except ValueError:
             raise ParameterError(f"--speed must be 'max', a factor like 1 or x4, got {text!r}") from None
-    if not (math.isfinite(v) and 1e-3 <= v <= 1e4):
-        raise ParameterError(f"--speed must lie between x0.001 and x10000, got {text!r}")
+    r = NUMBER_FLAGS["--speed"]
+    if not (math.isfinite(v) and r.lo <= v <= r.hi):
+        raise ParameterError(
+            f"--speed must be 'max' (as fast as possible) or a factor between x0.001 and x10000, got {text!r}"
+        )
     return v
 
 
@@ -120,9 +234,9 @@ class SceneOptions:
                 "nor a .toml scenario file"
             )
         if self.seed is not None:
-            self.seed = check_number("--seed", self.seed, 0, 2**32 - 1, integer=True)
+            self.seed = check_flag("--seed", self.seed)
         if self.duration_s is not None:
-            self.duration_s = check_number("--duration", self.duration_s, 0.0, 600.0, lo_open=True)
+            self.duration_s = check_flag("--duration", self.duration_s)
         self.params = dict(self.params)
 
     @property
@@ -205,7 +319,10 @@ class ViewerOptions:
         if self.layout is not None and self.layout not in LAYOUT_NAMES:
             raise ParameterError(f"unknown layout {self.layout!r}; available: {', '.join(LAYOUT_NAMES)}")
         for label in ("grpc_port", "web_port"):
-            setattr(self, label, check_number(label, getattr(self, label), 1, 65535, integer=True))
+            setattr(self, label, check_flag("--" + label.replace("_", "-"), getattr(self, label)))
+        self.memory_limit = parse_memory_limit(self.memory_limit)
+        if self.serve and self.grpc_port == self.web_port:
+            raise ParameterError(f"--grpc-port and --web-port are both {self.grpc_port}; they must differ")
 
     @property
     def watched(self) -> bool:
@@ -223,8 +340,8 @@ class ShowOptions:
     def __post_init__(self):
         if self.speed != "auto":
             self.speed = parse_speed(self.speed)
-        self.event_window_ms = check_number("--event-window-ms", self.event_window_ms, 0.1, 10_000)
-        self.event_points = check_number("--event-points", self.event_points, 0, 10_000_000, integer=True)
+        self.event_window_ms = check_flag("--event-window-ms", self.event_window_ms)
+        self.event_points = check_flag("--event-points", self.event_points)
 
 
 @dataclass
@@ -251,9 +368,9 @@ class ClipOptions:
     def __post_init__(self):
         if not str(self.folder):
             raise ParameterError("--clips needs a folder")
-        self.before_s = check_number("--clip-before", self.before_s, 0.0, 600.0)
-        self.after_s = check_number("--clip-after", self.after_s, 0.0, 600.0)
-        self.memory_mb = check_number("--clip-memory", self.memory_mb, 1.0, 1 << 20)
+        self.before_s = check_flag("--clip-before", self.before_s)
+        self.after_s = check_flag("--clip-after", self.after_s)
+        self.memory_mb = check_flag("--clip-memory", self.memory_mb)
 
     def check(self) -> None:
         """The folder exists and is writable (before anything starts)."""
@@ -284,7 +401,7 @@ class VideoOptions:
             self.speed = parse_speed(self.speed)
             if self.speed is None:
                 raise ParameterError("--speed for a video must be a number (0.1 is ten times slower than real time)")
-        self.fps = check_number("--video-fps", self.fps, 1.0, 240.0)
+        self.fps = check_flag("--video-fps", self.fps)
 
 
 @dataclass
@@ -320,22 +437,25 @@ class ReplayOptions:
     profile: str | os.PathLike | None = None
     show: ShowOptions = field(default_factory=ShowOptions)
     video: VideoOptions | None = None
+    pipe_timeout_s: float | None = None  # accept a named pipe as FILE, waiting at most this long for data
 
     def __post_init__(self):
         if not str(self.file):
             raise ParameterError("replay needs a recording file")
         (self.controller,) = parse_controllers([self.controller])
-        self.exposure_us = _check_reading(self.start_s, self.end_s, self.exposure_us)
+        self.start_s, self.end_s, self.exposure_us = _check_reading(self.start_s, self.end_s, self.exposure_us)
+        if self.pipe_timeout_s is not None:
+            self.pipe_timeout_s = check_flag("--pipe-timeout", self.pipe_timeout_s)
 
 
-def _check_reading(start_s, end_s, exposure_us) -> float | None:
-    """``--start``/``--end``/``--exposure-us``, read the same way by replay and export; the exposure as a float."""
-    for label, v in (("--start", start_s), ("--end", end_s)):
-        if v is not None:
-            check_number(label, v, 0.0)
+def _check_reading(start_s, end_s, exposure_us) -> tuple[float | None, float | None, float | None]:
+    """``--start``/``--end``/``--exposure-us``, read the same way by replay and export (the flag table's rules)."""
+    start_s = None if start_s is None else check_flag("--start", start_s)
+    end_s = None if end_s is None else check_flag("--end", end_s)
     if start_s is not None and end_s is not None and end_s <= start_s:
         raise ParameterError(f"--end ({end_s} s) must come after --start ({start_s} s)")
-    return None if exposure_us is None else check_number("--exposure-us", exposure_us, 0.0, lo_open=True)
+    exposure_us = None if exposure_us is None else check_flag("--exposure-us", exposure_us)
+    return start_s, end_s, exposure_us
 
 
 @dataclass(frozen=True)
@@ -377,7 +497,10 @@ class ExportOptions:
     def __post_init__(self):
         if not str(self.file) or not str(self.out_path):
             raise ParameterError("export needs a recording and an output file")
-        object.__setattr__(self, "exposure_us", _check_reading(self.start_s, self.end_s, self.exposure_us))
+        start_s, end_s, exposure_us = _check_reading(self.start_s, self.end_s, self.exposure_us)
+        object.__setattr__(self, "start_s", start_s)
+        object.__setattr__(self, "end_s", end_s)
+        object.__setattr__(self, "exposure_us", exposure_us)
 
 
 @dataclass
@@ -404,9 +527,9 @@ class LiveOptions:
             raise ParameterError(f"--device must be usb or emulated, got {self.device!r}")
         (self.controller,) = parse_controllers([self.controller])
         if self.duration_s is not None:
-            self.duration_s = check_number("--duration", self.duration_s, 0.0, 24 * 3600, lo_open=True)
+            self.duration_s = check_flag("--duration", self.duration_s, "live")
         if self.emulate_unplug_s is not None:
-            self.emulate_unplug_s = check_number("--emulate-unplug", self.emulate_unplug_s, 0.0, lo_open=True)
+            self.emulate_unplug_s = check_flag("--emulate-unplug", self.emulate_unplug_s)
         self.history = check_number("history", self.history, 1, integer=True)
 
 
@@ -428,7 +551,7 @@ class CompareOptions:
 
     def __post_init__(self):
         self.controllers = parse_controllers(self.controllers)
-        self.seeds = check_number("--seeds", self.seeds, 1, 10_000, integer=True)
+        self.seeds = check_flag("--seeds", self.seeds)
         self.controller_params = {k: dict(v) for k, v in (self.controller_params or {}).items()}
         unknown = set(self.controller_params) - set(self.controllers)
         if unknown:
@@ -439,7 +562,12 @@ class CompareOptions:
 __all__ = [
     "ClipOptions",
     "VideoOptions",
+    "NUMBER_FLAGS",
+    "NumberRule",
+    "check_flag",
     "controller_kind",
+    "number",
+    "parse_memory_limit",
     "COMPARE_CONTROLLERS",
     "CompareOptions",
     "DEFAULT_CONTROLLERS",

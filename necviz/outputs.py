@@ -1,40 +1,139 @@
-"""Output files that never destroy inputs or earlier work.
+"""Output files that never destroy inputs or earlier work, and never stay behind half-written.
 
-Every file a command writes (``--json``, ``--save``, ``--record``, calibration profiles, sweep
-results, reports) goes through this module:
+Every file a command writes (``--json``, ``--save``, ``--record``, ``--out``, calibration profiles,
+sweep results, reports) goes through this module. The rules (``docs/robustness.md``):
 
-* :func:`check_output` runs before anything starts (no camera opened, no simulation run): the
-  path is not a folder, its folder exists and is writable, it is not the same file as any input
-  (compared by resolved path and by inode, so a hard link or ``./x`` vs ``x`` is caught), it has
-  the expected extension, and it does not exist unless the user asked to replace it (``--force``).
-* :func:`atomic_write` writes to a temporary file in the same folder and renames it into place
-  only when writing succeeded: a failure leaves any earlier file untouched and no half-written one.
-* Recordings stream for minutes and must stay readable after a crash, so they are written under
-  their final name; :func:`recording_target` says where: the path itself when it did not exist
-  (created exclusively, so a file appearing meanwhile is not clobbered), or a temporary sibling
-  renamed over the old file on success (:func:`commit_recording`) when the user passed ``--force``.
+* **Checked before anything starts** (:func:`check_output`, no camera opened, no simulation run):
+  the path is not a folder or a device, its folder exists and is writable, it has the expected
+  extension, it does not exist unless the user asked to replace it (``--force``), and it is none of
+  the command's inputs (:func:`check_not_input`) — compared by resolved path and by device and
+  inode, so ``./x`` vs ``x``, a symbolic link and a hard link are all caught, with or without
+  ``--force``.
+* **Written beside, renamed into place when complete** (:func:`atomic_output`): a temporary file
+  in the same folder receives the data, is flushed to disk and renamed over the final name only
+  when writing succeeded, with the permissions a new file gets (``0o666`` less the umask). On any
+  failure (a full disk included) the temporary file is deleted and the error
+  (:class:`OutputError`) says that nothing was written; an existing file is left as it was.
+* **Recordings** stream for minutes (:class:`StreamedOutput`): a new file is written under its own
+  name from the first byte on (a crash leaves it readable up to its last flush); replacing an
+  existing file writes beside it and renames over it only when the run has ended. When the run
+  fails, what was written is deleted — unless the recording holds data that cannot be produced
+  again (a camera session: ``keep_partial``), which is then kept and named in the error.
+* **Space**: a recording is not started with less than :data:`RECORDING_RESERVE` bytes free on
+  its disk, and a session stops cleanly when the free space falls below half of that
+  (:func:`check_space`), so files end whole instead of cut by a full disk.
+
+For writers outside the command line (exports, notebooks)::
+
+    check_not_input({"--out": out}, [recording, profile])   # one-line ParameterError otherwise
+    with atomic_output(out, "wb") as f:                     # OutputError on failure, nothing left
+        f.write(data)
 """
 
 from __future__ import annotations
 
 import json
 import os
+import stat
 import tempfile
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 
-from necviz.core.errors import ParameterError
+from necviz.core.errors import NecvizError, ParameterError
+
+#: Free bytes a recording needs on its disk to start (and half of it to go on): Rerun and the
+#: native recorder buffer a few MiB, so a run stops whole well before the disk is full. The
+#: environment variable ``NECVIZ_DISK_RESERVE_MB`` changes it (0 turns the check off).
+RECORDING_RESERVE = 64 << 20
 
 
-def _same_file(a: Path, b: Path) -> bool:
+def _reserve() -> int:
+    text = os.environ.get("NECVIZ_DISK_RESERVE_MB")
+    if text is None:
+        return RECORDING_RESERVE
     try:
-        if a.resolve() == b.resolve():
-            return True
-        sa, sb = a.stat(), b.stat()
-    except OSError:
+        v = float(text)
+    except ValueError:
+        raise ParameterError(f"NECVIZ_DISK_RESERVE_MB must be a number of MB, got {text!r}") from None
+    if not (v >= 0 and v < 1e9):
+        raise ParameterError(f"NECVIZ_DISK_RESERVE_MB must be a number of MB >= 0, got {text!r}")
+    return int(v * (1 << 20))
+
+
+class OutputError(NecvizError):
+    """An output could not be written (a full disk, an I/O error); the message says what is left."""
+
+
+# -- identity --------------------------------------------------------------------------------------
+def _key(p: Path) -> tuple[str, tuple[int, int] | None]:
+    """(resolved path, (device, inode) or None) of ``p``; a loop or an unreadable link gives its text."""
+    try:
+        resolved = os.path.realpath(p)
+    except (OSError, ValueError):
+        resolved = os.path.abspath(p)
+    try:
+        st = os.stat(p)
+        ident = (st.st_dev, st.st_ino)
+    except (OSError, ValueError):
+        ident = None
+    return resolved, ident
+
+
+def same_file(a, b) -> bool:
+    """Whether ``a`` and ``b`` name the same file: same resolved path (links followed) or same device
+    and inode (a hard link)."""
+    ka, kb = _key(Path(a)), _key(Path(b))
+    return ka[0] == kb[0] or (ka[1] is not None and ka[1] == kb[1])
+
+
+def _inside(path, folder) -> bool:
+    try:
+        Path(os.path.realpath(path)).relative_to(os.path.realpath(folder))
+        return True
+    except (ValueError, OSError):
         return False
-    return (sa.st_dev, sa.st_ino) == (sb.st_dev, sb.st_ino)
+
+
+def _named(items, default: str) -> list[tuple[str, object]]:
+    if items is None:
+        return []
+    if isinstance(items, Mapping):
+        return [(str(k), v) for k, v in items.items() if v is not None]
+    if isinstance(items, (str, os.PathLike)):
+        return [(default, items)]
+    return [(default, v) for v in items if v is not None]
+
+
+def check_not_input(outputs, inputs) -> None:
+    """Refuse any output that is one of the inputs (or an existing file inside an input folder).
+
+    Parameters
+    ----------
+    outputs : mapping or iterable
+        ``{flag: path}`` (``{"--json": "out.json"}``; ``None`` paths are skipped) or paths.
+    inputs : mapping or iterable
+        The files (or recording folders) the command reads: ``{name: path}`` or paths.
+
+    Raises
+    ------
+    ParameterError
+        One line naming the output's flag and the input it would destroy. ``--force`` never
+        lifts this: an output may not replace an input by path, symbolic link or hard link, nor
+        an existing file inside an input folder (a ROS 2 bag, an RPG text folder); a new file may
+        be written there.
+    """
+    ins = _named(inputs, "input")
+    for flag, out in _named(outputs, "output"):
+        for name, inp in ins:
+            label = "the input file" if name == "input" else f"the {name} file"
+            if same_file(out, inp):
+                link = "" if os.path.abspath(out) == os.path.abspath(inp) else " (the same file through a link)"
+                raise ParameterError(f"{flag}: {str(out)!r} is {label} {str(inp)!r}{link}; choose another name")
+            if os.path.isdir(inp) and os.path.lexists(out) and _inside(out, inp):
+                raise ParameterError(
+                    f"{flag}: {str(out)!r} is a file of the input folder {str(inp)!r}; choose another name"
+                )
 
 
 def check_output(
@@ -42,91 +141,348 @@ def check_output(
 ) -> Path:
     """Refuse an output path that would destroy an input or an existing file; return it as a Path.
 
-    ``flag`` names the option in the one-line error (``--json``); ``inputs`` are the files the
-    command reads; ``suffixes`` the accepted extensions (``(".rrd",)``); ``force`` allows
-    replacing an existing file (never an input).
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The output file.
+    flag : str
+        The option named in the one-line error (``"--json"``).
+    inputs : iterable or mapping
+        The files the command reads (see :func:`check_not_input`).
+    force : bool
+        Allow replacing an existing regular file (never an input, never a folder or device).
+    suffixes : tuple of str, optional
+        Accepted extensions (``(".rrd",)``).
+
+    Returns
+    -------
+    Path
+        ``path`` as a :class:`~pathlib.Path`.
+
+    Raises
+    ------
+    ParameterError
+        One line saying what is wrong.
     """
     p = Path(path)
     if str(path) == "" or p.name in ("", ".", ".."):
         raise ParameterError(f"{flag}: {str(path)!r} is not a file name")
     if suffixes and p.suffix.lower() not in suffixes:
         raise ParameterError(f"{flag} expects a {' or '.join(suffixes)} file name, got {str(p)!r}")
-    if p.is_dir():
+    try:
+        st = os.stat(p)
+    except FileNotFoundError:
+        st = None
+    except OSError as e:  # a symbolic link loop, a name too long, a path through a file
+        raise ParameterError(f"{flag}: {str(p)!r} cannot be used ({e.strerror or e})") from None
+    if st is not None and stat.S_ISDIR(st.st_mode):
         raise ParameterError(f"{flag}: {str(p)!r} is a folder, not a file")
-    parent = p.parent if str(p.parent) else Path(".")
+    if st is not None and not stat.S_ISREG(st.st_mode):
+        raise ParameterError(f"{flag}: {str(p)!r} exists and is not a regular file ({_kind(st.st_mode)})")
+    if st is None and os.path.islink(p):
+        raise ParameterError(f"{flag}: {str(p)!r} is a symbolic link to nothing; remove it or choose another name")
+    parent = Path(os.path.realpath(p)).parent
     if not parent.is_dir():
-        raise ParameterError(f"{flag}: folder {str(parent)!r} does not exist")
+        raise ParameterError(f"{flag}: folder {str(p.parent if str(p.parent) else '.')!r} does not exist")
     if not os.access(parent, os.W_OK):
         raise ParameterError(f"{flag}: folder {str(parent)!r} is not writable")
-    for inp in inputs:
-        if inp is not None and _same_file(p, Path(inp)):
-            raise ParameterError(f"{flag}: {str(p)!r} is the input file {str(inp)!r}; choose another name")
-    if p.exists() and not force:
+    check_not_input({flag: p}, inputs)
+    if st is not None and not force:
         raise ParameterError(f"{flag}: {str(p)!r} already exists; pass --force to replace it")
     return p
 
 
+def _kind(mode: int) -> str:
+    for test, name in (
+        (stat.S_ISFIFO, "a named pipe"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISSOCK, "a socket"),
+    ):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
 def check_distinct(outputs: dict) -> None:
-    """Two outputs of one command must not be the same file (``--record X --save X``)."""
-    seen: dict[str, str] = {}
+    """Two outputs of one command must not be the same file (``--record X --save X``), by path or link."""
+    seen: list[tuple[str, object]] = []
     for flag, path in outputs.items():
         if path is None:
             continue
-        key = str(Path(path).resolve())
-        if key in seen:
-            raise ParameterError(f"{flag} and {seen[key]} name the same file {str(path)!r}")
-        seen[key] = flag
+        for other_flag, other in seen:
+            if same_file(path, other):
+                raise ParameterError(f"{flag} and {other_flag} name the same file {str(path)!r}")
+        seen.append((flag, path))
+
+
+# -- space -----------------------------------------------------------------------------------------
+def free_bytes(path) -> int | None:
+    """Bytes an unprivileged writer may still use on the disk holding ``path`` (its folder if it does
+    not exist yet); ``None`` if unknown."""
+    folder = Path(os.path.realpath(path))
+    if not folder.is_dir():
+        folder = folder.parent
+    try:
+        st = os.statvfs(folder)
+    except (OSError, AttributeError):
+        return None
+    return st.f_bavail * st.f_frsize
+
+
+def check_space(path, flag: str, need: int | None = None) -> None:
+    """Refuse to start writing ``path`` (a recording) with less than ``need`` bytes free on its disk
+    (default: :data:`RECORDING_RESERVE`)."""
+    need = _reserve() if need is None else need
+    free = free_bytes(path)
+    if free is not None and free < need:
+        raise OutputError(
+            f"{flag}: only {_size(free)} free on the disk holding {str(path)!r}; a recording needs at least "
+            f"{_size(need)}; nothing was written"
+        )
+
+
+def low_space(paths, need: int | None = None) -> tuple[str, int] | None:
+    """The first of ``paths`` whose disk has fewer than ``need`` bytes free (default: half of
+    :data:`RECORDING_RESERVE`): ``(path, free)``, else None."""
+    need = _reserve() // 2 if need is None else need
+    for p in paths:
+        if p is None:
+            continue
+        free = free_bytes(p)
+        if free is not None and free < need:
+            return str(p), free
+    return None
+
+
+def _size(n: int) -> str:
+    for unit, k in (("GB", 1 << 30), ("MB", 1 << 20), ("kB", 1 << 10)):
+        if n >= k:
+            return f"{n / k:.1f} {unit}"
+    return f"{n} bytes"
+
+
+# -- permissions -----------------------------------------------------------------------------------
+def new_file_mode() -> int:
+    """The permissions ``open(path, "w")`` gives a new file: ``0o666`` less the process umask."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return 0o666 & ~int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)  # no /proc: read it by setting it (and putting it back at once)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+# -- writing ---------------------------------------------------------------------------------------
+def write_failed(path, exc: BaseException, existed: bool, flag: str | None = None) -> OutputError:
+    """The one-line :class:`OutputError` for a write of ``path`` that failed with ``exc`` and left nothing."""
+    what = getattr(exc, "strerror", None) or " ".join(str(exc).split()) or type(exc).__name__
+    kept = f" (the existing {Path(path).name} is unchanged)" if existed else ""
+    pre = f"{flag}: " if flag else ""
+    return OutputError(f"{pre}cannot write {str(path)!r}: {what}; nothing was written{kept}")
+
+
+def _destination(path) -> Path:
+    """Where ``path``'s data go: a symbolic link's target (the link itself stays a link)."""
+    p = Path(path)
+    return Path(os.path.realpath(p)) if os.path.islink(p) else p
 
 
 @contextmanager
-def atomic_write(path, mode: str = "w", encoding: str | None = "utf-8"):
-    """Open a temporary file beside ``path``; on success rename it over ``path``, on error delete it."""
-    p = Path(path)
-    parent = p.parent if str(p.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=parent)
+def atomic_output(path, mode: str = "wb", *, encoding: str | None = None, flag: str | None = None):
+    """Write ``path`` through a temporary file beside it, renamed into place only when complete.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The final file (checked beforehand with :func:`check_output`).
+    mode : str
+        ``"wb"`` (bytes) or ``"w"`` (text, ``encoding`` default UTF-8).
+    encoding : str, optional
+        Text encoding for ``"w"``.
+    flag : str, optional
+        The option named in an error (``"--json"``).
+
+    Yields
+    ------
+    file object
+        The open temporary file.
+
+    Raises
+    ------
+    OutputError
+        The data could not be written (``OSError``: a full disk, an I/O error): the temporary file
+        is deleted and the message says nothing was written (an existing file is unchanged).
+        Any other exception raised inside the block propagates after the same clean-up.
+    """
+    dest = _destination(path)
+    parent = dest.parent if str(dest.parent) else Path(".")
+    existed = dest.exists()
     try:
-        with os.fdopen(fd, mode, encoding=None if "b" in mode else encoding) as f:
+        fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=".tmp", dir=parent)
+    except OSError as e:
+        raise write_failed(path, e, existed, flag) from None
+    try:
+        with os.fdopen(fd, mode, encoding=None if "b" in mode else (encoding or "utf-8")) as f:
             yield f
             f.flush()
+            os.fchmod(f.fileno(), new_file_mode())
             os.fsync(f.fileno())
-        os.replace(tmp, p)
-    except BaseException:
+        os.replace(tmp, dest)
+    except BaseException as e:
         try:
             os.unlink(tmp)
         except OSError:
             pass
+        if isinstance(e, OSError):  # a full disk (ENOSPC, EDQUOT, EFBIG), an I/O error, a vanished folder
+            raise write_failed(path, e, existed, flag) from None
         raise
 
 
-def write_json(path, data, indent: int | None = 2) -> None:
-    """``data`` as JSON at ``path``, atomically."""
-    with atomic_write(path) as f:
-        json.dump(data, f, indent=indent)
-        f.write("\n")
+def atomic_write(path, mode: str = "w", encoding: str | None = "utf-8"):
+    """:func:`atomic_output` with text mode by default (kept for the callers written before it)."""
+    return atomic_output(path, mode, encoding=encoding)
+
+
+def write_json(path, data, indent: int | None = 2, flag: str | None = None) -> None:
+    """``data`` as JSON at ``path``, atomically (:func:`atomic_output`)."""
+    text = json.dumps(data, indent=indent) + "\n"  # serialised first: a bad value writes nothing
+    with atomic_output(path, "w", encoding="utf-8", flag=flag) as f:
+        f.write(text)
+
+
+class StreamedOutput:
+    """A recording streamed to ``path`` for the length of a run (see the module docstring).
+
+    ``target`` is where the writer writes: ``path`` itself when it did not exist (claimed at once,
+    exclusively, so a file appearing meanwhile is not clobbered), else a temporary sibling
+    (``.NAME.XXXX.partial.EXT``) renamed over the old file by :meth:`commit`. :meth:`discard` ends
+    a failed run: it deletes what was written (``keep_partial=False``) or keeps a non-empty
+    recording under its final name, and returns the words for the error message.
+    """
+
+    def __init__(self, path, *, keep_partial: bool = False, flag: str | None = None):
+        self.path = Path(path)
+        self.flag = flag
+        self.keep_partial = bool(keep_partial)
+        self.done = False
+        dest = _destination(self.path)
+        self.dest = dest
+        try:
+            fd = os.open(dest, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:
+            parent = dest.parent if str(dest.parent) else Path(".")
+            try:
+                fd, tmp = tempfile.mkstemp(prefix=f".{dest.stem}.", suffix=f".partial{dest.suffix}", dir=parent)
+            except OSError as e:
+                raise write_failed(self.path, e, True, flag) from None
+            os.fchmod(fd, new_file_mode())
+            os.close(fd)
+            self.target = Path(tmp)
+            self.replacing = True
+            return
+        except OSError as e:
+            raise write_failed(self.path, e, False, flag) from None
+        os.close(fd)
+        self.target = dest
+        self.replacing = False
+
+    def commit(self) -> None:
+        """The run succeeded: move the recording into place (no-op for a new file)."""
+        if self.done:
+            return
+        self.done = True
+        if self.target != self.dest:
+            os.replace(self.target, self.dest)
+
+    def discard(self) -> str:
+        """The run failed: delete what was written, or keep it (``keep_partial`` and not empty).
+
+        Returns what happened, for the error message: ``"nothing was written to X"``, ``"X is
+        unchanged"`` or ``"the recording so far is in X"``."""
+        if self.done:
+            return ""
+        self.done = True
+        try:
+            size = os.path.getsize(self.target)
+        except OSError:
+            size = 0
+        if self.keep_partial and size > 0:
+            if self.target != self.dest:
+                os.replace(self.target, self.dest)
+            return f"{_KEPT}{self.path}"
+        try:
+            os.unlink(self.target)
+        except OSError:
+            pass
+        return f"{self.path} is unchanged" if self.replacing else f"{_LOST}{self.path}"
+
+
+_LOST = "nothing was written to "
+_KEPT = "the recording so far is in "
 
 
 def recording_target(path) -> Path:
-    """Where to stream a recording bound for ``path`` (see the module docstring).
-
-    A new file is created exclusively here (an empty file marks the name as taken); an existing
-    one (replaced with ``--force``) is left alone until :func:`commit_recording`.
-    """
-    p = Path(path)
-    try:
-        fd = os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
-    except FileExistsError:
-        parent = p.parent if str(p.parent) else Path(".")
-        fd, tmp = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=f".partial{p.suffix}", dir=parent)
-        os.close(fd)
-        return Path(tmp)
-    os.close(fd)
-    return p
+    """Where to stream a recording bound for ``path`` (:class:`StreamedOutput`'s ``target``)."""
+    return StreamedOutput(path).target
 
 
 def commit_recording(target: Path, path) -> None:
     """Move a finished recording from its :func:`recording_target` to ``path`` (no-op when they agree)."""
     if Path(target) != Path(path):
-        os.replace(target, path)
+        os.replace(target, _destination(path))
 
 
-__all__ = ["atomic_write", "check_distinct", "check_output", "commit_recording", "recording_target", "write_json"]
+def failure_note(exc: BaseException, notes: list[str]) -> BaseException:
+    """``exc`` with ``notes`` (what :meth:`StreamedOutput.discard` did) appended to its one-line message.
+
+    A :class:`NecvizError` keeps its type; an ``OSError`` from writing (a full disk) becomes an
+    :class:`OutputError`; anything else (a bug, Ctrl-C) is returned unchanged.
+    """
+    grouped: dict[str, list[str]] = {}
+    for n in notes:
+        for prefix in (_LOST, _KEPT):
+            if n and n.startswith(prefix):
+                grouped.setdefault(prefix, []).append(n[len(prefix) :])
+    notes = [n for n in notes if n and not n.startswith((_LOST, _KEPT))]
+    if _KEPT in grouped:
+        notes.insert(0, f"what was recorded before the failure is kept in {', '.join(grouped[_KEPT])}")
+    if _LOST in grouped:
+        notes.insert(0, f"nothing was written ({', '.join(grouped[_LOST])})")
+    if isinstance(exc, OSError) and not isinstance(exc, (FileNotFoundError, PermissionError)):
+        where = f"{exc.filename}: " if exc.filename else ""
+        what = exc.strerror or " ".join(str(exc).split())
+        return OutputError(f"{where}{what}" + (f"; {'; '.join(notes)}" if notes else ""))
+    if not notes or not isinstance(exc, NecvizError):
+        return exc
+    try:
+        new = type(exc)(f"{' '.join(str(exc).split())}; {'; '.join(notes)}")
+    except TypeError:
+        return exc
+    return new
+
+
+__all__ = [
+    "OutputError",
+    "RECORDING_RESERVE",
+    "StreamedOutput",
+    "atomic_output",
+    "atomic_write",
+    "check_distinct",
+    "check_not_input",
+    "check_output",
+    "check_space",
+    "commit_recording",
+    "failure_note",
+    "free_bytes",
+    "low_space",
+    "new_file_mode",
+    "recording_target",
+    "same_file",
+    "write_failed",
+    "write_json",
+]

@@ -53,7 +53,6 @@ def load_profile(path: str | os.PathLike) -> CameraProfile:
 
 def save_profile(profile: CameraProfile, path: str | os.PathLike) -> None:
     """Write a profile atomically (a crash never leaves a half-written file)."""
-    p = Path(path)
-    tmp = p.with_name(p.name + ".tmp")
-    tmp.write_text(json.dumps(profile.to_dict(), indent=1) + "\n", encoding="utf-8")
-    os.replace(tmp, p)
+    from necviz.outputs import write_json
+
+    write_json(Path(path), profile.to_dict(), indent=1)

@@ -18,7 +18,7 @@ from necviz.calibration import PairCollector, calibrate_from_recordings, calibra
 from necviz.commands.calibrate import add_parser, parse_seeds
 from necviz.core.camera_profile import CameraProfile
 from necviz.core.crf import default_davis346
-from necviz.core.errors import NecvizError, ParameterError, ProfileError
+from necviz.core.errors import ParameterError, ProfileError
 from necviz.core.event_model import TediParams
 from necviz.core.sensor import SensorGeometry
 from necviz.drivers.sim.calibration_scene import CalibrationScene, CalibrationSceneOptions
@@ -178,15 +178,19 @@ def test_out_is_not_overwritten_without_force(tmp_path):
         (["--sim", "calibration", "--init", "0.3,-1"], "contrast threshold c_off"),
         (["--sim", "calibration", "--fit", "c_on,gamma"], "--fit"),
         (["--sim", "calibration", "--sensor", "big"], "--sensor"),
-        (["--sim", "calibration", "--max-lag", "0"], "max_lag"),
-        (["--sim", "calibration", "--duration", "-1"], "--duration"),
+        (["--sim", "calibration", "--max-lag", "0"], "--max-lag = 0 is out of range"),
+        (["--sim", "calibration", "--max-lag", "51"], "--max-lag = 51 is out of range"),
+        (["--sim", "calibration", "--duration=-1"], "--duration"),
+        (["--sim", "calibration", "--min-change", "nan"], "--min-change must be finite"),
     ],
 )
-def test_bad_input_gives_one_line_errors(tmp_path, monkeypatch, argv, match):
+def test_bad_input_gives_one_line_errors(tmp_path, monkeypatch, capsys, argv, match):
+    from necviz.commands.cli import main
+
     monkeypatch.chdir(tmp_path)
-    with pytest.raises(NecvizError, match=match) as e:
-        cli([*argv, "--out", "p.json"])
-    assert "\n" not in str(e.value)
+    assert main(["calibrate", *argv, "--out", "p.json"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("necviz: error:") and match in err and "\n" not in err, err
     assert not (tmp_path / "p.json").exists()
 
 

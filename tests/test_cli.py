@@ -82,3 +82,107 @@ def test_bench_sim_reports_speed_and_writes_json(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "real-time factor" in out and "simulated" in out
     assert main(["bench", "sim", "--cameras", "0"]) == 2
+
+
+# -- issue 23: every numeric flag refuses NaN, infinities, garbage and values out of its range -----
+def _numeric_flags():
+    import argparse
+
+    from necviz.commands.cli import build_parser
+
+    out, plain = [], []
+
+    def walk(parser, prefix):
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    walk(sub, (*prefix, name))
+            elif action.option_strings:
+                if getattr(action.type, "necviz_rule", None) is not None:
+                    out.append((prefix, action.option_strings[0], action.type.necviz_rule))
+                elif action.type in (int, float):
+                    plain.append((prefix, action.option_strings[0]))
+
+    walk(build_parser(), ())
+    return out, plain
+
+
+def test_every_numeric_flag_is_checked_through_the_one_table():
+    flags, plain = _numeric_flags()
+    assert plain == []  # no flag converts with a bare int() or float()
+    assert len(flags) > 40
+    assert {f for _, f, _ in flags} >= {"--exposure-us", "--duration", "--seed", "--event-window-ms", "--workers"}
+
+
+def test_every_numeric_flag_refuses_nan_infinity_garbage_and_out_of_range(capsys):
+    from necviz.options import NUMBER_FLAGS
+
+    flags, _ = _numeric_flags()
+    for prefix, flag, (name, command) in flags:
+        rule = NUMBER_FLAGS.get(f"{command} {name}") or NUMBER_FLAGS[name]
+        bad = ["nan", "inf", "-inf", "banana", "1e400", ""]
+        if rule.lo is not None:
+            bad.append(str(rule.lo - 1) if not rule.lo_open else str(rule.lo))  # below, or 0 where 0 means nothing
+        if rule.hi is not None:
+            bad.append(str(rule.hi * 2 + 1))
+        if rule.integer:
+            bad.append("1.5")
+        for value in bad:
+            code = main([*prefix, f"{flag}={value}"])
+            err = capsys.readouterr().err.strip()
+            assert code == 2, (prefix, flag, value)
+            assert err.startswith("necviz: error:") and "\n" not in err and flag in err, (prefix, flag, value, err)
+
+
+@pytest.mark.parametrize(
+    "argv,needle",
+    [
+        (["demo", "--speed", "0"], "--speed must be 'max'"),
+        (["demo", "--speed", "nan"], "--speed"),
+        (["demo", "--memory-limit", "banana"], "--memory-limit expects"),
+        (["info", "--exposure-us", "nan", "x.aedat4"], "--exposure-us must be finite"),
+        (["replay", "x.aedat4", "--end", "0"], "--end = 0 is out of range"),
+    ],
+)
+def test_accepted_nonsense_is_refused(argv, needle, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("necviz: error:") and needle in err and "\n" not in err, err
+
+
+def test_numba_cache_falls_back_to_a_writable_temporary_folder(monkeypatch, tmp_path):
+    """Neither the package's __pycache__ nor ~/.cache/numba writable: the cache goes to a temporary folder."""
+    import os
+    import tempfile
+
+    import numba
+
+    import necviz
+
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    monkeypatch.setattr(numba.config, "CACHE_DIR", numba.config.CACHE_DIR)  # restored after the test
+    monkeypatch.setattr(necviz.os, "access", lambda *a, **k: False)
+    monkeypatch.setattr(tempfile, "gettempdir", lambda: str(tmp_path))
+    necviz._numba_cache_fallback()
+    folder = tmp_path / f"necviz-numba-{os.getuid()}"
+    assert os.environ["NUMBA_CACHE_DIR"] == str(folder) and folder.is_dir()
+    assert numba.config.CACHE_DIR == str(folder)  # numba was imported already: its config follows
+
+
+def test_version_and_a_numba_kernel_work_with_an_unwritable_home():
+    """As a user who can write neither the installed package nor the home folder (here: nobody)."""
+    import os
+    import shutil
+
+    if os.geteuid() != 0 or shutil.which("setpriv") is None:
+        pytest.skip("needs root and setpriv to run as an unprivileged user")
+    env = {"HOME": "/nonexistent", "PATH": "/usr/bin:/bin"}
+    for args in (["--version"], ["info"]):
+        r = subprocess.run(
+            ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", sys.executable, "-m", "necviz", *args],
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=300,
+        )
+        assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr[-1000:]

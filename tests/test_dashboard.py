@@ -139,9 +139,7 @@ def test_layouts_build_for_any_lanes(layout, tmp_path):
 
 
 def test_unknown_layout_is_a_one_line_error(capsys, tmp_path):
-    with pytest.raises(SystemExit) as e:
-        main(["demo", "--duration", "0.1", "--save", str(tmp_path / "x.rrd"), "--layout", "nope"])
-    assert e.value.code == 2
+    assert main(["demo", "--duration", "0.1", "--save", str(tmp_path / "x.rrd"), "--layout", "nope"]) == 2
     assert "invalid choice: 'nope'" in capsys.readouterr().err
 
 

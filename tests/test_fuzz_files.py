@@ -216,3 +216,125 @@ def test_a_bug_is_not_disguised_as_damage(tmp_path, monkeypatch):
     monkeypatch.setattr(text, "_valid_events", broken)
     with pytest.raises(AttributeError):
         list(open_recording(path, sensor=None))
+
+
+# ------------------------------------------------------------------ issue 23: bounded on any input
+
+
+def test_hostile_files_and_paths_end_in_one_line_within_10_s_and_512_mb(tmp_path):
+    """Every case of ``tests/hostile.py`` (files declaring more than they hold, decompression bombs,
+    zero runs after valid data, pipes, devices, link loops, non-UTF-8 names, a decoder panic, outputs
+    naming inputs) plus 36 corrupted AEDAT 3.1/2.0 and HDF5 files through ``replay``: each ends
+    clean or in one line, within 10 s and 512 MB of growth, inputs byte-identical. Run in a child
+    process with a 6 GB address-space cap, so a case that runs away cannot take the suite with it."""
+    import json
+    import resource
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from hostile import problems
+
+    def cap():
+        resource.setrlimit(resource.RLIMIT_AS, (6 << 30, 6 << 30))
+
+    out = tmp_path / "results.json"
+    proc = subprocess.run(
+        [sys.executable, str(Path(__file__).with_name("hostile.py")), str(out), str(tmp_path / "work"), "36"],
+        capture_output=True,
+        text=True,
+        errors="replace",
+        timeout=600,
+        preexec_fn=cap,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    results = json.loads(out.read_text())
+    bad = [f"{r['name']}: {'; '.join(problems(r))}" for r in results if problems(r)]
+    assert not bad, "\n".join(bad)
+    groups = {r["group"] for r in results}
+    assert groups == {"files", "paths", "replay"} and len(results) > 80
+    outcomes = {r["outcome"] for r in results}
+    assert outcomes == {"clean", "error"}  # both happen: the damage is real, valid input still works
+
+
+def test_the_stderr_trap_drops_a_panics_text_and_passes_everything_else_on(capfd):
+    import os
+
+    from necviz.drivers.recordings.reader import StderrTrap
+
+    trap = StderrTrap()
+    with trap():
+        os.write(2, b"a library's own note\n")
+    with pytest.raises(PanicException):
+        with trap():
+            os.write(2, b"thread '<unnamed>' panicked at src/lib.rs:1:1:\nstack backtrace:\n   0: ...\n")
+            raise PanicException("index out of bounds")
+    with trap(discard=True):
+        os.write(2, b"libpng error: bad adaptive filter value\n")
+    trap.close()
+    assert capfd.readouterr().err == "a library's own note\n"
+
+
+def test_declared_sizes_are_checked_against_what_the_file_holds(tmp_path):
+    import h5py
+
+    p = tmp_path / "sparse.h5"
+    with h5py.File(p, "w") as f:
+        g = f.create_group("events")
+        for k, dt in zip("txyp", ("i8", "u2", "u2", "u1")):
+            g.create_dataset(k, shape=(1 << 38,), dtype=dt, chunks=(1 << 16,))
+    assert p.stat().st_size < 10_000
+    with pytest.raises(RecordingError, match=r"/events/t declares 274,877,906,944 entries .* holds 0 bytes"):
+        open_recording(p)
+
+
+def test_timestamps_that_never_advance_are_damage_not_a_memory_leak(tmp_path):
+    """8 M events at t = 0 (zeros decompressed from a tiny file) end in one line instead of being held."""
+    from necviz.drivers.recordings.reader import MAX_HELD_EVENTS
+
+    n = MAX_HELD_EVENTS + (1 << 18)
+    z = np.zeros(n, np.int64)
+    path = write_dsec(tmp_path / "zeros.h5", z, z, z, z)
+    got = 0
+    with pytest.raises(RecordingError, match="without the stream's time advancing"):
+        for p in open_recording(path):
+            got += len(p) if isinstance(p, EventBatch) else 0
+    assert got <= n
+
+
+def test_a_run_of_zero_bytes_in_a_text_file_is_damage_at_its_offset(tmp_path):
+    p = tmp_path / "events.txt"
+    with open(p, "wb") as f:
+        f.write(b"0.1 1 2 1\n0.2 3 4 0\n")
+        f.truncate(64 << 20)  # sparse: 64 MB of zeros after two lines
+    got = []
+    with pytest.raises(RecordingError, match=r"a run of zero bytes in events.txt .* at byte 20$"):
+        for pk in open_recording(p):
+            got.append(pk)
+    assert sum(len(pk) for pk in got if isinstance(pk, EventBatch)) == 2  # the two lines before it
+
+
+def test_a_named_pipe_is_refused_unless_asked_for_then_read_through_a_copy(tmp_path):
+    import os
+    import threading
+
+    if not SAMPLE_AEDAT4.is_file():
+        pytest.skip(f"the real AEDAT 4 sample is not here ({SAMPLE_AEDAT4})")
+    fifo = tmp_path / "live.aedat4"
+    os.mkfifo(fifo)
+    with pytest.raises(RecordingError, match="a named pipe, not a regular file.*--pipe-timeout"):
+        open_recording(fifo)
+    with pytest.raises(RecordingError, match="no data from the named pipe within 0.3 s"):
+        open_recording(fifo, pipe_timeout_s=0.3)
+
+    def writer():
+        with open(fifo, "wb") as f:
+            f.write(SAMPLE_AEDAT4.read_bytes())
+
+    threading.Thread(target=writer, daemon=True).start()
+    rec = open_recording(fifo, pipe_timeout_s=10)
+    copy = rec.path
+    n = sum(len(p) for p in rec if isinstance(p, EventBatch))
+    rec.close()
+    assert n == sum(len(p) for p in open_recording(SAMPLE_AEDAT4) if isinstance(p, EventBatch))
+    assert not copy.exists()  # the temporary copy goes with the recording

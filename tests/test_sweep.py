@@ -365,6 +365,8 @@ BAD = [
     ("seeds = '0'\ncontrollers = ['nec']\nscenarios = [{ name = 'flicker', color = 1 }]\n", "scenarios[0]: unknown"),
     ("seeds = '0'\ncontrollers = ['nec']\nprofiles = ['missing.json']\nscenarios = ['flicker']\n", "missing.json"),
     ("seeds = [0\n", "invalid TOML"),
+    ("seeds = '0..4294967295'\ncontrollers = ['nec']\nscenarios = ['flicker']\n", "more than 10,000 seeds"),
+    ("seeds = '0'\nduration_s = 1e12\ncontrollers = ['nec']\nscenarios = ['flicker']\n", "duration_s"),
 ]
 
 
@@ -375,6 +377,26 @@ def test_bad_sweep_files_give_one_line_naming_the_key(tmp_path, capsys, text, ne
     err = capsys.readouterr().err
     assert err.startswith("necviz: error: ") and err.count("\n") == 1, err
     assert needle in err and str(f) in err
+
+
+def test_a_million_run_sweep_is_refused_from_its_counts_at_once(tmp_path, capsys):
+    """1,000,000 runs are counted, not built: refused in about the time it takes to start."""
+    import resource
+
+    goals = ", ".join(str(100 + k) for k in range(10))
+    steps = ", ".join(str(60 + 5 * k) for k in range(10))
+    f = _write(
+        tmp_path / "big.toml",
+        f'seeds = "0..999"\ncontrollers = [{{ name = "nec", params = {{ goal = [{goals}] }} }}]\n'
+        f'[[scenarios]]\nname = "tunnel_exit"\nparams = {{ step_db = [{steps}], transition_ms = [{steps}] }}\n',
+    )
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    t0 = time.perf_counter()
+    assert main(["sweep", "plan", str(f), "--no-estimate"]) == 2
+    took = time.perf_counter() - t0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "1,000,000 runs" in err and "at most 100,000" in err, err
+    assert took < 5 and resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 50_000  # kB
 
 
 def test_plan_counts_estimate_and_checks_metrics(tmp_path, capsys):
@@ -418,6 +440,47 @@ def test_output_folder_rules(first, tmp_path, capsys):
     _write(f, SWEEP.replace('"0..1"', '"0"'))
     assert main(["sweep", "run", str(f), "--out", str(out), "--resume"]) == 2
     assert "not in" in capsys.readouterr().err
+
+
+def test_damaged_rows_are_named_in_one_line_and_run_again_on_resume(first, client, tmp_path, capsys):
+    import shutil
+
+    plan, src, _ = first
+    out = tmp_path / "copy"
+    shutil.copytree(src, out)
+    store = Store(out)
+    ok = sorted(_ok_rows(out))
+    cut, empty = ok[0], ok[1]
+    data = store.row_path(cut).read_bytes()
+    store.row_path(cut).write_bytes(data[: len(data) // 2])  # a truncated copy
+    store.row_path(empty).write_bytes(b"")  # a row emptied by a full disk
+    st = json.loads(_run_cli(["sweep", "status", str(out), "--json"]))
+    assert (st["ok"], st["missing"]) == (2, 2) and set(st["unreadable"]) == {cut, empty}
+    assert main(["sweep", "status", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert text.count("unreadable") == 1 and "--resume" in text
+    assert main(["sweep", "report", str(out), "--out", str(tmp_path / "rep")]) == 0
+    warn = [ln for ln in capsys.readouterr().out.splitlines() if "unreadable" in ln]
+    assert len(warn) == 1 and "2 result rows unreadable" in warn[0]
+    assert main(["sweep", "show", str(out), "--run", empty, "--save", str(tmp_path / "s.rrd")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "unreadable result row" in err and not (tmp_path / "s.rrd").exists()
+    res = run_sweep(plan, out, client=client, resume=True, stream=None)
+    assert (res.skipped, res.written, res.ok) == (6, 2, 2)  # exactly the damaged two, run again
+    assert set(_ok_rows(out)) == set(ok) and len(list((out / "runs").glob("*.damaged"))) == 2
+
+
+def test_a_sweep_may_not_write_over_its_own_sweep_file(first, tmp_path, capsys):
+    import shutil
+
+    _, src, _ = first
+    out = tmp_path / "copy"
+    shutil.copytree(src, out)
+    before = (out / "sweep.toml").read_bytes()
+    assert main(["sweep", "run", str(out / "sweep.toml"), "--out", str(out), "--force"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "is the input file" in err
+    assert (out / "sweep.toml").read_bytes() == before and (out / "manifest.json").exists()
 
 
 def test_retry_failed_runs_only_the_failed_again(first, client):

@@ -273,7 +273,13 @@ class DavisCamera:
         with self._lock:
             t = self._last_t if issue_time_us is None else int(issue_time_us)
             if not self.device.closed and self.state != "waiting":
-                cycles = self.device.set_exposure_us(exp)
+                try:
+                    cycles = self.device.set_exposure_us(exp)
+                except DeviceDisconnectedError:
+                    # the command found the unplug before the stream did: the stream reports it (with the
+                    # time of its last data) once everything read before it is delivered; with
+                    # reconnect the setting is written when the camera returns, as while waiting
+                    cycles = self.device.us_to_cycles(exp)
             else:
                 cycles = self.device.us_to_cycles(exp)  # written when the device returns
             self._exposure_us = exp

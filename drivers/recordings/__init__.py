@@ -7,6 +7,11 @@
 
 from __future__ import annotations
 
+import os
+import select
+import stat
+import tempfile
+import time
 from pathlib import Path
 
 from necviz.core.errors import NecvizError
@@ -24,9 +29,11 @@ __all__ = [
     "RecordingError",
     "RecordingInfo",
     "StreamAssembler",
+    "check_source",
     "describe",
     "detect_format",
     "open_recording",
+    "spool_pipe",
 ]
 
 
@@ -60,6 +67,82 @@ def _reader(fmt: str):
     raise RecordingError(f"unknown format name {fmt!r}; choose one of {', '.join(FORMATS)}")
 
 
+def check_source(path) -> str:
+    """What ``path`` is, checked before anything opens it: ``"file"``, ``"folder"`` or ``"pipe"``.
+
+    Raises :class:`RecordingError` (one line) for a missing path, a symbolic link loop, a device or
+    a socket. A named pipe is returned as ``"pipe"``: readers refuse it unless asked (opening one
+    waits for a writer for ever), see :func:`open_recording`.
+    """
+    p = Path(path)
+    try:
+        st = os.stat(p)
+    except FileNotFoundError:
+        raise RecordingError(f"{p}: no such file or directory") from None
+    except OSError as exc:  # a symbolic link loop, a path through a file, a name too long
+        raise RecordingError(f"{p}: cannot open ({exc.strerror or exc})") from None
+    if stat.S_ISREG(st.st_mode):
+        return "file"
+    if stat.S_ISDIR(st.st_mode):
+        return "folder"
+    if stat.S_ISFIFO(st.st_mode):
+        return "pipe"
+    kind = "a character device" if stat.S_ISCHR(st.st_mode) else "a block device"
+    kind = "a socket" if stat.S_ISSOCK(st.st_mode) else kind
+    raise RecordingError(f"{p}: {kind}, not a recording file")
+
+
+#: Largest recording copied from a named pipe (``pipe_timeout_s``).
+MAX_PIPE_BYTES = 64 << 30
+
+
+def spool_pipe(path, timeout_s: float, folder=None) -> Path:
+    """Copy what a named pipe delivers into a temporary file (deleted by the caller) and return it.
+
+    Waits at most ``timeout_s`` seconds for a writer and then between two reads; the copy ends when
+    the writer closes the pipe. Raises :class:`RecordingError` when nothing arrives in time, when
+    more than :data:`MAX_PIPE_BYTES` arrive, or when the copy cannot be written.
+    """
+    p = Path(path)
+    try:
+        fd = os.open(p, os.O_RDONLY | os.O_NONBLOCK)
+    except OSError as exc:
+        raise RecordingError(f"{p}: cannot open the pipe ({exc.strerror or exc})") from None
+    out = tempfile.NamedTemporaryFile(prefix="necviz-pipe-", suffix=p.suffix, dir=folder, delete=False)
+    total, started, deadline = 0, False, time.monotonic() + timeout_s
+    try:
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                what = "no data" if not total else f"no more data after {total:,} bytes"
+                raise RecordingError(f"{p}: {what} from the named pipe within {timeout_s:g} s")
+            ready, _, _ = select.select([fd], [], [], min(left, 0.5))
+            if not ready:
+                continue
+            chunk = os.read(fd, 1 << 20)
+            if not chunk:
+                if started or total:
+                    break  # the writer closed the pipe
+                time.sleep(0.05)  # no writer yet (a FIFO without writer reads as end of file)
+                continue
+            started = True
+            total += len(chunk)
+            if total > MAX_PIPE_BYTES:
+                raise RecordingError(f"{p}: more than {MAX_PIPE_BYTES >> 30} GiB from the named pipe")
+            out.write(chunk)
+            deadline = time.monotonic() + timeout_s
+        out.close()
+        return Path(out.name)
+    except BaseException as exc:
+        out.close()
+        os.unlink(out.name)
+        if isinstance(exc, OSError):
+            raise RecordingError(f"{p}: cannot copy the named pipe ({exc.strerror or exc})") from None
+        raise
+    finally:
+        os.close(fd)
+
+
 def open_recording(
     path,
     *,
@@ -68,19 +151,54 @@ def open_recording(
     end_us: int | None = None,
     format: str | None = None,
     sensor: SensorGeometry | None = None,
+    pipe_timeout_s: float | None = None,
 ) -> Recording:
     """Open a recording for replay.
 
     ``exposure_us``: exposure (µs) for formats that do not store it (AEDAT 2.0, RPG text, HDF5, bags
     without an exposure topic); ignored where exposure is stored. ``start_us``/``end_us``: replay
     only that time range (sensor clock, µs). ``format``: skip detection (one of :data:`FORMATS`).
-    ``sensor``: geometry hint for files that store none. Raises :class:`RecordingError` (and
-    nothing else) for a missing, unreadable or damaged file; iterating the recording does the same
-    (see :mod:`.base`).
+    ``sensor``: geometry hint for files that store none. ``pipe_timeout_s``: accept a named pipe
+    (refused otherwise): its data are copied to a temporary file first (:func:`spool_pipe`), waiting
+    at most that long for them. Raises :class:`RecordingError` (and nothing else) for a missing,
+    unreadable or damaged file; iterating the recording does the same (see :mod:`.base`).
     """
     p = Path(path)
-    if not p.exists():
-        raise RecordingError(f"{p}: no such file or directory")
+    kind = check_source(p)
+    spooled = None
+    if kind == "pipe":
+        if pipe_timeout_s is None:
+            raise RecordingError(
+                f"{p}: a named pipe, not a regular file (reading one waits for a writer for ever); "
+                "pass --pipe-timeout S to copy what it delivers"
+            )
+        spooled = spool_pipe(p, pipe_timeout_s)
+        p = spooled
+    try:
+        rec = _open(p, exposure_us, start_us, end_us, format, sensor)
+    except BaseException:
+        if spooled is not None:
+            spooled.unlink(missing_ok=True)
+        raise
+    if spooled is not None:
+        rec.warn(f"read from the named pipe {path} through a temporary copy")
+        _unlink_on_close(rec, spooled)
+    return rec
+
+
+def _unlink_on_close(rec: Recording, path: Path) -> None:
+    close = rec.close
+
+    def closing():
+        try:
+            close()
+        finally:
+            path.unlink(missing_ok=True)
+
+    rec.close = closing
+
+
+def _open(p: Path, exposure_us, start_us, end_us, format, sensor) -> Recording:
     if p.is_file() and p.stat().st_size == 0:
         raise RecordingError(f"{p}: empty file (0 bytes)")
     fmt = format or detect_format(p)

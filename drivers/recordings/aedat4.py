@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import os
 import struct
+import warnings
 from collections.abc import Iterator
 
 import numpy as np
@@ -37,9 +38,11 @@ from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, TRIGGER_KINDS
 from necviz.core.sensor import SensorGeometry
 from necviz.drivers.recordings.reader import (
     Recording,
+    StderrTrap,
     StreamAssembler,
     first_line,
     is_rust_panic,
+    openable_path,
     sensor_from_chip,
     to_gray8,
 )
@@ -121,8 +124,10 @@ class Aedat4Recording(Recording):
         self._data_end = data_pos if 0 < data_pos <= self.size else self.size
         import aedat
 
+        self._trap = StderrTrap()  # the decoder's panic messages: necviz reports the damage in one line
         try:
-            self._streams = aedat.Decoder(str(self.path)).id_to_stream()
+            with self._trap(), openable_path(self.path) as name:
+                self._streams = aedat.Decoder(name).id_to_stream()
         except BaseException as exc:  # noqa: BLE001 - narrowed by _decoder_error
             err = self._decoder_error(exc, "unreadable AEDAT 4 header", len(MAGIC))
             if err is exc:
@@ -141,6 +146,9 @@ class Aedat4Recording(Recording):
         has_frames = any(s.get("type") == "frame" for s in self._streams.values())
         self.exposure_source = "stored" if has_frames else "none (no frames)"
         self.properties = {}
+
+    def close(self) -> None:
+        self._trap.close()
 
     def _decoder_error(self, exc: BaseException, what: str, offset: int) -> BaseException:
         """What the ``aedat`` decoder raised, as a one-line RecordingError: its errors (RuntimeError,
@@ -169,7 +177,8 @@ class Aedat4Recording(Recording):
         off = self._packets_start
         try:
             try:
-                decoder = aedat.Decoder(str(self.path))
+                with self._trap(), openable_path(self.path) as name:
+                    decoder = aedat.Decoder(name)
             except BaseException as exc:  # noqa: BLE001 - narrowed by _decoder_error
                 err = self._decoder_error(exc, "unreadable AEDAT 4 header", len(MAGIC))
                 if err is exc:
@@ -186,6 +195,9 @@ class Aedat4Recording(Recording):
                     yield from asm.drain(None)
                     raise self.error(f"truncated packet header ({len(head)} of 8 bytes)", off)
                 sid, size = struct.unpack("<II", head)
+                if size == 0:
+                    yield from asm.drain(None)
+                    raise self.error(f"empty packet (stream {sid}, 0 bytes: garbage or damaged data)", off)
                 if sid not in self._streams:
                     yield from asm.drain(None)
                     raise self.error(f"unknown stream id {sid} in packet header (garbage or damaged data)", off)
@@ -196,7 +208,11 @@ class Aedat4Recording(Recording):
                         off,
                     )
                 try:
-                    packet = next(decoder)
+                    with self._trap(), warnings.catch_warnings(record=True) as said:
+                        warnings.simplefilter("always")
+                        packet = next(decoder)
+                    for w in said:  # e.g. "skipping unknown frame format": a recording warning, not stderr
+                        self.warn(f"decoder: {first_line(w.message)} (packet at byte {off})")
                 except StopIteration:
                     break
                 except BaseException as exc:  # noqa: BLE001 - narrowed by _decoder_error

@@ -66,10 +66,15 @@ def _show(head: bytes) -> str:
 
 def detect_format(path) -> str:
     """The format name of the recording at ``path`` (see the module table), or raise RecordingError."""
+    from necviz.drivers.recordings import check_source
+
     p = Path(path)
-    if not p.exists():
-        raise RecordingError(f"{p}: no such file or directory")
-    if p.is_dir():
+    kind = check_source(p)
+    if kind == "pipe":
+        raise RecordingError(
+            f"{p}: a named pipe, not a regular file (its format cannot be detected without reading it)"
+        )
+    if kind == "folder":
         if (p / "metadata.yaml").is_file():
             return "rosbag2"
         if (p / "events.txt").is_file():

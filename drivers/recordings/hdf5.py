@@ -15,10 +15,18 @@
   are skipped with a warning. Seeking: bisection on the time column.
 
 Streaming: slices of 2^18 events (bounded memory); times rounded to integer µs.
+
+Bounded by what the file holds, not by what it declares (:meth:`_Hdf5Recording._dataset`): a
+dataset without compression must have its declared bytes stored in the file (HDF5 reads
+unallocated chunks as zeros, so a 3 kB file could declare 2^38 events); a compressed one may
+expand at most :data:`MAX_RATIO` times (gzip's limit is about 1032) beyond 64 MiB, in chunks of at
+most :data:`MAX_CHUNK_BYTES`; a dataset read whole (time stamps) holds at most :data:`MAX_WHOLE_BYTES`.
+Anything else is a one-line :class:`RecordingError` naming the dataset, before any of it is read.
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 
 import numpy as np
@@ -46,6 +54,12 @@ except ImportError:  # pragma: no cover - optional
     hdf5plugin = None
 
 CHUNK = 1 << 18
+#: Largest expansion of a compressed dataset above 64 MiB (gzip/deflate cannot exceed ~1032:1).
+MAX_RATIO = 1100
+#: Largest HDF5 chunk decompressed at once (HDF5 decompresses whole chunks).
+MAX_CHUNK_BYTES = 64 << 20
+#: Largest dataset read in one piece (frame and IMU time stamps).
+MAX_WHOLE_BYTES = 256 << 20
 
 
 def _show(sl) -> str:
@@ -66,6 +80,11 @@ def _valid_rows(t, x, y, p, n: int, t_scale: float):
         z = np.zeros(0, np.int64)
         return z, z, z, z, 0
     t, x, y, p = (c.astype(np.float64) if c.dtype.kind == "f" else c for c in cols)
+    with np.errstate(over="ignore", invalid="ignore"):  # damaged values overflow here: they are refused
+        return _check_rows(t, x, y, p, n, t_scale)
+
+
+def _check_rows(t, x, y, p, n: int, t_scale: float):
     ok = np.ones(n, bool)
     for c in (t, x, y, p):
         if c.dtype.kind == "f":
@@ -74,14 +93,18 @@ def _valid_rows(t, x, y, p, n: int, t_scale: float):
         ok &= (c >= 0) & (c <= 65535)
     if t.dtype.kind == "u" and t.dtype.itemsize == 8:
         ok &= t < (1 << 62)
-    elif t.dtype.kind == "f":
-        ok &= np.abs(t) * t_scale < 9e18
+    elif t.dtype.kind == "f" or t_scale != 1.0:
+        ok &= np.abs(t.astype(np.float64)) * t_scale < 9e18
     bad = None
     if not ok.all():
         bad = int(np.argmin(ok))
         t, x, y, p = t[:bad], x[:bad], y[:bad], p[:bad]
     tt = np.rint(t * t_scale).astype(np.int64) if t.dtype.kind == "f" or t_scale != 1.0 else t.astype(np.int64)
     return tt, x, y, p, bad
+
+
+def _mb(n: int) -> str:
+    return f"{n / (1 << 20):,.1f} MB" if n >= 1 << 20 else f"{n:,} bytes"
 
 
 def open_hdf5(path, **kwargs) -> Recording:
@@ -138,6 +161,46 @@ class _Hdf5Recording(Recording):
         with self._at(f"key {name}"):
             return group[key]
 
+    def _dataset(self, group, key: str, *, whole: bool = False):
+        """``group[key]``, checked: a dataset (not a group), whose declared size the file can hold (see
+        the module docstring); ``whole``: it will be read in one piece."""
+        import h5py
+
+        ds = self._get(group, key)
+        with self._at(f"key {key}"):
+            name = f"{group.name.rstrip('/')}/{key}"
+            if not isinstance(ds, h5py.Dataset):
+                raise self.error(f"{name} is a {type(ds).__name__.lower()}, not a dataset")
+        with self._at(f"dataset {name}"):
+            n = int(ds.size or 0)
+            declared = n * int(ds.dtype.itemsize)
+            stored = int(ds.id.get_storage_size())
+            compressed = bool(getattr(ds, "_filters", None))
+            chunk = ds.chunks
+        size = os.path.getsize(self.path)
+        if stored > size:
+            raise self.error(f"dataset {name} claims {stored:,} bytes of storage in a file of {size:,} bytes")
+        if not compressed and declared > stored:
+            raise self.error(
+                f"dataset {name} declares {n:,} entries ({_mb(declared)}) but the file holds {stored:,} bytes "
+                "of them (damaged, truncated or sparse file)"
+            )
+        if compressed and chunk is not None:
+            chunk_bytes = int(np.prod(chunk, dtype=np.float64)) * int(ds.dtype.itemsize)
+            if chunk_bytes > MAX_CHUNK_BYTES:
+                raise self.error(
+                    f"dataset {name} is compressed in chunks of {_mb(chunk_bytes)} (at most "
+                    f"{_mb(MAX_CHUNK_BYTES)} are decompressed at once)"
+                )
+        if compressed and declared > 64 << 20 and declared > MAX_RATIO * max(stored, 1):
+            raise self.error(
+                f"dataset {name} would decompress to {_mb(declared)} from {stored:,} bytes (more than "
+                f"{MAX_RATIO}:1): a decompression bomb or a damaged file"
+            )
+        if whole and declared > MAX_WHOLE_BYTES:
+            raise self.error(f"dataset {name} holds {_mb(declared)}, more than necviz reads at once")
+        return ds
+
     def _read(self, ds, sl):
         """``ds[sl]``; a missing compression filter or damage becomes a RecordingError naming the dataset."""
         with self._at("a dataset"):
@@ -183,7 +246,7 @@ class DsecRecording(_Hdf5Recording):
                 missing = [k for k in "txyp" if k not in g]
             if missing:
                 raise self.error(f"/events lacks dataset(s) {', '.join(missing)}")
-            ds = {k: self._get(g, k) for k in "txyp"}
+            ds = {k: self._dataset(g, k) for k in "txyp"}
             with self._at("dataset /events/t"):
                 self.n = int(ds["t"].shape[0]) if ds["t"].ndim == 1 else -1
             if self.n < 0:
@@ -195,7 +258,7 @@ class DsecRecording(_Hdf5Recording):
                 has_offset = "t_offset" in f
             self.t_offset = 0
             if has_offset:
-                v = np.asarray(self._read(self._get(f, "t_offset"), ())).reshape(-1)
+                v = np.asarray(self._read(self._dataset(f, "t_offset", whole=True), ())).reshape(-1)
                 if v.size != 1 or v.dtype.kind not in "iuf" or not abs(float(v[0])) < 2.0**62:
                     raise self.error("t_offset is not one integer number of µs", "dataset /t_offset")
                 self.t_offset = int(v[0])
@@ -225,27 +288,27 @@ class DsecRecording(_Hdf5Recording):
         out = {}
         if self.n_frames:
             g = self._get(f, "frames")
-            s = np.asarray(self._read(self._get(g, "exposure_start_us"), slice(None)), np.int64) + self.t_offset
-            e = np.asarray(self._read(self._get(g, "exposure_end_us"), slice(None)), np.int64) + self.t_offset
-            gain = np.asarray(self._read(self._get(g, "gain"), slice(None)), np.float64) if "gain" in g else None
-            out["frames"] = (s, e, gain, self._get(g, "images"))
+            s = np.asarray(self._read(self._dataset(g, "exposure_start_us"), slice(None)), np.int64) + self.t_offset
+            e = np.asarray(self._read(self._dataset(g, "exposure_end_us"), slice(None)), np.int64) + self.t_offset
+            gain = np.asarray(self._read(self._dataset(g, "gain"), slice(None)), np.float64) if "gain" in g else None
+            out["frames"] = (s, e, gain, self._dataset(g, "images"))
         if self.has_imu:
             g = self._get(f, "imu")
-            t = np.asarray(self._read(self._get(g, "t"), slice(None)), np.int64)
+            t = np.asarray(self._read(self._dataset(g, "t"), slice(None)), np.int64)
             imu = np.empty(t.size, IMU_DTYPE)
             imu["t"] = t + self.t_offset
-            acc = np.asarray(self._read(self._get(g, "accel"), slice(None)), np.float32).reshape(-1, 3)
-            gyr = np.asarray(self._read(self._get(g, "gyro"), slice(None)), np.float32).reshape(-1, 3)
+            acc = np.asarray(self._read(self._dataset(g, "accel"), slice(None)), np.float32).reshape(-1, 3)
+            gyr = np.asarray(self._read(self._dataset(g, "gyro"), slice(None)), np.float32).reshape(-1, 3)
             for k, axis in enumerate("xyz"):
                 imu[f"a{axis}"], imu[f"g{axis}"] = acc[:, k], gyr[:, k]
-            imu["temp"] = self._read(self._get(g, "temp"), slice(None)) if "temp" in g else np.nan
+            imu["temp"] = self._read(self._dataset(g, "temp"), slice(None)) if "temp" in g else np.nan
             out["imu"] = imu
         if self.has_triggers:
             g = self._get(f, "triggers")
-            t = np.asarray(self._read(self._get(g, "t"), slice(None)), np.int64)
+            t = np.asarray(self._read(self._dataset(g, "t"), slice(None)), np.int64)
             trg = np.empty(t.size, TRIGGER_DTYPE)
             trg["t"] = t + self.t_offset
-            trg["kind"] = self._read(self._get(g, "kind"), slice(None))
+            trg["kind"] = self._read(self._dataset(g, "kind"), slice(None))
             out["triggers"] = trg[(trg["kind"] >= 0) & (trg["kind"] < len(TRIGGER_KINDS))]
         return out
 
@@ -276,7 +339,7 @@ class DsecRecording(_Hdf5Recording):
         with self._at("key /ms_to_idx"):
             has_index = "ms_to_idx" in f
         if has_index and rel >= 0:
-            m2i = self._get(f, "ms_to_idx")
+            m2i = self._dataset(f, "ms_to_idx")
             ms = rel // 1000
             if ms < m2i.shape[0]:
                 return min(max(int(self._read(m2i, ms)), 0), self.n)
@@ -290,7 +353,7 @@ class DsecRecording(_Hdf5Recording):
     def _feed(self, asm: StreamAssembler) -> Iterator:
         with self._open() as f:
             g = self._get(f, "events")
-            ds = {k: self._get(g, k) for k in "txyp"}
+            ds = {k: self._dataset(g, k) for k in "txyp"}
             side = self._side_streams(f)
             cursor: dict = {}
             for i in range(self._first_index(f), self.n, CHUNK):
@@ -330,7 +393,7 @@ class MvsecRecording(_Hdf5Recording):
             if not found:
                 raise self.error(f"no {self.group}/events dataset")
             g = self._get(f, self.group)
-            ev = self._get(g, "events")
+            ev = self._dataset(g, "events")
             with self._at(f"dataset /{self.group}/events"):
                 shape = tuple(int(v) for v in ev.shape) if ev.shape is not None else ()
             if len(shape) != 2 or shape[1] < 4:
@@ -341,7 +404,7 @@ class MvsecRecording(_Hdf5Recording):
                 self.has_imu = "imu" in g and "imu_ts" in g
             self.n_frames = 0
             if has_images:
-                img = self._get(g, "image_raw")
+                img = self._dataset(g, "image_raw")
                 with self._at(f"dataset /{self.group}/image_raw"):
                     ishape = tuple(int(v) for v in img.shape) if img.shape is not None else ()
                 if len(ishape) not in (3, 4) or min(ishape) <= 0:
@@ -378,7 +441,7 @@ class MvsecRecording(_Hdf5Recording):
 
     def _times(self, g, key: str) -> np.ndarray:
         """A time column in seconds -> int64 µs (a RecordingError if it holds non-finite values)."""
-        ds = self._get(g, key)
+        ds = self._dataset(g, key, whole=True)
         v = np.asarray(self._read(ds, slice(None)), np.float64).reshape(-1)
         ok = np.isfinite(v) & (np.abs(v) < 9e12)
         if not ok.all():
@@ -388,12 +451,12 @@ class MvsecRecording(_Hdf5Recording):
     def _feed(self, asm: StreamAssembler, use_frames) -> Iterator:
         with self._open() as f:
             g = self._get(f, self.group)
-            ev_ds = self._get(g, "events")
+            ev_ds = self._dataset(g, "events")
             stamps = self._times(g, "image_raw_ts") if use_frames else np.zeros(0, np.int64)
             stamps = stamps[: self.n_frames]
             imu_t = self._times(g, "imu_ts") if self.has_imu else np.zeros(0, np.int64)
-            img_ds = self._get(g, "image_raw") if use_frames else None
-            imu_ds = self._get(g, "imu") if self.has_imu else None
+            img_ds = self._dataset(g, "image_raw") if use_frames else None
+            imu_ds = self._dataset(g, "imu") if self.has_imu else None
             half = 0 if self.exposure_us is None else self.exposure_us / 2
             i0 = 0
             if self.start_us is not None:

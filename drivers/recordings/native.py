@@ -89,6 +89,8 @@ T_S = struct.Struct("<q")
 MAX_EVENTS_PER_CHUNK = 1 << 20
 BLOCK = 1 << 16
 FLUSH_S = 0.25
+#: Longest run of zero bytes accepted as the lost tail of a crash (see ``NativeRecording._zeros_to_end``).
+ZERO_TAIL = 16 << 20
 _PACKED_EVENTS = np.dtype(
     {"names": ["t", "x", "y", "p"], "formats": ["<i8", "<u2", "<u2", "i1"], "offsets": [0, 8, 10, 12], "itemsize": 13}
 )
@@ -131,25 +133,40 @@ class Recorder:
         self._lock = threading.Lock()
         self._closed = False
         self._dirty_since: float | None = None
+        self._error: RecordingError | None = None  # a failed write (full disk): raised by every later call
         self.bytes_written = 0
-        self._write_all(MAGIC + bytes([VERSION]) + _chunk(HEADER, payload))
+        try:
+            self._write_all(MAGIC + bytes([VERSION]) + _chunk(HEADER, payload))
+        except RecordingError:
+            os.close(self._fd)
+            raise
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._flusher, name="necviz-recorder-flush", daemon=True)
         self._thread.start()
 
     # -- low level -----------------------------------------------------------------------------
     def _write_all(self, data) -> None:
+        """Write ``data`` to the file; an OS error (a full disk) becomes the recorder's
+        :class:`RecordingError`, raised now and by every later call."""
+        if self._error is not None:
+            raise self._error
         view = memoryview(data)
-        while view:
-            n = os.write(self._fd, view)
-            view = view[n:]
-            self.bytes_written += n
+        try:
+            while view:
+                n = os.write(self._fd, view)
+                view = view[n:]
+                self.bytes_written += n
+        except OSError as exc:
+            self._error = RecordingError(f"{self.path}: cannot write the recording ({exc.strerror or exc})")
+            raise self._error from None
 
     def _append(self, kind: int, payload) -> None:
         payload = bytes(payload)
         with self._lock:
             if self._closed:
                 raise RecordingError(f"{self.path}: recorder is closed")
+            if self._error is not None:
+                raise self._error
             self._buf += _chunk(kind, payload)
             if self._dirty_since is None:
                 self._dirty_since = time.monotonic()
@@ -171,10 +188,13 @@ class Recorder:
     def _flusher(self) -> None:
         while not self._stop.wait(FLUSH_S / 2):
             with self._lock:
-                if self._closed:
+                if self._closed or self._error is not None:
                     return
                 if self._dirty_since is not None and time.monotonic() - self._dirty_since >= FLUSH_S / 2:
-                    self._flush_locked()
+                    try:
+                        self._flush_locked()
+                    except RecordingError:  # kept in self._error: the writer's next call raises it
+                        return
 
     # -- public --------------------------------------------------------------------------------
     def write(self, packet) -> None:
@@ -243,14 +263,18 @@ class Recorder:
         with self._lock:
             if self._closed:
                 return
-            self._buf += _chunk(END, b"")
-            self._flush_locked()
             self._closed = True
+            self._stop.set()
             try:
-                os.fsync(self._fd)
+                self._buf += _chunk(END, b"")
+                self._flush_locked()
+                try:
+                    os.fsync(self._fd)
+                except OSError as exc:
+                    self._error = RecordingError(f"{self.path}: cannot write the recording ({exc.strerror or exc})")
+                    raise self._error from None
             finally:
                 os.close(self._fd)
-        self._stop.set()
 
     def __enter__(self):
         return self
@@ -311,7 +335,8 @@ class NativeRecording(Recording):
     def _read_chunk(self, offset: int, payload: bool = True, peek: int = 0):
         """Read the chunk at ``offset``: (type, length, crc, payload-or-peek, status).
 
-        status: "ok", "eof" (clean end), "tail" (incomplete last chunk) or "unknown" (bad type).
+        status: "ok", "eof" (clean end), "tail" (incomplete last chunk), "unknown" (bad type) or "zeros"
+        (a run of zero bytes longer than a crash leaves: damage).
         """
         f = self._fh
         f.seek(offset)
@@ -322,8 +347,10 @@ class NativeRecording(Recording):
             return 0, 0, 0, b"", "tail"
         kind, length, crc = CHUNK_HEAD.unpack(head)
         if kind not in _NAMES:
-            if kind == 0 and self._zeros_to_end(offset):
-                return kind, length, crc, b"", "tail"
+            if kind == 0:
+                zeros = self._zeros_to_end(offset)
+                if zeros is not None:
+                    return kind, length, crc, b"", zeros
             return kind, length, crc, b"", "unknown"
         end = offset + CHUNK_HEAD.size + length
         if end > self.size:
@@ -338,14 +365,21 @@ class NativeRecording(Recording):
             return kind, length, crc, data, "ok"
         return kind, length, crc, f.read(min(peek, length)), "ok"
 
-    def _zeros_to_end(self, offset: int) -> bool:
+    def _zeros_to_end(self, offset: int) -> str | None:
+        """What a run of zero bytes at ``offset`` is: ``"tail"`` if it reaches the end of the file within
+        :data:`ZERO_TAIL` bytes (a file system that lost the last writes of a crash fills them with
+        zeros), ``"zeros"`` if it goes on longer (damage), ``None`` if it is not a run of zeros."""
         self._fh.seek(offset)
+        seen = 0
         while True:
             block = self._fh.read(1 << 20)
             if not block:
-                return True
+                return "tail"
             if block.count(0) != len(block):
-                return False
+                return None
+            seen += len(block)
+            if seen > ZERO_TAIL:
+                return "zeros"
 
     def _tail_warning(self, offset: int) -> None:
         self.warn(
@@ -354,6 +388,8 @@ class NativeRecording(Recording):
         )
 
     def _damage(self, status: str, kind: int, offset: int) -> RecordingError:
+        if status == "zeros":
+            return self.error(f"a run of more than {ZERO_TAIL >> 20} MiB of zero bytes (damaged data)", offset)
         if status == "unknown":
             return self.error(f"unknown chunk type {kind} (garbage or damaged data)", offset)
         return self.error(f"{_NAMES.get(kind, kind)} chunk fails its CRC check (damaged data)", offset)

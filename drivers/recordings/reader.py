@@ -17,7 +17,11 @@ reading stopped — after every packet decoded before the damage has been delive
 
 from __future__ import annotations
 
+import os
 import struct
+import sys
+import tempfile
+import threading
 import zlib
 from collections import Counter
 from collections.abc import Iterator
@@ -26,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from necviz.core.errors import NecvizError
+from necviz.core.errors import NecvizError, StreamError
 from necviz.core.events import EVENT_DTYPE, EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, ImuBatch, TriggerBatch
@@ -57,6 +61,12 @@ CHIP_SENSORS = {
 }
 
 NO_EXPOSURE_FRAMES = "none (frames skipped: no exposure stored, pass --exposure-us)"
+
+#: Most events a :class:`StreamAssembler` holds back: past this, timestamps that do not advance
+#: (a run of zeros, a stuck clock) are damage, not data (a real stream releases them within 50 ms).
+MAX_HELD_EVENTS = 1 << 23
+#: Most frame bytes a :class:`StreamAssembler` holds back (frames whose exposure never ends).
+MAX_HELD_FRAME_BYTES = 256 << 20
 
 
 class RecordingError(NecvizError):
@@ -109,6 +119,103 @@ def reason(exc: BaseException, limit: int = 160) -> str:
     """``Type: first line of the message``, for one-line errors."""
     text = first_line(exc, limit)
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+class StderrTrap:
+    """Keep what a native library writes to the process's standard error (file descriptor 2) during
+    a call, and throw it away if the call ended in a Rust panic.
+
+    A panic of a Rust extension prints its message (and, with ``RUST_BACKTRACE=1``, a backtrace) on
+    fd 2 before Python sees the exception; necviz reports the damage in its own line instead.
+    Whatever the call wrote without panicking (or another thread wrote meanwhile) is passed on to
+    the real fd 2 afterwards. One trap per reader; calls are serialised by a lock.
+    """
+
+    _lock = threading.Lock()
+
+    def __init__(self):
+        try:
+            self._fd = os.memfd_create("necviz-stderr", 0)
+        except (AttributeError, OSError):
+            self._fd = None
+            tmp = tempfile.TemporaryFile()
+            self._file = tmp  # kept open for the trap's lifetime
+            self._fd = tmp.fileno()
+
+    @contextmanager
+    def __call__(self, discard: bool = False):
+        """Trap fd 2 for the block; ``discard``: drop what was written even without a panic (a
+        library that prints its own complaints about damaged data, e.g. libpng inside OpenCV)."""
+        if self._fd is None:
+            yield
+            return
+        with self._lock:
+            try:
+                sys.stderr.flush()
+            except (OSError, ValueError, AttributeError):
+                pass
+            saved = os.dup(2)
+            os.dup2(self._fd, 2)
+            panicked = False
+            try:
+                yield
+            except BaseException as exc:
+                panicked = is_rust_panic(exc)
+                raise
+            finally:
+                os.dup2(saved, 2)
+                os.close(saved)
+                n = os.lseek(self._fd, 0, os.SEEK_CUR)
+                if n:
+                    if not (panicked or discard):
+                        data = os.pread(self._fd, n, 0)
+                        try:
+                            os.write(2, data)
+                        except OSError:
+                            pass
+                    os.ftruncate(self._fd, 0)
+                    os.lseek(self._fd, 0, os.SEEK_SET)
+
+    def close(self) -> None:
+        """Release the trap's file (idempotent); later calls run untrapped."""
+        if self._fd is None:
+            return
+        if getattr(self, "_file", None) is not None:
+            self._file.close()
+        else:
+            os.close(self._fd)
+        self._fd = None
+
+    def __del__(self):
+        try:
+            self.close()
+        except (OSError, AttributeError):
+            pass
+
+
+@contextmanager
+def openable_path(path):
+    """A name of ``path`` that libraries taking UTF-8 text paths (the Rust ``aedat`` decoder, SQLite,
+    rosbags) can open: the path itself, or — when it is not UTF-8 (a file name in another encoding,
+    which Python keeps as surrogate escapes) — a symbolic link to it with a UTF-8 name and the same
+    extension, in a temporary folder that lasts as long as the block."""
+    text = str(path)
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        folder = tempfile.mkdtemp(prefix="necviz-name-")
+        name = os.path.basename(text).encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+        link = os.path.join(folder, name.replace("\ufffd", "_") or "recording")
+        try:
+            os.symlink(os.fsencode(os.path.abspath(path)), link)
+            yield link
+        finally:
+            try:
+                os.unlink(link)
+            finally:
+                os.rmdir(folder)
+        return
+    yield text
 
 
 def sensor_from_chip(name: str) -> SensorGeometry | None:
@@ -358,7 +465,9 @@ class StreamAssembler:
     will be pushed. Everything earlier than the watermark is released in stream order. Frames
     whose exposure overlaps the previous frame's, frames that arrive after their exposure start was
     released, frames of the wrong size and events older than what was released are dropped and
-    counted (see :meth:`warnings`). Memory: whatever lies after the watermark.
+    counted (see :meth:`warnings`). Memory: whatever lies after the watermark, at most
+    :data:`MAX_HELD_EVENTS` events and :data:`MAX_HELD_FRAME_BYTES` of frames: more means the
+    file's timestamps do not advance (damage), a one-line error.
     """
 
     def __init__(
@@ -415,6 +524,17 @@ class StreamAssembler:
         self._ev.append(ev)
         self._ev_n += ev.size
         self._seen(int(t.max()))
+        if self._ev_n > MAX_HELD_EVENTS:
+            self._stuck()
+
+    def _stuck(self) -> None:
+        """Drop what is held (it cannot be released in order) and report the stuck timestamps."""
+        t0 = min(int(a["t"].min()) for a in self._ev) if self._ev else self.max_seen_us
+        n, self._ev, self._ev_n, self._frames = self._ev_n, [], 0, []
+        raise StreamError(
+            f"{n:,} events held between {t0} and {self.max_seen_us} µs without the stream's time advancing "
+            "(timestamps stuck: a run of zeros or damaged data)"
+        )
 
     @staticmethod
     def _sorted(arr: np.ndarray) -> np.ndarray:
@@ -447,6 +567,8 @@ class StreamAssembler:
             return
         self._frames.append(frame)
         self._seen(int(frame.exposure_end_us))
+        if sum(f.image.nbytes for f in self._frames) > MAX_HELD_FRAME_BYTES:
+            self._stuck()
 
     def holdback_watermark(self, lag_us: int, holdback_us: int = 1_000_000, max_buffered: int = 1 << 22) -> int | None:
         """Watermark for files that store frames after their readout: ``max(holdback_us, 2*lag_us)``

@@ -23,6 +23,8 @@ margin of 2 s before ``start_us``; the bag clock is assumed to be the sensor clo
 from __future__ import annotations
 
 from collections.abc import Iterator
+from contextlib import ExitStack
+from pathlib import Path
 
 import numpy as np
 
@@ -36,6 +38,7 @@ from necviz.drivers.recordings.reader import (
     Recording,
     RecordingError,
     StreamAssembler,
+    openable_path,
     reason,
     to_gray8,
 )
@@ -53,6 +56,9 @@ def _close(reader) -> None:
         reader.close()
     except Exception:  # noqa: BLE001
         pass
+    names = getattr(reader, "_necviz_names", None)
+    if names is not None:
+        names.close()
 
 
 def _stamp_us(stamp) -> int:
@@ -143,13 +149,17 @@ class RosbagRecording(Recording):
         except Exception:  # noqa: BLE001 - already registered / conflicting definitions from the bag win
             pass
         reader = None
+        names = ExitStack()  # a bag whose name is not UTF-8 is opened through /proc/self/fd (SQLite needs text)
         try:
-            reader = AnyReader([self.path], default_typestore=store)
+            path = Path(names.enter_context(openable_path(self.path)))
+            reader = AnyReader([path], default_typestore=store)
             reader.open()
         except Exception as exc:  # noqa: BLE001 - rosbags raises its own error types with a message
             if reader is not None:
                 _close(reader)
+            names.close()
             raise self.error(f"unreadable bag ({reason(exc)})", "its index/metadata") from None
+        reader._necviz_names = names  # closed with the reader (_close)
         return reader
 
     def _events(self, reader, conn, raw) -> np.ndarray:

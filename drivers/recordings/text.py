@@ -33,6 +33,7 @@ from necviz.drivers.recordings.reader import (
     NO_EXPOSURE_FRAMES,
     Recording,
     RecordingError,
+    StderrTrap,
     StreamAssembler,
     events_from_seconds,
     imu_from_si,
@@ -41,6 +42,9 @@ from necviz.drivers.recordings.reader import (
 )
 
 BLOCK_BYTES = 8 << 20
+#: Longest line read (a line of this project's text formats is under 100 bytes): more is damage,
+#: e.g. a run of zero bytes where a crash or a preallocation left the file's tail.
+MAX_LINE_BYTES = 1 << 20
 
 
 def _parse(block: bytes, ncols: int) -> np.ndarray:
@@ -108,6 +112,11 @@ def numeric_blocks(
             else:
                 cut = block.rfind(b"\n") + 1
                 if cut == 0:
+                    if len(block) > MAX_LINE_BYTES:  # no line end in sight: damage, not a line
+                        zeros = len(block) - len(block.lstrip(b"\x00"))
+                        if zeros:
+                            raise rec.error(f"a run of zero bytes in {path.name} (damaged or preallocated file)", off)
+                        raise rec.error(f"a line longer than {MAX_LINE_BYTES:,} bytes in {path.name}", off)
                     carry = block
                     continue
                 block, carry = block[:cut], block[cut:]
@@ -155,14 +164,38 @@ def _valid_imu(rows: np.ndarray) -> np.ndarray:
     return np.isfinite(rows).all(axis=1) & (np.abs(rows[:, 0]) < 9e12)
 
 
+#: Largest image file read (a frame of the largest sensor, uncompressed, is 4 MB; 16-bit colour 24 MB).
+MAX_IMAGE_BYTES = 64 << 20
+
+
 def _imread(file: Path):
-    """The image at ``file`` (OpenCV, unchanged depth), or None if it cannot be read."""
+    """The image at ``file`` (OpenCV, unchanged depth), or None if it cannot be read.
+
+    The bytes are read here and decoded from memory: OpenCV's own file opening takes a UTF-8 name
+    (a file name in another encoding crashed it), and a file over :data:`MAX_IMAGE_BYTES` is not an
+    event camera's frame. OpenCV refuses images over ``OPENCV_IO_MAX_IMAGE_PIXELS`` (set by necviz
+    to the largest sensor), so a small compressed file cannot expand into gigabytes."""
     import cv2
 
     try:
-        return cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
-    except Exception:  # noqa: BLE001 - cv2.error / ValueError for an impossible path or image
+        if os.path.getsize(file) > MAX_IMAGE_BYTES:
+            return None
+        if not os.path.isfile(file):  # a named pipe would block
+            return None
+        with open(file, "rb") as f:
+            data = np.frombuffer(f.read(), np.uint8)
+        if not data.size:
+            return None
+        global _TRAP
+        if _TRAP is None:
+            _TRAP = StderrTrap()
+        with _TRAP(discard=True):  # libpng/libjpeg complain about damaged images on stderr; we report it
+            return cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    except (OSError, ValueError, cv2.error):
         return None
+
+
+_TRAP = None
 
 
 class RpgTextRecording(Recording):

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 from pathlib import Path
@@ -26,8 +25,10 @@ def write_result(result: dict, json_path, out) -> None:
     """Write ``result`` as JSON to ``json_path`` (folders created) and say so; nothing if no path."""
     if not json_path:
         return
+    from necviz.outputs import write_json
+
     path = Path(json_path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(result, indent=2) + "\n")
+    write_json(path, result, indent=2, flag="--json")  # whole or not at all (a full disk leaves nothing)
     if out is not None:
         print(f"wrote {json_path}", file=out)

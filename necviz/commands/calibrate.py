@@ -64,6 +64,8 @@ def _parse_sensor(text: str) -> SensorGeometry:
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Register ``necviz calibrate`` on an ``argparse`` subparsers object; returns the parser."""
+    from necviz.options import number
+
     p = subparsers.add_parser(
         "calibrate",
         help="fit a camera profile (TEDI c±, a±, b± by Eq. 7; response from brackets) from recordings or the simulator",
@@ -81,7 +83,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="calibrate on simulator runs instead: 'calibration' (the held-out calibration scene) and/or presets",
     )
     p.add_argument("--seeds", default="0", metavar="a..b", help="with --sim: seeds (N, a..b or a,b,c; default 0)")
-    p.add_argument("--duration", type=float, default=None, metavar="S", help="with --sim: simulated seconds per run")
+    p.add_argument(
+        "--duration",
+        type=number("--duration", "calibrate"),
+        default=None,
+        metavar="S",
+        help="with --sim: simulated seconds per run",
+    )
     p.add_argument("--sensor", default="DAVIS346", metavar="WxH", help="with --sim: sensor size (default DAVIS346)")
     p.add_argument("--out", required=True, metavar="PROFILE.json", help="the camera profile to write")
     p.add_argument("--force", action="store_true", help="replace --out / --json if they exist")
@@ -115,38 +123,40 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         default="auto",
         help="auto: fit the response when the data hold exposure brackets of a static scene (default)",
     )
-    p.add_argument("--exposure-us", type=float, default=None, help="exposure for formats that do not store it")
+    p.add_argument(
+        "--exposure-us", type=number("--exposure-us"), default=None, help="exposure for formats that do not store it"
+    )
     p.add_argument(
         "--min-change",
-        type=float,
+        type=number("--min-change"),
         default=DEFAULTS["min_change"],
         metavar="LN",
         help=f"use pixels whose frame-measured change is at least this (ln units; default {DEFAULTS['min_change']})",
     )
     p.add_argument(
         "--min-pixels",
-        type=int,
+        type=number("--min-pixels"),
         default=DEFAULTS["min_pixels"],
         metavar="N",
         help=f"use a frame pair when at least N pixels qualify (default {DEFAULTS['min_pixels']})",
     )
     p.add_argument(
         "--max-pixels",
-        type=int,
+        type=number("--max-pixels"),
         default=DEFAULTS["max_pixels"],
         metavar="N",
         help=f"pixels per pair at most, an even subsample (default {DEFAULTS['max_pixels']})",
     )
     p.add_argument(
         "--max-pairs",
-        type=int,
+        type=number("--max-pairs"),
         default=DEFAULTS["max_pairs"],
         metavar="N",
         help=f"pairs kept at most, spread evenly over the data (default {DEFAULTS['max_pairs']})",
     )
     p.add_argument(
         "--max-lag",
-        type=int,
+        type=number("--max-lag"),
         default=DEFAULTS["max_lag"],
         metavar="K",
         help=f"pair a frame with up to K frames back when consecutive frames changed too little "
@@ -160,7 +170,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--max-event-rate",
-        type=float,
+        type=number("--max-event-rate"),
         default=None,
         metavar="MEV_S",
         help="the sensor's bus ceiling in Mev/s: pairs that reached 90 %% of it are left out of the "
@@ -169,7 +179,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--slow-rate",
-        type=float,
+        type=number("--slow-rate"),
         default=DEFAULT_SLOW_RATE,
         metavar="EV_S",
         help=f"lower bound of the compensation knee b/a, events per pixel per second (default {DEFAULT_SLOW_RATE:g})",

@@ -38,6 +38,7 @@ def _controller_list(text: str):
 def add_scene_args(parser, emulated: bool = False) -> None:
     """``--scenario`` (a preset or a TOML file), ``--seed``, ``--duration`` and ``--set KEY=VALUE``."""
     from necviz.drivers.sim.scenes import SCENARIOS
+    from necviz.options import number
 
     g = parser.add_argument_group("emulated scene" if emulated else "scene")
     g.add_argument(
@@ -46,10 +47,16 @@ def add_scene_args(parser, emulated: bool = False) -> None:
         metavar="NAME|FILE.toml",
         help=f"a preset ({', '.join(sorted(SCENARIOS))}) or a TOML scenario file (default tunnel_exit)",
     )
-    g.add_argument("--seed", type=int, default=None, help="scene and noise seed (default: the file's, or 0)")
+    g.add_argument(
+        "--seed", type=number("--seed"), default=None, help="scene and noise seed (default: the file's, or 0)"
+    )
     if not emulated:
         g.add_argument(
-            "--duration", type=float, default=None, metavar="S", help="simulated seconds (default: the scenario's)"
+            "--duration",
+            type=number("--duration"),
+            default=None,
+            metavar="S",
+            help="simulated seconds (default: the scenario's)",
         )
     g.add_argument(
         "--set",
@@ -72,6 +79,7 @@ def scene_options(args, duration_s=None, *, scene_duration: bool = True):
 
 def add_show_args(parser, tuning: bool = True) -> None:
     from necviz.dashboard.viewer import add_viewer_args
+    from necviz.options import number
 
     add_viewer_args(parser, LAYOUT_NAMES)
     g = parser.add_argument_group("run")
@@ -81,10 +89,12 @@ def add_show_args(parser, tuning: bool = True) -> None:
         help="'max' (as fast as possible), 1 (real time) or xN; default: real time when a viewer "
         "watches, max when only saving",
     )
-    g.add_argument("--event-window-ms", type=float, default=33.3, help="event image window (default 33.3 ms)")
+    g.add_argument(
+        "--event-window-ms", type=number("--event-window-ms"), default=33.3, help="event image window (default 33.3 ms)"
+    )
     g.add_argument(
         "--event-points",
-        type=int,
+        type=number("--event-points"),
         default=0,
         metavar="N",
         help="also log up to N raw events per window as points (default 0: images only)",
@@ -98,12 +108,22 @@ def add_show_args(parser, tuning: bool = True) -> None:
 
 def add_clip_args(parser) -> None:
     """``--clips DIR`` and its bounds: the flight recorder (necviz.flight_recorder)."""
+    from necviz.options import number
+
     g = parser.add_argument_group("flight recorder (a clip around every saturated frame and every 'mark')")
     g.add_argument("--clips", metavar="DIR", help="write a clip (.necrec + .rrd) around every failure into DIR")
-    g.add_argument("--clip-before", type=float, default=5.0, metavar="S", help="seconds kept before (default 5)")
-    g.add_argument("--clip-after", type=float, default=5.0, metavar="S", help="seconds recorded after (default 5)")
     g.add_argument(
-        "--clip-memory", type=float, default=512.0, metavar="MB", help="buffer budget; oldest dropped beyond (512)"
+        "--clip-before", type=number("--clip-before"), default=5.0, metavar="S", help="seconds kept before (default 5)"
+    )
+    g.add_argument(
+        "--clip-after", type=number("--clip-after"), default=5.0, metavar="S", help="seconds recorded after (default 5)"
+    )
+    g.add_argument(
+        "--clip-memory",
+        type=number("--clip-memory"),
+        default=512.0,
+        metavar="MB",
+        help="buffer budget; oldest dropped beyond (512)",
     )
 
 
@@ -116,6 +136,9 @@ def _clips(args):
 
 
 def add_video_args(parser) -> None:
+
+    from necviz.options import number
+
     g = parser.add_argument_group("video")
     g.add_argument(
         "--video",
@@ -123,7 +146,9 @@ def add_video_args(parser) -> None:
         help="also write an H.264 video of the dashboard (frames side by side, events, over-exposure, time); "
         "--speed 0.1 makes it ten times slower than real time (needs: pip install 'necviz[video]')",
     )
-    g.add_argument("--video-fps", type=float, default=30.0, metavar="FPS", help="video frame rate (default 30)")
+    g.add_argument(
+        "--video-fps", type=number("--video-fps"), default=30.0, metavar="FPS", help="video frame rate (default 30)"
+    )
 
 
 def _video(args):
@@ -183,11 +208,13 @@ def _info_file(args) -> int:
         print(f"\r  reading: {events:,} events, {frames} frames, {seconds:.1f} s", end="", file=sys.stderr, flush=True)
 
     live = sys.stderr.isatty()
-    info = describe(args.file, progress=progress if live else None, exposure_us=args.exposure_us)
+    info = describe(
+        args.file, progress=progress if live else None, exposure_us=args.exposure_us, pipe_timeout_s=args.pipe_timeout
+    )
     if live:
         print("\r" + " " * 72 + "\r", end="", file=sys.stderr, flush=True)
     if args.json:
-        write_json(args.json, info.to_dict())
+        write_json(args.json, info.to_dict(), flag="--json")
     print(info.to_text())
     return 0
 
@@ -232,6 +259,7 @@ def _cmd_replay(args) -> int:
             args.profile,
             _show(args),
             video=_video(args),
+            pipe_timeout_s=args.pipe_timeout,
         ),
         viewer_options(args),
     )
@@ -347,10 +375,23 @@ def _cmd_bench_sim(args) -> int:
 
 
 # -- the parser ---------------------------------------------------------------------------------
+class Parser(argparse.ArgumentParser):
+    """argparse with necviz's one-line errors: ``necviz: error: argument --x: ...`` (no usage block;
+    ``necviz COMMAND --help`` shows it), exit code 2. Subcommand parsers are of this class too."""
+
+    def error(self, message: str):
+        message = " ".join(str(message).split())
+        head, sep, rest = message.partition(": ")
+        if sep and head.startswith("argument ") and rest.startswith(head.removeprefix("argument ").split("/")[0]):
+            message = rest  # "argument --x: --x = 0 is out of range" -> "--x = 0 is out of range"
+        hint = f" (see: {self.prog} --help)" if self.prog != "necviz" else " (see: necviz --help)"
+        self.exit(EXIT_USER, f"necviz: error: {message}{hint}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="necviz", description="Neuromorphic exposure control: estimators, controllers, dashboard."
-    )
+    from necviz.options import number
+
+    p = Parser(prog="necviz", description="Neuromorphic exposure control: estimators, controllers, dashboard.")
     p.add_argument("--version", action="version", version=f"necviz {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     controllers = _controllers()
@@ -359,11 +400,18 @@ def build_parser() -> argparse.ArgumentParser:
     info.add_argument("file", nargs="?", metavar="FILE", help="a recording (any supported format)")
     info.add_argument(
         "--exposure-us",
-        type=float,
+        type=number("--exposure-us"),
         default=None,
         help="exposure for formats that do not store it (AEDAT 2.0, text, HDF5, bags)",
     )
     info.add_argument("--json", metavar="OUT", help="with FILE: also write the summary as JSON")
+    info.add_argument(
+        "--pipe-timeout",
+        type=number("--pipe-timeout"),
+        default=None,
+        metavar="S",
+        help="accept FILE as a named pipe: copy what it delivers, waiting at most S seconds for data",
+    )
     info.add_argument("--force", action="store_true", help="replace an existing --json file")
     info.set_defaults(func=_cmd_info)
 
@@ -375,7 +423,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="nec,nec-raw,navid,shim,begin,builtin,fixed",
         help=f"comma-separated, from {', '.join(controllers)} (default: all seven)",
     )
-    cmp_.add_argument("--seeds", type=int, default=1, help="repeat over this many seeds: mean ± 95 %% CI")
+    cmp_.add_argument("--seeds", type=number("--seeds"), default=1, help="repeat over this many seeds: mean ± 95 %% CI")
     cmp_.add_argument("--json", metavar="FILE", help="write the results as JSON")
     cmp_.add_argument("--save", metavar="FILE.rrd", help="write a Rerun recording (the demo's schema and layout)")
     cmp_.add_argument("--no-sift", action="store_true", help="skip the SIFT inlier metric (the slowest part)")
@@ -434,17 +482,26 @@ def build_parser() -> argparse.ArgumentParser:
         "prediction error and saturated frames.",
     )
     rep.add_argument("file", metavar="FILE", help="the recording")
-    rep.add_argument("--start", type=float, default=None, metavar="S", help="start S seconds into the recording")
-    rep.add_argument("--end", type=float, default=None, metavar="S", help="stop S seconds into the recording")
+    rep.add_argument(
+        "--start", type=number("--start"), default=None, metavar="S", help="start S seconds into the recording"
+    )
+    rep.add_argument("--end", type=number("--end"), default=None, metavar="S", help="stop S seconds into the recording")
     rep.add_argument(
         "--exposure-us",
-        type=float,
+        type=number("--exposure-us"),
         default=None,
         help="exposure for formats that do not store it (AEDAT 2.0 estimates it from frame timing)",
     )
     rep.add_argument("--format", default=None, choices=FORMATS, help="skip detection")
     rep.add_argument("--controller", default="nec", choices=controllers, help="shown in open loop (default nec)")
     rep.add_argument("--json", metavar="OUT", help="write the summary (per-frame detail included) as JSON")
+    rep.add_argument(
+        "--pipe-timeout",
+        type=number("--pipe-timeout"),
+        default=None,
+        metavar="S",
+        help="accept FILE as a named pipe: copy what it delivers, waiting at most S seconds for data",
+    )
     add_show_args(rep, tuning=False)
     add_video_args(rep)
     rep.set_defaults(func=_cmd_replay)
@@ -468,14 +525,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     live.add_argument(
         "--duration",
-        type=float,
+        type=number("--duration", "live"),
         default=None,
         metavar="S",
         help="stop after S seconds of sensor time (emulated: the scene's length)",
     )
     live.add_argument(
         "--emulate-unplug",
-        type=float,
+        type=number("--emulate-unplug"),
         default=None,
         metavar="S",
         help="emulated device: unplug it after S seconds (shows what an unplug does)",
@@ -498,6 +555,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_bench(sub) -> None:
+    from necviz.options import number
+
+    def B(flag):
+        return number(flag, "bench")
+
     bench = sub.add_parser("bench", help="speed benchmarks (print a table, optionally write JSON)")
     bsub = bench.add_subparsers(dest="bench", metavar="BENCH", required=True)
 
@@ -510,36 +572,42 @@ def _add_bench(sub) -> None:
     )
     common(est)
     est.add_argument(
-        "--events", type=int, default=10_000_000, help="events in the synthetic 346x260 stream (default 10M)"
+        "--events", type=B("--events"), default=10_000_000, help="events in the synthetic 346x260 stream (default 10M)"
     )
-    est.add_argument("--duration", type=float, default=2.0, help="stream length in seconds (default 2.0)")
-    est.add_argument("--fps", type=float, default=50.0, help="APS frame rate, 25-100 (default 50)")
-    est.add_argument("--exposure-us", type=int, default=5_000, help="APS exposure (default 5000 µs)")
-    est.add_argument("--repeats", type=int, default=3, help="timed runs per method after a warm-up (default 3)")
-    est.add_argument("--edi-samples", type=int, default=64, help="samples per exposure for EDI and mEDI (default 64)")
-    est.add_argument("--seed", type=int, default=0)
+    est.add_argument("--duration", type=B("--duration"), default=2.0, help="stream length in seconds (default 2.0)")
+    est.add_argument("--fps", type=B("--fps"), default=50.0, help="APS frame rate, 25-100 (default 50)")
+    est.add_argument("--exposure-us", type=B("--exposure-us"), default=5_000, help="APS exposure (default 5000 µs)")
+    est.add_argument(
+        "--repeats", type=B("--repeats"), default=3, help="timed runs per method after a warm-up (default 3)"
+    )
+    est.add_argument(
+        "--edi-samples", type=B("--edi-samples"), default=64, help="samples per exposure for EDI and mEDI (default 64)"
+    )
+    est.add_argument("--seed", type=number("--seed"), default=0)
     est.set_defaults(func=_cmd_bench_estimators)
     sim = bsub.add_parser("sim", help="closed-loop simulator speed: a scenario with several cameras")
     common(sim)
     add_scene_args(sim)
-    sim.add_argument("--cameras", type=int, default=6, help="cameras sharing the scene (default 6)")
+    sim.add_argument("--cameras", type=B("--cameras"), default=6, help="cameras sharing the scene (default 6)")
     sim.set_defaults(func=_cmd_bench_sim)
     dec = bsub.add_parser("decode", help="DAVIS stream decoder throughput on a 12 Mev/s-style stream")
     common(dec)
-    dec.add_argument("--seconds", type=float, default=1.0, help="stream length in seconds (default 1)")
-    dec.add_argument("--repeats", type=int, default=5, help="timed runs (default 5)")
-    dec.add_argument("--seed", type=int, default=0)
+    dec.add_argument("--seconds", type=B("--seconds"), default=1.0, help="stream length in seconds (default 1)")
+    dec.add_argument("--repeats", type=B("--repeats"), default=5, help="timed runs (default 5)")
+    dec.add_argument("--seed", type=number("--seed"), default=0)
     dec.set_defaults(func=_cmd_bench_decode)
     pipe = bsub.add_parser(
         "pipeline", help="the whole dashboard path at 12 Mev/s: real-time factor and control latency"
     )
     common(pipe)
-    pipe.add_argument("--duration", type=float, default=10.0, help="stream length in seconds (default 10)")
-    pipe.add_argument("--rate", type=float, default=12.0, help="event rate in Mev/s (default 12)")
-    pipe.add_argument("--fps", type=float, default=50.0, help="frame rate (default 50)")
-    pipe.add_argument("--batch-us", type=int, default=1_000, help="event batch period (default 1000 µs)")
-    pipe.add_argument("--repeats", type=int, default=3, help="runs per configuration; the median is reported")
-    pipe.add_argument("--seed", type=int, default=0)
+    pipe.add_argument("--duration", type=B("--duration"), default=10.0, help="stream length in seconds (default 10)")
+    pipe.add_argument("--rate", type=B("--rate"), default=12.0, help="event rate in Mev/s (default 12)")
+    pipe.add_argument("--fps", type=B("--fps"), default=50.0, help="frame rate (default 50)")
+    pipe.add_argument("--batch-us", type=B("--batch-us"), default=1_000, help="event batch period (default 1000 µs)")
+    pipe.add_argument(
+        "--repeats", type=B("--repeats"), default=3, help="runs per configuration; the median is reported"
+    )
+    pipe.add_argument("--seed", type=number("--seed"), default=0)
     pipe.set_defaults(func=_cmd_bench_pipeline)
 
 
@@ -564,8 +632,35 @@ def _add_optional(sub) -> None:
 
 # -- running ------------------------------------------------------------------------------------
 def main(argv: list[str] | None = None) -> int:
+    code = _main(argv)
+    if argv is None:  # the necviz program itself (a test passes its argv and keeps running)
+        _leave_if_wedged(code)
+    return code
+
+
+def _leave_if_wedged(code: int) -> None:
+    """A Rerun stream whose file writer failed cannot be flushed or dropped without blocking for ever
+    (:data:`necviz.dashboard.viewer.WEDGED`): after the error line, leave at once."""
+    viewer = sys.modules.get("necviz.dashboard.viewer")
+    if viewer is not None and viewer.WEDGED:
+        import os
+
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+
+
+def _main(argv: list[str] | None = None) -> int:
+    for stream in (sys.stdout, sys.stderr):  # file names that are not UTF-8 print as the user typed them
+        try:
+            stream.reconfigure(errors="surrogateescape")
+        except (AttributeError, ValueError, OSError):
+            pass
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as e:  # a bad flag (one line printed), --help or --version: an exit code, not an exception
+        return e.code if isinstance(e.code, int) else (0 if e.code is None else EXIT_USER)
     if not getattr(args, "func", None):
         parser.print_help()
         return 0
@@ -609,7 +704,7 @@ def _bug(e: BaseException, argv) -> int:
     text = "".join(traceback.format_exception(e))
     try:
         fd, path = tempfile.mkstemp(prefix=f"necviz-bug-{time.strftime('%Y%m%d-%H%M%S')}-", suffix=".txt")
-        with open(fd, "w", encoding="utf-8") as f:
+        with open(fd, "w", encoding="utf-8", errors="backslashreplace") as f:
             f.write(f"necviz {__version__}\ncommand: necviz {' '.join(argv if argv is not None else sys.argv[1:])}\n\n")
             f.write(text)
         where = f"; details in {path}"

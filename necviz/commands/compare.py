@@ -26,7 +26,7 @@ import numpy as np
 
 from necviz.core.metrics import confidence_interval
 from necviz.options import CompareOptions
-from necviz.outputs import check_distinct, check_output, write_json
+from necviz.outputs import check_distinct, check_output, check_space, failure_note, write_json
 from necviz.pipeline import Pipeline
 from necviz.progress import output
 from necviz.runs import RunOptions, run_once
@@ -84,19 +84,46 @@ def run(options: CompareOptions | None = None, out=...) -> dict:
     out = output(out)
     options = options or CompareOptions()
     outputs = {"--json": options.json, "--save": options.save}
+    sc = options.scene
+    inputs = {"profile": options.profile, "scenario": sc.scenario if sc.is_file else None}
     check_distinct(outputs)
     for flag, path in outputs.items():
         if path is not None:
-            check_output(path, flag, force=options.force, suffixes=(".rrd",) if flag == "--save" else None)
+            check_output(
+                path, flag, inputs=inputs, force=options.force, suffixes=(".rrd",) if flag == "--save" else None
+            )
+    if options.save:
+        check_space(options.save, "--save")
     profile = _profile(options.profile)
     names = list(options.controllers)
-    sc = options.scene
     seed0 = sc.resolved_seed
+    sinks: list = []  # the --save file: committed when everything succeeded, deleted otherwise
+
+    def file_sink(rig, lanes):
+        sink = _file_sink(options, rig, lanes)
+        sinks.append(sink)
+        return sink
+
+    try:
+        result = _run(options, names, sc, seed0, profile, file_sink, out)
+        for sink in sinks:
+            sink.output.commit()
+    except BaseException as e:
+        new = failure_note(e, [sink.output.discard() for sink in sinks])
+        if new is e:
+            raise
+        raise new from None
+    if options.save and out is not None:
+        print(f"wrote {options.save} (open it with: rerun {options.save})", file=out)
+    return result
+
+
+def _run(options: CompareOptions, names, sc, seed0, profile, file_sink, out) -> dict:
     runs = []
     for k in range(options.seeds):
         observers = ()
         if k == 0 and options.save:
-            observers = (lambda rig, lanes: _file_sink(options, rig, lanes),)
+            observers = (file_sink,)
         runs.append(
             run_once(
                 RunOptions(
@@ -161,11 +188,9 @@ def run(options: CompareOptions | None = None, out=...) -> dict:
     if out is not None:
         print_table(result, out)
     if options.json:
-        write_json(options.json, result, indent=1)
+        write_json(options.json, result, indent=1, flag="--json")
         if out is not None:
             print(f"wrote {options.json}", file=out)
-    if options.save and out is not None:
-        print(f"wrote {options.save} (open it with: rerun {options.save})", file=out)
     return result
 
 

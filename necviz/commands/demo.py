@@ -12,7 +12,7 @@ in the ``compare`` layout. No hardware and no files needed. From Python::
 from __future__ import annotations
 
 from necviz.dashboard.recorders import open_recorder
-from necviz.dashboard.session import Session, preflight, run_session
+from necviz.dashboard.session import Session, preflight, run_session, scene_inputs
 from necviz.options import DemoOptions, ViewerOptions
 from necviz.progress import output
 from necviz.runs import build_rig
@@ -37,7 +37,12 @@ def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None,
     options = options or DemoOptions()
     video = options.video.path if options.video is not None else None
     viewer, profile = preflight(
-        "demo", viewer, {"--record": options.record, "--video": video}, options.force, profile=options.profile
+        "demo",
+        viewer,
+        {"--record": options.record, "--video": video},
+        options.force,
+        inputs=scene_inputs(options.scene, options.tune),
+        profile=options.profile,
     )  # before anything starts
     show = options.show
     video_options = options.video

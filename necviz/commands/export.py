@@ -86,6 +86,8 @@ def run(options: ExportOptions, out=...) -> dict:
 
 
 def add_parser(sub) -> None:
+    from necviz.options import number
+
     p = sub.add_parser(
         "export",
         help="convert a recording to AEDAT 4 (DV), HDF5 (DSEC layout), NumPy .npz or a native clip",
@@ -93,10 +95,17 @@ def add_parser(sub) -> None:
     )
     p.add_argument("file", metavar="IN", help="the recording (any format necviz replay reads)")
     p.add_argument("out", metavar="OUT", help="the output: .aedat4, .h5/.hdf5, .npz or .necrec")
-    p.add_argument("--start", type=float, default=None, metavar="S", help="start S seconds into the recording")
-    p.add_argument("--end", type=float, default=None, metavar="S", help="stop S seconds into the recording")
+    p.add_argument(
+        "--start", type=number("--start"), default=None, metavar="S", help="start S seconds into the recording"
+    )
+    p.add_argument("--end", type=number("--end"), default=None, metavar="S", help="stop S seconds into the recording")
     p.add_argument("--force", action="store_true", help="replace an existing OUT (never the input)")
-    p.add_argument("--exposure-us", type=float, default=None, help="exposure for input formats that do not store it")
+    p.add_argument(
+        "--exposure-us",
+        type=number("--exposure-us"),
+        default=None,
+        help="exposure for input formats that do not store it",
+    )
     p.add_argument("--format", default=None, choices=FORMATS, help="the input's format (skip detection)")
     p.add_argument(
         "--compression", default="lz4", choices=("lz4", "zstd", "none"), help="AEDAT 4 packet compression (default lz4)"

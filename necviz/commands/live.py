@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from necviz.core.control import make_controller
 from necviz.dashboard.recorders import open_recorder
-from necviz.dashboard.session import Session, preflight, run_session
+from necviz.dashboard.session import Session, preflight, run_session, scene_inputs
 from necviz.flight_recorder import clip_observer
 from necviz.options import LiveOptions, ViewerOptions
 from necviz.pipeline import Lane
@@ -28,7 +28,12 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     out = output(out)
     options = options or LiveOptions()
     viewer, profile = preflight(
-        "live", viewer, {"--record": options.record}, options.force, profile=options.profile
+        "live",
+        viewer,
+        {"--record": options.record},
+        options.force,
+        inputs=scene_inputs(options.scene, options.tune),
+        profile=options.profile,
     )  # before the camera is opened
     if options.clips is not None:
         options.clips.check()
@@ -66,8 +71,8 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     }
     recorder = None
     try:
-        if options.record is not None:
-            recorder = open_recorder(options.record, sensor, props)
+        if options.record is not None:  # a camera session cannot be recorded again: kept if it fails
+            recorder = open_recorder(options.record, sensor, props, keep_partial=True)
     except BaseException:
         camera.close()
         raise
@@ -77,29 +82,26 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
         f"{limits.gain_max:g})",
         file=out,
     )
-    try:
-        return run_session(
-            Session(
-                "live",
-                camera,
-                [lane],
-                "live",
-                f"necviz live: {info.get('serial', '')}",
-                props,
-                viewer,
-                options.show,
-                options.tune,
-                recorder,
-                LANE,
-                lossless=False,
-                history=options.history,
-                expected_duration_s=options.duration_s,
-                stop_after_s=options.duration_s,
-                observers=[clip_observer(options.clips)] if options.clips is not None else [],
-            ),
-            out,
-            stdin,
-        )
-    finally:
-        if options.record is not None:
-            print(f"  recorded to {options.record} (replay it with: necviz replay {options.record})", file=out)
+    return run_session(
+        Session(
+            "live",
+            camera,
+            [lane],
+            "live",
+            f"necviz live: {info.get('serial', '')}",
+            props,
+            viewer,
+            options.show,
+            options.tune,
+            recorder,
+            LANE,
+            lossless=False,
+            history=options.history,
+            expected_duration_s=options.duration_s,
+            stop_after_s=options.duration_s,
+            keep_partial=True,
+            observers=[clip_observer(options.clips)] if options.clips is not None else [],
+        ),
+        out,
+        stdin,
+    )

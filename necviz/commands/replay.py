@@ -128,13 +128,31 @@ def run(options: ReplayOptions, viewer: ViewerOptions | None = None, out=...) ->
         inputs=[path],
         profile=options.profile,
     )  # before anything is opened
+    from necviz.drivers.recordings import RecordingError, check_source, spool_pipe
+
+    source = path
+    if check_source(path) == "pipe":
+        if options.pipe_timeout_s is None:
+            raise RecordingError(
+                f"{path}: a named pipe, not a regular file (reading one waits for a writer for ever); "
+                "pass --pipe-timeout S to copy what it delivers"
+            )
+        source = spool_pipe(path, options.pipe_timeout_s)
+    try:
+        return _replay(options, viewer, out, path, source, profile)
+    finally:
+        if source != path:
+            source.unlink(missing_ok=True)
+
+
+def _replay(options: ReplayOptions, viewer, out, path: Path, source: Path, profile) -> dict:
     show = options.show
     video_options = options.video
     if video_options is not None:  # only files: the run goes as fast as it can, the video keeps its own pace
         from necviz.dashboard.video import plan
 
         show, video_options = plan(show, video_options, viewer)
-    recording, origin = open_for_replay(path, options.exposure_us, options.start_s, options.end_s, options.format)
+    recording, origin = open_for_replay(source, options.exposure_us, options.start_s, options.end_s, options.format)
     sensor = recording.sensor
     limits = CameraLimits()
     kw = {} if profile is None else {"tedi": profile.tedi, "crf": profile.crf}
@@ -161,7 +179,24 @@ def run(options: ReplayOptions, viewer: ViewerOptions | None = None, out=...) ->
             f"{focus[0]:.3f}..{focus[1]:.3f} s",
             file=out,
         )
-    stats = run_session(
+    result = {}
+
+    def finish(stats):  # before the --save file is committed: a failure here leaves no file at all
+        summary = summarise(stats)
+        if (
+            not summary["events"]
+            and not summary["frames"]
+            and (options.start_s is not None or options.end_s is not None)
+        ):
+            raise ParameterError(
+                f"nothing in the selected range (--start {options.start_s} --end {options.end_s} s): it "
+                f"lies past the end of {path.name}; `necviz info {path}` shows its duration"
+            )
+        if options.json is not None:
+            write_json(options.json, summary, flag="--json")
+        result["summary"] = summary
+
+    run_session(
         Session(
             "replay",
             recording,
@@ -176,15 +211,11 @@ def run(options: ReplayOptions, viewer: ViewerOptions | None = None, out=...) ->
             lossless=True,
             observers=[video_observer(video_options)] if video_options is not None else [],
             focus_s=None if focus is None else focus[:2],
+            before_commit=finish,
         ),
         out,
     )
-    summary = summarise(stats)
-    if not summary["events"] and not summary["frames"] and (options.start_s is not None or options.end_s is not None):
-        raise ParameterError(
-            f"nothing in the selected range (--start {options.start_s} --end {options.end_s} s): it "
-            f"lies past the end of {path.name}; `necviz info {path}` shows its duration"
-        )
+    summary = result["summary"]
     for w in getattr(recording, "warnings", []):
         print(f"  warning: {w}", file=out)
     rmse = summary["prediction_error_rmse"]
@@ -204,6 +235,5 @@ def run(options: ReplayOptions, viewer: ViewerOptions | None = None, out=...) ->
         if causes:
             print(f"  diagnosed causes: {causes}", file=out)
     if options.json is not None:
-        write_json(options.json, summary)
         print(f"  wrote {options.json}", file=out)
     return summary

@@ -115,6 +115,8 @@ def _cmd_status(args) -> int:
         return 0
     print(f"sweep {st['out']} ({st['name']}, from {st['sweep_file']})")
     print(f"  {st['runs']} runs: {st['ok']} ok, {st['failed']} failed, {st['missing']} missing")
+    if st["unreadable_note"]:
+        print(f"  warning: {st['unreadable_note']}")
     if st["run_s_mean"] is not None:
         print(f"  run time: {st['run_s_total']:,.1f} s in total, {st['run_s_mean']:.2f} s per run")
     for err, n in st["errors"].items():
@@ -156,18 +158,10 @@ def _cmd_show(args) -> int:
     return 0
 
 
-def _positive_int(text):
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
-    return v
-
-
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Register ``necviz sweep`` and its subcommands on an ``argparse`` subparsers object."""
+    from necviz.options import number
+
     p = subparsers.add_parser(
         "sweep",
         help="grids of closed-loop simulator runs (scenario × parameters × controller × seed) on Dask",
@@ -181,7 +175,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     pl.add_argument("file", metavar="FILE.toml", help="the sweep file")
     pl.add_argument(
         "--workers",
-        type=_positive_int,
+        type=number("--workers"),
         default=None,
         metavar="N",
         help="workers the estimate assumes (default: the cores here)",
@@ -196,7 +190,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     where = run.add_mutually_exclusive_group()
     where.add_argument(
         "--workers",
-        type=_positive_int,
+        type=number("--workers"),
         default=None,
         metavar="N",
         help="worker processes of the embedded cluster (default: one per core)",
@@ -213,7 +207,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     run.add_argument("--retry-failed", action="store_true", help="with --resume: also run again the failed runs")
     run.add_argument(
         "--retries",
-        type=int,
+        type=number("--retries"),
         default=3,
         metavar="N",
         help="reschedule a run whose worker died up to N times, then record it failed (default 3; "

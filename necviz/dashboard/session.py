@@ -9,6 +9,7 @@ live count until the source ends or Ctrl-C, then flushes everything and prints a
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -18,10 +19,11 @@ import rerun as rr
 from necviz.dashboard.sink import RerunSink
 from necviz.dashboard.telemetry import Telemetry
 from necviz.dashboard.tuning import TuningConsole, TuningFile
-from necviz.dashboard.viewer import FILE_FLUSH_S, open_viewer
+from necviz.dashboard.viewer import FILE_FLUSH_S, open_viewer, text
 from necviz.layouts import make_blueprint, style_series
 from necviz.memory import bound_heap_retention
 from necviz.options import ShowOptions, TuneOptions, ViewerOptions
+from necviz.outputs import OutputError, low_space
 from necviz.pipeline import Lane, Pipeline, RecorderObserver
 from necviz.progress import LiveLine, output
 
@@ -34,6 +36,8 @@ class Session:
     (default: the first lane's camera). ``lossless``: keep every frame and event image when the
     run is not paced (a simulation or replay into a file). ``history``: frames of per-frame
     telemetry kept per lane (``None``: all). ``origin_us``: sensor time shown as 0.
+    ``keep_partial``: if the run fails, keep what the output files hold (a camera session, which
+    cannot be produced again) instead of deleting them.
     """
 
     command: str
@@ -56,6 +60,13 @@ class Session:
     observers: list = field(default_factory=list)
     #: ``(start_s, end_s)`` of sensor time the viewer selects and loops over (a clip's failure)
     focus_s: tuple | None = None
+    keep_partial: bool = False
+    before_commit: object = None  # callable(stats): last step of a run (e.g. write --json); raising fails it
+
+
+def scene_inputs(scene, tune=None) -> list:
+    """The files a dashboard command reads besides its profile: a scenario file, a tuning file."""
+    return [scene.scenario if scene.is_file else None, tune.file if tune is not None else None]
 
 
 def preflight(command: str, viewer: ViewerOptions | None, outputs: dict, force: bool, inputs=(), profile=None):
@@ -65,14 +76,19 @@ def preflight(command: str, viewer: ViewerOptions | None, outputs: dict, force: 
     viewer options (the headless default filled in, ``--save`` checked) and the camera profile.
     """
     from necviz.dashboard.viewer import resolve
-    from necviz.outputs import check_distinct, check_output
+    from necviz.outputs import check_distinct, check_not_input, check_output, check_space
 
+    inputs = [i for i in inputs if i is not None] + ([profile] if profile is not None else [])
     viewer = resolve(viewer or ViewerOptions(), command, inputs=inputs)
     check_distinct({**outputs, "--save": viewer.save})
     suffixes = {"--record": (".necrec",), "--json": (".json",), "--video": (".mp4",)}
     for flag, path in outputs.items():
         if path is not None:
             check_output(path, flag, inputs=inputs, force=force, suffixes=suffixes.get(flag))
+    check_not_input({**outputs, "--save": viewer.save}, inputs)
+    for flag, path in (("--record", outputs.get("--record")), ("--save", viewer.save)):
+        if path is not None:  # a recording grows for the whole run: refuse to start on a full disk
+            check_space(path, flag)
     if profile is not None:
         from necviz.profiles import load_profile
 
@@ -83,22 +99,75 @@ def preflight(command: str, viewer: ViewerOptions | None, outputs: dict, force: 
 def run_session(session: Session, out=..., stdin=None) -> dict:
     """Run the session; returns the pipeline's summary (with ``"rrd"``, the file written, if any).
 
-    On any failure before the pipeline takes over, the source and the recorder are closed, so a
-    recording stays readable and a camera does not keep streaming.
+    Output files are committed only when the run succeeded. On any failure the source and the
+    recorder are closed (a camera does not keep streaming) and the files being written are deleted
+    (:class:`~necviz.outputs.StreamedOutput`) — or kept, readable, when ``session.keep_partial`` —
+    and the error's one line says which.
     """
+    from necviz.outputs import failure_note
+
     out = output(out)
     bound_heap_retention()  # a burst of events must not stay resident for the rest of a long session
+    outputs: list = []  # what to commit or discard: the recorder, the viewer's --save file
+    if session.recorder is not None and hasattr(session.recorder, "output"):
+        outputs.append(session.recorder)
     try:
-        return _run(session, out, stdin)
-    except BaseException:
+        stats, viewer = _run(session, out, stdin, outputs)
+        if session.before_commit is not None:
+            session.before_commit(stats)
+        for o in outputs:
+            o.commit()
+    except BaseException as e:
         if session.recorder is not None and not getattr(session.recorder, "closed", False):
-            session.recorder.close()
+            try:
+                session.recorder.close()
+            except BaseException:  # noqa: BLE001 - a full disk: the run's error (or this one) is reported
+                pass
         if hasattr(session.source, "close"):
-            session.source.close()
-        raise
+            try:
+                session.source.close()
+            except BaseException:  # noqa: BLE001
+                pass
+        notes = []
+        for o in outputs:
+            try:
+                notes.append(o.discard())
+            except OSError:
+                pass
+        if session.keep_partial:
+            for o in outputs:
+                kept = getattr(o, "path", None) or getattr(o, "save_path", None)
+                if kept is not None and os.path.exists(kept) and out is not None:
+                    print(f"  recording so far: {kept}", file=out)
+        new = failure_note(e, notes)
+        if new is e:
+            raise
+        raise new from None
+    if session.recorder is not None and hasattr(session.recorder, "output") and out is not None:
+        rec = session.recorder.path
+        print(f"  recorded to {rec} (replay it with: necviz replay {rec})", file=out)
+    if viewer.save_path is not None and out is not None:
+        print(f"  recording: {viewer.save_path} (open it with: rerun {viewer.save_path})", file=out)
+    if viewer.url is not None:
+        _keep_serving(viewer, out)
+    return stats
 
 
-def _run(ss: Session, out, stdin) -> dict:
+class _ViewerOutput:
+    """The viewer's ``--save`` file as one of the session's outputs (commit/discard)."""
+
+    def __init__(self, viewer):
+        self.viewer = viewer
+        self.save_path = viewer.save_path
+
+    def commit(self) -> None:
+        self.viewer.output.commit()
+
+    def discard(self) -> str:
+        return self.viewer.output.discard()
+
+
+def _run(ss: Session, out, stdin, outputs: list) -> dict:
     v = ss.viewer
     layout = v.layout or ss.layout
     names = [lane.name for lane in ss.lanes]
@@ -108,14 +177,17 @@ def _run(ss: Session, out, stdin) -> dict:
         from necviz.flight_recorder import focus_blueprint
 
         blueprint = focus_blueprint(blueprint, *ss.focus_s)
-    viewer = open_viewer(v, ss.command, blueprint, ss.title)
+    viewer = open_viewer(v, ss.command, blueprint, ss.title, keep_partial=ss.keep_partial)
+    if viewer.output is not None:
+        outputs.append(_ViewerOutput(viewer))
+    files = [p for p in (viewer.save_path, getattr(ss.recorder, "path", None)) if p is not None]
     for m in viewer.messages:
         print(f"  {m}", file=out)
     speed = ss.show.speed
     if speed == "auto":
         speed = 1.0 if v.watched else None
     rec = viewer.rec
-    rec.send_property("run", rr.AnyValues(**{k: str(val) for k, val in ss.properties.items()}, layout=layout))
+    rec.send_property("run", rr.AnyValues(**{k: text(val) for k, val in ss.properties.items()}, layout=layout))
     style_series(rec, names)
     lossless = ss.lossless and speed is None and not v.watched
     # a live session only saved to a file: series in 2 s chunks (Rerun's file sink indexes every chunk)
@@ -131,6 +203,7 @@ def _run(ss: Session, out, stdin) -> dict:
         lossless=lossless,
         flush_period_s=flush,
     )
+    sink.files = [viewer.output.target] if viewer.output is not None else []
     observers = [sink]
     if ss.recorder is not None:
         cam = ss.record_camera or ss.lanes[0].camera or ss.lanes[0].name
@@ -148,6 +221,7 @@ def _run(ss: Session, out, stdin) -> dict:
     )
     tune_file = console = None
     t0 = time.perf_counter()
+    disk_full = None  # (file, bytes free) when the run was stopped to keep its files whole
 
     def status() -> str:
         return progress_line(ss.command, pipe, ss.expected_duration_s, time.perf_counter() - t0)
@@ -174,6 +248,10 @@ def _run(ss: Session, out, stdin) -> dict:
         try:
             while not pipe.wait(0.5):
                 line.show(status())
+                disk_full = low_space(files)
+                if disk_full is not None:  # stop while the files can still be completed
+                    pipe.stop()
+                    break
         except KeyboardInterrupt:
             print("\n  stopping (Ctrl-C): flushing the recording…", file=out, flush=True)
             pipe.stop()
@@ -185,25 +263,29 @@ def _run(ss: Session, out, stdin) -> dict:
     finally:
         if tune_file is not None:
             tune_file.stop()
+        failed = True
         try:
             stats = pipe.finish()
-        except BaseException:
-            if viewer.save_path is not None:  # the error ends the run; what was seen is flushed and readable
-                print(f"  recording so far: {viewer.save_path} (open it with: rerun {viewer.save_path})", file=out)
-            raise
+            failed = False
         finally:
-            viewer.close()
+            try:
+                viewer.close()
+            except BaseException:
+                if not failed:
+                    raise  # else the run's own error is the one reported
+    if disk_full is not None:
+        path, free = disk_full
+        raise OutputError(
+            f"the disk holding {path} is nearly full ({free >> 20} MB free): the run was stopped at "
+            f"{(pipe.now_us or 0) / 1e6 - (pipe.first_us or 0) / 1e6:.1f} s so the files end whole"
+        )
     source_stats = getattr(ss.source, "stats", None)
     if isinstance(source_stats, dict) and "dropped_events" in source_stats:  # a camera: what the device lost
         stats["source"] = {k: v for k, v in source_stats.items() if isinstance(v, (int, float))}
     print_summary(out, stats)
-    if viewer.save_path is not None:
-        print(f"  recording: {viewer.save_path} (open it with: rerun {viewer.save_path})", file=out)
     stats["rrd"] = str(viewer.save_path) if viewer.save_path is not None else None
     stats["telemetry"] = pipe.telemetry
-    if viewer.url is not None:
-        _keep_serving(viewer, out)
-    return stats
+    return stats, viewer
 
 
 def _keep_serving(viewer, out) -> None:

@@ -287,6 +287,7 @@ class RerunSink(Observer):
         self.dropped = {"frames": 0, "event_batches": 0, "events": 0}  # written by the streaming thread only
         self._stop = False
         self._error: BaseException | None = None
+        self.files: list = []  # files the stream writes: its flush is bounded (see viewer.flush_stream)
         self.on_close = None  # called once the recording is flushed (a file sink completes its file)
         self._thread = threading.Thread(target=self._run, name="necviz-rerun-sink", daemon=True)
         self._thread.start()
@@ -563,7 +564,10 @@ class RerunSink(Observer):
         if not self._stop:
             self._stop = True
             self._thread.join()
-            self.rec.flush()
+            if self._error is None:
+                from necviz.dashboard.viewer import flush_stream
+
+                flush_stream(self.rec, self.files)
             if self.on_close is not None:
                 self.on_close()
         if self._error is not None:
@@ -581,31 +585,40 @@ class RerunSink(Observer):
         return s
 
 
-def open_file_sink(path, lanes, sensor, layout: str, name: str, properties: dict, **options) -> RerunSink:
+def open_file_sink(
+    path, lanes, sensor, layout: str, name: str, properties: dict, *, keep_partial: bool = False, **options
+) -> RerunSink:
     """A lossless sink writing a recording file (with ``layout`` as its blueprint) and nothing else.
 
     The file is written as :mod:`necviz.outputs` says (check the path first with
-    :func:`~necviz.outputs.check_output`); closing the sink closes and completes the file.
+    :func:`~necviz.outputs.check_output`): closing the sink completes the file; the caller then
+    calls ``sink.output.commit()`` (the run succeeded) or ``sink.output.discard()`` (it failed).
     """
     import uuid
 
-    from necviz.dashboard.viewer import file_batching
+    from necviz.dashboard.viewer import file_batching, text
     from necviz.layouts import make_blueprint, style_series
-    from necviz.outputs import commit_recording, recording_target
+    from necviz.outputs import StreamedOutput
 
-    rec = rr.RecordingStream("necviz", recording_id=str(uuid.uuid4()), batcher_config=file_batching())
-    target = recording_target(path)
-    rec.set_sinks(
-        rr.FileSink(str(target)), default_blueprint=make_blueprint(layout, list(lanes), sensor.width, sensor.height)
-    )
-    rec.send_recording_name(name)
-    rec.send_property("run", rr.AnyValues(**{k: str(v) for k, v in properties.items()}, layout=layout))
-    style_series(rec, list(lanes))
-    sink = RerunSink(rec, lanes, sensor.height, sensor.width, lossless=True, **options)
+    output = StreamedOutput(path, keep_partial=keep_partial, flag="--save")
+    try:
+        rec = rr.RecordingStream("necviz", recording_id=str(uuid.uuid4()), batcher_config=file_batching())
+        rec.set_sinks(
+            rr.FileSink(str(output.target)),
+            default_blueprint=make_blueprint(layout, list(lanes), sensor.width, sensor.height),
+        )
+        rec.send_recording_name(text(name))
+        rec.send_property("run", rr.AnyValues(**{k: text(v) for k, v in properties.items()}, layout=layout))
+        style_series(rec, list(lanes))
+        sink = RerunSink(rec, lanes, sensor.height, sensor.width, lossless=True, **options)
+    except BaseException:
+        output.discard()
+        raise
+    sink.files = [output.target]
+    sink.output = output
 
     def finish():
         rr.disconnect(rec)
-        commit_recording(target, path)
 
     sink.on_close = finish
     return sink

@@ -10,7 +10,15 @@ says how to open it.
 program that ships with the SDK (``rerun --serve-web --bind ADDR``), because the SDK's own web
 server has no bind address and listens on every interface. Another address takes an explicit
 ``bind`` (``--bind 0.0.0.0``), and the command warns that the recording is then visible to the
-network.
+network. Both ports are checked before the server starts: a port already taken (a server left
+running by an earlier necviz, or another program) is refused in one line naming the process that
+holds it, so the data never go to a stale server. The server runs in its own process group (a
+Ctrl-C at the terminal reaches necviz, which disconnects first) and dies with necviz even when
+necviz is killed outright (Linux: the kernel's parent-death signal; elsewhere a watchdog).
+
+A file sink is flushed with a bound (:func:`flush_stream`): Rerun's file writer that hit a full
+disk stops writing but leaves ``flush`` waiting for ever; necviz notices that the file stopped
+growing and fails with one line instead.
 """
 
 from __future__ import annotations
@@ -30,12 +38,18 @@ import rerun as rr
 
 from necviz.core.errors import ParameterError
 from necviz.options import LAYOUT_NAMES, ViewerOptions
-from necviz.outputs import check_output, commit_recording, recording_target
+from necviz.outputs import OutputError, StreamedOutput, check_output, free_bytes
 
 DEFAULT_GRPC_PORT = 9876
 DEFAULT_WEB_PORT = 9090
 DEFAULT_CONNECT = f"rerun+http://127.0.0.1:{DEFAULT_GRPC_PORT}/proxy"
 LOOPBACK = ("127.0.0.1", "::1", "localhost")
+
+
+def text(value) -> str:
+    """``str(value)`` that Rerun accepts: a file name that is not UTF-8 (kept by Python as surrogate
+    escapes) shows its undecodable bytes as U+FFFD instead of failing to encode."""
+    return str(value).encode("utf-8", "surrogateescape").decode("utf-8", "replace")
 
 
 def add_viewer_args(parser: argparse.ArgumentParser, layouts: tuple[str, ...] = LAYOUT_NAMES) -> None:
@@ -62,8 +76,10 @@ def add_viewer_args(parser: argparse.ArgumentParser, layouts: tuple[str, ...] = 
     )
     g.add_argument("--save", metavar="FILE.rrd", type=Path, help="write the recording to FILE.rrd")
     g.add_argument("--layout", choices=layouts, help="override the command's layout")
-    g.add_argument("--grpc-port", type=int, default=DEFAULT_GRPC_PORT, help=argparse.SUPPRESS)
-    g.add_argument("--web-port", type=int, default=DEFAULT_WEB_PORT, help=argparse.SUPPRESS)
+    from necviz.options import number
+
+    g.add_argument("--grpc-port", type=number("--grpc-port"), default=DEFAULT_GRPC_PORT, help=argparse.SUPPRESS)
+    g.add_argument("--web-port", type=number("--web-port"), default=DEFAULT_WEB_PORT, help=argparse.SUPPRESS)
     g.add_argument("--memory-limit", default="1GB", help="viewer / server memory limit (default 1GB)")
 
 
@@ -98,35 +114,102 @@ def resolve(options: ViewerOptions, command: str, inputs=()) -> ViewerOptions:
             options = replace(options, save=Path(f"necviz-{command}-{time.strftime('%Y%m%d-%H%M%S')}.rrd"))
     if options.save is not None:
         check_output(options.save, "--save", inputs=inputs, force=options.force, suffixes=(".rrd",))
+    if options.serve:
+        check_ports(options)  # before anything starts: a taken port is one line, not a stall
     return options
 
 
 @dataclass
 class Viewer:
-    """An open recording stream and what the user was told about it."""
+    """An open recording stream and what the user was told about it.
+
+    ``output``: the ``--save`` file being written (:class:`~necviz.outputs.StreamedOutput`); the
+    command commits it when the run succeeded and discards it when it failed."""
 
     rec: rr.RecordingStream
     messages: list[str] = field(default_factory=list)
     save_path: Path | None = None
     url: str | None = None
     server: subprocess.Popen | None = None
-    target: Path | None = None  # where the file is written until it is complete (see necviz.outputs)
+    output: StreamedOutput | None = None
     notebook: object = None  # the rerun.notebook.Viewer shown in the cell (it keeps what was streamed)
 
+    @property
+    def target(self) -> Path | None:
+        """Where the file is written until it is complete (see :mod:`necviz.outputs`)."""
+        return self.output.target if self.output is not None else None
+
     def close(self) -> None:
-        """Flush what was logged. A served recording stays available until :meth:`stop_serving`;
-        a notebook's viewer keeps everything it was sent."""
-        self.rec.flush()
+        """Flush what was logged (bounded: :func:`flush_stream`). A served recording stays available
+        until :meth:`stop_serving`; a notebook's viewer keeps everything it was sent."""
+        flush_stream(self.rec, [self.output.target] if self.output is not None else [], label=self.save_path)
         if self.server is None and self.notebook is None:
             rr.disconnect(self.rec)
-        if self.target is not None and self.save_path is not None:
-            commit_recording(self.target, self.save_path)
 
     def stop_serving(self) -> None:
         if self.server is not None:
             rr.disconnect(self.rec)
             stop_process_group(self.server)
             self.server = None
+
+
+#: Rerun streams whose file writer failed: flushing or dropping them would block for ever (rerun-sdk
+#: 0.41), so they are kept here and the command line leaves with ``os._exit`` after its error line.
+WEDGED: list = []
+
+
+def _file_size_limit() -> float:
+    """The process's file size limit (``ulimit -f``) in bytes, ``inf`` if none."""
+    try:
+        import resource
+
+        soft = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+        return float("inf") if soft == resource.RLIM_INFINITY else float(soft)
+    except (ImportError, OSError, ValueError):
+        return float("inf")
+
+
+def flush_stream(rec: rr.RecordingStream, files=(), stall_s: float = 20.0, label=None) -> None:
+    """``rec.flush()``, bounded when ``rec`` writes ``files``.
+
+    Rerun's file sink that fails to write (a full disk) logs an error and stops, while ``flush`` (and
+    dropping the stream) waits for ever. Here the flush is retried in 1 s steps while any of
+    ``files`` still grows; once they have not grown for ``stall_s`` seconds, or the writer reports
+    it stopped, the stream is set aside (:data:`WEDGED`) and :class:`~necviz.outputs.OutputError` is
+    raised (the caller deletes the incomplete file); ``label`` is the file name it shows.
+    """
+    files = [Path(f) for f in files if f is not None]
+    if not files:
+        rec.flush()
+        return
+
+    def sizes():
+        out = []
+        for f in files:
+            try:
+                out.append(os.path.getsize(f))
+            except OSError:
+                out.append(-1)
+        return out
+
+    last, since = sizes(), time.monotonic()
+    while True:
+        try:
+            rec.flush(timeout_sec=1.0)
+            return
+        except RuntimeError as e:
+            timed_out = "timed out" in str(e).lower()
+        now = sizes()
+        if timed_out and now != last:
+            last, since = now, time.monotonic()
+            continue
+        free = free_bytes(files[0])
+        full = (free is not None and free < (1 << 20)) or max(now) >= _file_size_limit() - (1 << 16)
+        if timed_out and time.monotonic() - since < (min(stall_s, 3.0) if full else stall_s):
+            continue
+        WEDGED.append(rec)
+        why = "no space left (a full disk or the file size limit)" if full else "the file writer stopped"
+        raise OutputError(f"cannot write {str(label or files[0])!r}: {why}")
 
 
 def stop_process_group(proc: subprocess.Popen, timeout_s: float = 5.0) -> None:
@@ -146,13 +229,16 @@ def stop_process_group(proc: subprocess.Popen, timeout_s: float = 5.0) -> None:
             continue
 
 
-def open_viewer(options: ViewerOptions, command: str, blueprint, name: str) -> Viewer:
-    """Create the recording and attach the sinks ``options`` (already :func:`resolve` d) ask for."""
+def open_viewer(options: ViewerOptions, command: str, blueprint, name: str, *, keep_partial: bool = False) -> Viewer:
+    """Create the recording and attach the sinks ``options`` (already :func:`resolve` d) ask for.
+
+    ``keep_partial``: if the run fails, keep what the ``--save`` file holds (a camera session that
+    cannot be produced again) instead of deleting it."""
     messages: list[str] = []
     if options.save is not None and not options.watched and not has_display():
         messages.append(f"saving to {options.save} (open it with: rerun {options.save})")
     try:
-        return _open(options, blueprint, name, messages)
+        return _open(options, blueprint, name, messages, keep_partial)
     except RuntimeError as e:  # Rerun reports bad URLs, ports and memory limits this way
         raise ParameterError(f"viewer: {e}") from None
 
@@ -163,6 +249,100 @@ def _rerun_program() -> list[str]:
         return [str(exe)]
     found = shutil.which("rerun")
     return [found] if found else [sys.executable, "-m", "rerun"]
+
+
+def _rerun_binary() -> list[str]:
+    """The ``rerun`` executable itself (the SDK's ``rerun`` command is a Python script that runs it as a
+    child: a signal to the script would not reach the server), else :func:`_rerun_program`."""
+    override = os.environ.get("RERUN_CLI_PATH")
+    if override and os.access(override, os.X_OK):
+        return [override]
+    try:
+        import rerun_cli
+
+        exe = Path(rerun_cli.__file__).with_name("rerun.exe" if sys.platform.startswith("win") else "rerun")
+        if exe.is_file() and os.access(exe, os.X_OK):
+            return [str(exe)]
+    except ImportError:
+        pass
+    return _rerun_program()
+
+
+def _listener(host: str, port: int) -> str | None:
+    """Who listens on ``port`` (``"process 123 (rerun --serve-web ...)"``), or None if it is free."""
+    probe_host = "127.0.0.1" if host in ("localhost",) else host
+    family = socket.AF_INET6 if ":" in probe_host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the server does: TIME_WAIT is no obstacle
+        try:
+            s.bind((probe_host, port))
+            return None
+        except OSError:
+            pass
+    try:
+        import psutil
+
+        for c in psutil.net_connections(kind="inet"):
+            if c.status == psutil.CONN_LISTEN and c.laddr and c.laddr.port == port and c.pid:
+                try:
+                    cmd = " ".join(" ".join(psutil.Process(c.pid).cmdline()).split())
+                except psutil.Error:
+                    cmd = "?"
+                return f"process {c.pid} ({cmd[:80]})"
+    except (ImportError, OSError, RuntimeError):
+        pass
+    return "another program"
+
+
+def check_ports(options: ViewerOptions) -> None:
+    """Refuse, in one line, ports that are taken before a server is started on them."""
+    for flag, port in (("--grpc-port", options.grpc_port), ("--web-port", options.web_port)):
+        who = _listener(options.bind, port)
+        if who is None:
+            continue
+        stale = "rerun" in who and "--serve" in who
+        hint = f"a Rerun server left running by an earlier run; stop it (kill {who.split()[1]})" if stale else "stop it"
+        raise ParameterError(
+            f"--serve: port {port} on {options.bind} is already in use by {who}: {hint}, or choose "
+            f"another port with {flag}"
+        )
+
+
+def _die_with_parent():
+    """``preexec_fn`` of the server: its own session (Ctrl-C goes to necviz only) and, on Linux, SIGTERM
+    when necviz dies (even by SIGKILL)."""
+    os.setsid()
+    if _PRCTL is not None:
+        _PRCTL(1, 15)  # PR_SET_PDEATHSIG, SIGTERM
+
+
+def _load_prctl():
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        import ctypes
+
+        return ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+
+
+_PRCTL = _load_prctl()
+
+
+def _watchdog(proc: subprocess.Popen) -> None:
+    """Where the kernel cannot tie the server to necviz: a tiny shell that stops the server's process
+    group once necviz is gone."""
+    if _PRCTL is not None or os.name != "posix":
+        return
+    script = f"while kill -0 {os.getpid()} 2>/dev/null; do sleep 1; done; kill -TERM -{proc.pid} 2>/dev/null"
+    subprocess.Popen(
+        ["/bin/sh", "-c", script],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
 
 
 def _wait_listening(host: str, port: int, proc: subprocess.Popen, timeout_s: float = 15.0) -> None:
@@ -184,8 +364,9 @@ def _wait_listening(host: str, port: int, proc: subprocess.Popen, timeout_s: flo
 
 def start_web_server(options: ViewerOptions) -> tuple[subprocess.Popen, str, str]:
     """``rerun --serve-web`` bound to ``options.bind``; returns the process, the data URI and the page URL."""
+    check_ports(options)
     cmd = [
-        *_rerun_program(),
+        *_rerun_binary(),
         "--serve-web",
         "--bind",
         options.bind,
@@ -197,10 +378,11 @@ def start_web_server(options: ViewerOptions) -> tuple[subprocess.Popen, str, str
         options.memory_limit,
     ]
     # its own session: a Ctrl-C at the terminal stops necviz, which then disconnects and stops the server
-    # in that order (a server killed first makes the SDK's last flush fail loudly)
+    # in that order (a server killed first makes the SDK's last flush fail loudly); and it dies with necviz
     proc = subprocess.Popen(
-        cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True
+        cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=_die_with_parent
     )
+    _watchdog(proc)
     _wait_listening(options.bind, options.grpc_port, proc)
     _wait_listening(options.bind, options.web_port, proc)
     host = "127.0.0.1" if options.bind in ("0.0.0.0", "::", "localhost") else options.bind
@@ -239,7 +421,7 @@ def _open_notebook(blueprint, name, messages) -> Viewer:
     return Viewer(rec, messages, notebook=widget)
 
 
-def _open(options: ViewerOptions, blueprint, name, messages) -> Viewer:
+def _open(options: ViewerOptions, blueprint, name, messages, keep_partial: bool = False) -> Viewer:
     if options.notebook:
         return _open_notebook(blueprint, name, messages)
     viewer = bool(options.serve or options.spawn or options.connect)
@@ -263,12 +445,19 @@ def _open(options: ViewerOptions, blueprint, name, messages) -> Viewer:
     if options.connect:
         sinks.append(rr.GrpcSink(options.connect))
         messages.append(f"streaming to {options.connect}")
-    target = None
+    output = None
     if options.save:
-        target = recording_target(options.save)
-        sinks.append(rr.FileSink(str(target)))
+        output = StreamedOutput(options.save, keep_partial=keep_partial, flag="--save")
+        sinks.append(rr.FileSink(str(output.target)))
         if not any(m.startswith("saving to") for m in messages):
             messages.append(f"saving to {options.save} (open it with: rerun {options.save})")
-    rec.set_sinks(*sinks, default_blueprint=blueprint)
-    rec.send_recording_name(name)
-    return Viewer(rec, messages, Path(options.save) if options.save else None, url, server, target)
+    try:
+        rec.set_sinks(*sinks, default_blueprint=blueprint)
+        rec.send_recording_name(text(name))
+    except BaseException:
+        if output is not None:
+            output.discard()
+        if server is not None:
+            stop_process_group(server)
+        raise
+    return Viewer(rec, messages, Path(options.save) if options.save else None, url, server, output)

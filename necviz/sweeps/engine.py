@@ -33,6 +33,7 @@ import time
 import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from necviz.core.errors import NecvizError, ParameterError
 from necviz.sweeps.spec import Plan
@@ -335,6 +336,7 @@ def run_sweep(
     if retry_failed and not resume:
         raise ParameterError("--retry-failed runs the failed runs of a sweep again: it needs --resume")
     dashboard = _check_dashboard(dashboard)
+    _check_inputs(plan, out)
     store = prepare_out(out, resume=resume, force=force)
     store.lock()
     try:
@@ -346,10 +348,23 @@ def run_sweep(
             with atomic_write(store.root / "sweep.toml") as f:
                 f.write(plan.text)
         done = store.done()
+        damaged = store.check_rows(done & set(plan.hashes))  # a damaged row is not a finished run
+        if damaged and stream is not None:
+            h, why = next(iter(damaged.items()))
+            print(
+                f"sweep: {len(damaged)} result row{'s' if len(damaged) > 1 else ''} damaged "
+                f"({store.row_path(h).name}: {why}; kept as .damaged); running {'them' if len(damaged) > 1 else 'it'} "
+                "again",
+                file=stream,
+            )
+        for h in damaged:  # set aside, not deleted: nothing a user had is thrown away
+            path = store.row_path(h)
+            os.replace(path, path.with_name(path.name + ".damaged"))
+        done -= set(damaged)
         redo = set()
         if retry_failed and done:
-            rows = store.read_rows(done & set(plan.hashes), columns=["hash", "status"])
-            redo = {r["hash"] for r in rows if r.get("status") != "ok"}
+            rows = store.read_rows(done & set(plan.hashes), columns=["hash", "status"], skip_bad=True)
+            redo = {r["hash"] for r in rows if r.get("status") != "ok"} | set(store.unreadable)
         todo = [r for r in plan.runs if r.hash not in done or r.hash in redo]
         res = SweepResult(out=str(store.root), runs=len(plan.runs), skipped=len(plan.runs) - len(todo))
         session = {"started": now(), "resume": resume, "runs_to_do": len(todo)}
@@ -518,6 +533,22 @@ def _collect(fut, task, store: Store, res: SweepResult, retries: int) -> None:
     res.failed += 1
 
 
+def _check_inputs(plan: Plan, out) -> None:
+    """The files a sweep writes (or deletes with ``--force``) in ``OUT`` may not be any it reads."""
+    from necviz.outputs import check_not_input
+    from necviz.sweeps.store import MANIFEST
+
+    root = Path(out)
+    inputs = {plan.source}
+    for r in plan.runs:
+        for key in ("scenario", "profile"):
+            v = r.spec.get(key)
+            if isinstance(v, str) and v not in inputs and Path(v).is_file():
+                inputs.add(v)
+    for name in (MANIFEST, "sweep.toml"):
+        check_not_input({"--out": root / name}, sorted(inputs))
+
+
 # -- status ------------------------------------------------------------------------------------------
 def status(out) -> dict:
     """Counts of a sweep folder: runs in the grid, ok, failed, missing; the last session."""
@@ -525,7 +556,7 @@ def status(out) -> dict:
     m = store.manifest()
     grid = [g["hash"] for g in m.get("grid", [])]
     done = store.done()
-    rows = store.read_rows(done & set(grid), columns=["hash", "status", "error", "wall_s"])
+    rows = store.read_rows(done & set(grid), columns=["hash", "status", "error", "wall_s"], skip_bad=True)
     ok = sum(r.get("status") == "ok" for r in rows)
     failed = [r for r in rows if r.get("status") != "ok"]
     errors: dict[str, int] = {}
@@ -550,6 +581,8 @@ def status(out) -> dict:
         "created": m.get("created"),
         "updated": m.get("updated"),
         "failed_runs": [{"hash": r["hash"], "error": r.get("error")} for r in failed[:20]],
+        "unreadable": dict(store.unreadable),
+        "unreadable_note": store.unreadable_note(m.get("sweep_file")),
     }
 
 

@@ -352,7 +352,10 @@ def report(out, metrics=None, folder=None, force: bool = False, plot_metrics=Non
     existing = [folder / f for f in REPORT_FILES if (folder / f).exists()]
     if existing and not force:
         raise SweepDirError(f"{existing[0]} already exists; pass --force to replace the report")
-    rows = store.read_rows(grid)
+    rows = store.read_rows(grid, skip_bad=True)
+    note = store.unreadable_note(m.get("sweep_file"))
+    if note and stream is not None:
+        print(f"warning: {note}", file=stream)
     if not rows:
         raise SweepDirError(f"{store.root} holds no finished runs yet (see `necviz sweep status {store.root}`)")
     wanted = metrics if metrics else m.get("metrics")

@@ -67,7 +67,12 @@ TOP_KEYS = {
 }
 SCENARIO_KEYS = {"name", "params", "zip", "sim", "duration_s"}
 CONTROLLER_KEYS = {"name", "params", "zip"}
-MAX_RUNS = 1_000_000
+#: Most runs one sweep file may expand to. Planning holds every run (its spec, hash and columns:
+#: about 1.4 kB each), so the grid is counted before anything is built and a larger one refused.
+MAX_RUNS = 100_000
+#: Most seeds of a sweep file (as ``compare --seeds``).
+MAX_SEEDS = 10_000
+BYTES_PER_RUN = 1400
 
 
 class SweepFileError(ParameterError):
@@ -127,6 +132,7 @@ class Plan:
 def parse_seeds(value, where: str = "seeds") -> list[int]:
     """``"0..9"`` (inclusive), ``"1,5,9"`` or a list of integers -> sorted distinct seeds."""
     msg = f'{where} must be "a..b", "a,b,c" or a list of whole numbers >= 0, got {value!r}'
+    too_many = f"{where}: {value!r} lists more than {MAX_SEEDS:,} seeds"
     if isinstance(value, list):
         items = value
     elif isinstance(value, str):
@@ -135,15 +141,23 @@ def parse_seeds(value, where: str = "seeds") -> list[int]:
             if ".." in s:
                 a, b = s.split("..", 1)
                 lo, hi = int(a), int(b)
+                if hi - lo + 1 > MAX_SEEDS:  # counted before the list is made ("0..4294967295")
+                    raise SweepFileError(too_many)
                 items = list(range(lo, hi + 1)) if hi >= lo else None
             else:
+                if s.count(",") >= MAX_SEEDS:
+                    raise SweepFileError(too_many)
                 items = [int(v) for v in s.split(",") if v.strip()]
+        except SweepFileError:
+            raise
         except ValueError:
             raise SweepFileError(msg) from None
         if items is None:
             raise SweepFileError(f"{where}: {value!r} ends before it starts")
     else:
         raise SweepFileError(msg)
+    if len(items) > MAX_SEEDS:
+        raise SweepFileError(f"{where}: {len(items):,} seeds; at most {MAX_SEEDS:,}")
     if not items or any(isinstance(v, bool) or not isinstance(v, int) or not 0 <= v < 2**32 for v in items):
         raise SweepFileError(msg)
     if len(set(items)) != len(items):
@@ -168,6 +182,16 @@ def _axis_values(table, where: str, none_words: bool) -> dict[str, list]:
             raise SweepFileError(f"{where}.{k}: values must be numbers, strings, booleans or lists, not tables")
         out[str(k)] = [_none(x) for x in values] if none_words else list(values)
     return out
+
+
+def _count(params, zipped, where: str) -> int:
+    """How many combinations :func:`_combinations` would make (without making them)."""
+    grid = _axis_values(params if params is not None else {}, f"{where}.params", False)
+    zips = _axis_values(zipped if zipped is not None else {}, f"{where}.zip", False)
+    n = 1
+    for v in grid.values():
+        n *= len(v)
+    return n * (min(len(v) for v in zips.values()) if zips else 1)
 
 
 def _combinations(params, zipped, where: str, none_words: bool = False) -> list[dict]:
@@ -370,6 +394,7 @@ def expand(data: dict, base: Path = Path("."), source: str = "sweep", text: str 
 
     # simulator overrides (grid)
     top_sim = _axis_values(data.get("sim", {}), "sim", none_words=True)
+    _check_size(data, seeds, len(profiles), top_sim)
 
     # controllers
     ctrl_entries = []  # (name, params dict)
@@ -460,13 +485,45 @@ def expand(data: dict, base: Path = Path("."), source: str = "sweep", text: str 
     return Plan(source, text, data, runs, seeds, metrics, sift, dup, data.get("name", Path(source).stem), markers)
 
 
+def _check_size(data: dict, seeds: list, profiles: int, top_sim: dict) -> None:
+    """Refuse a grid of more than :data:`MAX_RUNS` runs from its counts, before any run is built."""
+    ctrl = 0
+    for i, c in enumerate(_list_of(data, "controllers")):
+        if isinstance(c, dict):
+            ctrl += _count(c.get("params"), c.get("zip"), f"controllers[{i}]")
+        else:
+            ctrl += 1
+    scen = 0
+    for i, sc in enumerate(_list_of(data, "scenarios")):
+        if isinstance(sc, dict):
+            sim = {**top_sim, **_axis_values(sc.get("sim", {}), f"scenarios[{i}].sim", none_words=True)}
+            rows = 1
+            for v in sim.values():
+                rows *= len(v)
+            scen += _count(sc.get("params"), sc.get("zip"), f"scenarios[{i}]") * rows
+        else:
+            rows = 1
+            for v in top_sim.values():
+                rows *= len(v)
+            scen += rows
+    n = scen * profiles * ctrl * len(seeds)
+    if n > MAX_RUNS:
+        raise SweepFileError(
+            f"the grid has {n:,} runs ({scen:,} scenario configurations x {profiles} profile(s) x {ctrl:,} "
+            f"controller configurations x {len(seeds):,} seeds; planning them would take about "
+            f"{n * BYTES_PER_RUN / 2**30:,.1f} GB); at most {MAX_RUNS:,} per sweep file: split it into several"
+        )
+
+
 def _duration(v, where):
     if v is None:
         return None
     from necviz.core.checks import check_number
 
     try:
-        return check_number(where, v, 0.0, 600.0, lo_open=True)
+        from necviz.drivers.sim.scenes.toml import MAX_DURATION_S
+
+        return check_number(where, v, 0.0, MAX_DURATION_S, lo_open=True)
     except ParameterError as e:
         raise SweepFileError(str(e)) from None
 

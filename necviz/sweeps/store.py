@@ -12,7 +12,10 @@ Layout::
 
 A run is done when its row exists: the trace is written first, then the row, each to a temporary
 file in ``runs/`` renamed into place (:func:`necviz.outputs.atomic_write`), so a crash or Ctrl-C
-leaves either a complete row or none, never half of one.
+leaves either a complete row or none, never half of one. A row damaged afterwards (a truncated
+copy, a file emptied by a full disk) is not a finished run: :meth:`Store.check_rows` finds it by
+the Parquet framing (``PAR1`` at both ends, a footer that fits), ``status`` and ``report`` name it
+in one line and leave it out, and ``sweep run --resume`` runs it again.
 """
 
 from __future__ import annotations
@@ -96,22 +99,83 @@ class Store:
         _write_bytes(self.row_path(h), row)
 
     def read_row(self, h: str, columns: list[str] | None = None) -> dict:
-        """One row as a dict, with its metric names under ``"__metrics__"`` (``columns``: only those)."""
+        """One row as a dict, with its metric names under ``"__metrics__"`` (``columns``: only those).
+
+        Raises :class:`SweepDirError` (one line) if the row file is damaged."""
         import pyarrow.parquet as pq
 
-        f = pq.ParquetFile(self.row_path(h))
-        if columns is not None:
-            columns = [c for c in columns if c in f.schema_arrow.names]
-        t = f.read(columns=columns)
-        row = t.to_pylist()[0]
-        meta = f.schema_arrow.metadata or {}
-        row["__metrics__"] = json.loads(meta.get(b"necviz.metrics", b"[]"))
+        path = self.row_path(h)
+        try:
+            f = pq.ParquetFile(path)
+            if columns is not None:
+                columns = [c for c in columns if c in f.schema_arrow.names]
+            t = f.read(columns=columns)
+            row = t.to_pylist()[0]
+            meta = f.schema_arrow.metadata or {}
+            row["__metrics__"] = json.loads(meta.get(b"necviz.metrics", b"[]"))
+        except (OSError, ValueError, IndexError, KeyError, TypeError) as e:
+            why = " ".join(str(e).split())[:120] or type(e).__name__
+            raise SweepDirError(
+                f"{path}: unreadable result row ({why}); `necviz sweep run FILE --out {self.root} --resume` runs it again"
+            ) from None
         return row
 
-    def read_rows(self, hashes=None, columns: list[str] | None = None) -> list[dict]:
-        """Every row (or those of ``hashes``, in that order), as dicts with ``"__metrics__"``."""
+    def check_rows(self, hashes) -> dict[str, str]:
+        """The rows among ``hashes`` whose file is damaged: ``{hash: why}`` (empty, truncated, not
+        Parquet). A cheap check of the framing (two small reads per row), not of every value."""
+        bad = {}
+        for h in hashes:
+            path = self.row_path(h)
+            try:
+                size = path.stat().st_size
+                with open(path, "rb") as f:
+                    head = f.read(4)
+                    f.seek(max(0, size - 8))
+                    tail = f.read(8)
+            except OSError as e:
+                bad[h] = e.strerror or str(e)
+                continue
+            if size == 0:
+                bad[h] = "empty file"
+            elif size < 12 or head != b"PAR1" or tail[4:] != b"PAR1":
+                bad[h] = "truncated or not a Parquet file"
+            elif int.from_bytes(tail[:4], "little") > size - 12:
+                bad[h] = "truncated (its footer does not fit)"
+        return bad
+
+    def read_rows(self, hashes=None, columns: list[str] | None = None, skip_bad: bool = False) -> list[dict]:
+        """Every row (or those of ``hashes``, in that order), as dicts with ``"__metrics__"``.
+
+        ``skip_bad``: leave out damaged rows and list them in ``self.unreadable`` (``{hash: why}``)
+        instead of raising."""
         hashes = sorted(self.done()) if hashes is None else [h for h in hashes if self.row_path(h).is_file()]
-        return [self.read_row(h, columns) for h in hashes]
+        self.unreadable: dict[str, str] = {}
+        if not skip_bad:
+            return [self.read_row(h, columns) for h in hashes]
+        bad = self.check_rows(hashes)
+        rows = []
+        for h in hashes:
+            if h in bad:
+                continue
+            try:
+                rows.append(self.read_row(h, columns))
+            except SweepDirError as e:
+                bad[h] = str(e).split("unreadable result row (", 1)[-1].split(");", 1)[0]
+        self.unreadable = bad
+        return rows
+
+    def unreadable_note(self, sweep_file: str | None = None) -> str | None:
+        """One line about the rows :meth:`read_rows` left out, or None."""
+        bad = getattr(self, "unreadable", {})
+        if not bad:
+            return None
+        h, why = next(iter(bad.items()))
+        more = f" and {len(bad) - 1} more" if len(bad) > 1 else ""
+        how = f"necviz sweep run {sweep_file or 'FILE'} --out {self.root} --resume"
+        return (
+            f"{len(bad)} result row{'s' if len(bad) > 1 else ''} unreadable ({self.row_path(h).name}: {why}{more}); "
+            f"left out here, `{how}` runs {'them' if len(bad) > 1 else 'it'} again"
+        )
 
     def find(self, prefix: str) -> str:
         """The hash starting with ``prefix`` (at least 4 characters); one-line errors otherwise."""

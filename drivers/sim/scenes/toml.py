@@ -3,8 +3,8 @@
 Keys (anything else is refused with a one-line :class:`~necviz.core.errors.ProfileError`)::
 
     name = "tunnel_exit"      # a preset of SCENARIOS (required)
-    seed = 3                  # integer >= 0, default 0
-    duration_s = 2.0          # or duration_us = 2000000; default: the preset's own duration
+    seed = 3                  # integer in 0..2^32-1, default 0
+    duration_s = 2.0          # or duration_us = 2000000 (at most 600 s); default: the preset's own duration
     sensor = "DAVIS346"       # optional: "DAVIS346", "DAVIS240" or {width = .., height = ..}
     [params]                  # the preset's parameters (scenario_params(name))
     step_db = 90
@@ -26,6 +26,10 @@ from necviz.drivers.sim.scenes.registry import SCENARIOS, make_scenario
 __all__ = ["load_scenario_spec", "scenario_from_toml"]
 
 _SENSORS = {"DAVIS346": DAVIS346, "DAVIS240": DAVIS240}
+#: Longest simulated scene, in a file as on the command line (``--duration``): 600 s.
+MAX_DURATION_S = 600.0
+#: Largest seed (NumPy seeds the simulator with 32-bit words).
+MAX_SEED = 2**32 - 1
 _TOML_KEYS = {"name", "seed", "duration_s", "duration_us", "sensor", "params"}
 
 
@@ -51,6 +55,8 @@ def load_scenario_spec(path_or_text: str | os.PathLike) -> dict:
             text = path.read_text(encoding="utf-8")
         except OSError as e:
             raise ProfileError(f"{source}: cannot read scenario file ({e.strerror or e})") from None
+        except UnicodeDecodeError as e:
+            raise ProfileError(f"{source}: not UTF-8 text at byte {e.start} (a TOML scenario file is UTF-8)") from None
     elif isinstance(path_or_text, str):
         source, text = "scenario TOML", path_or_text
     else:
@@ -66,14 +72,18 @@ def load_scenario_spec(path_or_text: str | os.PathLike) -> dict:
         raise ProfileError(f'{source}: missing key "name" (one of {", ".join(sorted(SCENARIOS))})')
     if d["name"] not in SCENARIOS:
         raise ParameterError(f"{source}: unknown scenario {d['name']!r}; known: {', '.join(sorted(SCENARIOS))}")
-    seed = _number(source, "seed", d["seed"], lo=0, integer=True) if "seed" in d else None
+    seed = _number(source, "seed", d["seed"], lo=0, hi=MAX_SEED, integer=True) if "seed" in d else None
     if "duration_s" in d and "duration_us" in d:
         raise ProfileError(f"{source}: give either duration_s or duration_us, not both")
     duration_us = None
     if "duration_s" in d:
-        duration_us = int(round(_number(source, "duration_s", d["duration_s"], lo=0.0, lo_open=True) * US))
+        duration_us = int(
+            round(_number(source, "duration_s", d["duration_s"], lo=0.0, hi=MAX_DURATION_S, lo_open=True) * US)
+        )
     elif "duration_us" in d:
-        duration_us = _number(source, "duration_us", d["duration_us"], lo=0, lo_open=True, integer=True)
+        duration_us = _number(
+            source, "duration_us", d["duration_us"], lo=0, hi=MAX_DURATION_S * US, lo_open=True, integer=True
+        )
     sensor = d.get("sensor")
     if isinstance(sensor, str):
         if sensor not in _SENSORS:
