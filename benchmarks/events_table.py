@@ -38,13 +38,14 @@ import numpy as np
 DEFAULT_CEILING = 12e6
 DEFAULT_LATENCY_US = 1000.0
 #: the ladder's rungs in order (sweeps/ladder.toml; its ends run in sweeps/heldout.toml)
-LADDER = ("nec-paper", "nec@bound", "nec@median", "nec@goal", "nec@escape", "nec")
+LADDER = ("nec-paper", "nec@bound", "nec@median", "nec@goal", "nec@escape", "nec@compensation", "nec")
 LADDER_STEP = {
     "nec@bound": "+ saturation bound",
     "nec@median": "+ median metering",
     "nec@goal": "+ measured goal (100 DN)",
     "nec@escape": "+ escape rule",
-    "nec": "+ compensation (the default)",
+    "nec@compensation": "+ compensation",
+    "nec": "+ lagging events absorbed at a bound (the default)",
 }
 BASELINES = ("navid", "shim", "begin")
 
@@ -232,7 +233,7 @@ def section_ladder(idx, metric, out: list, data: dict) -> None:
     present = [c for c in LADDER if any(k[0] == c for k in idx)]
     if len(present) < 2:
         return
-    out.append(f"### The ladder from `nec-paper` to `nec`, {metric} (held-out scenes, simulator defaults)\n")
+    out.append(f"### The ladder from `nec-paper` to `nec`, {metric} (simulator defaults)\n")
     out.append("Each rung adds one necviz addition to the one above it. Mean per family, then the rung's paired")
     out.append("difference from the rung above ± 95 % CI (n pairs: scenes × seeds).\n")
     fams = sorted({k[1] for k in idx if k[0] in present})
@@ -273,7 +274,7 @@ def section_baselines(idx, metric, out: list, data: dict) -> None:
     if not present:
         return
     fams = sorted({family(k[1]) for k in idx if k[0] in present})
-    out.append(f"### Baselines, published and tuned, {metric} (held-out scenes, simulator defaults)\n")
+    out.append(f"### Baselines, published and tuned, {metric} (simulator defaults)\n")
     out.append("Mean per family; in brackets the tuned − published paired difference ± 95 % CI. `nec` for reference.\n")
     out.append("| controller | " + " | ".join(fams) + " |")
     out.append("|---|" + "---|" * len(fams))
@@ -332,7 +333,7 @@ def build(dirs, metric: str = "saturated_frames_50") -> tuple[str, dict]:
         data,
         "transition_ms",
         trans,
-        "transition time (held-out tunnel exits)",
+        "transition time (tunnel exits)",
         lambda r, v: (
             r["transition_ms"] == v and r["ceiling"] == DEFAULT_CEILING and r["latency_us"] == DEFAULT_LATENCY_US
         ),

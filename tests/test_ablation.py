@@ -232,3 +232,80 @@ def test_a_controller_switched_to_on_the_dashboard_gets_the_source_s_ceiling():
     pipe._drive("nec", "navid")
     assert isinstance(pipe.lanes["navid"].controller, NECController)
     assert pipe.lanes["navid"].controller.bus_event_rate == 6e6
+
+
+# -- events that lag behind a saturation bound --------------------------------------------------------
+def _bounded_estimate(s, pred, bound):
+    from necviz.core.ptedi import FrameEstimate
+
+    one = lambda v: np.array([float(v)])  # noqa: E731
+    return FrameEstimate(
+        7,
+        s,
+        s + 500,
+        one(bound),
+        one(0.0),
+        one(bound),
+        one(0.0),
+        np.array([False]),
+        one(0.0),
+        np.array([True]),
+        one(bound),
+        np.array([-1], np.int8),
+        one(pred),
+    )
+
+
+def test_events_that_lag_behind_a_bound_are_not_counted_twice():
+    """A frame proves the light fell to at most 5.5 while the events had only reached 6.5 (the
+    photoreceptor still following the step): the next 1.0 ln of OFF events is the same fall."""
+    nec = make_controller("nec", sensor=SENSOR, limits=CameraLimits())
+    assert nec.options.bound_lag
+    nec._track_lag(_bounded_estimate(20_000, pred=6.5, bound=5.5))
+    assert nec.bound_owed == pytest.approx(-1.0)
+    for lp, absorbed in ((5.5, 0.0), (5.0, -0.5), (4.5, -1.0), (3.0, -1.0), (6.0, 0.0)):
+        assert nec._absorbed(lp) == pytest.approx(absorbed)  # M = lp - absorbed: events count beyond the gap
+    # a normal anchor closes the gap
+    from necviz.core.ptedi import FrameEstimate
+
+    one = np.array([1.0])
+    nec._track_lag(FrameEstimate(8, 40_000, 40_500, one, one * 0, one, one, np.array([True])))
+    assert nec.bound_owed == 0.0 and nec._absorbed(3.0) == 0.0
+
+
+def test_a_gap_after_a_window_at_the_bus_ceiling_is_lost_events_not_lag():
+    nec = make_controller("nec", sensor=SENSOR, limits=CameraLimits(), event_rate_max=1e6)
+    nec._anchor_s = 0
+    nec._sat_t = 15_000  # a window at the ceiling between the anchor and the frame
+    nec._track_lag(_bounded_estimate(20_000, pred=6.5, bound=5.5))
+    assert nec.bound_owed == 0.0
+    # and the paper's controller has the switch off
+    assert make_controller("nec-paper", sensor=SENSOR, limits=CameraLimits()).options.bound_lag is False
+
+
+def test_absorbing_the_lag_keeps_the_frame_after_a_bounded_one_valid():
+    """A 40 dB fall 1.5 ms before frame 2 starts (no bus ceiling): frame 2 cannot be helped (the
+    command latency) and under-exposes; its bound lowers P-TEDI's anchor while the dark pixels' OFF
+    events are still arriving. Counting those again left frame 3 over-exposed; absorbing them does not."""
+    from necviz.dashboard.telemetry import Telemetry
+
+    scene = step_scene(39_500, 7.3, -4.6, duration_us=100_000)
+    aps = ApsParams()
+    worst = {}
+    for lag in (True, False):
+        rig = SimRig(scene, ["cam"], dvs=DvsParams(max_event_rate=None), aps=aps, seed=3)
+        limits = CameraLimits(aps.exposure_min_us, aps.exposure_max_us, aps.gain_max)
+        c = make_controller(
+            "nec",
+            sensor=SENSOR,
+            limits=limits,
+            exposure_us=rig.cams["cam"].exposure_us,
+            bound_lag=lag,
+            compensation=False,
+        )
+        tel = Telemetry(["cam"])
+        Pipeline(rig, [Lane("cam", c)], telemetry=tel).run().finish()
+        rows = {r["sequence"]: r for r in tel["cam"].table.rows()}
+        assert rows[2]["under_exposed_rate"] > 0.5  # the frame no controller could have helped
+        worst[lag] = max(rows[3]["over_exposed_rate"], rows[3]["under_exposed_rate"])
+    assert worst[True] < 0.1 < 0.5 < worst[False]

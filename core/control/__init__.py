@@ -102,6 +102,7 @@ PAPER_OPTIONS = {
     "goal_mode": "paper",
     "escape": False,
     "compensation": False,
+    "bound_lag": False,
 }
 
 

@@ -74,7 +74,25 @@ escape=False, compensation=False`` is the paper's controller exactly (registered
 Defaults, chosen by ``benchmarks/metering.py`` over every preset scenario x 10 seeds and checked
 on held-out scenes (README, "Metering, goal and the escape rule"): ``metering="median"``,
 ``goal_mode="measured"`` (100 DN for the median), ``escape=True`` with ``edge_margin=0.4``,
-``saturation_bound=True``, ``compensation=True``.
+``saturation_bound=True``, ``compensation=True``, ``bound_lag=True`` (``ceiling_rate=False``).
+
+Events that lag (``bound_lag``). A pixel reports a change only as fast as its photoreceptor
+follows it, and in the dark that takes tens of ms (the DVS model's bandwidth falls with the
+light, as a DAVIS346's does), so after a big step the events keep arriving well after the frame
+that already saw the new level. When a saturated frame moves P-TEDI's anchor to its bound, the gap
+it closes (bound minus the event-propagated level at ``s``) is then change the events have yet to
+report; counting those events again after the bound double-counts it (a 40 dB step down was
+over-counted by 0.7 ln and left the next frame 80 % over-exposed). So the events that follow in the
+gap's direction count only beyond the gap. When a window at the bus ceiling lies between the
+previous anchor and the frame, the gap is events lost for good and nothing is absorbed.
+
+Events at the bus ceiling (``ceiling_rate``, an experiment, off). At the ceiling the bus delivers a
+fixed rate whatever the light does, so the count measures the change's duration, not its size. A
+saturated frame that moves the anchor to its bound after windows at the ceiling gives the gain
+``k = (counted + missed) / counted`` of those windows; later windows at the ceiling (same polarity)
+are credited ``k - 1`` times their count, at most ``(W - 2 m) / 2`` (``W = g(valid_max) -
+g(valid_min)``) so that the escape rule's exposure still records the level the count and the frame
+prove. It rests on the simulator's uniform thinning at the ceiling; docs/method.md has the numbers.
 """
 
 from __future__ import annotations
@@ -259,6 +277,11 @@ class NECOptions(ControllerOptions):
     ceiling_rate : bool
         While the event bus is at its ceiling, credit the events with the rate of change a saturated
         frame proved (module docstring, "Events at the bus ceiling"); needs ``escape`` (its bus watch).
+    bound_lag : bool
+        When a saturated frame moves P-TEDI's anchor to its bound and no event window since the previous
+        anchor was at the bus ceiling, count the events that follow in the bound's direction only beyond
+        the gap the bound closed: they are the photoreceptor's lag catching up with a change the frame
+        already saw (module docstring, "Events that lag").
     zone_grid : tuple of int, optional
         ``(columns, rows)`` of the P-TEDI zones :func:`~necviz.core.control.make_controller` builds
         (default: :data:`ZONE_GRID` for ``metering="zones"``, else the whole sensor).
@@ -323,6 +346,7 @@ class NECOptions(ControllerOptions):
     saturation_bound: bool = True
     compensation: bool = True
     ceiling_rate: bool = False
+    bound_lag: bool = True
 
     def check(self) -> None:
         if self.full_band <= self.dead_band:
@@ -331,7 +355,7 @@ class NECOptions(ControllerOptions):
             raise ParameterError(f"metering must be one of {', '.join(METERING)}, got {self.metering!r}")
         if self.goal_mode not in GOAL_MODES:
             raise ParameterError(f"goal_mode must be one of {', '.join(GOAL_MODES)}, got {self.goal_mode!r}")
-        for name in ("escape", "saturation_bound", "compensation", "ceiling_rate"):
+        for name in ("escape", "saturation_bound", "compensation", "ceiling_rate", "bound_lag"):
             if not isinstance(getattr(self, name), bool):
                 raise ParameterError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if self.bus_event_rate is not None:
@@ -424,6 +448,10 @@ class NECController(Controller):
         self._gain = 1.0
         self._gain_dir = 0
         self.ceiling_credit = 0.0
+        # lag after a saturation bound: the gap the bound closed (signed ln) and P-TEDI's level at the bound
+        self.bound_owed = 0.0
+        self._owed_base = 0.0
+        self._anchor_s = np.iinfo(np.int64).min  # exposure start of P-TEDI's last (re-)anchor
 
     # -- settings -------------------------------------------------------------------------------
     def _goal_log_exposure(self, options: NECOptions) -> float:
@@ -535,10 +563,11 @@ class NECController(Controller):
             if ok.any():
                 self.last_log_irradiance = float(np.dot(z[ok], est.sizes[ok]) / est.sizes[ok].sum())
             off = np.where(np.isfinite(self._offset), self._offset, 0.0)
-            return weighted_median(z + off, self._weights) + self._credit()
+            lp = self.last_log_irradiance
+            return weighted_median(z + off, self._weights) + self._credit() - self._absorbed(lp)
         lp = est.predict(t_us)
         self.last_log_irradiance = lp
-        lp = lp + self._credit()
+        lp = lp + self._credit() - self._absorbed(lp)
         if self.options.metering == "paper":
             return lp
         off = self._offset0
@@ -631,6 +660,39 @@ class NECController(Controller):
             del self._sat_log[:2048]
         if self._gain > 1.0 and counted * self._gain_dir > 0:
             self.ceiling_credit += (self._gain - 1.0) * counted
+
+    def _absorbed(self, lp: float) -> float:
+        """The part of P-TEDI's change since the bound that only catches up with it (``bound_lag``):
+        the change in the gap's direction, up to the gap (0 without a gap)."""
+        owed = self.bound_owed
+        if owed == 0.0 or lp != lp:
+            return 0.0
+        moved = lp - self._owed_base
+        if owed < 0.0:
+            return max(owed, min(moved, 0.0))
+        return min(owed, max(moved, 0.0))
+
+    def _track_lag(self, fe: FrameEstimate) -> None:
+        """After a frame: open a lag gap at a saturation bound no ceiling window explains, close it at a
+        normal anchor (``bound_lag``; module docstring)."""
+        s = int(fe.exposure_start_us)
+        bounded = fe.bounded is not None and bool(fe.bounded.any()) and fe.predicted_start is not None
+        if not bounded:
+            if bool(fe.anchored.any()):
+                self.bound_owed = 0.0
+                self._anchor_s = s
+            return
+        sizes = self.estimator.sizes.astype(np.float64)
+        w = np.where(fe.bounded, sizes, 0.0)
+        with np.errstate(invalid="ignore"):
+            gap = float(np.nansum(np.where(fe.bounded, fe.log_start - fe.predicted_start, 0.0) * w) / w.sum())
+        lost = self._bus_rate is not None and self.options.escape and self._sat_t >= self._anchor_s
+        self._anchor_s = s
+        if lost or not math.isfinite(gap):  # events lost at the ceiling never come: nothing to absorb
+            self.bound_owed = 0.0
+            return
+        self.bound_owed = gap
+        self._owed_base = float(np.nansum(np.where(fe.bounded, fe.log_start, 0.0) * w) / w.sum())
 
     def _credit(self) -> float:
         """The change credited beyond the count, at most half the slack of the valid range
@@ -733,6 +795,8 @@ class NECController(Controller):
         self.last_frame_estimate = fe
         if self.options.ceiling_rate and self.options.escape:
             self._calibrate_ceiling(fe)
+        if self.options.bound_lag:
+            self._track_lag(fe)
         determined = bool(fe.anchored.any())
         if self.options.metering != "paper":
             determined = self._update_offsets(frame, fe)
@@ -760,6 +824,9 @@ class NECFramesController(NECController):
     frames its prediction is the last frame's level and commands follow frames only. The escape
     rule's case (a), lost events at the bus ceiling, cannot arise; case (b), a saturated frame, does.
     The difference between ``nec`` and ``nec-frames`` on the same scene is what the events add.
+    A lane switched to ``nec-frames`` while running adopts the lane's estimator (with whatever events
+    it counted before the switch) and feeds it none from then on; built as ``nec-frames`` its
+    estimator never counts one (``estimator.event_totals() == (0, 0)``).
     """
 
     name = "nec-frames"
