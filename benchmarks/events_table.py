@@ -263,7 +263,12 @@ def section_ladder(idx, metric, out: list, data: dict) -> None:
             else:
                 data["ladder"].setdefault(rung, {})[f] = {"mean": mean}
             cells.append(cell)
-        name = f"`{rung}`" + (f" {LADDER_STEP[rung]}" if rung in LADDER_STEP else " (the paper)")
+        if rung not in LADDER_STEP:
+            name = f"`{rung}` (the paper)"
+        elif prev is not None and LADDER.index(prev) == LADDER.index(rung) - 1:
+            name = f"`{rung}` {LADDER_STEP[rung]}"
+        else:  # rungs between did not run: the step is every addition from the rung shown above
+            name = f"`{rung}` (every addition from `{prev}` on)"
         out.append(f"| {name} | " + " | ".join(cells) + " |")
         prev = rung
     out.append("")
@@ -373,7 +378,8 @@ def main(argv=None) -> int:
     if args.out:
         Path(args.out).write_text(text + "\n", encoding="utf-8")
     if args.json:
-        Path(args.json).write_text(json.dumps(data, indent=1, default=float), encoding="utf-8")
+        cmd = "python benchmarks/events_table.py " + " ".join(argv if argv is not None else sys.argv[1:])
+        Path(args.json).write_text(json.dumps({"command": cmd, **data}, indent=1, default=float), encoding="utf-8")
     return 0
 
 
