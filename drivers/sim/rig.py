@@ -334,10 +334,10 @@ class SimRig:
             float(a.readout_us),
             self._changes,
             box,
-            lost[:, 0],
-            lost[:, 1],
-            lost[:, 2],
-            (float(self.dvs_params.c_on), float(self.dvs_params.c_off)),
+            lost_t_us=lost[:, 0],
+            lost_on=lost[:, 1],
+            lost_off=lost[:, 2],
+            event_thresholds=(float(self.dvs_params.c_on), float(self.dvs_params.c_off)),
         )
 
     def packets(self):
