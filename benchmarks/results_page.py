@@ -57,6 +57,10 @@ def command_of(name: str, data: dict) -> str:
     cmd = data.get("command")
     if isinstance(cmd, dict):
         return "; ".join(f"`{v}`" for v in cmd.values())
+    if cmd is None and isinstance(data.get("runs"), dict):  # one command per part (e.g. per tuned controller)
+        parts = sorted({r.get("command") for r in data["runs"].values() if isinstance(r, dict) and r.get("command")})
+        if parts:
+            return "; ".join(f"`{c}`" for c in parts)
     return f"`{cmd or DEFAULT_COMMANDS.get(name, '(not recorded)')}`"
 
 
@@ -260,6 +264,48 @@ def r_metering(d: dict) -> str:
     )
 
 
+def r_tuning(d: dict) -> str:
+    rows = []
+    for c, ch in d.get("chosen", {}).items():
+        rows.append(
+            [
+                c,
+                f"`{ch.get('label')}`",
+                num(ch.get("regret"), 1),
+                f"`{ch.get('published_label')}`",
+                num(ch.get("published_regret"), 1),
+            ]
+        )
+    out = table(["controller", "chosen", "regret", "published", "published regret"], rows)
+    notes = "; ".join(f"`{k}`: {v}" for k, v in d.get("not_tuned", {}).items())
+    return (
+        out
+        + f"\n\n{d.get('variants_per_controller')} variants per controller on the training presets and seeds. Rule: {d.get('rule')}."
+        + (f" Not tuned: {notes}." if notes else "")
+    )
+
+
+def r_events(d: dict) -> str:
+    """The paired tables benchmarks/events_table.py printed (its JSON keeps them as ``markdown``)."""
+    if d.get("markdown"):
+        return demote_headings(d["markdown"])
+    out = []
+    for metric, groups in d.items():
+        if not isinstance(groups, dict) or metric in ("command", "machine"):
+            continue
+        rows = []
+        for g, v in groups.items():
+            if isinstance(v, dict) and "mean" in v:
+                rows.append([g, f"{num(v['mean'])} ± {num(v.get('ci95'))}", num(v.get("n"))])
+            elif isinstance(v, dict):
+                for k, w in v.items():
+                    if isinstance(w, dict) and "mean" in w:
+                        rows.append([f"{g}: {k}", f"{num(w['mean'])} ± {num(w.get('ci95'))}", num(w.get("n"))])
+        if rows:
+            out += [f"**{metric.replace('_', ' ')}**", "", table(["", "mean ± 95 % CI", "seeds"], rows), ""]
+    return "\n".join(out).rstrip() or r_generic(d)
+
+
 RENDERERS: dict[str, tuple[str, Callable[[dict], str]]] = {
     "estimators": ("Estimator throughput (the paper's Table 1)", r_estimators),
     "sim": ("Simulator speed", r_sim),
@@ -272,7 +318,19 @@ RENDERERS: dict[str, tuple[str, Callable[[dict], str]]] = {
     "flight_recorder": ("Flight recorder memory", r_flight_recorder),
     "sweep_scaling": ("Sweeps on one and two workers", r_sweep_scaling),
     "metering": ("NEC's metering, goal and escape rule (the earlier, in-sample choice)", r_metering),
+    "tuning": ("Every controller tuned with the same budget (training scenes and seeds)", r_tuning),
+    "events_training": (
+        "What the events add: small-scale check on the training presets (not the evaluation)",
+        r_events,
+    ),
 }
+
+
+def demote_headings(md: str) -> str:
+    """Headings of an embedded Markdown text below this page's ``##`` sections."""
+    import re
+
+    return re.sub(r"^(#{1,4}) ", lambda m: "#" * min(6, len(m.group(1)) + 2) + " ", md, flags=re.M)
 
 
 def r_generic(d: dict) -> str:

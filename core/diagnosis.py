@@ -16,14 +16,18 @@ to what the controller chose:
    frame, the longest at the highest gain for an under-exposed one. (A scene's dynamic range alone
    never forces a saturated frame: an exposure that records the median pixel validly clips at most
    half at either end; the residual's explanation says how much any single exposure could record.)
-4. ``prediction_undercount`` (:func:`rule_prediction_undercount`): an event-driven controller set
-   the exposure from P-TEDI's prediction, and the frame proves the prediction missed part of the
-   change (typically events lost to the sensor's event-rate ceiling): P-TEDI's change since its
-   anchor falls short of the frame's by more than :data:`UNDERCOUNT_LN` (the frame clipped at one
-   end only, :data:`ONE_SIDED`, so that its estimate is a bound).
-5. ``controller_lag`` (:func:`rule_controller_lag`): an image-only controller, which learns of a
-   change only from a frame exposed after it, was one frame behind: no such frame had been read
-   out by the time a command could still take effect on this exposure.
+4. ``prediction_undercount`` (:func:`rule_prediction_undercount`): a controller that uses events
+   set the exposure from P-TEDI's prediction, the frame proves the prediction missed part of the
+   change — P-TEDI's change since its anchor falls short of the frame's by more than
+   :data:`UNDERCOUNT_LN` (the frame clipped at one end only, :data:`ONE_SIDED`, so that its
+   estimate is a bound) — *and* the events the sensor lost at its bus ceiling in that time
+   (the simulator's count, in the ground truth) carried at least :data:`LOST_EXPLAINS` of that
+   shortfall. A lane without events never gets it; nor does a miss that lost events do not
+   explain (a compensation that does not match the sensor, say: the residual names it).
+5. ``controller_lag`` (:func:`rule_controller_lag`): the controller's first correcting command came
+   only with the first frame that showed the change, and that frame was read out too late for a
+   command to take effect on this exposure: the measured timing of its commands, the same rule for
+   every controller (an event-driven one that waited for a frame lags too).
 6. ``controller`` (:func:`rule_controller`): none of the above — the controller's choice with
    what it knew (a metering statistic that loses a two-level scene, a controller that never
    reacts, a replayed camera's own exposure control).
@@ -69,6 +73,9 @@ CAUSES = (
 #: a factor 1.65) of the change: the frame's estimate of ln P(s) is a one-sided bound when it is
 #: saturated, so the true shortfall is at least this.
 UNDERCOUNT_LN = 0.5
+#: Events lost at the bus ceiling "explain" a prediction's shortfall when the log change they carried
+#: (towards the saturation) is at least this fraction of the shortfall the frame proves.
+LOST_EXPLAINS = 0.5
 #: Without ground truth, the light "changed during the exposure" when the events show the exposure's
 #: mean irradiance at least this far (ln units) from its value at the start, towards the saturation.
 EXPOSURE_CHANGE_LN = 0.5
@@ -101,15 +108,17 @@ class Evidence:
     its clipped fractions. ``truth``: simulator ground truth (``None`` for real frames).
     ``exposure_min_us``/``exposure_max_us``/``gain_max``: the limits that applied (the tighter
     of the controller's and the camera's). ``latency_us``: a command takes effect at the first
-    exposure starting at least this long after its issue. ``sees_events``: the controller reads
-    events (NEC) or only frames. ``drives``: the lane's commands set this camera's exposure
+    exposure starting at least this long after its issue. ``sees_events``: the controller uses
+    events (NEC) or only frames (every baseline, ``nec-frames``). ``drives``: the lane's commands set this camera's exposure
     (``False`` in a replay). ``commands``: the lane's recent commands, oldest first.
     ``predicted_change``: P-TEDI's ln P(s) minus its anchor then; ``frame_change``: the frame's own
     estimate of ln P(s) (a bound when saturated) minus the same anchor. ``exposure_log_change``:
     P-TEDI's ln E_p(s) for this exposure. ``frame_interval_us``: the camera's frame period.
     ``previous_saturated``: the lane's previous frame clipped more than half in the same direction
     (``None`` when there is none). ``recent_frames``: ``(start_us, end_us, exposure-gain product)``
-    of the lane's last few frames before this one, oldest first.
+    of the lane's last few frames before this one, oldest first. ``lost_change``: the sensor-mean
+    log change carried by the events lost at the bus ceiling between P-TEDI's anchor and the
+    exposure's end (ground truth; NaN where unknown, e.g. a recording).
     """
 
     sequence: int
@@ -133,6 +142,7 @@ class Evidence:
     frame_interval_us: float | None = None
     previous_saturated: bool | None = None
     recent_frames: tuple = ()
+    lost_change: float = math.nan
 
     @property
     def direction(self) -> int:
@@ -344,9 +354,11 @@ def rule_limit_reached(ev: Evidence, timing: Timing | None = None) -> str | None
 
 
 def rule_prediction_undercount(ev: Evidence, timing: Timing | None = None) -> str | None:
-    """An event-driven controller drove the camera, the light moved towards the saturation since
-    P-TEDI's anchor (the frame's estimate of ln P(s) is beyond the anchor in direction ``d``), and
-    P-TEDI's predicted change falls short of the frame's by at least :data:`UNDERCOUNT_LN`."""
+    """A controller that uses events drove the camera, the light moved towards the saturation since
+    P-TEDI's anchor (the frame's estimate of ln P(s) is beyond the anchor in direction ``d``),
+    P-TEDI's predicted change falls short of the frame's by at least :data:`UNDERCOUNT_LN`, and the
+    events lost at the sensor's bus ceiling over that time carried at least :data:`LOST_EXPLAINS`
+    of the shortfall (``lost_change``, from the simulator's count; unknown: the rule does not hold)."""
     if not ev.sees_events or ev.drives is False:
         return None
     p, f = ev.predicted_change, ev.frame_change
@@ -356,45 +368,72 @@ def rule_prediction_undercount(ev: Evidence, timing: Timing | None = None) -> st
     other = ev.under if d > 0 else ev.over
     if other > ONE_SIDED or d * f <= 0 or d * (f - p) < UNDERCOUNT_LN:
         return None
+    lost = ev.lost_change
+    short = d * (f - p)
+    if not math.isfinite(lost) or d * lost < LOST_EXPLAINS * short:
+        return None
     bound = "at least " if d > 0 else "at most "
     return (
         f"P-TEDI predicted a change of {_ln(p)} since its anchor, the frame shows "
-        f"{bound}{_ln(f)} (it missed at least {d * (f - p):.2f} ln of the change: events lost to the sensor's rate ceiling "
-        "or a compensation that does not match the sensor, which the saturation bound of each frame "
-        "recovers only in part)"
+        f"{bound}{_ln(f)} (it missed at least {short:.2f} ln of the change); the events the sensor lost at "
+        f"its bus ceiling in that time carried {_ln(lost)}"
     )
 
 
 def rule_controller_lag(ev: Evidence, timing: Timing | None) -> str | None:
-    """An image-only controller drove the camera and was one frame behind: no frame exposed entirely
-    after the change had been read out by the last moment a command could still take effect on
-    this exposure (start minus latency), so the controller could not yet have seen the change
-    (ground truth: the onset from the lighting trace, the lane's recent frames and the readout time);
-    without ground truth, the previous frame was not saturated the same way (the change came after
-    the controller's last look)."""
-    if ev.sees_events is not False or ev.drives is False:
+    """The controller waited for a frame: it had not moved the setting towards the change since its
+    previous frame, no correcting command came between the change and the last
+    moment one could take effect on this exposure (start minus latency), its first correcting command
+    came only once the first frame exposed after the change had ended, and that frame was read out
+    after that moment (ground truth: the onset from the lighting trace, the lane's commands and
+    frames, the readout time). The same rule for every controller, from measured command timing:
+    an event-driven controller that reacted to the events is not lagging, one that waited for the
+    frame is. Without ground truth: the previous frame was not saturated this way and the controller
+    issued no correcting command between its end and that moment."""
+    if ev.drives is False:
         return None
     s = ev.start_us
     lat = ev.latency_us or 0.0
     deadline = s - lat
+    fixes = [c for c in ev.commands if _correcting(ev, c)]
+    if ev.recent_frames:
+        step = math.log(ev.exposure_us * ev.gain) - math.log(ev.recent_frames[-1][2])
+        if -ev.direction * step >= CORRECTION_LN:
+            return None  # it had already moved the setting the right way since its last frame: too little, not late
     if timing is not None and timing.source == "ground truth":
         on = timing.onset_us
         if on is None or on > deadline:
             return None
+        after = [c for c in fixes if c.issue_us >= on]
+        if any(c.issue_us <= deadline for c in after):
+            return None  # it corrected in time: whatever saturated the frame, it was not a wait for a frame
         readout = ev.truth.readout_us if ev.truth is not None else 0.0
-        seen = [f for f in ev.recent_frames if f[1] + readout <= deadline and f[0] >= on]
-        if seen:
-            return None
+        shown = [f for f in ev.recent_frames if f[1] > on]
+        first_end = shown[0][1] if shown else ev.end_us  # the first frame exposed (in part) after the change
+        if first_end + readout <= deadline:
+            return None  # a frame showing the change was there in time: not a frame's lag
+        if after and after[0].issue_us < first_end:
+            return None  # it reacted before any frame could show the change (from events), only too little
+        first = (
+            f"its first correcting command came {_ms(after[0].issue_us - on)} after the change, once "
+            "a frame exposed after it had ended"
+            if after
+            else "it issued no correcting command before this frame"
+        )
         return (
             f"the light {_light(ev)} {_ms(s - on)} before the exposure started "
-            f"({timing.label or 'a lighting change'}); an image-only controller sees a change only in a frame "
-            f"exposed after it, and none had been read out {_ms(lat)} before this exposure (commands take "
-            "effect that long after they are issued)"
+            f"({timing.label or 'a lighting change'}); {first}, and the first such frame was read out "
+            f"{_ms(first_end + readout - deadline)} after the last moment a command could still take effect "
+            f"on this exposure (commands take effect {_ms(lat)} after they are issued)"
         )
-    if ev.previous_saturated is False:
+    if ev.previous_saturated is False and ev.recent_frames:
+        prev_end = ev.recent_frames[-1][1]
+        if any(prev_end <= c.issue_us <= deadline for c in fixes):
+            return None
         return (
-            "the previous frame was not saturated; an image-only controller sees a change only in the frame "
-            "after it, one frame late"
+            "the previous frame was not saturated and the controller issued no correcting command between "
+            "its end and the last moment one could take effect on this exposure: it learnt of the change "
+            "one frame late"
         )
     return None
 
@@ -431,6 +470,8 @@ def rule_controller(ev: Evidence, timing: Timing | None) -> str:
     p, f = ev.predicted_change, ev.frame_change
     if math.isfinite(p) and math.isfinite(f) and ev.sees_events and other <= ONE_SIDED:
         parts.append(f"P-TEDI predicted {_ln(p)}, the frame shows {_ln(f)} since the anchor")
+        if math.isfinite(ev.lost_change):
+            parts.append(f"events lost at the bus ceiling since then carried {_ln(ev.lost_change)}")
     if ev.drives is not False and ev.commands:
         c = ev.commands[-1]
         parts.append(f"last command {c.exposure_us:.0f} µs × {c.gain:.3g} at {_ms(c.issue_us - ev.start_us)}")
@@ -466,6 +507,7 @@ __all__ = [
     "Command",
     "EXPOSURE_CHANGE_LN",
     "Evidence",
+    "LOST_EXPLAINS",
     "ONE_SIDED",
     "RULES",
     "Timing",

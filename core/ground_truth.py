@@ -41,7 +41,11 @@ class GroundTruth:
     ``pedestrian_box``: ``(x0, y0, x1, y1)`` (pixels, end-exclusive) of the scene's pedestrian at
     mid-exposure, ``None`` when the scene has none or it is not visible. ``markers``: where the
     scene's fiducial markers were at mid-exposure (:class:`~necviz.core.markers.MarkerTruth`), ``None``
-    when it has none.
+    when it has none. ``lost_t_us`` /
+    ``lost_on`` / ``lost_off``: the events the sensor generated but lost at its event bus ceiling,
+    cumulative ON and OFF counts since the run started, at each simulator step from the trace's
+    look-back to the exposure's end (:meth:`lost_at`); ``event_thresholds``: the sensor's nominal
+    ``(c_on, c_off)``, which turn a count into the log change it carried (:meth:`lost_log_change`).
     """
 
     mean_irradiance: np.ndarray
@@ -56,7 +60,26 @@ class GroundTruth:
     changes: tuple = ()
     pedestrian_box: tuple | None = None
     markers: object | None = None
+    lost_t_us: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    lost_on: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    lost_off: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    event_thresholds: tuple = (math.nan, math.nan)
     _log_mean: float | None = field(default=None, init=False, repr=False)
+
+    def lost_at(self, t_us: float) -> tuple[int, int] | None:
+        """``(ON, OFF)`` events lost at the bus ceiling from the run's start up to ``t_us`` (the last
+        simulator step at or before it); ``None`` when ``t_us`` precedes what the trace covers."""
+        t = self.lost_t_us
+        if t.size == 0 or t_us < t[0]:
+            return None
+        i = int(np.searchsorted(t, t_us, side="right")) - 1
+        return int(self.lost_on[i]), int(self.lost_off[i])
+
+    def lost_log_change(self, lost_on: int, lost_off: int) -> float:
+        """The sensor-mean log change that ``lost_on`` ON and ``lost_off`` OFF lost events carried
+        (Eq. 11 with the nominal thresholds): ``(c_on·n_on − c_off·n_off) / N``, ``N`` the pixels."""
+        c_on, c_off = self.event_thresholds
+        return (c_on * lost_on - c_off * lost_off) / float(self.mean_irradiance.size)
 
     def light_at(self, t_us: float) -> float:
         """The scene's mean ``ln L`` at ``t_us`` (linear between trace samples, held beyond them)."""

@@ -40,14 +40,17 @@ arrives (after its exposure) ``ln E_p`` is one division and one log. Several zon
 Anchor rule: a zone is re-anchored only on a frame whose valid-pixel fraction (9..250) in
 that zone is at least ``min_valid_fraction``; otherwise the zone keeps propagating from its
 last good anchor with events (the paper's work-around for frames saturated by a change
-during their exposure). Exception, the saturation bounds: even a badly clipped frame proves
+during their exposure). Exception (necviz's addition, ``saturation_bound=True``, the default;
+``False`` is the paper's rule alone), the saturation bounds: even a badly clipped frame proves
 something. With the paper's image form it always bounds ``ln Pbar`` from below (under-exposed
 pixels counted as receiving nothing, over-exposed ones as at the top of the valid range — true
 for a frame clipped at both ends too), and from above when essentially nothing is over-exposed;
 the zone re-anchors at a bound the event-propagated prediction breaks
 (:meth:`PeripheralEstimator.frame_bounds`, :meth:`PeripheralEstimator.add_frame`). The frame's
 own ``g(mean Z)`` is *not* a bound when it is clipped at both ends (its mean is lowered at one
-end and raised at the other), so it is never used as one.
+end and raised at the other), so it is never used as one. Under either rule a zone that has never
+been anchored takes its first frame's estimate, saturated or not: there is no anchor to keep
+propagating from.
 
 Layout: this module holds the estimator (exposure windows, anchors, prediction); its frame side
 (``ln Pbar`` per zone, the saturation bounds) is in :mod:`necviz.core.ptedi_frame`, its Numba kernels
@@ -114,6 +117,9 @@ class FrameEstimate:
     #: per zone: +1 where the anchor moved up to a lower bound (over-exposed frame), -1 down to an
     #: upper bound, 0 otherwise; None when no zone was bounded
     bound_side: np.ndarray | None = None
+    #: per zone: the event-propagated ln P(s) before this frame (Eq. 12 from the previous anchor; NaN
+    #: where never anchored); None on a frame every zone anchored on (it is not needed there)
+    predicted_start: np.ndarray | None = None
 
 
 class PeripheralEstimator(FrameSideMixin, PacketHandler):
@@ -136,6 +142,10 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
     max_pending : exposures that may await their frame at once.
     one_sided_clip : the clipped fraction at the "other" end that a one-sided saturation bound
         tolerates (a few hot or dead pixels; default 5 %, see :meth:`frame_bounds`).
+    saturation_bound : re-anchor a zone at the bound a saturated frame proves when the
+        event-propagated prediction breaks it (necviz's addition, the default); ``False`` keeps the
+        paper's rule alone (skip the frame, keep propagating). An attribute: a controller that
+        adopts an estimator sets it (:class:`~necviz.core.control.nec.NECController`).
     """
 
     def __init__(
@@ -149,6 +159,7 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         min_valid_fraction: float = 0.5,
         max_pending: int = 4,
         one_sided_clip: float = 0.05,
+        saturation_bound: bool = True,
     ):
         if image_form not in IMAGE_FORMS:
             raise ParameterError(f"image_form must be one of {IMAGE_FORMS}, got {image_form!r}")
@@ -168,6 +179,9 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         ):
             raise ParameterError(f"one_sided_clip must lie in [0, 1], got {one_sided_clip!r}")
         self.one_sided_clip = float(one_sided_clip)
+        if not isinstance(saturation_bound, bool):
+            raise ParameterError(f"saturation_bound must be true or false, got {saturation_bound!r}")
+        self.saturation_bound = saturation_bound
         self.zmap = zone_map(sensor, rectangle, grid)
         self.whole = bool(np.all(self.zmap == 0))
         self.sizes = zone_sizes(self.zmap)
@@ -571,16 +585,20 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         value = log_anchor
         side = None
         start = log_anchor
+        pred_s = None
         if not ok.all():
             pred_s = self._predict_at_window(w)
-            lo, hi = self.frame_bounds(frame, log_pbar, frac, over)
-            lo, hi = lo - log_e, hi - log_e
             with np.errstate(invalid="ignore"):
                 first = ~ok & ~np.isfinite(pred_s) & np.isfinite(log_anchor)
-                raise_ = ~ok & ~first & np.isfinite(lo) & (pred_s < lo)
-                lower_ = ~ok & ~first & ~raise_ & np.isfinite(hi) & (pred_s > hi)
+            raise_ = lower_ = np.zeros_like(ok)
+            if self.saturation_bound:
+                lo, hi = self.frame_bounds(frame, log_pbar, frac, over)
+                lo, hi = lo - log_e, hi - log_e
+                with np.errstate(invalid="ignore"):
+                    raise_ = ~ok & ~first & np.isfinite(lo) & (pred_s < lo)
+                    lower_ = ~ok & ~first & ~raise_ & np.isfinite(hi) & (pred_s > hi)
             bounded = first | raise_ | lower_
-            value = np.where(raise_, lo, np.where(lower_, hi, log_anchor))
+            value = np.where(raise_, lo, np.where(lower_, hi, log_anchor)) if self.saturation_bound else log_anchor
             side = raise_.astype(np.int8) - lower_.astype(np.int8)
             start = np.where(ok | bounded, value, pred_s)
         new = ok | bounded
@@ -595,7 +613,9 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         if not ok.all():
             self.frames_skipped += 1
         self.frames_bounded += int(bounded.any())
-        return FrameEstimate(frame.sequence, s, e, log_pbar, log_e, log_anchor, frac, ok, over, bounded, start, side)
+        return FrameEstimate(
+            frame.sequence, s, e, log_pbar, log_e, log_anchor, frac, ok, over, bounded, start, side, pred_s
+        )
 
     def _propagate(self, counts_on: np.ndarray, counts_off: np.ndarray) -> np.ndarray:
         """Eq. 12 without compensation, from each zone's anchor with the given cumulative counts

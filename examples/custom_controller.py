@@ -86,7 +86,11 @@ def main() -> None:
     rig = SimRig(scene, names, aps=aps, crf=crf, seed=args.seed)  # every camera starts at the same exposure
     limits = CameraLimits(aps.exposure_min_us, aps.exposure_max_us, aps.gain_max)
     start_us = rig.cams["nec"].exposure_us
-    ctrls = {n: make_controller(n, sensor=sensor, limits=limits, exposure_us=start_us, crf=crf) for n in names[:2]}
+    rate = rig.camera_info.event_rate_max  # the source's event bus ceiling, which NEC's escape rule reads
+    ctrls = {
+        n: make_controller(n, sensor=sensor, limits=limits, exposure_us=start_us, crf=crf, event_rate_max=rate)
+        for n in names[:2]
+    }
     ctrls[names[2]] = MeanIntensityController(limits, start_us, crf=crf, k=args.k)
     # events go to every lane, frames to their own camera's lane; commands back to that camera
     pipe = Pipeline(rig, [Lane(n, ctrls[n]) for n in names])

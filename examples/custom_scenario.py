@@ -80,7 +80,8 @@ def main() -> None:
     # start at the exposure that is right for the first instant: g(I_opt) = ln T + ln L (T in s)
     start_us = math.exp(crf.goal_log_exposure - float(np.mean(scene.log_irradiance(0)))) * 1e6
     cam = SimRig(scene, {"camera": (start_us, 1.0)}, aps=aps, crf=crf, seed=0)
-    nec = make_controller("nec", sensor=sensor, limits=limits, exposure_us=start_us, crf=crf)
+    rate = cam.camera_info.event_rate_max  # the source's event bus ceiling, which NEC's escape rule reads
+    nec = make_controller("nec", sensor=sensor, limits=limits, exposure_us=start_us, crf=crf, event_rate_max=rate)
     pipe = Pipeline(cam, [Lane("camera", nec)])  # the closed loop every necviz command runs
     pipe.run().finish()
     table = pipe.telemetry["camera"].table  # (start µs, exposure µs, gain, over-exposed rate, under-exposed rate)

@@ -14,15 +14,20 @@ import re
 import tomllib
 from dataclasses import dataclass, field
 
+import necviz.tuned  # noqa: F401 - registers the tuned controllers (navid-tuned, ...) with CONTROLLERS
 from necviz.core.checks import check_number
 from necviz.core.control import CONTROLLERS
 from necviz.core.errors import ParameterError
 from necviz.drivers.sim.scenes.toml import MAX_DURATION_S, MAX_SEED
 
-#: NEC and the five baselines, as the demo shows them side by side.
-DEFAULT_CONTROLLERS = ("nec", "navid", "shim", "begin", "builtin", "fixed")
-#: What a comparison runs by default: NEC with and without its compensation, and the five baselines.
-COMPARE_CONTROLLERS = ("nec", "nec-raw", "navid", "shim", "begin", "builtin", "fixed")
+#: The five published auto-exposure baselines (image only), in the order every table lists them.
+BASELINES = ("navid", "shim", "begin", "builtin", "fixed")
+#: What the demo shows side by side: NEC, NEC without events (``nec-frames``: what the events add)
+#: and the five baselines.
+DEFAULT_CONTROLLERS = ("nec", "nec-frames", *BASELINES)
+#: What a comparison runs by default: the demo's lanes, the paper's controller exactly
+#: (``nec-paper``) and NEC without its compensation (``nec-raw``).
+COMPARE_CONTROLLERS = ("nec", "nec-frames", "nec-paper", "nec-raw", *BASELINES)
 LAYOUT_NAMES = ("live", "inspect", "compare")
 
 
@@ -560,6 +565,7 @@ class CompareOptions:
 
 
 __all__ = [
+    "BASELINES",
     "ClipOptions",
     "VideoOptions",
     "NUMBER_FLAGS",

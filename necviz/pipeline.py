@@ -300,7 +300,10 @@ class Pipeline:
             ln = self._targets(lane)[0]
         old = ln.controller
         est = ln.estimator  # a controller that owns an estimator adopts the lane's anchored one
-        ctx = ControllerContext(self.source.sensor, old.limits, old.exposure_us, old.gain, est.crf, est.params, est)
+        rate = self.source.camera_info.event_rate_max  # the source's bus ceiling (NEC's escape rule)
+        ctx = ControllerContext(
+            self.source.sensor, old.limits, old.exposure_us, old.gain, est.crf, est.params, est, rate
+        )
         new = create_controller(controller, ctx)
         ln.switch(new)
         self.telemetry.attach([ln], self.source)

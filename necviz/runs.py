@@ -52,11 +52,19 @@ def sim_models(sim: dict | None):
 
 
 def build_controller(
-    name: str, params: dict | None, *, sensor, limits: CameraLimits, exposure_us: float, profile=None
+    name: str,
+    params: dict | None,
+    *,
+    sensor,
+    limits: CameraLimits,
+    exposure_us: float,
+    profile=None,
+    event_rate_max: float | None = None,
 ) -> Controller:
     """Controller ``name`` (a registered kind, or ``KIND@LABEL`` for a labelled variant) with ``params``:
     fields of its options go to its constructor; any other tunable parameter (the fixed exposure, say)
-    is set after building (:meth:`~necviz.core.control.Controller.set_param`)."""
+    is set after building (:meth:`~necviz.core.control.Controller.set_param`). ``event_rate_max`` is
+    the source's event bus ceiling (its ``camera_info``), which NEC's escape rule reads."""
     from dataclasses import fields
 
     from necviz.options import controller_kind
@@ -67,7 +75,9 @@ def build_controller(
     entry = CONTROLLERS.get(kind)
     option_fields = {f.name for f in fields(entry.cls.OPTIONS)} if entry and entry.cls.OPTIONS else set()
     later = {k: params.pop(k) for k in list(params) if k not in option_fields}
-    ctrl = make_controller(kind, sensor=sensor, limits=limits, exposure_us=exposure_us, **kw, **params)
+    ctrl = make_controller(
+        kind, sensor=sensor, limits=limits, exposure_us=exposure_us, event_rate_max=event_rate_max, **kw, **params
+    )
     for k, v in later.items():
         ctrl.set_param(k, v)
     ctrl.name = name
@@ -102,6 +112,7 @@ def build_rig(
             limits=limits,
             exposure_us=rig.cams[n].exposure_us,
             profile=profile,
+            event_rate_max=rig.camera_info.event_rate_max,  # the simulator's configured ceiling (dvs.max_event_rate)
         )
         passive = None if ctrl.estimator is not None else PeripheralEstimator(scene.sensor, profile.tedi, profile.crf)
         lanes.append(Lane(n, ctrl, estimator=passive))

@@ -79,6 +79,24 @@ def test_seeds_report_mean_and_a_confidence_interval(tmp_path):
     assert row["saturated_frames_50_ci95"] >= 0 and "saturated_frames_50_std" in row
 
 
+def test_compare_says_what_the_events_add_paired_by_seed(capsys):
+    opts = CompareOptions(
+        SceneOptions("tunnel_exit", seed=2, duration_s=0.6, params={"exit_s": 0.3}),
+        "nec,nec-frames,fixed",
+        seeds=2,
+        sift=False,
+    )
+    res = run(opts, out=sys.stdout)
+    ev, t = res["events_add"], res["controllers"]
+    for key in ("saturated_frames_50", "saturated_frames_10"):
+        want = [a - b for a, b in zip(t["nec"][f"{key}_per_seed"], t["nec-frames"][f"{key}_per_seed"])]
+        assert ev[key]["per_seed"] == want and ev[key]["mean"] == pytest.approx(sum(want) / 2)
+    assert "what the events add (nec − nec-frames, paired over 2 seeds): sat>50%" in capsys.readouterr().out
+    assert "events_add" not in run(
+        CompareOptions(SceneOptions("flicker", duration_s=0.1), "nec,fixed", sift=False), out=None
+    )
+
+
 @pytest.mark.parametrize(
     "argv, needle",
     [

@@ -110,6 +110,56 @@ def test_a_40_db_step_beyond_the_event_rate_ceiling_is_a_prediction_undercount()
     assert not rows_all[2]["saturated"]
 
 
+def test_lost_events_in_the_ground_truth_carry_the_change_the_prediction_missed():
+    """An ideal sensor (no refractory period, no noise) loses events only at its ceiling: what the
+    lost events carried (simulator count, ground truth) plus what P-TEDI counted is the whole step."""
+    dvs = DvsParams.ideal(max_event_rate=3e5)
+    scene = step_scene(37_500, 3.6, 9.2, ramp_us=2_000)
+    aps = ApsParams()
+    rig = SimRig(scene, {"cam": None}, dvs=dvs, aps=aps, seed=1)
+    limits = CameraLimits(aps.exposure_min_us, aps.exposure_max_us, aps.gain_max)
+    ctrl = build_controller("nec", None, sensor=SENSOR, limits=limits, exposure_us=rig.cams["cam"].exposure_us)
+    est = ctrl.estimator
+    frames = {}
+    for cam, packet in rig.packets():
+        cmd = ctrl.feed(packet)
+        if cmd is not None:
+            rig.set_exposure("cam", cmd.exposure_us, cmd.gain)
+        if cam is not None and hasattr(packet, "truth") and packet.sequence in (1, 2):
+            frames[packet.sequence] = packet.truth
+        if len(frames) == 2:
+            break
+    before, after = frames[1].lost_at(30_000), frames[2].lost_at(frames[2].lost_t_us[-1])
+    assert before == (0, 0) and after[0] > 50_000 and after[1] < 0.01 * after[0]  # a rise: ON events lost
+    lost = frames[2].lost_log_change(after[0] - before[0], after[1] - before[1])
+    counted = 0.26 * est.event_totals()[0] / SENSOR.num_pixels  # P-TEDI's ON events, c_on 0.26
+    assert counted + lost == pytest.approx(9.2, abs=0.1)  # every threshold crossing is one or the other
+
+
+def test_a_lane_without_events_never_gets_prediction_undercount():
+    # the step that NEC under-counts (above): nec-frames saturates on it too, but it never had events to lose
+    dvs = DvsParams.ideal(max_event_rate=3e5)
+    rows, lane = run(step_scene(37_500, 3.6, 9.2, ramp_us=2_000), "nec-frames", dvs=dvs)
+    sat = [r for r in rows.values() if r["saturated"]]
+    assert sat and not any(r["saturation_cause"] == "prediction_undercount" for r in sat)
+    assert lane._lane.controller.estimator.event_totals() == (0, 0)
+    assert lane.summary()["saturation_causes"]["prediction_undercount"] == 0
+
+
+def test_a_miss_that_lost_events_do_not_explain_is_not_prediction_undercount():
+    """The sensor's thresholds are 2.3x P-TEDI's (0.6 against 0.26), no event is lost: P-TEDI
+    under-counts the step by more than half, but not because of the bus; the residual says so."""
+    dvs = DvsParams.ideal(c_on=0.6, c_off=0.6)
+    rows, _ = run(step_scene(37_500, 3.6, 9.2, ramp_us=2_000), "nec", dvs=dvs)
+    sat = [r for r in rows.values() if r["saturated"]]
+    assert sat, "the mismatched thresholds must leave a frame saturated"
+    assert not any(r["saturation_cause"] == "prediction_undercount" for r in sat)
+    # frame 1 was exposed across the step; frame 2 at the setting NEC chose from its too few events
+    assert [r["sequence"] for r in sat] == [1, 2] and rows[2]["exposure_us"] < 0.01 * rows[1]["exposure_us"]
+    assert rows[2]["saturation_cause"] == "controller"
+    assert "events lost at the bus ceiling since then carried +0.00 ln" in rows[2]["saturation_explanation"]
+
+
 def test_a_fixed_exposure_at_its_minimum_in_a_too_bright_scene_is_the_limit():
     # ln L = 16 needs ~0.04 µs; the camera's shortest exposure is 1 µs
     rows, lane = run(step_scene(0, 16.0, 0.0), "fixed", exposure_us=1.0)
@@ -127,9 +177,14 @@ def test_an_image_only_controller_one_frame_behind_is_controller_lag():
     assert not rows[1]["saturated"] and f["saturated"]
     assert f["saturation_cause"] == "controller_lag"
     assert "11.0 ms before the exposure started" in f["saturation_explanation"]
+    assert "its first correcting command came 16.4 ms after the change, once a frame" in f["saturation_explanation"]
     # NEC on the same step sees it in its events and is not saturated at all
     rows_nec, _ = run(step_scene(30_000, 5.0, 3.0), "nec")
     assert not any(r["saturated"] for r in rows_nec.values())
+    # NEC with its events withheld waits for the frame like any image-only controller: the same cause
+    rows_frames, _ = run(step_scene(30_000, 5.0, 3.0), "nec-frames")
+    assert rows_frames[2]["saturated"] and rows_frames[2]["saturation_cause"] == "controller_lag"
+    assert not rows_frames[3]["saturated"]  # one jump through the response once the frame shows it
 
 
 def test_a_controller_that_never_reacts_is_the_controller():
@@ -165,6 +220,10 @@ BASE = dict(
 )
 
 
+#: the lane's previous frame: exposed over [80, 84] ms at 4 ms
+PREVIOUS = ((80_000, 84_000, 4_000.0),)
+
+
 @pytest.mark.parametrize(
     "extra, cause",
     [
@@ -174,9 +233,16 @@ BASE = dict(
             "command_latency",
         ),
         ({"sees_events": False, "exposure_us": 10.0, "end_us": 100_010}, "limit_reached"),
-        ({"sees_events": True, "predicted_change": 0.4, "frame_change": 2.5}, "prediction_undercount"),
-        ({"sees_events": False, "previous_saturated": False}, "controller_lag"),
-        ({"sees_events": False, "previous_saturated": True}, "controller"),
+        (
+            {"sees_events": True, "predicted_change": 0.4, "frame_change": 2.5, "lost_change": 1.5},
+            "prediction_undercount",
+        ),
+        ({"sees_events": True, "predicted_change": 0.4, "frame_change": 2.5}, "controller"),  # losses unknown
+        ({"sees_events": True, "predicted_change": 0.4, "frame_change": 2.5, "lost_change": 0.5}, "controller"),
+        ({"sees_events": False, "predicted_change": 0.4, "frame_change": 2.5, "lost_change": 1.5}, "controller"),
+        ({"sees_events": False, "previous_saturated": False, "recent_frames": PREVIOUS}, "controller_lag"),
+        ({"sees_events": True, "previous_saturated": False, "recent_frames": PREVIOUS}, "controller_lag"),
+        ({"sees_events": False, "previous_saturated": True, "recent_frames": PREVIOUS}, "controller"),
         ({"sees_events": True, "predicted_change": 2.4, "frame_change": 2.5}, "controller"),
     ],
 )
@@ -203,11 +269,29 @@ def test_data_only_rules_need_what_they_claim():
     assert math.isnan(Evidence(**BASE).predicted_change)
 
 
+def test_controller_lag_is_measured_from_command_timing_not_from_the_controller_type():
+    # an image-only controller that did correct between its last look and the deadline (99 ms) is not
+    # lagging, whatever its type; one that uses events but waited is
+    fix = (Command(90_000, 1_000.0, 1.0),)
+    for sees in (False, True):
+        ev = Evidence(**BASE, sees_events=sees, previous_saturated=False, recent_frames=PREVIOUS, commands=fix)
+        assert diagnose(ev)[0] == "controller"
+        ev = Evidence(**BASE, sees_events=sees, previous_saturated=False, recent_frames=PREVIOUS)
+        name, why = diagnose(ev)
+        assert name == "controller_lag" and "no correcting command" in why
+    # a correction issued before the previous frame ended is not one made after it: still a lag
+    early = (Command(70_000, 1_000.0, 1.0),)
+    ev = Evidence(**BASE, sees_events=False, previous_saturated=False, recent_frames=PREVIOUS, commands=early)
+    assert diagnose(ev)[0] == "controller_lag"
+
+
 def test_a_frame_clipped_at_both_ends_proves_no_undercount():
     # the same shortfall as the prediction_undercount case, but 30 % of the frame is also black:
     # its mean is pulled down at one end and up at the other, so it bounds nothing
     two_sided = {**BASE, "over": 0.6, "under": 0.3}
-    name, why = diagnose(Evidence(**two_sided, sees_events=True, predicted_change=0.4, frame_change=2.5))
+    name, why = diagnose(
+        Evidence(**two_sided, sees_events=True, predicted_change=0.4, frame_change=2.5, lost_change=2.0)
+    )
     assert name == "controller" and "clipped at both ends (60% over, 30% under)" in why
 
 

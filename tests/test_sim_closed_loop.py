@@ -18,7 +18,10 @@ def test_nec_avoids_the_saturated_frames_a_fixed_exposure_gets():
     rig = SimRig(scene, ["nec", "fixed"], aps=aps, seed=1)
     limits = CameraLimits(aps.exposure_min_us, aps.exposure_max_us, 1.0)
     nec = NECController(
-        PeripheralEstimator(sensor, TediParams(0.26, 0.24)), limits, exposure_us=rig.cams["nec"].exposure_us
+        PeripheralEstimator(sensor, TediParams(0.26, 0.24)),
+        limits,
+        exposure_us=rig.cams["nec"].exposure_us,
+        event_rate_max=rig.camera_info.event_rate_max,  # the escape rule reads the source's bus ceiling
     )
     frames = {"nec": [], "fixed": []}
     for name, packet in rig.packets():

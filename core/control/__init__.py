@@ -10,7 +10,7 @@ from necviz.core.control.builtin import BuiltinController
 from necviz.core.control.controller import CameraLimits, Controller, ControllerOptions, ExposureCommand, Tunable
 from necviz.core.control.fixed import FixedController
 from necviz.core.control.navid import NavidController, NavidOptions
-from necviz.core.control.nec import ZONE_GRID, NECController, NECOptions, error_weight
+from necviz.core.control.nec import ZONE_GRID, NECController, NECFramesController, NECOptions, error_weight
 from necviz.core.control.shim import ShimController, ShimOptions
 from necviz.core.crf import CameraResponse, default_davis346
 from necviz.core.errors import ParameterError
@@ -37,6 +37,9 @@ class ControllerContext:
         Event thresholds and compensation (NEC's estimator).
     estimator : PeripheralEstimator, optional
         An estimator to adopt instead of building one (a lane switching to NEC keeps its anchor).
+    event_rate_max : float, optional
+        The source's event bus ceiling (events/s, its :class:`~necviz.drivers.source.CameraInfo`):
+        NEC's escape rule reads it; ``None`` when the source knows none (no ceiling).
     """
 
     sensor: SensorGeometry
@@ -46,6 +49,7 @@ class ControllerContext:
     crf: CameraResponse = field(default_factory=default_davis346)
     tedi: TediParams = TediParams()
     estimator: PeripheralEstimator | None = None
+    event_rate_max: float | None = None
 
 
 #: A builder makes a controller from the context and its options (``None`` for a controller without options).
@@ -54,11 +58,14 @@ Builder = Callable[[ControllerContext, "ControllerOptions | None"], Controller]
 
 @dataclass(frozen=True)
 class ControllerEntry:
-    """A registered controller: its class (whose ``OPTIONS`` are its settings) and how to build it."""
+    """A registered controller: its class (whose ``OPTIONS`` are its settings), how to build it and the
+    option values it starts from where they differ from ``OPTIONS``' defaults (``nec-paper``, a tuned
+    baseline)."""
 
     cls: type[Controller]
     build: Builder
     doc: str = ""
+    defaults: dict = field(default_factory=dict)
 
 
 def _plain(cls: type[Controller]) -> Builder:
@@ -72,17 +79,31 @@ def _estimator(ctx: ControllerContext, options: NECOptions, tedi: TediParams) ->
     """NEC's P-TEDI estimator: the context's own if it has one, else a new one with ``tedi``."""
     if ctx.estimator is not None:
         return ctx.estimator
+    if not options.compensation:  # the controller would zero them anyway: never allocate their state
+        tedi = replace(tedi, a_on=0.0, b_on=0.0, a_off=0.0, b_off=0.0)
     grid = options.zone_grid or (ZONE_GRID if options.metering == "zones" else (1, 1))
-    return PeripheralEstimator(ctx.sensor, tedi, ctx.crf, grid=grid)
+    return PeripheralEstimator(ctx.sensor, tedi, ctx.crf, grid=grid, saturation_bound=options.saturation_bound)
 
 
 def _build_nec(ctx: ControllerContext, options: NECOptions) -> Controller:
-    return NECController(_estimator(ctx, options, ctx.tedi), ctx.limits, ctx.exposure_us, ctx.gain, options)
+    est = _estimator(ctx, options, ctx.tedi)
+    return NECController(est, ctx.limits, ctx.exposure_us, ctx.gain, options, ctx.event_rate_max)
 
 
-def _build_nec_raw(ctx: ControllerContext, options: NECOptions) -> Controller:
-    tedi = replace(ctx.tedi, a_on=0.0, b_on=0.0, a_off=0.0, b_off=0.0)
-    return NECController(_estimator(ctx, options, tedi), ctx.limits, ctx.exposure_us, ctx.gain, options)
+def _build_nec_frames(ctx: ControllerContext, options: NECOptions) -> Controller:
+    est = _estimator(ctx, options, ctx.tedi)
+    return NECFramesController(est, ctx.limits, ctx.exposure_us, ctx.gain, options, ctx.event_rate_max)
+
+
+#: ``nec-paper``'s options: every necviz addition switched off (the paper's controller exactly)
+PAPER_OPTIONS = {
+    "saturation_bound": False,
+    "metering": "paper",
+    "goal_mode": "paper",
+    "escape": False,
+    "compensation": False,
+    "bound_lag": False,
+}
 
 
 def _build_begin(ctx: ControllerContext, options: BeginOptions) -> Controller:
@@ -93,7 +114,9 @@ def _build_begin(ctx: ControllerContext, options: BeginOptions) -> Controller:
 CONTROLLERS: dict[str, ControllerEntry] = {}
 
 
-def register_controller(name: str, cls: type[Controller], build: Builder | None = None, doc: str = "") -> None:
+def register_controller(
+    name: str, cls: type[Controller], build: Builder | None = None, doc: str = "", defaults: dict | None = None
+) -> None:
     """Make controller ``name`` known to :func:`make_controller` (and so to every command).
 
     Parameters
@@ -106,20 +129,50 @@ def register_controller(name: str, cls: type[Controller], build: Builder | None 
         ``build(context, options) -> Controller``; default: ``cls(limits, exposure_us, gain[, options])``.
     doc : str
         One line for listings.
+    defaults : dict, optional
+        Option values this name starts from instead of ``cls.OPTIONS``' defaults (parameters given
+        when building still override them): ``nec-paper`` is ``nec`` with the paper's switches, a
+        tuned baseline the baseline with its tuned parameters.
 
     Raises
     ------
     ParameterError
-        ``cls`` is not a :class:`Controller` subclass.
+        ``cls`` is not a :class:`Controller` subclass, or ``defaults`` are not valid options of it.
     """
     if not (isinstance(cls, type) and issubclass(cls, Controller)):
         raise ParameterError(f"controller {name!r}: {cls!r} is not a Controller subclass")
-    CONTROLLERS[name] = ControllerEntry(cls, build or _plain(cls), doc)
+    defaults = dict(defaults or {})
+    if defaults:
+        if cls.OPTIONS is None:
+            raise ParameterError(f"controller {name!r}: {cls.__name__} has no options to give defaults")
+        known = {f.name for f in fields(cls.OPTIONS)}
+        unknown = sorted(set(defaults) - known)
+        if unknown:
+            raise ParameterError(f"controller {name!r}: {cls.OPTIONS.__name__} has no option {unknown[0]!r}")
+        cls.OPTIONS(**defaults)  # refuse values the options refuse, now rather than at first use
+    CONTROLLERS[name] = ControllerEntry(cls, build or _plain(cls), doc, defaults)
 
 
 register_controller("nec", NECController, _build_nec, "NEC: P-TEDI prediction from events and frames")
 register_controller(
-    "nec-raw", NECController, _build_nec_raw, "NEC without the TEDI compensation (a± = b± = 0): what it adds"
+    "nec-frames",
+    NECFramesController,
+    _build_nec_frames,
+    "NEC with no events: the same metering, goal, law and escape rule from frames alone (what the events add)",
+)
+register_controller(
+    "nec-paper",
+    NECController,
+    _build_nec,
+    "the paper's controller exactly: mean metering, mid-point goal, skip saturated anchors, no escape, no compensation",
+    PAPER_OPTIONS,
+)
+register_controller(
+    "nec-raw",
+    NECController,
+    _build_nec,
+    "NEC without the TEDI compensation (a± = b± = 0): what it adds",
+    {"compensation": False},
 )
 register_controller("navid", NavidController, doc="Nourani-Vatani & Roberts 2007: histogram MSV, PI loops")
 register_controller("shim", ShimController, doc="Shim et al. 2014/2018: gradient metric over gamma images")
@@ -149,7 +202,7 @@ def make_options(name: str, params: dict | None = None) -> ControllerOptions | N
     unknown = [k for k in params if k not in known]
     if unknown:
         raise ParameterError(f"controller {name!r} has no option {unknown[0]!r}; it has {', '.join(known)}")
-    return cls(**params)
+    return cls(**{**entry.defaults, **params})
 
 
 def make_controller(
@@ -158,9 +211,9 @@ def make_controller(
     sensor: SensorGeometry,
     limits: CameraLimits,
     exposure_us: float = 5_000.0,
-    gain: float = 1.0,
     crf: CameraResponse | None = None,
     tedi: TediParams | None = None,
+    event_rate_max: float | None = None,
     **params,
 ) -> Controller:
     """Build controller ``name`` with its documented defaults (``params`` override its options).
@@ -169,15 +222,18 @@ def make_controller(
     ``zone_grid`` of zones (``[columns, rows]``, default :data:`~necviz.core.control.nec.ZONE_GRID`
     for ``metering="zones"``); ``nec-raw`` is the same controller (same metering, goal and escape
     rule) with the compensation switched off (``a± = b± = 0``, the thresholds kept), so a
-    comparison shows what the compensation adds. Controllers that use the camera response (Bégin)
-    get ``crf``.
+    comparison shows what the compensation adds; ``nec-paper`` is NEC with every necviz addition
+    off (:data:`PAPER_OPTIONS`); ``nec-frames`` is NEC whose estimator never sees an event.
+    Controllers that use the camera response (Bégin) get ``crf``.
 
     Parameters
     ----------
     name : str
         A registered controller (:data:`CONTROLLERS`).
-    sensor, limits, exposure_us, gain, crf, tedi
-        The camera (see :class:`ControllerContext`).
+    sensor, limits, exposure_us, crf, tedi, event_rate_max
+        The camera (see :class:`ControllerContext`; the starting gain is 1: for another, build the
+        context and call :func:`create_controller`); ``event_rate_max`` is the source's event bus
+        ceiling (pass ``source.camera_info.event_rate_max``).
     **params
         Fields of the controller's options (e.g. ``metering="paper"`` for NEC).
 
@@ -191,7 +247,9 @@ def make_controller(
     ParameterError
         An unknown controller or option, or a value its options refuse.
     """
-    ctx = ControllerContext(sensor, limits, exposure_us, gain, crf or default_davis346(), tedi or TediParams())
+    ctx = ControllerContext(
+        sensor, limits, exposure_us, 1.0, crf or default_davis346(), tedi or TediParams(), None, event_rate_max
+    )
     return create_controller(name, ctx, params)
 
 
@@ -226,6 +284,8 @@ __all__ = [
     "Controller",
     "ExposureCommand",
     "NECController",
+    "NECFramesController",
+    "PAPER_OPTIONS",
     "error_weight",
     "make_controller",
     "NavidController",

@@ -150,11 +150,17 @@ class BeginOptions(ControllerOptions):
         The constant under the root of ``K*`` (published 8), >= 0.
     feedback_gain : float
         Saturation feedback factor (published 1.5), in [1, 4].
+    ev_range : float
+        The largest ΔEV the method predicts and applies (published 2): the predicted images are at
+        ``ΔEV ∈ ev_range·{−1, −½, −¼, 0, ¼, ½, 1}`` (the published set at 2), Newton's result must
+        lie within ``±ev_range`` and a too dark / too bright frame moves ``∓ev_range``. Its step-size
+        mapping, as Navid's ``ev_per_unit`` is (``benchmarks/tuning.py`` tunes both); in [0.5, 8].
     """
 
     TUNABLE: ClassVar[tuple[Tunable, ...]] = (
         Tunable("feedback_gain", "1", "saturation feedback strength", 1.0, 4.0),
         Tunable("w", "1", "weight of the flow term in the exposure/gain split", 0.0, lo_open=True),
+        Tunable("ev_range", "EV", "largest ΔEV predicted and applied per frame (published 2)", 0.5, 8.0),
     )
 
     work_size: tuple[int, int] = (360, 270)
@@ -163,6 +169,7 @@ class BeginOptions(ControllerOptions):
     w: float = 0.02
     noise_offset: float = 8.0
     feedback_gain: float = 1.5
+    ev_range: float = EV_RANGE
 
     def check(self) -> None:
         work_size = self.work_size
@@ -211,7 +218,6 @@ class BeginController(Controller):
             raise ParameterError(f"crf must be a CameraResponse, got {type(crf).__name__}")
         self.crf = crf
         super().__init__(limits, exposure_us, gain, options)
-        self.luts = ev_luts(crf)
         self._history: deque[tuple[float, float]] = deque(maxlen=2)  # (score_0, score_pred) per frame
         self._prev_small: np.ndarray | None = None
         # diagnostics of the last frame
@@ -224,6 +230,8 @@ class BeginController(Controller):
     def _apply_options(self, options: BeginOptions) -> None:
         super()._apply_options(options)
         self.q = shim_lut(options.sigma, options.lam)
+        self.delta_evs = DELTA_EVS * (options.ev_range / EV_RANGE)
+        self.luts = ev_luts(self.crf, self.delta_evs)
 
     # -- the pieces ---------------------------------------------------------------------------
     def working_image(self, image: np.ndarray) -> np.ndarray:
@@ -243,17 +251,18 @@ class BeginController(Controller):
         self.last_scores = s
         s0 = float(s[3])
         mean = float(work.mean())
+        r = self.options.ev_range
         if mean < 10.0:
-            return -EV_RANGE, float(s[0]), s0
+            return -r, float(s[0]), s0
         if mean > 245.0:
-            return EV_RANGE, float(s[-1]), s0
+            return r, float(s[-1]), s0
         i_best = int(np.argmax(s))
         if np.all(s == s[0]):  # no information (e.g. textureless): hold
             return 0.0, s0, s0
-        coef = np.polyfit(DELTA_EVS, s, 6)
-        x = newton_optimum(coef)
+        coef = np.polyfit(self.delta_evs, s, 6)
+        x = newton_optimum(coef, bound=r)
         if x is None:
-            return float(DELTA_EVS[i_best]), float(s[i_best]), s0
+            return float(self.delta_evs[i_best]), float(s[i_best]), s0
         pred = float(np.polyval(coef, x))
         return x, pred if math.isfinite(pred) else float(s[i_best]), s0
 

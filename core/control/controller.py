@@ -133,7 +133,8 @@ class Controller(PacketHandler):
 
     Estimator: :attr:`estimator` is the P-TEDI estimator a controller owns and feeds (NEC), or
     ``None`` for a frame-only controller; a pipeline gives a frame-only controller a passive one so
-    every lane has a prediction to show.
+    every lane has a prediction to show. Whether the controller uses events at all is
+    :attr:`uses_events` (``nec-frames`` owns an estimator that it feeds frames only).
 
     Parameters
     ----------
@@ -158,6 +159,9 @@ class Controller(PacketHandler):
     TUNABLE: ClassVar[tuple[Tunable, ...]] = ()
     #: the P-TEDI estimator this controller owns and feeds; ``None``: it uses frames only
     estimator: PeripheralEstimator | None = None
+    #: whether event batches inform its commands (NEC); ``False``: it receives them and ignores
+    #: them (every image-only baseline, and ``nec-frames``, whose estimator sees frames only)
+    uses_events: ClassVar[bool] = False
     #: what the owned estimator made of the last frame (``None`` without an estimator)
     last_frame_estimate: FrameEstimate | None = None
     #: P-TEDI's ``ln P`` at the last command decision (NaN without an estimator)

@@ -58,18 +58,47 @@ of the valid range, ``g(valid_min) + m`` (``d = +1``; ``g(valid_max) - m`` for `
 records it for every ``e`` in ``[0, W - m]``, ``W = g(valid_max) - g(valid_min)`` — the widest
 one-sided interval a single exposure can cover. ``m`` is ``edge_margin`` (ln). The rule ends
 at the first frame that determines the statistic with no ceiling-saturated batch since its
-exposure started. (Case (a) needs the ceiling, ``bus_event_rate``: 12 Mev/s for a DAVIS346.)
+exposure started. Case (a) needs the ceiling: ``bus_event_rate``, by default the source's own
+(:class:`~necviz.drivers.source.CameraInfo` ``event_rate_max``: the simulator's configured
+``dvs.max_event_rate``, 12 Mev/s for a DAVIS346 device or a recording from one), never a literal;
+a source without a ceiling makes case (a) impossible.
+
+The paper's controller and necviz's additions (each one switch, so the ladder from the paper to
+the default can be measured; ``docs/method.md``): ``saturation_bound`` (P-TEDI re-anchors at the
+bound a saturated frame proves, :mod:`necviz.core.ptedi`; off: the paper's skip rule alone),
+``metering``, ``goal_mode``, ``escape`` and ``compensation`` (the profile's TEDI terms ``a±, b±``;
+off: zeroed, the thresholds kept). ``saturation_bound=False, metering="paper", goal_mode="paper",
+escape=False, compensation=False`` is the paper's controller exactly (registered as ``nec-paper``).
+:class:`NECFramesController` (``nec-frames``) is NEC with every event kept from its estimator.
 
 Defaults, chosen by ``benchmarks/metering.py`` over every preset scenario x 10 seeds and checked
 on held-out scenes (README, "Metering, goal and the escape rule"): ``metering="median"``,
-``goal_mode="measured"`` (100 DN for the median), ``escape=True`` with ``edge_margin=0.4``.
-``metering="paper", goal_mode="paper", escape=False`` is the paper's controller exactly.
+``goal_mode="measured"`` (100 DN for the median), ``escape=True`` with ``edge_margin=0.4``,
+``saturation_bound=True``, ``compensation=True``, ``bound_lag=True`` (``ceiling_rate=False``).
+
+Events that lag (``bound_lag``). A pixel reports a change only as fast as its photoreceptor
+follows it, and in the dark that takes tens of ms (the DVS model's bandwidth falls with the
+light, as a DAVIS346's does), so after a big step the events keep arriving well after the frame
+that already saw the new level. When a saturated frame moves P-TEDI's anchor to its bound, the gap
+it closes (bound minus the event-propagated level at ``s``) is then change the events have yet to
+report; counting those events again after the bound double-counts it (a 40 dB step down was
+over-counted by 0.7 ln and left the next frame 80 % over-exposed). So the events that follow in the
+gap's direction count only beyond the gap. When a window at the bus ceiling lies between the
+previous anchor and the frame, the gap is events lost for good and nothing is absorbed.
+
+Events at the bus ceiling (``ceiling_rate``, an experiment, off). At the ceiling the bus delivers a
+fixed rate whatever the light does, so the count measures the change's duration, not its size. A
+saturated frame that moves the anchor to its bound after windows at the ceiling gives the gain
+``k = (counted + missed) / counted`` of those windows; later windows at the ceiling (same polarity)
+are credited ``k - 1`` times their count, at most ``(W - 2 m) / 2`` (``W = g(valid_max) -
+g(valid_min)``) so that the escape rule's exposure still records the level the count and the frame
+prove. It rests on the simulator's uniform thinning at the ceiling; docs/method.md has the numbers.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import ClassVar
 
 import numba as nb
@@ -82,7 +111,6 @@ from necviz.core.errors import ParameterError
 from necviz.core.frames import Frame
 from necviz.core.ptedi import FrameEstimate, PeripheralEstimator
 from necviz.core.ptedi_kernels import digit_histograms
-from necviz.core.sensor import DAVIS_EVENT_RATE_MAX
 
 #: metering statistics (module docstring)
 METERING = ("paper", "median", "percentile", "zones")
@@ -237,13 +265,29 @@ class NECOptions(ControllerOptions):
     edge_margin : float
         ``m`` of the escape rule (ln): how far inside the valid range's edge it aims.
     bus_event_rate : float, optional
-        The sensor's event-rate ceiling (events/s) for the escape rule's case (a); ``None`` never
-        suspects lost events.
+        The sensor's event-rate ceiling (events/s) for the escape rule's case (a); ``None`` (the
+        default): the source's own (``event_rate_max`` of its
+        :class:`~necviz.drivers.source.CameraInfo`, given to the controller when it is built), and
+        no ceiling (case (a) never holds) when the source knows none.
+    saturation_bound : bool
+        P-TEDI re-anchors at the bound a saturated frame proves (necviz's addition); ``False``:
+        the paper's rule alone (skip the frame, keep propagating with events).
+    compensation : bool
+        Use the camera profile's TEDI compensation ``a±, b±``; ``False`` zeroes them (thresholds kept).
+    ceiling_rate : bool
+        While the event bus is at its ceiling, credit the events with the rate of change a saturated
+        frame proved (module docstring, "Events at the bus ceiling"); needs ``escape`` (its bus watch).
+    bound_lag : bool
+        When a saturated frame moves P-TEDI's anchor to its bound and no event window since the previous
+        anchor was at the bus ceiling, count the events that follow in the bound's direction only beyond
+        the gap the bound closed: they are the photoreceptor's lag catching up with a change the frame
+        already saw (module docstring, "Events that lag").
     zone_grid : tuple of int, optional
         ``(columns, rows)`` of the P-TEDI zones :func:`~necviz.core.control.make_controller` builds
         (default: :data:`ZONE_GRID` for ``metering="zones"``, else the whole sensor).
 
-    ``metering="paper", goal_mode="paper", escape=False`` is the paper's controller exactly.
+    ``saturation_bound=False, metering="paper", goal_mode="paper", escape=False, compensation=False``
+    is the paper's controller exactly (``nec-paper``).
     """
 
     TUNABLE: ClassVar[tuple[Tunable, ...]] = (
@@ -297,8 +341,12 @@ class NECOptions(ControllerOptions):
     floor: float = 30.0
     escape: bool = True
     edge_margin: float = 0.4
-    bus_event_rate: float | None = DAVIS_EVENT_RATE_MAX
+    bus_event_rate: float | None = None
     zone_grid: tuple[int, int] | None = None
+    saturation_bound: bool = True
+    compensation: bool = True
+    ceiling_rate: bool = False
+    bound_lag: bool = True
 
     def check(self) -> None:
         if self.full_band <= self.dead_band:
@@ -307,8 +355,9 @@ class NECOptions(ControllerOptions):
             raise ParameterError(f"metering must be one of {', '.join(METERING)}, got {self.metering!r}")
         if self.goal_mode not in GOAL_MODES:
             raise ParameterError(f"goal_mode must be one of {', '.join(GOAL_MODES)}, got {self.goal_mode!r}")
-        if not isinstance(self.escape, bool):
-            raise ParameterError(f"escape must be true or false, got {self.escape!r}")
+        for name in ("escape", "saturation_bound", "compensation", "ceiling_rate", "bound_lag"):
+            if not isinstance(getattr(self, name), bool):
+                raise ParameterError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if self.bus_event_rate is not None:
             object.__setattr__(
                 self, "bus_event_rate", check_number("bus_event_rate", self.bus_event_rate, 0.0, lo_open=True)
@@ -338,16 +387,25 @@ class NECController(Controller):
         The initial setting.
     options : NECOptions, optional
         The settings (default: ``NECOptions()``, the measured defaults).
+    event_rate_max : float, optional
+        The source's event bus ceiling (events/s; :class:`~necviz.drivers.source.CameraInfo`), used by
+        the escape rule unless ``options.bus_event_rate`` names one; ``None``: the source knows none.
 
     Raises
     ------
     ParameterError
         An estimator that is not a :class:`PeripheralEstimator`, options that do not fit its
         camera response (a goal outside the valid range), or zones metering on a one-zone estimator.
+
+    Notes
+    -----
+    The controller owns its estimator and sets the estimator's own switches from the options:
+    ``saturation_bound``, and with ``compensation=False`` the thresholds without ``a±, b±``.
     """
 
     name = "nec"
     OPTIONS = NECOptions
+    uses_events = True
 
     def __init__(
         self,
@@ -356,10 +414,14 @@ class NECController(Controller):
         exposure_us: float = 5_000.0,
         gain: float = 1.0,
         options: NECOptions | None = None,
+        event_rate_max: float | None = None,
     ):
         if not isinstance(estimator, PeripheralEstimator):
             raise ParameterError("NECController needs a PeripheralEstimator")
+        if event_rate_max is not None:
+            event_rate_max = check_number("event_rate_max", event_rate_max, 0.0, lo_open=True)
         self.estimator = estimator
+        self.event_rate_max = event_rate_max
         super().__init__(limits, exposure_us, gain, options)
         self.last_log_irradiance = math.nan  # P-TEDI's ln P at the last command decision
         self.last_metered = math.nan  # the metered statistic M at the last command decision
@@ -378,7 +440,18 @@ class NECController(Controller):
         self._win_n = 0
         self._win_on = 0
         self._counts_seen = (0, 0)
+        self._win_up = 0
         self.saturated_windows = 0  # windows of events found at the bus ceiling (diagnostics)
+        # rate at the ceiling: counted change of each ceiling-saturated window since the anchor, the gain a
+        # saturated frame calibrated, and the change credited beyond the count (ln; added to M)
+        self._sat_log: list[tuple[int, float]] = []
+        self._gain = 1.0
+        self._gain_dir = 0
+        self.ceiling_credit = 0.0
+        # lag after a saturation bound: the gap the bound closed (signed ln) and P-TEDI's level at the bound
+        self.bound_owed = 0.0
+        self._owed_base = 0.0
+        self._anchor_s = np.iinfo(np.int64).min  # exposure start of P-TEDI's last (re-)anchor
 
     # -- settings -------------------------------------------------------------------------------
     def _goal_log_exposure(self, options: NECOptions) -> float:
@@ -418,6 +491,18 @@ class NECController(Controller):
     def _apply_options(self, options: NECOptions) -> None:
         super()._apply_options(options)
         self.goal_log_exposure = self._goal_log_exposure(options)
+        rate = options.bus_event_rate
+        self._bus_rate = self.event_rate_max if rate is None else rate
+        est = self.estimator
+        est.saturation_bound = options.saturation_bound
+        p = est.params
+        if not options.compensation and (p.a_on or p.b_on or p.a_off or p.b_off):
+            est.set_params(replace(p, a_on=0.0, b_on=0.0, a_off=0.0, b_off=0.0))
+
+    @property
+    def bus_event_rate(self) -> float | None:
+        """The event bus ceiling the escape rule uses: ``options.bus_event_rate``, else the source's."""
+        return self._bus_rate
 
     def _get_param(self, name: str) -> float:
         if name == "goal":
@@ -478,9 +563,11 @@ class NECController(Controller):
             if ok.any():
                 self.last_log_irradiance = float(np.dot(z[ok], est.sizes[ok]) / est.sizes[ok].sum())
             off = np.where(np.isfinite(self._offset), self._offset, 0.0)
-            return weighted_median(z + off, self._weights)
+            lp = self.last_log_irradiance
+            return weighted_median(z + off, self._weights) + self._credit() - self._absorbed(lp)
         lp = est.predict(t_us)
         self.last_log_irradiance = lp
+        lp = lp + self._credit() - self._absorbed(lp)
         if self.options.metering == "paper":
             return lp
         off = self._offset0
@@ -545,19 +632,104 @@ class NECController(Controller):
             return
         self._win_n += n
         self._win_on += d_on - d_off  # net polarity of the region's events
+        self._win_up += d_on
         span = t_last - self._win_t0
         if span < BUS_WINDOW_US:
             return
         if (
-            self._win_n >= BUS_FRACTION * self.options.bus_event_rate * span / US_PER_S
+            self._win_n >= BUS_FRACTION * self._bus_rate * span / US_PER_S
             and abs(self._win_on) >= POLARITY_DOMINANCE * self._win_n
         ):
             self._sat_t = t_last
             self._sat_dir = 1 if self._win_on > 0 else -1
             self.saturated_windows += 1
+            if self.options.ceiling_rate:
+                self._ceiling_window(t_last, self._win_up, self._win_up - self._win_on)
         self._win_t0 = t_last
         self._win_n = 0
         self._win_on = 0
+        self._win_up = 0
+
+    def _ceiling_window(self, t_end: int, n_on: int, n_off: int) -> None:
+        """A window at the bus ceiling: remember its counted change; credit the calibrated extra."""
+        est = self.estimator
+        p = est.params
+        counted = (p.c_on * n_on - p.c_off * n_off) / float(est.sizes.sum())
+        self._sat_log.append((int(t_end), counted))
+        if len(self._sat_log) > 4096:  # hours at the ceiling without a usable frame: keep the newest
+            del self._sat_log[:2048]
+        if self._gain > 1.0 and counted * self._gain_dir > 0:
+            self.ceiling_credit += (self._gain - 1.0) * counted
+
+    def _absorbed(self, lp: float) -> float:
+        """The part of P-TEDI's change since the bound that only catches up with it (``bound_lag``):
+        the change in the gap's direction, up to the gap (0 without a gap)."""
+        owed = self.bound_owed
+        if owed == 0.0 or lp != lp:
+            return 0.0
+        moved = lp - self._owed_base
+        if owed < 0.0:
+            return max(owed, min(moved, 0.0))
+        return min(owed, max(moved, 0.0))
+
+    def _track_lag(self, fe: FrameEstimate) -> None:
+        """After a frame: open a lag gap at a saturation bound no ceiling window explains, close it at a
+        normal anchor (``bound_lag``; module docstring)."""
+        s = int(fe.exposure_start_us)
+        bounded = fe.bounded is not None and bool(fe.bounded.any()) and fe.predicted_start is not None
+        if not bounded:
+            if bool(fe.anchored.any()):
+                self.bound_owed = 0.0
+                self._anchor_s = s
+            return
+        sizes = self.estimator.sizes.astype(np.float64)
+        w = np.where(fe.bounded, sizes, 0.0)
+        with np.errstate(invalid="ignore"):
+            gap = float(np.nansum(np.where(fe.bounded, fe.log_start - fe.predicted_start, 0.0) * w) / w.sum())
+        lost = self._bus_rate is not None and self.options.escape and self._sat_t >= self._anchor_s
+        self._anchor_s = s
+        if lost or not math.isfinite(gap):  # events lost at the ceiling never come: nothing to absorb
+            self.bound_owed = 0.0
+            return
+        self.bound_owed = gap
+        self._owed_base = float(np.nansum(np.where(fe.bounded, fe.log_start, 0.0) * w) / w.sum())
+
+    def _credit(self) -> float:
+        """The change credited beyond the count, at most half the slack of the valid range
+        (``(W - 2 m) / 2``): the exposure the escape rule then aims at still records the level the
+        count and the frame prove if the credit was too much by up to that (module docstring)."""
+        c = self.ceiling_credit
+        if c == 0.0:
+            return 0.0
+        crf = self.estimator.crf
+        cap = 0.5 * max(0.0, float(crf.g[crf.valid_max] - crf.g[crf.valid_min]) - 2.0 * self.options.edge_margin)
+        return max(-cap, min(cap, c))
+
+    def _calibrate_ceiling(self, fe: FrameEstimate) -> None:
+        """After a frame: re-calibrate the rate at the ceiling from a frame that moved P-TEDI's anchor to
+        a saturation bound (the frame proves the change the events missed), or reset it on a frame that
+        anchored P-TEDI normally (module docstring)."""
+        s = int(fe.exposure_start_us)
+        sizes = self.estimator.sizes.astype(np.float64)
+        bounded = fe.bounded is not None and bool(fe.bounded.any()) and fe.predicted_start is not None
+        if not bounded:
+            if bool(fe.anchored.any()):  # a new anchor: the count is exact again from s on
+                self._sat_log = [w for w in self._sat_log if w[0] > s]
+                self._gain, self._gain_dir, self.ceiling_credit = 1.0, 0, 0.0
+            return
+        with np.errstate(invalid="ignore"):
+            miss = np.where(fe.bounded, fe.log_start - fe.predicted_start, 0.0)
+        miss = float(np.nansum(miss * sizes) / sizes.sum())
+        d = 1 if miss > 0 else -1
+        before = sum(c for t, c in self._sat_log if t <= s and c * d > 0)
+        after = sum(c for t, c in self._sat_log if t > s and c * d > 0)
+        self._sat_log = [w for w in self._sat_log if w[0] > s]
+        if before * d <= 0:  # no window at the ceiling before the frame: nothing to calibrate with
+            self._gain, self._gain_dir, self.ceiling_credit = 1.0, 0, 0.0
+            return
+        self._gain = (before + miss) / before
+        self._gain_dir = d
+        self.ceiling_credit = (self._gain - 1.0) * after  # the windows since s, counted from the new anchor
 
     def _escape_direction(self) -> int:
         """+1 / -1 while the metered level is only a lower / upper bound, else 0 (module docstring)."""
@@ -597,7 +769,7 @@ class NECController(Controller):
         t = est.last_event_us
         if t > self.now_us:
             self.now_us = t
-        if self.options.escape and self.options.bus_event_rate is not None and events.size:
+        if self.options.escape and self._bus_rate is not None and events.size:
             self._watch_bus(events.size, t)
         if not est.ready:
             return None
@@ -621,6 +793,10 @@ class NECController(Controller):
         super().on_frame(frame)
         fe = self.estimator.add_frame(frame)
         self.last_frame_estimate = fe
+        if self.options.ceiling_rate and self.options.escape:
+            self._calibrate_ceiling(fe)
+        if self.options.bound_lag:
+            self._track_lag(fe)
         determined = bool(fe.anchored.any())
         if self.options.metering != "paper":
             determined = self._update_offsets(frame, fe)
@@ -636,3 +812,25 @@ class NECController(Controller):
             if determined and self._frame_dir == 0:
                 self._determined_s = int(frame.exposure_start_us)
         return self._command_now()
+
+
+class NECFramesController(NECController):
+    """``nec-frames``: NEC with no event reaching its estimator — a frame-based auto-exposure.
+
+    The same metering, goal, control law (Eq. 2-4: a one-step jump through the camera response
+    when the error is large) and escape rule as :class:`NECController`, with the same options; but
+    event batches only advance its clock. Its P-TEDI estimator still brackets every exposure and
+    anchors on every usable frame (the saturation bound included: that is frame-side), so between
+    frames its prediction is the last frame's level and commands follow frames only. The escape
+    rule's case (a), lost events at the bus ceiling, cannot arise; case (b), a saturated frame, does.
+    The difference between ``nec`` and ``nec-frames`` on the same scene is what the events add.
+    A lane switched to ``nec-frames`` while running adopts the lane's estimator (with whatever events
+    it counted before the switch) and feeds it none from then on; built as ``nec-frames`` its
+    estimator never counts one (``estimator.event_totals() == (0, 0)``).
+    """
+
+    name = "nec-frames"
+    uses_events = False
+
+    def on_events(self, events: np.ndarray) -> ExposureCommand | None:
+        return Controller.on_events(self, events)

@@ -47,7 +47,9 @@ necviz units, see :mod:`.scene`):
 
 6. **Bandwidth ceiling**: at most ``floor(max_event_rate * (t1 - t0) / 1e6)`` events leave a step;
    when more were generated a uniformly random (seeded) subset is kept and the rest counted in
-   :attr:`EventSimulator.dropped_by_ceiling`.
+   :attr:`EventSimulator.dropped_by_ceiling` (by polarity: ``dropped_on_by_ceiling``,
+   ``dropped_off_by_ceiling``; the ground truth of every frame carries them, so a diagnosis can tell
+   whether lost events explain a prediction's miss).
 
 Every per-pixel operation runs in a Numba kernel; a static pixel costs a few loads and
 compares per step (the filter snaps to the input once within 1e-7, so a converged pixel does
@@ -418,7 +420,8 @@ class EventSimulator:
 
     Counters (cumulative since construction): ``events_generated`` (events the pixels produced,
     including noise, before the ceiling), ``events_emitted``, ``dropped_by_refractory``,
-    ``dropped_by_ceiling``, ``shot_noise_events``, ``steps``. Per-pixel constants for inspection:
+    ``dropped_by_ceiling`` (of which ON: ``dropped_on_by_ceiling``, OFF: ``dropped_off_by_ceiling``),
+    ``shot_noise_events``, ``steps``. Per-pixel constants for inspection:
     ``threshold_on``, ``threshold_off`` (H, W) and ``leak_rate_hz`` (H, W).
     """
 
@@ -463,6 +466,8 @@ class EventSimulator:
         self.events_generated = 0
         self.events_emitted = 0
         self.dropped_by_ceiling = 0
+        self.dropped_on_by_ceiling = 0
+        self.dropped_off_by_ceiling = 0
         self.shot_noise_events = 0
         self.steps = 0
 
@@ -626,8 +631,12 @@ class EventSimulator:
             cap = int(math.floor(p.max_event_rate * (t1 - t0) / 1e6))
             if n > cap:
                 keep = np.sort(self._rng_ceiling.choice(n, size=cap, replace=False))
+                on_before = int(np.count_nonzero(bp > 0))
                 bt, bpix, bp = bt[keep], bpix[keep], bp[keep]
+                on_lost = on_before - int(np.count_nonzero(bp > 0))
                 self.dropped_by_ceiling += n - cap
+                self.dropped_on_by_ceiling += on_lost
+                self.dropped_off_by_ceiling += n - cap - on_lost
                 n = cap
         ev = np.empty(n, EVENT_DTYPE)
         if n:

@@ -72,9 +72,15 @@ class _CamState:
     frames: int = 0
 
 
+def _step(dvs: EventSimulator, ls: np.ndarray, ts: int) -> tuple:
+    """``dvs.step`` to ``ts``: its events and the events lost at the bus ceiling so far (ON, OFF)."""
+    ev = dvs.step(ls, ts)
+    return ev, dvs.dropped_on_by_ceiling, dvs.dropped_off_by_ceiling
+
+
 def _steps(dvs: EventSimulator, samples: list) -> list:
-    """``dvs.step`` through ``samples`` (``(ln L, t)`` each), in order: their events."""
-    return [dvs.step(ls, ts) for ls, ts in samples]
+    """:func:`_step` through ``samples`` (``(ln L, t)`` each), in order."""
+    return [_step(dvs, ls, ts) for ls, ts in samples]
 
 
 class SimRig:
@@ -143,6 +149,8 @@ class SimRig:
         # the lighting trace kept for ground truth: (sample time, mean ln L on the TRACE_STEP grid)
         self._trace_t: deque = deque()
         self._trace_l: deque = deque()
+        # events lost at the bus ceiling, for ground truth: (DVS step time, cumulative ON, cumulative OFF)
+        self._lost: deque = deque()
         self._changes = tuple(scene.changes)
         self._pedestrian = getattr(scene, "pedestrian_box", None)
         self._markers = getattr(scene, "marker_truth", None)
@@ -242,7 +250,8 @@ class SimRig:
         advanced), one list per period.
 
         Each sample is ``(t, L, trace value, events)``: ``L = exp(ln L)`` for frame integration, the
-        lighting-trace value (``None`` without truth) and the sample's DVS events — with ``pool``,
+        lighting-trace value (``None`` without truth) and the sample's DVS step (:func:`_step`: its
+        events and the cumulative counts lost at the ceiling) — with ``pool``,
         ``(future, k)``: the ``k``-th result of one job that steps the simulator through every sample of
         these periods (jobs run in submission order).
         """
@@ -257,7 +266,7 @@ class SimRig:
             for ts, ls in samples:
                 trace = float(ls[::TRACE_STEP, ::TRACE_STEP].mean(dtype=np.float64)) if self.truth else None
                 if pool is None:
-                    ev = dvs.step(ls, ts)
+                    ev = _step(dvs, ls, ts)
                 else:
                     ev = len(steps)
                     steps.append((ls, ts))
@@ -314,6 +323,7 @@ class SimRig:
         if self._pedestrian is not None:
             box = self._pedestrian((s + e) / 2)
         a = self.aps
+        lost = np.array([x for x in self._lost if x[0] <= e] or [(0, 0, 0)], np.int64)
         return GroundTruth(
             lbar,
             self.crf,
@@ -326,7 +336,11 @@ class SimRig:
             float(a.readout_us),
             self._changes,
             box,
-            None if self._markers is None else self._markers((s + e) / 2),
+            markers=None if self._markers is None else self._markers((s + e) / 2),
+            lost_t_us=lost[:, 0],
+            lost_on=lost[:, 1],
+            lost_off=lost[:, 2],
+            event_thresholds=(float(self.dvs_params.c_on), float(self.dvs_params.c_off)),
         )
 
     def packets(self):
@@ -337,6 +351,8 @@ class SimRig:
         dvs.reset(l_prev, 0)
         self._trace_t.clear()
         self._trace_l.clear()
+        self._lost.clear()
+        self._lost.append((0, 0, 0))
         self._trace(0, l_prev)
         buf_t: deque = deque([0])
         buf_l: deque = deque([np.exp(l_prev)])
@@ -390,6 +406,9 @@ class SimRig:
                     t_gathered, ev = pending.popleft()
                     if pools:
                         ev = ev[0].result()[ev[1]]
+                    ev, lost_on, lost_off = ev
+                    if self.truth:
+                        self._lost.append((t_gathered, lost_on, lost_off))
                     if ev.size:
                         chunks.append(ev)
                 events = np.concatenate(chunks) if len(chunks) > 1 else (chunks[0] if chunks else held)
@@ -453,6 +472,8 @@ class SimRig:
                 while len(self._trace_t) > 2 and self._trace_t[1] <= keep:
                     self._trace_t.popleft()
                     self._trace_l.popleft()
+                while len(self._lost) > 2 and self._lost[1][0] <= keep:
+                    self._lost.popleft()
                 t0 = t1
         finally:
             for pool in pools:  # the render worker first: it feeds the DVS worker

@@ -161,7 +161,9 @@ def _run_once(events, duration_s, fps, batch_us, sink_dir: Path | None, seed: in
 
     src = SyntheticStream(events, duration_s, fps, batch_us)
     limits = CameraLimits(10.0, src.period_us - 1_000, 8.0)
-    ctrl = make_controller("nec", sensor=DAVIS346, limits=limits, exposure_us=src.exposure_us)
+    ctrl = make_controller(
+        "nec", sensor=DAVIS346, limits=limits, exposure_us=src.exposure_us, event_rate_max=DAVIS_EVENT_RATE_MAX
+    )
     observers = []
     rrd = None
     if sink_dir is not None:

@@ -395,6 +395,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"necviz {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     controllers = _controllers()
+    from necviz.options import COMPARE_CONTROLLERS, DEFAULT_CONTROLLERS
 
     info = sub.add_parser("info", help="versions and capabilities; with FILE, what a recording holds")
     info.add_argument("file", nargs="?", metavar="FILE", help="a recording (any supported format)")
@@ -420,8 +421,8 @@ def build_parser() -> argparse.ArgumentParser:
     cmp_.add_argument(
         "--controllers",
         type=_controller_list,
-        default="nec,nec-raw,navid,shim,begin,builtin,fixed",
-        help=f"comma-separated, from {', '.join(controllers)} (default: all seven)",
+        default=",".join(COMPARE_CONTROLLERS),
+        help=f"comma-separated, from {', '.join(controllers)} (default: {', '.join(COMPARE_CONTROLLERS)})",
     )
     cmp_.add_argument("--seeds", type=number("--seeds"), default=1, help="repeat over this many seeds: mean ± 95 %% CI")
     cmp_.add_argument("--json", metavar="FILE", help="write the results as JSON")
@@ -461,8 +462,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument(
         "--controllers",
         type=_controller_list,
-        default="nec,navid,shim,begin,builtin,fixed",
-        help=f"comma-separated, from {', '.join(controllers)} (default: all six)",
+        default=",".join(DEFAULT_CONTROLLERS),
+        help=f"comma-separated, from {', '.join(controllers)} (default: {', '.join(DEFAULT_CONTROLLERS)})",
     )
     demo.add_argument(
         "--record",

@@ -185,8 +185,13 @@ def _run(options: CompareOptions, names, sc, seed0, profile, file_sink, out) -> 
         "lighting_steps_us_per_seed": [r["steps_us"] for r in runs],
         "controllers": table,
     }
+    events = events_added(runs, names)
+    if events is not None:
+        result["events_add"] = events
     if out is not None:
         print_table(result, out)
+        if events is not None:
+            print_events(events, out)
     if options.json:
         write_json(options.json, result, indent=1, flag="--json")
         if out is not None:
@@ -247,6 +252,40 @@ def print_table(result: dict, out) -> None:
             ", ".join(f"{k} {_fmt(float(v), digits=1 if seeds > 1 else 0)}" for k, v in causes.items() if v) or "none"
         )
         print(f"  {n:{w}s} {text}", file=out)
+
+
+#: the metrics "what the events add" reports (nec minus nec-frames, paired by seed)
+EVENT_METRICS = ("saturated_frames_50", "saturated_frames_10", "true_valid_fraction_mean")
+
+
+def events_added(runs: list[dict], names) -> dict | None:
+    """``nec`` − ``nec-frames`` per metric, paired by seed (both saw the same scene and events):
+    ``{metric: {"mean", "ci95", "per_seed"}}``; ``None`` unless both lanes ran."""
+    if "nec" not in names or "nec-frames" not in names:
+        return None
+    out = {}
+    for key in EVENT_METRICS:
+        d = [r["results"]["nec"][key] - r["results"]["nec-frames"][key] for r in runs]
+        if any(v is None for v in d):
+            continue
+        mean, ci = confidence_interval(d)
+        out[key] = {"mean": mean, "ci95": ci, "per_seed": d}
+    return out
+
+
+def print_events(events: dict, out) -> None:
+    """One line: what the events add (nec − nec-frames, paired by seed)."""
+    parts = []
+    for key, label in (("saturated_frames_50", "sat>50%"), ("saturated_frames_10", "sat>10%")):
+        e = events.get(key)
+        if e is not None:
+            parts.append(f"{label} {e['mean']:+.1f}" + (f" ± {e['ci95']:.1f}" if e["ci95"] else ""))
+    n = len(next(iter(events.values()))["per_seed"]) if events else 0
+    print(
+        f"what the events add (nec − nec-frames, paired over {n} seed{'s' if n != 1 else ''}): "
+        + (", ".join(parts) or "—"),
+        file=out,
+    )
 
 
 def _profile(path):

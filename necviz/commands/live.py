@@ -57,7 +57,8 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     )
     info, limits, sensor = camera.info, camera.limits, camera.sensor
     kw = {} if profile is None else {"tedi": profile.tedi, "crf": profile.crf}
-    lane = Lane(LANE, make_controller(options.controller, sensor=sensor, limits=limits, **kw))
+    rate = camera.camera_info.event_rate_max  # the device's event bus ceiling (NEC's escape rule)
+    lane = Lane(LANE, make_controller(options.controller, sensor=sensor, limits=limits, event_rate_max=rate, **kw))
     props = {
         "command": "live",
         "device": options.device,

@@ -156,7 +156,9 @@ def _replay(options: ReplayOptions, viewer, out, path: Path, source: Path, profi
     sensor = recording.sensor
     limits = CameraLimits()
     kw = {} if profile is None else {"tedi": profile.tedi, "crf": profile.crf}
-    lane = Lane(LANE, make_controller(options.controller, sensor=sensor, limits=limits, **kw), drives=False)
+    rate = recording.camera_info.event_rate_max  # the recorded sensor's bus ceiling, if known (NEC's escape rule)
+    ctrl = make_controller(options.controller, sensor=sensor, limits=limits, event_rate_max=rate, **kw)
+    lane = Lane(LANE, ctrl, drives=False)
     props = {
         "command": "replay",
         "file": str(path),

@@ -47,8 +47,12 @@ from necviz.marker_detection import MarkerDetector
 #: threshold); more than :data:`SLIGHTLY` is *slightly saturated*.
 SATURATED = 0.5
 SLIGHTLY = 0.1
-#: Commands of each lane kept for the diagnosis (a few frames' worth even for NEC, which commands per event batch).
-COMMAND_HISTORY = 64
+#: Commands of each lane kept for the diagnosis (a few frames' worth even for NEC, which commands per event
+#: batch): the controller-lag rule looks back from the change to the first frame that showed it.
+COMMAND_HISTORY = 256
+#: Exposure starts of anchoring frames whose count of events lost at the bus ceiling is kept (ground
+#: truth), so the diagnosis knows how many were lost since P-TEDI's anchor.
+ANCHOR_HISTORY = 64
 
 
 @dataclass(slots=True)
@@ -229,6 +233,15 @@ def _anchor_level(estimator) -> float:
     return _zone_mean(a, getattr(estimator, "sizes", None))
 
 
+def _anchor_time(estimator) -> int | None:
+    """The oldest anchor time over the anchored zones (µs), ``None`` if unknown."""
+    a, t = getattr(estimator, "anchor_log", None), getattr(estimator, "anchor_t", None)
+    if a is None or t is None:
+        return None
+    ok = np.isfinite(a)
+    return int(np.min(t[ok])) if ok.any() else None
+
+
 class LaneTelemetry:
     """Telemetry of one lane (a camera and its controller).
 
@@ -256,7 +269,8 @@ class LaneTelemetry:
         self.causes: dict[str, int] = dict.fromkeys(CAUSES, 0)
         self._truth_sums = {"true_valid_fraction": [0.0, 0], "rank_correlation": [0.0, 0]}
         self.pedestrian: dict | None = None  # the first frame the scene's pedestrian is visible on
-        self._predicted_at_start: dict[int, tuple[float, float]] = {}
+        self._predicted_at_start: dict[int, tuple[float, float, int | None]] = {}
+        self._lost_at_anchor: dict[int, tuple[int, int]] = {}  # anchoring exposure start -> events lost so far
         self._commands: deque = deque(maxlen=COMMAND_HISTORY)
         self._lane = None  # the pipeline lane (controller, drives), bound by Telemetry.attach
         self._latency_us: float | None = None
@@ -282,7 +296,11 @@ class LaneTelemetry:
         if estimator is not None and estimator.ready:
             self._zone_sizes = getattr(estimator, "sizes", None)
             try:
-                self._predicted_at_start[int(t_us)] = (estimator.predict(t_us), _anchor_level(estimator))
+                self._predicted_at_start[int(t_us)] = (
+                    estimator.predict(t_us),
+                    _anchor_level(estimator),
+                    _anchor_time(estimator),
+                )
             except NecvizError:
                 pass
 
@@ -311,7 +329,7 @@ class LaneTelemetry:
             under,
         )
         s = rec.exposure_start_us
-        pred_s, anchor_s = self._predicted_at_start.pop(s, (math.nan, math.nan))
+        pred_s, anchor_s, anchor_t = self._predicted_at_start.pop(s, (math.nan, math.nan, None))
         for k in [k for k in self._predicted_at_start if k < s]:  # starts whose frame never came
             del self._predicted_at_start[k]
         if estimate is not None:
@@ -335,10 +353,18 @@ class LaneTelemetry:
             self._truth_metrics(rec, frame, truth)
         worst = max(over, under)
         if worst > SATURATED:
+            lost = self._lost_change(truth, anchor_t, rec.exposure_end_us)
             rec.saturation_cause, rec.saturation_explanation = diagnose(
-                self._evidence(rec, frame, estimate, pred_s, anchor_s)
+                self._evidence(rec, frame, estimate, pred_s, anchor_s, lost)
             )
             self.causes[rec.saturation_cause] = self.causes.get(rec.saturation_cause, 0) + 1
+        if truth is not None and estimate is not None:
+            moved = estimate.anchored.any() or (estimate.bounded is not None and estimate.bounded.any())
+            at = truth.lost_at(s) if moved else None
+            if at is not None:
+                self._lost_at_anchor[s] = at
+                while len(self._lost_at_anchor) > ANCHOR_HISTORY:
+                    del self._lost_at_anchor[next(iter(self._lost_at_anchor))]
         if self._last_start is not None and s > self._last_start:
             self._period_us = float(s - self._last_start)
         self._last_start = s
@@ -376,7 +402,20 @@ class LaneTelemetry:
                 "box": [int(v) for v in box],
             }
 
-    def _evidence(self, rec: FrameRecord, frame: Frame, estimate, pred_s: float, anchor_s: float) -> Evidence:
+    def _lost_change(self, truth, anchor_t: int | None, end_us: int) -> float:
+        """The log change carried by the events lost at the bus ceiling between P-TEDI's anchor (at
+        ``anchor_t``) and ``end_us`` (ground truth); NaN where unknown."""
+        if truth is None or anchor_t is None:
+            return math.nan
+        then = self._lost_at_anchor.get(int(anchor_t)) or truth.lost_at(anchor_t)
+        now = truth.lost_at(end_us)
+        if then is None or now is None:
+            return math.nan
+        return truth.lost_log_change(now[0] - then[0], now[1] - then[1])
+
+    def _evidence(
+        self, rec: FrameRecord, frame: Frame, estimate, pred_s: float, anchor_s: float, lost: float = math.nan
+    ) -> Evidence:
         """What is known about a saturated frame, for :func:`~necviz.core.diagnosis.diagnose`."""
         truth = frame.truth
         lane = self._lane
@@ -413,7 +452,7 @@ class LaneTelemetry:
             min(maxs) if maxs else None,
             min(gains) if gains else None,
             latency,
-            None if ctrl is None else ctrl.estimator is not None,
+            None if ctrl is None else bool(getattr(ctrl, "uses_events", False)),
             None if lane is None else bool(lane.drives),
             tuple(self._commands),
             pred_s - anchor_s if math.isfinite(anchor_s) else math.nan,
@@ -422,6 +461,7 @@ class LaneTelemetry:
             self._period_us,
             prev,
             tuple(self._recent),
+            lost,
         )
 
     def prediction_errors(self) -> np.ndarray:
@@ -514,6 +554,7 @@ class Telemetry:
 
 
 __all__ = [
+    "ANCHOR_HISTORY",
     "COMMAND_HISTORY",
     "FrameRecord",
     "FrameTable",

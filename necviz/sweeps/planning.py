@@ -100,7 +100,11 @@ def calibrate(plan: Plan, cap_s: float = 2.0) -> dict | None:
         if saved is not None:
             camera.ThreadPoolExecutor = InlineExecutor  # single-threaded, as on a sweep worker
         try:
-            run_spec(dict(first, duration_s=0.05, scenario_params={}, sift=False))  # warm-up: load the kernels
+            from necviz.sweeps.engine import _warmup_spec
+
+            # warm-up: load the kernels, as a sweep worker does (a preset: a scenario file's own parameters,
+            # its change jitter say, may not fit a few-ms run)
+            run_spec(_warmup_spec(plan))
             t0 = time.perf_counter()
             result = run_spec(dict(first, duration_s=d))
             took = time.perf_counter() - t0

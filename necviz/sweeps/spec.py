@@ -14,6 +14,7 @@ with a one-line :class:`~necviz.core.errors.ParameterError` naming the key)::
     profiles = ["default", "mismatch.json"]            # optional: camera profiles for the controllers
     sim = { "dvs.c_on" = [0.2, 0.3] }  # optional: simulator overrides for every scenario (a grid)
     controllers = ["fixed", { name = "nec", params = { goal = [100, 110] } }]
+    # a labelled variant, KIND@LABEL, names a rung of a ladder in the report: { name = "nec@bound", params = {...} }
     scenarios = ["flicker", "static_lab"]
 
     [[scenarios]]                      # or entries as tables (a scenario may appear several times)
@@ -344,6 +345,7 @@ def _list_of(data, key, default=None):
 
 def expand(data: dict, base: Path = Path("."), source: str = "sweep", text: str = "", check: bool = True) -> Plan:
     """Expand parsed TOML into a :class:`Plan` (``base``: the folder relative file names start from)."""
+    import necviz.tuned  # noqa: F401 - the tuned controllers are registered names too
     from necviz.core.control import CONTROLLERS
     from necviz.drivers.sim.scenes import SCENARIOS
 
@@ -402,9 +404,11 @@ def expand(data: dict, base: Path = Path("."), source: str = "sweep", text: str 
         where = f"controllers[{i}]"
         c = _entry(c, where, "controller", CONTROLLER_KEYS)
         name = c.get("name")
-        if name not in CONTROLLERS:
+        kind, _, label = str(name).partition("@")
+        if kind not in CONTROLLERS or ("@" in str(name) and not label.replace("-", "_").isidentifier()):
             raise SweepFileError(
-                f"{where}.name: unknown controller {name!r}; available: {', '.join(sorted(CONTROLLERS))}"
+                f"{where}.name: unknown controller {name!r}; available: {', '.join(sorted(CONTROLLERS))} "
+                "(a labelled variant: KIND@LABEL)"
             )
         for combo in _combinations(c.get("params"), c.get("zip"), where):
             ctrl_entries.append((name, combo, where))

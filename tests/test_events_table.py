@@ -1,0 +1,143 @@
+"""The evaluation's scripts: the tuning budget and rule (benchmarks/tuning.py) and the paired tables of
+what the events add (benchmarks/events_table.py), on synthetic numbers whose answer is known."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.stats import t as student_t
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def _load(name):
+    spec = importlib.util.spec_from_file_location(name, BENCH / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+tuning = _load("tuning")
+events_table = _load("events_table")
+
+
+def row(ctrl, scene, seed, value, ceiling=12e6, latency=1000.0, transition=None, metric="saturated_frames_50"):
+    return {
+        "scene": scene,
+        "family": events_table.family(scene),
+        "seed": seed,
+        "controller": ctrl,
+        "ceiling": ceiling,
+        "latency_us": latency,
+        "transition_ms": transition,
+        metric: value,
+    }
+
+
+# -- tuning -----------------------------------------------------------------------------------------
+def test_every_tuned_controller_gets_the_same_budget_with_its_published_setting_among_the_variants():
+    v = tuning.variants()
+    assert set(v) == {"nec", "navid", "shim", "begin"}
+    for name, variants in v.items():
+        assert len(variants) == tuning.VARIANTS == 20, name
+        assert tuning.PUBLISHED[name] in variants, name
+    assert v["navid"][tuning.PUBLISHED["navid"]] == {"ev_per_unit": 0.01, "target_msv": 2.5}
+    assert v["begin"][tuning.PUBLISHED["begin"]] == {"feedback_gain": 1.5, "ev_range": 2.0}
+    # the NEC candidates are benchmarks/metering.py's, and its current default is one of them
+    assert v["nec"]["median_100_esc04"] == {
+        "metering": "median",
+        "goal_mode": "paper",
+        "escape": True,
+        "edge_margin": 0.4,
+        "goal": 100,
+    }
+    assert set(tuning.NOT_TUNED) == {"builtin", "fixed"}
+
+
+def test_the_rule_is_least_regret_then_slightly_saturated_then_valid_fraction():
+    def cell(s50, s10, tv):
+        return {
+            "saturated_frames_50": {"mean": s50},
+            "saturated_frames_10": {"mean": s10},
+            "true_valid_fraction_mean": {"mean": tv},
+        }
+
+    table = {
+        "a": {"x@v0": cell(2, 5, 0.9), "x@v1": cell(1, 9, 0.8), "x@v2": cell(1, 6, 0.7), "x@v3": cell(1, 6, 0.95)},
+        "b": {"x@v0": cell(0, 1, 0.9), "x@v1": cell(1, 1, 0.9), "x@v2": cell(0, 1, 0.9), "x@v3": cell(0, 1, 0.9)},
+    }
+    ranking = tuning.choose(table, ["x@v0", "x@v1", "x@v2", "x@v3"])
+    # regrets: v0 = 1 + 0, v1 = 0 + 1, v2 = v3 = 0; v2 and v3 tie on > 10 % (7): v3 has the higher valid
+    # fraction; v0 and v1 tie on regret (1): v0 has fewer > 10 % frames (6 against 10)
+    assert [r[3] for r in ranking] == ["x@v3", "x@v2", "x@v0", "x@v1"]
+    assert ranking[0][0] == 0 and ranking[-1][0] == 1
+
+
+# -- the events table -------------------------------------------------------------------------------
+def test_nec_minus_nec_frames_is_paired_by_seed_with_a_student_t_interval():
+    rows = []
+    nec = {"tunnel_exit_1000": [0, 1, 0, 0], "tunnel_exit_1001": [1, 1, 2, 0]}
+    frames = {"tunnel_exit_1000": [2, 2, 3, 1], "tunnel_exit_1001": [2, 3, 2, 2]}
+    for scene in nec:
+        for seed in range(4):
+            rows.append(row("nec", scene, 100 + seed, nec[scene][seed]))
+            rows.append(row("nec-frames", scene, 100 + seed, frames[scene][seed]))
+    rows.append(row("nec", "tunnel_exit_1000", 200, 5))  # a seed without its pair is left out
+    idx = events_table.index(rows)
+    by = events_table.paired(idx, "nec", "nec-frames", "saturated_frames_50", events_table.default_condition)
+    scenes, fams = events_table.diff_cells(by)
+    d = np.array([-2, -1, -3, -1], float)  # tunnel_exit_1000, per seed
+    half = student_t.ppf(0.975, 3) * d.std(ddof=1) / 2.0
+    a, b, m, ci, n = scenes["tunnel_exit_1000"]
+    assert (a, b, n) == (0.25, 2.0, 4) and m == pytest.approx(-1.75) and ci == pytest.approx(half)
+    allp = np.array([-2, -1, -3, -1, -1, -2, 0, -2], float)  # the family: every (scene, seed) pair
+    _, _, m, ci, n = fams["tunnel_exit"]
+    assert n == 8 and m == pytest.approx(allp.mean())
+    assert ci == pytest.approx(student_t.ppf(0.975, 7) * allp.std(ddof=1) / math.sqrt(8))
+
+
+def test_nec_at_any_ceiling_pairs_with_nec_frames_but_latency_must_match():
+    rows = [
+        row("nec", "static_lab_1300", 100, 1, ceiling=6e6),
+        row("nec", "static_lab_1300", 100, 0, ceiling="none"),
+        row("nec-frames", "static_lab_1300", 100, 3),  # at the default 12 Mev/s: the same run at any ceiling
+        row("nec", "static_lab_1300", 100, 2, latency=5000.0),
+        row("nec-frames", "static_lab_1300", 100, 4, latency=5000.0),
+    ]
+    idx = events_table.index(rows)
+    for ceiling, want in ((6e6, -2.0), ("none", -3.0)):
+        by = events_table.paired(
+            idx, "nec", "nec-frames", "saturated_frames_50", lambda r, c=ceiling: r["ceiling"] == c, b_any_ceiling=True
+        )
+        assert [x[1] for x in by["static_lab_1300"]] == [want]
+    by = events_table.paired(idx, "nec", "nec-frames", "saturated_frames_50", lambda r: r["latency_us"] == 5000.0)
+    assert [x[1] for x in by["static_lab_1300"]] == [-2.0]  # against nec-frames at 5 ms, not at 1 ms
+    # without the ceiling exemption a missing nec-frames ceiling is no pair
+    by = events_table.paired(idx, "nec", "nec-frames", "saturated_frames_50", lambda r: r["ceiling"] == 6e6)
+    assert not by
+
+
+def test_the_tables_name_each_rung_and_each_tuned_baseline():
+    rows = []
+    for seed in range(3):
+        for k, rung in enumerate(events_table.LADDER):
+            rows.append(row(rung, "flicker_1200", seed, 10 - 2 * k))
+        rows += [row("navid", "flicker_1200", seed, 4), row("navid-tuned", "flicker_1200", seed, 3)]
+        rows += [row("nec-frames", "flicker_1200", seed, 3)]
+    idx = events_table.index(rows)
+    out, data = [], {}
+    events_table.section_ladder(idx, "saturated_frames_50", out, data)
+    text = "\n".join(out)
+    assert "`nec@escape` + escape rule" in text and "`nec-paper` (the paper)" in text
+    assert data["ladder"]["nec@bound"]["flicker"]["step"][:2] == [-2.0, 0.0]
+    out, data = [], {}
+    events_table.section_baselines(idx, "saturated_frames_50", out, data)
+    assert "| `navid-tuned` | 3.00 (-1.00 (n=3)) |" in "\n".join(out)
+    out, data = [], {}
+    events_table.section_events(idx, "saturated_frames_50", out, data)
+    last = 10 - 2 * (len(events_table.LADDER) - 1)  # nec, the ladder's last rung
+    assert data["events"]["families"]["flicker"][2] == pytest.approx(last - 3.0)  # nec - nec-frames
