@@ -17,12 +17,8 @@ loop), :mod:`necviz.dashboard.sink` (Rerun), :mod:`necviz.layouts` (blueprints).
 """
 
 from importlib import import_module
-from importlib.metadata import PackageNotFoundError, version
 
-try:
-    __version__ = version("necviz")
-except PackageNotFoundError:  # running from a source tree that is not installed
-    __version__ = "0+unknown"
+from necviz._version import __version__
 
 # name -> "module:attribute", imported on first use (importing necviz stays light for the CLI)
 _API = {

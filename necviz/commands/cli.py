@@ -3,6 +3,11 @@
 Exit codes: 0 success; 2 a user mistake or bad input (one line ``necviz: error: …``); 3 an
 internal error (one line saying it is a bug, with the traceback saved to a file for the report);
 130 interrupted.
+
+Start-up: building the parser imports nothing heavy (no NumPy, Numba, Rerun or controllers), so
+``--version``, ``--help`` and a mistyped flag answer at once; each command imports what it needs
+when it runs. The names the help lists come from plain constants (:data:`CONTROLLER_NAMES`,
+:data:`SCENARIO_NAMES`), which ``tests/test_cli.py`` keeps equal to the registries.
 """
 
 from __future__ import annotations
@@ -15,36 +20,46 @@ from necviz import __version__
 EXIT_USER = 2
 EXIT_BUG = 3
 LAYOUT_NAMES = ("live", "inspect", "compare")  # necviz.options.LAYOUT_NAMES, without importing it for --help
+#: the registered controllers (necviz.core.control.CONTROLLERS) and scenario presets
+#: (necviz.drivers.sim.scenes.SCENARIOS), for the help and for checking flags without importing them
+CONTROLLER_NAMES = ("begin", "builtin", "fixed", "navid", "nec", "nec-raw", "shim")
+SCENARIO_NAMES = ("flicker", "handheld_scan", "indoor_outdoor", "static_lab", "tunnel_exit")
 FORMATS = ("necviz", "aedat4", "aedat3", "aedat2", "rosbag1", "rosbag2", "hdf5", "rpg-text")
 
 
 # -- shared option groups -----------------------------------------------------------------------
 def _controllers():
-    from necviz.core.control import CONTROLLERS
-
-    return sorted(CONTROLLERS)
+    return sorted(CONTROLLER_NAMES)
 
 
 def _controller_list(text: str):
-    from necviz.core.errors import ParameterError
-    from necviz.options import parse_controllers
-
-    try:
-        return parse_controllers(text)
-    except ParameterError as e:
-        raise argparse.ArgumentTypeError(str(e)) from None
+    """``--controllers``: checked against :data:`CONTROLLER_NAMES` without importing the controllers
+    (the same rules and message as :func:`necviz.options.parse_controllers`, which checks again)."""
+    names = [n.strip() for n in text.split(",") if n.strip()] if isinstance(text, str) else [str(n) for n in text]
+    unknown = [
+        n
+        for n in names
+        if n.split("@", 1)[0] not in CONTROLLER_NAMES
+        or ("@" in n and not n.split("@", 1)[1].replace("-", "_").isidentifier())
+    ]
+    if not names or unknown:
+        raise argparse.ArgumentTypeError(
+            f"unknown controller(s) {', '.join(unknown) or '(none given)'}; "
+            f"available: {', '.join(sorted(CONTROLLER_NAMES))} (a variant: KIND@LABEL)"
+        )
+    if len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError("each controller may appear once in --controllers")
+    return tuple(names)
 
 
 def add_scene_args(parser, emulated: bool = False) -> None:
     """``--scenario`` (a preset or a TOML file), ``--seed``, ``--duration`` and ``--set KEY=VALUE``."""
-    from necviz.drivers.sim.scenes import SCENARIOS
-
     g = parser.add_argument_group("emulated scene" if emulated else "scene")
     g.add_argument(
         "--scenario",
         default="tunnel_exit",
         metavar="NAME|FILE.toml",
-        help=f"a preset ({', '.join(sorted(SCENARIOS))}) or a TOML scenario file (default tunnel_exit)",
+        help=f"a preset ({', '.join(SCENARIO_NAMES)}) or a TOML scenario file (default tunnel_exit)",
     )
     g.add_argument("--seed", type=int, default=None, help="scene and noise seed (default: the file's, or 0)")
     if not emulated:
@@ -71,7 +86,7 @@ def scene_options(args, duration_s=None, *, scene_duration: bool = True):
 
 
 def add_show_args(parser, tuning: bool = True) -> None:
-    from necviz.dashboard.viewer import add_viewer_args
+    from necviz.dashboard.viewer_flags import add_viewer_args
 
     add_viewer_args(parser, LAYOUT_NAMES)
     g = parser.add_argument_group("run")
@@ -194,7 +209,7 @@ def _info_file(args) -> int:
 
 def _cmd_demo(args) -> int:
     from necviz.commands.demo import run
-    from necviz.dashboard.viewer import viewer_options
+    from necviz.dashboard.viewer_flags import viewer_options
     from necviz.options import DemoOptions
 
     run(
@@ -216,7 +231,7 @@ def _cmd_demo(args) -> int:
 
 def _cmd_replay(args) -> int:
     from necviz.commands.replay import run
-    from necviz.dashboard.viewer import viewer_options
+    from necviz.dashboard.viewer_flags import viewer_options
     from necviz.options import ReplayOptions
 
     run(
@@ -240,7 +255,7 @@ def _cmd_replay(args) -> int:
 
 def _cmd_live(args) -> int:
     from necviz.commands.live import run
-    from necviz.dashboard.viewer import viewer_options
+    from necviz.dashboard.viewer_flags import viewer_options
     from necviz.options import LiveOptions
 
     run(

@@ -148,7 +148,7 @@ def _cmd_report(args) -> int:
 
 
 def _cmd_show(args) -> int:
-    from necviz.dashboard.viewer import viewer_options
+    from necviz.dashboard.viewer_flags import viewer_options
     from necviz.sweeps.show import show
 
     show(args.out, args.run, viewer_options(args), speed=args.speed)
@@ -253,7 +253,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     sh = sub.add_parser("show", help="re-run one run deterministically in the Rerun dashboard (or --save)")
     sh.add_argument("out", metavar="DIR", help="the sweep folder")
     sh.add_argument("--run", required=True, metavar="HASH", help="the run's hash (or its first digits)")
-    from necviz.dashboard.viewer import add_viewer_args
+    from necviz.dashboard.viewer_flags import add_viewer_args
 
     add_viewer_args(sh, ("live", "inspect", "compare"))
     sh.add_argument(
