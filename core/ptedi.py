@@ -28,8 +28,9 @@ arrives (after its exposure) ``ln E_p`` is one division and one log. Several zon
 - Without compensation (``a± = 0``, the default) the exponent is constant between events and
   changes by ``±c/N_R`` per event: O(1) per event, coordinates are not even read for the
   whole-sensor region (:func:`ptedi_update_whole`).
-- With compensation, per-pixel counts since the anchor and since the exposure start are kept
-  (snapshots at each exposure start, O(pixels) per frame) with, per zone, a histogram of
+- With compensation, each pixel's counts since the anchor and since the latest exposure start
+  are kept (one uint16 row per pixel; an exposure start zeroes the window's pair, a fill of one
+  word per pixel; re-anchoring on the latest exposure swaps the pairs, O(1)) with, per zone, a histogram of
   those counts and the exact integer sums ``K = #{n_x > L}``, ``S = Σ_{n_x > L} n_x`` at the
   level ``L = floor(u b/a)``, so ``C(u) = a S - b u K`` (see the notes above
   :func:`ptedi_update_comp`). Per event O(1) plus the levels crossed as time passes (at most
@@ -70,9 +71,8 @@ from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import ImuBatch, TriggerBatch
 from necviz.core.ptedi_comp import (
     comp_between,
-    comp_rebase,
+    comp_reanchor,
     comp_restate,
-    comp_snapshot,
     comp_sums,
     ptedi_close_comp,
     ptedi_update_comp,
@@ -199,6 +199,7 @@ class PeripheralEstimator(FrameSideMixin):
         self._wint = np.zeros((max_pending, k), np.float64)
         self._webase = np.ones((max_pending, k), np.float64)
         self._open = -1
+        self._latest = -1  # the window of the latest exposure start
         self._age = 0
         self.dropped_windows = 0
         # anchors
@@ -247,6 +248,7 @@ class PeripheralEstimator(FrameSideMixin):
         elif self._comp:
             self._comp = False
             self._pc = self._wsnap = self._hist = self._lev = self._kk = self._ss = None
+            self._wacc = None
         w = self._open
         if w >= 0:  # the zone kernel's running exp restarts from the counts with the new thresholds
             self._webase[w] = np.exp(
@@ -260,8 +262,14 @@ class PeripheralEstimator(FrameSideMixin):
         k = self.num_zones
         npix = self.sensor.width * self.sensor.height
         self._comp = True
-        self._pc = np.zeros((npix, 6), np.int32)  # [ON, OFF, ON/OFF at the anchor, ON/OFF at the window start]
-        self._wsnap = np.zeros((len(self._wstate), npix, 2), np.int32)  # counts at each window's start
+        # per pixel, ON/OFF counts since the anchor (columns _ia, _ia + 1) and since the latest exposure
+        # start (_iw, _iw + 1; -1: not kept); uint16 until a count could overflow it (_comp_grow)
+        self._pc = np.zeros((npix, 4), np.uint16)
+        self._ia, self._iw = 0, 2
+        # per window slot awaiting its frame while a later exposure started: its counts up to that start
+        # (allocated when first needed; _wacc[w] says whether slot w holds any)
+        self._wsnap = None
+        self._wacc = [False] * len(self._wstate)
         self._hist = np.zeros((2, 2, k, 64), np.int32)
         self._hist[:, :, :, 0] = self.sizes
         self._lev = np.zeros((2, 2, k), np.int64)
@@ -293,20 +301,47 @@ class PeripheralEstimator(FrameSideMixin):
         )
 
     def _comp_grow(self, need: int) -> None:
-        """Widen the count histograms to hold counts up to ``need``."""
+        """Widen the count histograms to hold counts up to ``need`` (and the per-pixel counts to int32
+        before a count could pass what uint16 holds)."""
         cap = self._hist.shape[3]
         if need < cap:
             return
-        new = np.zeros(self._hist.shape[:3] + (max(2 * cap, need + 1),), np.int32)
+        size = max(2 * cap, need + 1)
+        if self._pc.dtype == np.uint16 and size > np.iinfo(np.uint16).max + 1:
+            self._pc = self._pc.astype(np.int32)
+        new = np.zeros(self._hist.shape[:3] + (size,), np.int32)
         new[..., :cap] = self._hist
         self._hist = new
 
+    def _since(self, w: int) -> np.ndarray:
+        """Per pixel, the ON/OFF counts since window ``w``'s start (a view when it is the latest start)."""
+        ia, iw = self._ia, self._iw
+        latest = self._pc[:, iw : iw + 2] if iw >= 0 else self._pc[:, ia : ia + 2]  # dead window pair: the
+        # anchor is the latest start (it took the window's counts)
+        if self._wacc[w]:
+            return self._wsnap[w] + latest
+        return latest
+
     def _comp_anchor(self, w: int, zones: np.ndarray, s: int) -> None:
-        """``zones`` re-anchored on window ``w`` (start ``s``): their per-pixel counts restart there."""
+        """``zones`` re-anchored on window ``w`` (start ``s``): their per-pixel counts restart there.
+
+        The usual case — every zone, on the latest exposure, no other exposure awaiting its frame — is
+        O(1) per pixel: the latest exposure's counts (and histogram) become the anchor's, and the
+        window's pair of columns is not kept until the next exposure starts. Otherwise the pixels of
+        ``zones`` take their counts since ``s`` and their histograms are rebuilt (O(pixels)).
+        """
         flags = np.zeros(self.num_zones, np.bool_)
         flags[zones] = True
-        while (need := comp_rebase(self._pc, self._wsnap[w], self._zone_flat, flags, self.sizes, self._hist)) >= 0:
-            self._comp_grow(need)
+        others = any(st == _CLOSED and i != w for i, st in enumerate(self._wstate))
+        if flags.all() and w == self._latest and self._open < 0 and not others and self._iw >= 0:
+            self._ia, self._iw = self._iw, -1
+            self._hist[0] = self._hist[1]
+        else:
+            since = self._since(w)
+            while (
+                need := comp_reanchor(self._pc, self._ia, since, self._zone_flat, flags, self.sizes, self._hist)
+            ) >= 0:
+                self._comp_grow(need)
         self._comp_restate(0, zones, np.full(self.num_zones, float(max(0, self.last_event_us - s))))
 
     def _comp_between(self, w: int, u: np.ndarray) -> np.ndarray:
@@ -314,8 +349,11 @@ class PeripheralEstimator(FrameSideMixin):
         start (brute force over the pixels, O(pixels), :func:`comp_between`; used only for the saturation bound)."""
         c_on, c_off, a_on, b_on, a_off, b_off = self._kp
         out = np.empty((2, self.num_zones))
+        since = np.zeros((self._pc.shape[0], 4), np.int64)  # comp_between subtracts columns 2, 3 from the counts
+        since[:, 2:4] = self._since(w)
+        ia = self._ia
         comp_between(
-            self._pc, self._wsnap[w], self._zone_flat, np.asarray(u, np.float64), a_on, b_on, a_off, b_off, out
+            since, self._pc[:, ia : ia + 2], self._zone_flat, np.asarray(u, np.float64), a_on, b_on, a_off, b_off, out
         )
         return out
 
@@ -397,6 +435,7 @@ class PeripheralEstimator(FrameSideMixin):
                 y[pos:],
                 p[pos:],
                 self._zone_flat,
+                self.whole,
                 self.sensor.width,
                 self.sensor.height,
                 last,
@@ -404,6 +443,8 @@ class PeripheralEstimator(FrameSideMixin):
                 self.counts_off,
                 self._inv_n,
                 self._pc,
+                self._ia,
+                self._iw,
                 self._hist,
                 self._lev,
                 self._kk,
@@ -423,6 +464,24 @@ class PeripheralEstimator(FrameSideMixin):
             pos += stop
             self._comp_grow(2 * self._hist.shape[3])
 
+    def _comp_begin(self, w: int) -> None:
+        """Compensation at an exposure start in slot ``w``: the counts since the latest start go to every
+        exposure still awaiting its frame; the window's pair of columns restarts from zero."""
+        ia, iw = self._ia, self._iw
+        latest = self._pc[:, iw : iw + 2] if iw >= 0 else self._pc[:, ia : ia + 2]
+        for v, st in enumerate(self._wstate):
+            if st == _CLOSED and v != w:
+                if self._wsnap is None:
+                    self._wsnap = np.zeros((len(self._wstate), self._pc.shape[0], 2), np.int32)
+                if not self._wacc[v]:
+                    self._wsnap[v] = 0
+                    self._wacc[v] = True
+                self._wsnap[v] += latest
+        self._wacc[w] = False
+        self._iw = 2 - ia
+        # zero the pair of columns as one word per pixel (a strided fill of 2-column slices is ~8x slower)
+        self._pc.view(np.uint32 if self._pc.itemsize == 2 else np.uint64)[:, self._iw // 2] = 0
+
     def begin_exposure(self, t_us: int) -> None:
         """An exposure starts at ``t_us`` (all events before it already applied)."""
         t_us = int(t_us)
@@ -441,7 +500,10 @@ class PeripheralEstimator(FrameSideMixin):
         else:  # every slot awaits a frame that never came: recycle the oldest
             w = self._wage.index(min(self._wage))
             self.dropped_windows += 1
+        if self._comp:
+            self._comp_begin(w)
         self._wstate[w] = _OPEN
+        self._latest = w
         self._wstart[w] = t_us
         self._age += 1
         self._wage[w] = self._age
@@ -457,7 +519,6 @@ class PeripheralEstimator(FrameSideMixin):
             self._wint[w] = 0.0
             self._webase[w] = 1.0
         if self._comp:
-            comp_snapshot(self._pc, self._wsnap[w])
             self._hist[1] = 0
             self._hist[1, :, :, 0] = self.sizes
             self._lev[1] = 0
