@@ -262,10 +262,10 @@ class PeripheralEstimator(FrameSideMixin):
         k = self.num_zones
         npix = self.sensor.width * self.sensor.height
         self._comp = True
-        # per pixel, ON/OFF counts since the anchor (columns _ia, _ia + 1) and since the latest exposure
-        # start (_iw, _iw + 1; -1: not kept); uint16 until a count could overflow it (_comp_grow)
+        # per pixel, ON/OFF counts since the anchor (columns 0, 1) and since the latest exposure start
+        # (columns 2, 3; _iw = -1: not kept); uint16 until a count could overflow it (_comp_grow)
         self._pc = np.zeros((npix, 4), np.uint16)
-        self._ia, self._iw = 0, 2
+        self._iw = 2
         # per window slot awaiting its frame while a later exposure started: its counts up to that start
         # (allocated when first needed; _wacc[w] says whether slot w holds any)
         self._wsnap = None
@@ -313,34 +313,40 @@ class PeripheralEstimator(FrameSideMixin):
         new[..., :cap] = self._hist
         self._hist = new
 
+    def _latest_counts(self) -> np.ndarray:
+        """Per pixel, the ON/OFF counts since the latest exposure start (a view). When they are not kept
+        the anchor is that start (it took them over), so they are the anchor's."""
+        return self._pc[:, 2:4] if self._iw >= 0 else self._pc[:, 0:2]
+
     def _since(self, w: int) -> np.ndarray:
         """Per pixel, the ON/OFF counts since window ``w``'s start (a view when it is the latest start)."""
-        ia, iw = self._ia, self._iw
-        latest = self._pc[:, iw : iw + 2] if iw >= 0 else self._pc[:, ia : ia + 2]  # dead window pair: the
-        # anchor is the latest start (it took the window's counts)
         if self._wacc[w]:
-            return self._wsnap[w] + latest
-        return latest
+            return self._wsnap[w] + self._latest_counts()
+        return self._latest_counts()
+
+    def _words(self) -> np.ndarray:
+        """``_pc`` with each pixel's pair of counts as one word (columns: anchor, window)."""
+        return self._pc.view(np.uint32 if self._pc.itemsize == 2 else np.uint64)
 
     def _comp_anchor(self, w: int, zones: np.ndarray, s: int) -> None:
         """``zones`` re-anchored on window ``w`` (start ``s``): their per-pixel counts restart there.
 
-        The usual case — every zone, on the latest exposure, no other exposure awaiting its frame — is
-        O(1) per pixel: the latest exposure's counts (and histogram) become the anchor's, and the
-        window's pair of columns is not kept until the next exposure starts. Otherwise the pixels of
+        The usual case — every zone, on the latest exposure, no other exposure awaiting its frame —
+        copies the latest exposure's counts over the anchor's (one word per pixel) and its histogram;
+        the window's counts are then not kept until the next exposure starts. Otherwise the pixels of
         ``zones`` take their counts since ``s`` and their histograms are rebuilt (O(pixels)).
         """
         flags = np.zeros(self.num_zones, np.bool_)
         flags[zones] = True
         others = any(st == _CLOSED and i != w for i, st in enumerate(self._wstate))
         if flags.all() and w == self._latest and self._open < 0 and not others and self._iw >= 0:
-            self._ia, self._iw = self._iw, -1
+            words = self._words()
+            words[:, 0] = words[:, 1]
+            self._iw = -1
             self._hist[0] = self._hist[1]
         else:
             since = self._since(w)
-            while (
-                need := comp_reanchor(self._pc, self._ia, since, self._zone_flat, flags, self.sizes, self._hist)
-            ) >= 0:
+            while (need := comp_reanchor(self._pc, since, self._zone_flat, flags, self.sizes, self._hist)) >= 0:
                 self._comp_grow(need)
         self._comp_restate(0, zones, np.full(self.num_zones, float(max(0, self.last_event_us - s))))
 
@@ -349,12 +355,16 @@ class PeripheralEstimator(FrameSideMixin):
         start (brute force over the pixels, O(pixels), :func:`comp_between`; used only for the saturation bound)."""
         c_on, c_off, a_on, b_on, a_off, b_off = self._kp
         out = np.empty((2, self.num_zones))
-        since = np.zeros((self._pc.shape[0], 4), np.int64)  # comp_between subtracts columns 2, 3 from the counts
-        since[:, 2:4] = self._since(w)
-        ia = self._ia
-        comp_between(
-            since, self._pc[:, ia : ia + 2], self._zone_flat, np.asarray(u, np.float64), a_on, b_on, a_off, b_off, out
-        )
+        # comp_between takes (base, counts) and subtracts base columns 2, 3: the counts between the anchor and s
+        # are the anchor's (columns 0, 1) minus those since s (columns 2, 3 when s is the latest start: no copy)
+        if self._iw < 0:  # the anchor is the latest start: nothing between them
+            counts, base = self._pc[:, 0:2], np.zeros((self._pc.shape[0], 4), np.int32)
+            base[:, 2:4] = counts
+        elif self._wacc[w]:
+            counts, base = self._pc[:, 0:2] - self._wsnap[w], self._pc
+        else:
+            counts, base = self._pc[:, 0:2], self._pc
+        comp_between(base, counts, self._zone_flat, np.asarray(u, np.float64), a_on, b_on, a_off, b_off, out)
         return out
 
     # -- stream input -------------------------------------------------------------------------
@@ -443,7 +453,6 @@ class PeripheralEstimator(FrameSideMixin):
                 self.counts_off,
                 self._inv_n,
                 self._pc,
-                self._ia,
                 self._iw,
                 self._hist,
                 self._lev,
@@ -467,8 +476,7 @@ class PeripheralEstimator(FrameSideMixin):
     def _comp_begin(self, w: int) -> None:
         """Compensation at an exposure start in slot ``w``: the counts since the latest start go to every
         exposure still awaiting its frame; the window's pair of columns restarts from zero."""
-        ia, iw = self._ia, self._iw
-        latest = self._pc[:, iw : iw + 2] if iw >= 0 else self._pc[:, ia : ia + 2]
+        latest = self._latest_counts()
         for v, st in enumerate(self._wstate):
             if st == _CLOSED and v != w:
                 if self._wsnap is None:
@@ -478,9 +486,8 @@ class PeripheralEstimator(FrameSideMixin):
                     self._wacc[v] = True
                 self._wsnap[v] += latest
         self._wacc[w] = False
-        self._iw = 2 - ia
-        # zero the pair of columns as one word per pixel (a strided fill of 2-column slices is ~8x slower)
-        self._pc.view(np.uint32 if self._pc.itemsize == 2 else np.uint64)[:, self._iw // 2] = 0
+        self._iw = 2
+        self._words()[:, 1] = 0  # one word per pixel (a strided fill of a 2-column slice is ~8x slower)
 
     def begin_exposure(self, t_us: int) -> None:
         """An exposure starts at ``t_us`` (all events before it already applied)."""

@@ -35,8 +35,8 @@ from necviz.core.event_model import exp_linear_integral
 # Per pixel, pc[pixel] holds its counts since each reference directly (ON/OFF since the anchor, ON/OFF
 # since the latest exposure start: one row, so an event touches one cache line), as uint16 while every
 # count fits (the estimator widens them to int32 before one could overflow). Re-anchoring on the latest
-# exposure's start, the usual case, swaps the two column pairs (O(1)): the window's counts become the
-# anchor's; a new exposure start zeroes the window's pair (O(pixels), a strided fill).
+# exposure's start, the usual case, copies the window's pair of counts over the anchor's (one word per
+# pixel) and its histogram; a new exposure start zeroes the window's pair (one word per pixel).
 
 MAX_LEVEL = 1 << 50  # levels beyond any per-pixel count (keeps u/r for a tiny r inside int64)
 
@@ -159,7 +159,6 @@ def ptedi_update_comp(
     counts_off,
     inv_n,
     pc,
-    ia,
     iw,
     hist,
     lev,
@@ -182,8 +181,8 @@ def ptedi_update_comp(
 ):
     """:func:`ptedi_update` with the TEDI compensation applied per pixel and averaged (Eq. 11).
 
-    ``pc[pixel]`` holds the pixel's counts: columns ``ia, ia + 1`` ON and OFF since the anchor,
-    ``iw, iw + 1`` since the latest exposure start (``iw < 0``: not kept, no exposure needs them);
+    ``pc[pixel]`` holds the pixel's counts: columns 0, 1 ON and OFF since the anchor, ``iw, iw + 1``
+    (2, 3) since the latest exposure start (``iw < 0``: not kept, no exposure needs them);
     ``whole``: every pixel is in zone 0 (``zflat`` is not read). The histograms and sums of the
     module notes above give each zone's ``Σ_x max(0, a± n±_x - b± u)`` exactly. Per event: the open
     window's integral up to the event (one ``exp`` while no pixel of the zone is compensated, else
@@ -221,7 +220,7 @@ def ptedi_update_comp(
             prev = ti
             continue
         q = 0 if p[i] > 0 else 1
-        na = np.int64(pc[pix, ia + q])
+        na = np.int64(pc[pix, q])
         nw = np.int64(pc[pix, iw + q]) if keep_w else np.int64(0)
         if na + 2 > cap or nw + 2 > cap:
             stop = i
@@ -278,7 +277,7 @@ def ptedi_update_comp(
             else:
                 kk[0, q, z] += 1
                 ss[0, q, z] += na + 1
-        pc[pix, ia + q] = na + 1
+        pc[pix, q] = na + 1
         if q == 0:
             counts_on[z] += 1
         else:
@@ -387,7 +386,6 @@ def ptedi_update_comp_one(
     counts_off,
     inv_n,
     pc,
-    ia,
     iw,
     hist,
     lev,
@@ -462,7 +460,7 @@ def ptedi_update_comp_one(
             continue
         on = p[i] > 0
         q = 0 if on else 1
-        na = np.int64(pc[pix, ia + q])
+        na = np.int64(pc[pix, q])
         nw = np.int64(pc[pix, iw + q]) if keep_w else np.int64(0)
         if na + 2 > cap or nw + 2 > cap:
             stop = i
@@ -523,7 +521,7 @@ def ptedi_update_comp_one(
                         k1_off += 1
                         s1_off += nw + 1
         # and from na to na + 1 in the anchor's
-        pc[pix, ia + q] = na + 1
+        pc[pix, q] = na + 1
         if on:
             h0_on[na] -= 1
             h0_on[na + 1] += 1
@@ -614,9 +612,9 @@ def ptedi_close_comp(
 
 
 @nb.njit(cache=True)
-def comp_reanchor(pc, ia, since, zflat, zones, sizes, hist):
+def comp_reanchor(pc, since, zflat, zones, sizes, hist):
     """Re-anchor the pixels of the zones flagged in ``zones`` at an exposure start: their counts since
-    the anchor (``pc`` columns ``ia, ia + 1``) become ``since`` (their counts since that start) and
+    the anchor (``pc`` columns 0, 1) become ``since`` (their counts since that start) and
     their anchor histograms (``hist[0]``) are rebuilt. Returns ``-1``, or the histogram size needed
     when a count does not fit (then grow and call again: the rebuild starts from scratch). O(pixels).
 
@@ -637,8 +635,8 @@ def comp_reanchor(pc, ia, since, zflat, zones, sizes, hist):
             continue
         n0 = since[i, 0]
         n1 = since[i, 1]
-        pc[i, ia] = n0
-        pc[i, ia + 1] = n1
+        pc[i, 0] = n0
+        pc[i, 1] = n1
         if n0 > 0:
             if n0 + 2 > cap:
                 need = max(need, n0 + 2)
