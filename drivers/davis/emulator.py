@@ -145,7 +145,8 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         self.serial = serial
         self.aps_orientation = int(aps_orientation) & 7
         self.bus, self.address = bus, address
-        self.lock = threading.RLock()
+        self.lock = threading.RLock()  # registers, FIFO and faults (control and data paths)
+        self._data_lock = threading.Lock()  # the simulator (non-realtime data path): not held by control transfers
         #: the last TRANSFER_LOG control transfers, in order (``transfers_total`` counts them all)
         self.transfers: deque[ControlRecord] = deque(maxlen=TRANSFER_LOG)
         self.transfers_total = 0

@@ -455,5 +455,35 @@ class SimRig:
             for pool in pools:  # the render worker first: it feeds the DVS worker
                 pool.shutdown(wait=True, cancel_futures=True)
 
+    def warm_up(self) -> None:
+        """Compile or load the simulator's kernels (events, frame formation) before the run: a throwaway rig
+        on the same scene and models simulates until its first frame (a few ms of scene time, no threads).
+        This rig's state, random streams included, is untouched."""
+        dvs = self.dvs_params
+        if dvs.shot_noise_hz > 0:  # enough shot noise that its kernel runs within the few ms simulated
+            dvs = dvs.replace(shot_noise_hz=max(dvs.shot_noise_hz, 1e3))
+        mini = SimRig(
+            self.scene,
+            {"warm-up": (self.aps.exposure_min_us, 1.0)},
+            dvs=dvs,
+            aps=self.aps,
+            crf=self.crf,
+            seed=self.seed,
+            sample_us=self.sample_us,
+            refine_log=self.refine_log,
+            min_sample_us=self.min_sample_us,
+            batch_us=self.batch_us,
+            first_start_us=self.first_start_us,
+            truth=self.truth,
+            threads=False,
+        )
+        gen = mini.packets()
+        try:
+            for _, p in gen:
+                if isinstance(p, Frame):
+                    break
+        finally:
+            gen.close()
+
     def close(self) -> None:
         """Nothing to release: the simulation ends with its generator."""

@@ -57,6 +57,7 @@ import numpy as np
 import rerun as rr
 
 from necviz.core.event_image import BACKGROUND_RGB, OFF_RGB, ON_RGB, EventImage, colour_table, palette_rows
+from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import Frame
 from necviz.dashboard import schema as S
 from necviz.dashboard.telemetry import FrameRecord
@@ -298,6 +299,17 @@ class RerunSink(Observer):
 
     def _scalar(self, lane: str, leaf: str, t_us: int, value: float) -> None:
         self._scalar_q.append((S.path(lane, leaf), t_us, self._seq.get(lane, 0), value))
+
+    def warm_up(self) -> None:
+        """Load the event-image kernels (drawing, palette rows) before the run, on a scratch image."""
+        h, w = self._image.counts_on.shape
+        img = EventImage(h, w, self._image.saturate_at)
+        ev = np.zeros(4, EVENT_DTYPE)
+        ev["x"], ev["y"], ev["p"] = [0, 1, 2, 3], [0, 0, 1, 1], [1, -1, 1, -1]
+        img.add(ev, 1)
+        img.add(ev[::2], 2)
+        img.add(ev[:1], 1)  # one event: contiguous field views, another signature
+        EventPalette(img).png(img, self.png_level)
 
     def started(self, t_us: int, initial: dict) -> None:
         for lane, cmd in initial.items():  # the commanded series start with the setting the run began with
