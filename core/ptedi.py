@@ -71,6 +71,7 @@ from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import ImuBatch, TriggerBatch
 from necviz.core.ptedi_comp import (
     comp_between,
+    comp_level,
     comp_reanchor,
     comp_restate,
     comp_sums,
@@ -91,6 +92,31 @@ _FREE, _OPEN, _CLOSED = 0, 1, 2
 
 #: the integral of Eq. 12 in plain Python (a scalar prediction is cheaper without a Numba dispatch)
 _direct_integral_py = direct_integral.py_func
+_comp_level_py = comp_level.py_func
+
+
+def _comp_sum_one(hist, lev, kk, ss, ref, q, u, a, b) -> float:
+    """:func:`~necviz.core.ptedi_comp.comp_sums` for zone 0 and polarity ``q`` in plain Python (same
+    operations, same result; called on every batch, where a Numba dispatch costs more than the work)."""
+    if a <= 0.0:
+        return 0.0
+    r = a / b if b > 0.0 else math.inf
+    target = int(_comp_level_py(u, r))
+    lv, k, s = int(lev[ref, q, 0]), int(kk[ref, q, 0]), int(ss[ref, q, 0])
+    if target > lv:
+        while lv < target and k > 0:
+            lv += 1
+            hk = int(hist[ref, q, 0, lv])
+            k -= hk
+            s -= lv * hk
+    else:
+        lv = min(lv, hist.shape[3] - 1)
+        while lv > target:
+            hk = int(hist[ref, q, 0, lv])
+            k += hk
+            s += lv * hk
+            lv -= 1
+    return a * s - b * u * k
 
 
 @dataclass(frozen=True)
@@ -210,7 +236,9 @@ class PeripheralEstimator(FrameSideMixin):
         self.frames_seen = 0
         self.frames_skipped = 0
         self.frames_bounded = 0
-        # per-pixel compensation state (only while a+ or a- > 0; see the notes above ptedi_update_comp)
+        # per-pixel compensation state (only while a+ or a- > 0; see the notes above ptedi_update_comp), or
+        # an event side shared with other estimators (share_events: their slots instead of this state)
+        self._side = None
         self._comp = False
         if self.params.a_on > 0.0 or self.params.a_off > 0.0:
             self._comp_start()
@@ -237,6 +265,8 @@ class PeripheralEstimator(FrameSideMixin):
         """
         if not isinstance(params, TediParams):
             raise ParameterError("params must be a TediParams")
+        if self._side is not None:  # its own thresholds from now on: it continues on its own
+            self._side.detach(self)
         self._derive(params)
         comp = params.a_on > 0.0 or params.a_off > 0.0
         if comp and not self._comp:
@@ -255,6 +285,25 @@ class PeripheralEstimator(FrameSideMixin):
                 (params.c_on * (self.counts_on - self._c0_on[w]) - params.c_off * (self.counts_off - self._c0_off[w]))
                 * self._inv_n
             )
+
+    def share_events(self, side) -> None:
+        """Keep the compensation's per-pixel bookkeeping in ``side`` (a :class:`~necviz.core.ptedi_shared.EventSide`
+        shared with the other estimators of one source's lanes; see :func:`~necviz.core.ptedi_shared.share_event_side`).
+        Only before the first packet; estimates stay exactly those of a stand-alone estimator."""
+        if not self._comp or self.frames_seen or self._open >= 0 or self.last_event_us != np.iinfo(np.int64).min:
+            raise ParameterError("only a fresh compensated estimator can share its event side")
+        if (
+            side.params.as_tuple() != self.params.as_tuple()
+            or side.sensor.shape != self.sensor.shape
+            or not np.array_equal(side.zmap, self.zmap)
+        ):
+            raise ParameterError("estimators sharing an event side need the same sensor, region and parameters")
+        self._side = side
+        self._seen = side.batches
+        self._wslot = [0] * len(self._wstate)
+        self._aslot = np.zeros(self.num_zones, np.int64)
+        self.counts_on, self.counts_off = side.counts_on, side.counts_off
+        self._pc = self._wsnap = self._hist = self._lev = self._kk = self._ss = None  # the side's instead
 
     # -- per-pixel compensation bookkeeping (Eq. 11 with the Eq. 6 terms per pixel) ---------------
     def _comp_start(self) -> None:
@@ -336,6 +385,9 @@ class PeripheralEstimator(FrameSideMixin):
         the window's counts are then not kept until the next exposure starts. Otherwise the pixels of
         ``zones`` take their counts since ``s`` and their histograms are rebuilt (O(pixels)).
         """
+        if self._side is not None:
+            self._side.anchor(self, w, zones, s)
+            return
         flags = np.zeros(self.num_zones, np.bool_)
         flags[zones] = True
         others = any(st == _CLOSED and i != w for i, st in enumerate(self._wstate))
@@ -353,6 +405,8 @@ class PeripheralEstimator(FrameSideMixin):
     def _comp_between(self, w: int, u: np.ndarray) -> np.ndarray:
         """Per zone ``Σ_x max(0, a± n±_x - b± u)`` for the counts between the anchor and window ``w``'s
         start (brute force over the pixels, O(pixels), :func:`comp_between`; used only for the saturation bound)."""
+        if self._side is not None:
+            return self._side.between(self, w, u)
         c_on, c_off, a_on, b_on, a_off, b_off = self._kp
         out = np.empty((2, self.num_zones))
         # comp_between takes (base, counts) and subtracts base columns 2, 3: the counts between the anchor and s
@@ -373,6 +427,9 @@ class PeripheralEstimator(FrameSideMixin):
         if not isinstance(events, np.ndarray) or events.dtype != EVENT_DTYPE:
             raise EventFormatError(f"events must be a structured array of dtype {EVENT_DTYPE}")
         if events.size == 0:
+            return
+        if self._side is not None:
+            self._side.update(self, events)
             return
         w = self._open
         if self._comp:
@@ -507,7 +564,11 @@ class PeripheralEstimator(FrameSideMixin):
         else:  # every slot awaits a frame that never came: recycle the oldest
             w = self._wage.index(min(self._wage))
             self.dropped_windows += 1
-        if self._comp:
+            if self._side is not None:
+                self._side.drop_window(self, w)
+        if self._side is not None:
+            self._side.begin(self, w, t_us)
+        elif self._comp:
             self._comp_begin(w)
         self._wstate[w] = _OPEN
         self._latest = w
@@ -525,7 +586,7 @@ class PeripheralEstimator(FrameSideMixin):
             self._wlast[w] = t_us
             self._wint[w] = 0.0
             self._webase[w] = 1.0
-        if self._comp:
+        if self._comp and self._side is None:
             self._hist[1] = 0
             self._hist[1, :, :, 0] = self.sizes
             self._lev[1] = 0
@@ -544,7 +605,9 @@ class PeripheralEstimator(FrameSideMixin):
                 f"exposure end at {t_us} µs is not after its start ({int(self._wstart[w])} µs) and the events "
                 f"already processed ({self.last_event_us} µs)"
             )
-        if self._comp:
+        if self._side is not None:
+            self._side.end(self, w, t_us)
+        elif self._comp:
             ptedi_close_comp(
                 t_us,
                 self.counts_on,
@@ -608,6 +671,8 @@ class PeripheralEstimator(FrameSideMixin):
                 self.anchor_off[0] = w0[1][0]
                 if self._comp:
                     self._comp_anchor(w, np.zeros(1, np.int64), s)
+                if self._side is not None:
+                    self._side.drop_window(self, w)
                 self._wstate[w] = _FREE
                 self.frames_seen += 1
                 anchor = np.array([lp - log_e])
@@ -658,6 +723,8 @@ class PeripheralEstimator(FrameSideMixin):
         self.anchor_off[new] = w0[1][new]
         if self._comp and new.any():
             self._comp_anchor(w, np.flatnonzero(new), s)
+        if self._side is not None:
+            self._side.drop_window(self, w)
         self._wstate[w] = _FREE
         self.frames_seen += 1
         if not ok.all():
@@ -723,9 +790,12 @@ class PeripheralEstimator(FrameSideMixin):
         pred = self._propagate(self.counts_on, self.counts_off)
         if self._comp:  # Eq. 11: the mean over the zone's pixels of their compensation terms
             u = np.where(anchored, (t - self.anchor_t).astype(np.float64), 0.0)
-            comp = np.empty((2, self.num_zones))
             c_on, c_off, a_on, b_on, a_off, b_off = self._kp
-            comp_sums(self._hist, self._lev, self._kk, self._ss, 0, u, a_on, b_on, a_off, b_off, comp)
+            if self._side is not None:
+                comp = self._side.sums(self, u)
+            else:
+                comp = np.empty((2, self.num_zones))
+                comp_sums(self._hist, self._lev, self._kk, self._ss, 0, u, a_on, b_on, a_off, b_off, comp)
             pred = pred + (c_on * comp[0] - c_off * comp[1]) * self._inv_n
         return pred
 
@@ -744,6 +814,29 @@ class PeripheralEstimator(FrameSideMixin):
             m_off = (counts[1] - int(self.anchor_off[0])) * inv
             # the kernel's Python form: called from Python, it skips Numba's dispatch
             return float(self.anchor_log[0]) + _direct_integral_py(1.0, float(t - g), m_on, m_off, *self._kp)
+        if self.num_zones == 1:  # compensated, scalar: predict_zones' operations without its arrays
+            if not math.isfinite(self.anchor_log[0]):
+                raise NotAnchoredError("P-TEDI has no anchor yet: no usable frame has arrived")
+            t = self.last_event_us if t_us is None else int(t_us)
+            g = int(self.anchor_t[0])
+            if t < g:
+                raise ParameterError(f"prediction time {t} µs precedes the anchor at {g} µs")
+            inv = float(self._inv_n[0])
+            c_on, c_off, a_on, b_on, a_off, b_off = self._kp
+            m_on = (int(self.counts_on[0]) - int(self.anchor_on[0])) * inv
+            m_off = (int(self.counts_off[0]) - int(self.anchor_off[0])) * inv
+            pred = float(self.anchor_log[0]) + c_on * m_on - c_off * m_off
+            if self._side is not None:
+                side, ref = self._side, int(self._aslot[0])
+                hist, lev, kk, ss = side.hist, side.lev, side.kk, side.ss
+            else:
+                hist, lev, kk, ss, ref = self._hist, self._lev, self._kk, self._ss, 0
+            u = float(t - g)
+            comp_on = _comp_sum_one(hist, lev, kk, ss, ref, 0, u, a_on, b_on)
+            comp_off = _comp_sum_one(hist, lev, kk, ss, ref, 1, u, a_off, b_off)
+            z0 = pred + (c_on * comp_on - c_off * comp_off) * inv
+            n = float(self.sizes[0])
+            return z0 * n / n  # the weighted mean of one zone, as np.dot(z, sizes) / sizes.sum() rounds it
         z = self.predict_zones(t_us)
         ok = np.isfinite(z)
         if not ok.any():
