@@ -30,7 +30,14 @@ import numba as nb
 import numpy as np
 
 from necviz.core.errors import EventFormatError, ParameterError, StreamError
-from necviz.core.ptedi_comp import _comp_sweep, _comp_window_integral, comp_between, comp_restate, comp_sums
+from necviz.core.ptedi_comp import (
+    _comp_sweep,
+    _comp_window_integral,
+    _one_window_integral,
+    comp_between,
+    comp_restate,
+    comp_sums,
+)
 
 __all__ = ["EventSide", "share_event_side"]
 
@@ -171,6 +178,195 @@ def side_update(
                     _comp_sweep(hist, s, 0, z, lev, kk, ss, r_on, u)
                 if a_off > 0.0:
                     _comp_sweep(hist, s, 1, z, lev, kk, ss, r_off, u)
+    return stop, code, prev
+
+
+@nb.njit(cache=True)
+def side_update_one(
+    t,
+    x,
+    y,
+    p,
+    zflat,
+    whole,
+    width,
+    height,
+    last_t,
+    counts_on,
+    counts_off,
+    inv_n,
+    pc,
+    live,
+    ws,
+    hist,
+    lev,
+    kk,
+    ss,
+    start_t,
+    c0_on,
+    c0_off,
+    w_last,
+    w_int,
+    c_on,
+    c_off,
+    a_on,
+    b_on,
+    a_off,
+    b_off,
+):
+    """:func:`side_update` for one zone with at most one integrating slot ``ws`` (0: none) — the lanes of a rig
+    start their exposures together — whose levels, sums and integral are kept in local variables during the
+    batch (as :func:`~necviz.core.ptedi_comp.ptedi_update_comp_one` keeps its window's), through the same
+    floating-point operations as :func:`side_update`, so the same state bit for bit. Returns what it returns.
+    """
+    r_on = a_on / b_on if b_on > 0.0 else math.inf
+    r_off = a_off / b_off if b_off > 0.0 else math.inf
+    cap = hist.shape[3]
+    ns = live.shape[0]
+    n_on = counts_on[0]
+    n_off = counts_off[0]
+    inv = inv_n[0]
+    live_on = a_on > 0.0
+    live_off = a_off > 0.0
+    wcol = 2 * (ws - 1)
+    h1_on = hist[ws, 0, 0]
+    h1_off = hist[ws, 1, 0]
+    l1_on, l1_off, k1_on, k1_off, s1_on, s1_off = (
+        lev[ws, 0, 0],
+        lev[ws, 1, 0],
+        kk[ws, 0, 0],
+        kk[ws, 1, 0],
+        ss[ws, 0, 0],
+        ss[ws, 1, 0],
+    )
+    wl = w_last[ws, 0]
+    wi = w_int[ws, 0]
+    w_start = start_t[ws]
+    b_on0 = c0_on[ws, 0]
+    b_off0 = c0_off[ws, 0]
+    prev = last_t
+    stop = -1
+    code = 0
+    for i in range(t.shape[0]):
+        ti = t[i]
+        if ti < prev:
+            stop = i
+            code = 1
+            break
+        xi = np.int64(x[i])
+        yi = np.int64(y[i])
+        if xi >= width or yi >= height:
+            stop = i
+            code = 2
+            break
+        pix = yi * width + xi
+        if not whole and zflat[pix] < 0:
+            prev = ti
+            continue
+        on = p[i] > 0
+        q = 0 if on else 1
+        full = False
+        for j in range(ns):
+            if np.int64(pc[pix, 2 * (live[j] - 1) + q]) + 2 > cap:
+                full = True
+        if full:
+            stop = i
+            code = 3
+            break
+        prev = ti
+        if ws > 0:
+            if ti > wl:
+                m_on = (n_on - b_on0) * inv
+                m_off = (n_off - b_off0) * inv
+                if (k1_on == 0 or not live_on) and (k1_off == 0 or not live_off):
+                    wi += math.exp(c_on * m_on - c_off * m_off) * float(ti - wl)
+                else:
+                    piece, l1_on, k1_on, s1_on, l1_off, k1_off, s1_off = _one_window_integral(
+                        float(wl - w_start),
+                        float(ti - w_start),
+                        m_on,
+                        m_off,
+                        inv,
+                        h1_on,
+                        h1_off,
+                        l1_on,
+                        k1_on,
+                        s1_on,
+                        l1_off,
+                        k1_off,
+                        s1_off,
+                        c_on,
+                        c_off,
+                        a_on,
+                        b_on,
+                        a_off,
+                        b_off,
+                        r_on,
+                        r_off,
+                    )
+                    wi += piece
+                wl = ti
+            n = np.int64(pc[pix, wcol + q])
+            pc[pix, wcol + q] = n + 1
+            if on:
+                h1_on[n] -= 1
+                h1_on[n + 1] += 1
+                if n + 1 > l1_on:
+                    if n > l1_on:
+                        s1_on += 1
+                    else:
+                        k1_on += 1
+                        s1_on += n + 1
+            else:
+                h1_off[n] -= 1
+                h1_off[n + 1] += 1
+                if n + 1 > l1_off:
+                    if n > l1_off:
+                        s1_off += 1
+                    else:
+                        k1_off += 1
+                        s1_off += n + 1
+        for j in range(ns):
+            s = live[j]
+            if s == ws:
+                continue
+            col = 2 * (s - 1) + q
+            n = np.int64(pc[pix, col])
+            hist[s, q, 0, n] -= 1
+            hist[s, q, 0, n + 1] += 1
+            lv = lev[s, q, 0]
+            if n + 1 > lv:
+                if n > lv:
+                    ss[s, q, 0] += 1
+                else:
+                    kk[s, q, 0] += 1
+                    ss[s, q, 0] += n + 1
+            pc[pix, col] = n + 1
+        if on:
+            n_on += 1
+        else:
+            n_off += 1
+    counts_on[0] = n_on
+    counts_off[0] = n_off
+    if ws > 0:
+        lev[ws, 0, 0], lev[ws, 1, 0], kk[ws, 0, 0], kk[ws, 1, 0], ss[ws, 0, 0], ss[ws, 1, 0] = (
+            l1_on,
+            l1_off,
+            k1_on,
+            k1_off,
+            s1_on,
+            s1_off,
+        )
+        w_last[ws, 0] = wl
+        w_int[ws, 0] = wi
+    for j in range(ns):  # the levels of the live slots not integrating follow time, once per batch
+        s = live[j]
+        if s != ws and prev >= start_t[s]:
+            u = float(prev - start_t[s])
+            if a_on > 0.0:
+                _comp_sweep(hist, s, 0, 0, lev, kk, ss, r_on, u)
+            if a_off > 0.0:
+                _comp_sweep(hist, s, 1, 0, lev, kk, ss, r_off, u)
     return stop, code, prev
 
 
@@ -316,8 +512,11 @@ class EventSide:
         t, x, y, p = events["t"], events["x"], events["y"], events["p"]
         pos, last = 0, self.last_event_us
         live = np.array([s for s in range(1, len(self.refs)) if self.refs[s] > 0], np.int64)
+        integ = [s for s in live.tolist() if self.integ[s]]
+        one = self.sizes.size == 1 and len(integ) <= 1  # the usual case: one zone, the lanes' common start
         while True:
-            stop, code, last = side_update(
+            kernel, arg = (side_update_one, integ[0] if integ else 0) if one else (side_update, self.integ)
+            stop, code, last = kernel(
                 t[pos:],
                 x[pos:],
                 y[pos:],
@@ -332,7 +531,7 @@ class EventSide:
                 self.inv_n,
                 self.pc,
                 live,
-                self.integ,
+                arg,
                 self.hist,
                 self.lev,
                 self.kk,
