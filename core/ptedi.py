@@ -70,8 +70,8 @@ from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import ImuBatch, TriggerBatch
 from necviz.core.ptedi_comp import (
+    MAX_LEVEL,
     comp_between,
-    comp_level,
     comp_reanchor,
     comp_restate,
     comp_sums,
@@ -92,7 +92,21 @@ _FREE, _OPEN, _CLOSED = 0, 1, 2
 
 #: the integral of Eq. 12 in plain Python (a scalar prediction is cheaper without a Numba dispatch)
 _direct_integral_py = direct_integral.py_func
-_comp_level_py = comp_level.py_func
+
+
+def _comp_level_py(u: float, r: float) -> int:
+    """:func:`~necviz.core.ptedi_comp.comp_level` in plain Python integers (the same level)."""
+    if not r < math.inf:
+        return 0
+    q = u / r
+    if q >= MAX_LEVEL:
+        return MAX_LEVEL
+    lv = math.floor(q)
+    while (lv + 1) * r <= u:
+        lv += 1
+    while lv > 0 and lv * r > u:
+        lv -= 1
+    return lv
 
 
 def _comp_sum_one(hist, lev, kk, ss, ref, q, u, a, b) -> float:
@@ -101,7 +115,7 @@ def _comp_sum_one(hist, lev, kk, ss, ref, q, u, a, b) -> float:
     if a <= 0.0:
         return 0.0
     r = a / b if b > 0.0 else math.inf
-    target = int(_comp_level_py(u, r))
+    target = _comp_level_py(u, r)
     lv, k, s = int(lev[ref, q, 0]), int(kk[ref, q, 0]), int(ss[ref, q, 0])
     if target > lv:
         while lv < target and k > 0:

@@ -186,7 +186,7 @@ class CachedStream:
         a, b = int(self.first_event[i]), int(self.first_event[i + 1])
         if self.events is None or b == a:
             return np.zeros(0, EVENT_DTYPE)
-        return np.array(self.events[a:b])
+        return np.asarray(self.events[a:b])  # a read-only view of the mapped file (packets are never written to)
 
     def period(self):
         """The samples of the next sample period, as ``SimRig._render_periods`` gives them (events ready)."""
