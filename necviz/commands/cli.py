@@ -356,7 +356,13 @@ def _cmd_bench_estimators(args) -> int:
 def _cmd_bench_sim(args) -> int:
     from necviz.bench.sim_speed import run
 
-    run(duration_s=args.duration or 5.0, cameras=args.cameras, scene=scene_options(args), json_path=_bench_json(args))
+    run(
+        duration_s=args.duration or 5.0,
+        cameras=args.cameras,
+        scene=scene_options(args),
+        json_path=_bench_json(args),
+        repeats=args.repeats,
+    )
     return 0
 
 
@@ -531,6 +537,9 @@ def _add_bench(sub) -> None:
     common(sim)
     add_scene_args(sim)
     sim.add_argument("--cameras", type=int, default=6, help="cameras sharing the scene (default 6)")
+    sim.add_argument(
+        "--repeats", type=int, default=3, help="timed runs (and replays from a scene cache); the median is reported"
+    )
     sim.set_defaults(func=_cmd_bench_sim)
     dec = bsub.add_parser("decode", help="DAVIS stream decoder throughput on a 12 Mev/s-style stream")
     common(dec)
