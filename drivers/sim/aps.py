@@ -132,11 +132,6 @@ def _digits(log_e, offset, scale, table, out):
     return True
 
 
-def draw_noise(rng: np.random.Generator, size: int) -> np.ndarray:
-    """A frame's standard normal draws (float32): what :func:`expose` draws from ``rng`` for ``size`` pixels."""
-    return rng.standard_normal(size, dtype=np.float32)  # the same draws as one of the image's shape
-
-
 def expose(
     mean_irradiance: np.ndarray,
     exposure_us: float,
@@ -144,12 +139,8 @@ def expose(
     crf: CameraResponse,
     params: ApsParams,
     rng: np.random.Generator | None,
-    noise: np.ndarray | None = None,
 ) -> np.ndarray:
-    """One 8-bit frame from the exposure-averaged irradiance ``Lbar`` (float array, linear units).
-
-    ``noise``: the frame's standard normal draws, drawn beforehand (:func:`draw_noise`; the same values
-    ``rng`` would give here), so the draw need not wait for the exposure to end."""
+    """One 8-bit frame from the exposure-averaged irradiance ``Lbar`` (float array, linear units)."""
     lut = _LUTS.get(id(crf))
     if lut is None or lut[0] is not crf:
         lut = _LUTS[id(crf)] = (crf, DigitLut(crf))
@@ -159,8 +150,7 @@ def expose(
     shape = lin.shape
     lin = lin.reshape(-1)
     if params.noise and rng is not None:
-        if noise is None:
-            noise = draw_noise(rng, lin.size)
+        noise = rng.standard_normal(lin.size, dtype=np.float32)  # the same draws as one of ``shape``
     else:
         noise = np.empty(0, np.float32)
     electrons = np.empty(lin.size, np.float32)

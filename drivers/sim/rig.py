@@ -47,7 +47,7 @@ from necviz.core.errors import ParameterError
 from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.ground_truth import TRACE_STEP, GroundTruth
-from necviz.drivers.sim.aps import ApsParams, draw_noise, expose, integrate_samples
+from necviz.drivers.sim.aps import ApsParams, expose, integrate_samples
 from necviz.drivers.sim.dvs import DvsParams, EventSimulator
 from necviz.drivers.sim.scene import Scene
 from necviz.drivers.source import CameraInfo, CommandRecord
@@ -273,20 +273,11 @@ class SimRig:
             out = [[(ts, lin, trace, (job, k)) for ts, lin, trace, k in period] for period in out]
         return out
 
-    def _draw_noise(self, cam: _CamState):
-        """The noise of the camera's next frame, drawn when its exposure starts (a camera's exposures do not
-        overlap, so its draws come in the same order as if drawn at each exposure's end)."""
-        if not self.aps.noise:
-            return None
-        return draw_noise(cam.rng, self.sensor.width * self.sensor.height)
-
-    def _expose_frame(self, cam: _CamState, times, values, s: int, e: int, gain: float, noise=None):
+    def _expose_frame(self, cam: _CamState, times, values, s: int, e: int, gain: float):
         """Exposure ``[s, e]`` of one camera from the scene samples covering it: ``(image, Lbar)``.
-        ``noise``: its draws (:meth:`_draw_noise`; a future of them with threads)."""
-        if noise is not None and not isinstance(noise, np.ndarray):
-            noise = noise.result()  # drawn on this worker before: done
+        Draws the camera's noise, so a camera's exposures are formed in the order they end."""
         lbar = integrate_samples(times, values, s, e)
-        return expose(lbar, e - s, gain, self.crf, self.aps, cam.rng, noise), lbar
+        return expose(lbar, e - s, gain, self.crf, self.aps, cam.rng), lbar
 
     def _form_frame(self, cam: _CamState, formed, s: int, e: int, gain: float) -> Frame:
         """The :class:`Frame` of exposure ``[s, e]`` from its ``(image, Lbar)``."""
@@ -458,13 +449,11 @@ class SimRig:
                     if kind == _START:
                         self._apply_pending(cam, t_item)
                         e = t_item + max(1, int(round(cam.exposure_us)))
-                        # the frame's noise is drawn now, so forming it after the exposure is quicker
-                        noise = pools[2].submit(self._draw_noise, cam) if pools else self._draw_noise(cam)
-                        heapq.heappush(heap, (e, _END, ci, name, (t_item, cam.exposure_us, cam.gain, noise)))
+                        heapq.heappush(heap, (e, _END, ci, name, (t_item, cam.exposure_us, cam.gain)))
                         yield name, ExposureMarker(int(t_item), "start")
                     elif kind == _END:
-                        s, exp_us, gain, noise = data
-                        heapq.heappush(heap, (t_item + self.aps.readout_us, _FRAME, ci, name, (s, t_item, gain, noise)))
+                        s, exp_us, gain = data
+                        heapq.heappush(heap, (t_item + self.aps.readout_us, _FRAME, ci, name, (s, t_item, gain)))
                         heapq.heappush(heap, (s + self.aps.frame_interval_us, _START, ci, name, None))
                         if pools:  # the samples covering [s, e] are all here: form it during the readout
                             forming[ci, s] = pools[2].submit(
@@ -475,16 +464,15 @@ class SimRig:
                                 s,
                                 t_item,
                                 gain,
-                                noise,
                             )
                         yield name, ExposureMarker(int(t_item), "end")
                     else:
-                        s, e, gain, noise = data
+                        s, e, gain = data
                         if pools:
                             formed = forming.pop((ci, s)).result()
                         else:
                             formed = self._expose_frame(
-                                cam, np.asarray(buf_t, dtype=np.float64), list(buf_l), s, e, gain, noise
+                                cam, np.asarray(buf_t, dtype=np.float64), list(buf_l), s, e, gain
                             )
                         frame = self._form_frame(cam, formed, s, e, gain)
                         cam.frames += 1
