@@ -27,6 +27,8 @@ BEGIN, END = "<!-- results:headline", "<!-- /results:headline -->"
 
 #: the command a result file was made with, for files that do not record it themselves
 DEFAULT_COMMANDS = {
+    "latency": "python benchmarks/latency.py",
+    "cli_startup": "python benchmarks/cli_startup.py",
     "estimators": "necviz bench estimators --json benchmarks/results/estimators.json",
     "sim": "necviz bench sim --json benchmarks/results/sim.json",
     "pipeline": "necviz bench pipeline --json benchmarks/results/pipeline.json",
@@ -103,9 +105,11 @@ def r_estimators(d: dict) -> str:
 def r_sim(d: dict) -> str:
     keys = ["scenario", "duration_s", "cameras", "realtime_factor", "events", "frames", "wall_s"]
     rows = [[k.replace("_", " "), num(d[k]) if not isinstance(d.get(k), str) else d[k]] for k in keys if k in d]
-    for k in ("realtime_factor_runs", "realtime_factor_median", "realtime_factor_min", "realtime_factor_max"):
-        if k in d:
-            rows.append([k.replace("_", " "), num(d[k]) if not isinstance(d[k], list) else ", ".join(map(num, d[k]))])
+    if isinstance(d.get("realtime_factor_runs"), dict):
+        rows.append(["real-time factor, median (min–max)", _spread(d["realtime_factor_runs"])])
+    rep = (d.get("replay_from_scene_cache") or {}).get("realtime_factor_runs")
+    if rep:
+        rows.append(["replayed from the scene cache", _spread(rep)])
     return table(["", "value"], rows) + "\n\nTarget: a real-time factor of at least 2."
 
 
@@ -342,6 +346,119 @@ def r_generic(d: dict) -> str:
     return table(["", "value"], rows) if rows else "(no top-level figures)"
 
 
+def _spread(r: dict | None, digits: int = 2, scale: float = 1.0, unit: str = "") -> str:
+    """``median (min–max)`` of a ``{median, min, max, runs}`` record."""
+    if not r:
+        return "—"
+    return (
+        f"**{num(r['median'] * scale, digits)}{unit}** ({num(r['min'] * scale, digits)}–"
+        f"{num(r['max'] * scale, digits)}{unit}, {r.get('runs', '?')} runs)"
+    )
+
+
+def _met(value, target, higher_is_better=True) -> str:
+    if value is None or target is None:
+        return "—"
+    return "yes" if (value >= target if higher_is_better else value <= target) else "**no**"
+
+
+def speed_summary(results: dict[str, dict]) -> str:
+    """The speed targets against the latest measurements (every figure from its results file)."""
+    rows = []
+    demo = results.get("demo_speed", {})
+    for name, lane in demo.get("lanes", {}).items():
+        rep = (lane.get("replayed") or {}).get("sensor_per_wall")
+        cold = (lane.get("cold_cache") or {}).get("sensor_per_wall")
+        rows.append(
+            [
+                f"`necviz demo --duration 2`, {name} lanes: sensor s per wall s (replayed from the scene cache; first run)",
+                f"{_spread(rep)}; first run {num(cold)}",
+                "≥ 1.0",
+                _met(rep["median"] if rep else None, demo.get("target_sensor_per_wall", 1.0)),
+            ]
+        )
+    sim = results.get("sim", {})
+    if sim:
+        runs = sim.get("realtime_factor_runs") or {
+            "median": sim.get("realtime_factor"),
+            "min": sim.get("realtime_factor"),
+            "max": sim.get("realtime_factor"),
+            "runs": 1,
+        }
+        rep = (sim.get("replay_from_scene_cache") or {}).get("realtime_factor_runs")
+        rows.append(
+            [
+                f"`necviz bench sim` ({sim.get('duration_s')} s {sim.get('scenario')}, {sim.get('cameras')} cameras): real-time factor; replayed",
+                f"{_spread(runs)}; replayed {_spread(rep)}",
+                "≥ 2.0",
+                _met(runs["median"], 2.0),
+            ]
+        )
+    est = results.get("estimators", {})
+    names = {
+        "ptedi_over_fast_edi": "compensated P-TEDI / Fast-EDI (same run)",
+        "ptedi_over_floor": "compensated P-TEDI / the read-only floor",
+        "ptedi_a0_over_floor": "P-TEDI `a = 0` / the read-only floor",
+    }
+    for k, label in names.items():
+        if k in est.get("ratios", {}):
+            v, t = est["ratios"][k], est.get("targets", {}).get(k)
+            rows.append([f"`necviz bench estimators`: {label}", f"**{num(v)}**", f"≥ {num(t)}", _met(v, t)])
+    lat = results.get("latency", {})
+    for name, c in lat.get("commands", {}).items():
+        p99, p50 = c.get("p99_us"), c.get("p50_us")
+        rows.append(
+            [
+                f"command latency p99, `{name}`",
+                f"{_spread(p99, 2, 1e-3, ' ms')}; p50 {num(p50['median'] * 1e-3, 2) if p50 else '—'} ms",
+                "< 1 ms",
+                _met(p99["median"] if p99 else None, lat.get("target_p99_us", 1000.0), False),
+            ]
+        )
+    cli = results.get("cli_startup", {})
+    for name, c in cli.get("cases", {}).items():
+        if name.startswith("necviz"):
+            rows.append(
+                [
+                    f"`{name}`: wall time",
+                    _spread(c, 3, 1.0, " s"),
+                    f"≤ {cli.get('target_s', 0.3)} s",
+                    _met(c["median"], cli.get("target_s", 0.3), False),
+                ]
+            )
+    rec = results.get("recording_size", {})
+    if rec.get("sizes", {}).get("demo"):
+        mb = rec["sizes"]["demo"]["total"] / 1e6
+        ssim = rec.get("fidelity", {}).get("ssim_mean")
+        rows.append(
+            [
+                "recording of the 2 s demo",
+                f"**{num(mb)} MB** at frame SSIM {num(ssim, 3)}",
+                "≤ 8 MB at the same SSIM",
+                _met(mb, 8.0, False),
+            ]
+        )
+    if not rows:
+        return ""
+    notes = HERE / "notes" / "speed.md"
+    out = table(["figure", "measured: median (min–max)", "target", "met"], rows)
+    load = sorted(
+        {
+            tuple(d.get("machine", {}).get("load_average") or ())
+            for d in results.values()
+            if isinstance(d, dict) and d.get("machine", {}).get("load_average")
+        }
+    )
+    out += "\n\nEach row comes from the results file of its command (sections below, with the commands). " + (
+        f"Load averages when they were taken: {', '.join('/'.join(num(x, 1) for x in l) for l in load)}."
+        if load
+        else ""
+    )
+    if notes.exists():
+        out += "\n\n" + notes.read_text(encoding="utf-8").strip()
+    return out
+
+
 def load() -> dict[str, dict]:
     return {p.stem: json.loads(p.read_text(encoding="utf-8")) for p in sorted(RESULTS.glob("*.json"))}
 
@@ -355,6 +472,9 @@ def render_page(results: dict[str, dict]) -> str:
         "vary with its load: compare ratios measured in the same run, not figures across sections.",
         "",
     ]
+    summary = speed_summary(results)
+    if summary:
+        out += ["## Speed: where it stands", "", summary, ""]
     order = [k for k in RENDERERS if k in results] + sorted(k for k in results if k not in RENDERERS)
     for name in order:
         data = results[name]

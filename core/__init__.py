@@ -7,15 +7,36 @@ if __name__ != "necviz.core":  # the folder imported as a top-level package (e.g
     )
 
 
-from necviz.core.crf import CameraResponse, debevec_malik, default_davis346
-from necviz.core.edi import edi_reconstruct, fast_edi_reconstruct, medi_reconstruct, valid_mask
-from necviz.core.errors import NecvizError
-from necviz.core.event_model import TediParams
-from necviz.core.events import EVENT_DTYPE, EventBatch, make_events, validate_events
-from necviz.core.frames import ExposureMarker, Frame
-from necviz.core.ptedi import PeripheralEstimator
-from necviz.core.sensor import DAVIS240, DAVIS346, SensorGeometry
-from necviz.core.tedi import PairSelection, TediCalibration, TediFitOptions, calibrate_tedi, tedi_reconstruct
+from importlib import import_module
+
+# name -> module, imported on first use: importing a light submodule (necviz.core.errors, say) must not
+# load NumPy, SciPy and Numba through this package's __init__ (the command line answers --help at once)
+_API = {
+    "CameraResponse": "necviz.core.crf",
+    "debevec_malik": "necviz.core.crf",
+    "default_davis346": "necviz.core.crf",
+    "edi_reconstruct": "necviz.core.edi",
+    "fast_edi_reconstruct": "necviz.core.edi",
+    "medi_reconstruct": "necviz.core.edi",
+    "valid_mask": "necviz.core.edi",
+    "NecvizError": "necviz.core.errors",
+    "TediParams": "necviz.core.event_model",
+    "EVENT_DTYPE": "necviz.core.events",
+    "EventBatch": "necviz.core.events",
+    "make_events": "necviz.core.events",
+    "validate_events": "necviz.core.events",
+    "ExposureMarker": "necviz.core.frames",
+    "Frame": "necviz.core.frames",
+    "PeripheralEstimator": "necviz.core.ptedi",
+    "DAVIS240": "necviz.core.sensor",
+    "DAVIS346": "necviz.core.sensor",
+    "SensorGeometry": "necviz.core.sensor",
+    "TediCalibration": "necviz.core.tedi",
+    "TediFitOptions": "necviz.core.tedi",
+    "PairSelection": "necviz.core.tedi",
+    "calibrate_tedi": "necviz.core.tedi",
+    "tedi_reconstruct": "necviz.core.tedi",
+}
 
 __all__ = [
     "CameraResponse",
@@ -43,3 +64,15 @@ __all__ = [
     "PairSelection",
     "valid_mask",
 ]
+
+
+def __getattr__(name):
+    if name in _API:
+        value = getattr(import_module(_API[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'necviz.core' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted({*globals(), *_API})

@@ -28,8 +28,9 @@ arrives (after its exposure) ``ln E_p`` is one division and one log. Several zon
 - Without compensation (``a± = 0``, the default) the exponent is constant between events and
   changes by ``±c/N_R`` per event: O(1) per event, coordinates are not even read for the
   whole-sensor region (:func:`ptedi_update_whole`).
-- With compensation, per-pixel counts since the anchor and since the exposure start are kept
-  (snapshots at each exposure start, O(pixels) per frame) with, per zone, a histogram of
+- With compensation, each pixel's counts since the anchor and since the latest exposure start
+  are kept (one uint16 row per pixel; an exposure start zeroes the window's pair, a fill of one
+  word per pixel; re-anchoring on the latest exposure swaps the pairs, O(1)) with, per zone, a histogram of
   those counts and the exact integer sums ``K = #{n_x > L}``, ``S = Σ_{n_x > L} n_x`` at the
   level ``L = floor(u b/a)``, so ``C(u) = a S - b u K`` (see the notes above
   :func:`ptedi_update_comp`). Per event O(1) plus the levels crossed as time passes (at most
@@ -71,10 +72,10 @@ from necviz.core.event_model import TediParams, direct_integral
 from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import Frame
 from necviz.core.ptedi_comp import (
+    MAX_LEVEL,
     comp_between,
-    comp_rebase,
+    comp_reanchor,
     comp_restate,
-    comp_snapshot,
     comp_sums,
     ptedi_close_comp,
     ptedi_update_comp,
@@ -94,6 +95,45 @@ _FREE, _OPEN, _CLOSED = 0, 1, 2
 
 #: the integral of Eq. 12 in plain Python (a scalar prediction is cheaper without a Numba dispatch)
 _direct_integral_py = direct_integral.py_func
+
+
+def _comp_level_py(u: float, r: float) -> int:
+    """:func:`~necviz.core.ptedi_comp.comp_level` in plain Python integers (the same level)."""
+    if not r < math.inf:
+        return 0
+    q = u / r
+    if q >= MAX_LEVEL:
+        return MAX_LEVEL
+    lv = math.floor(q)
+    while (lv + 1) * r <= u:
+        lv += 1
+    while lv > 0 and lv * r > u:
+        lv -= 1
+    return lv
+
+
+def _comp_sum_one(hist, lev, kk, ss, ref, q, u, a, b) -> float:
+    """:func:`~necviz.core.ptedi_comp.comp_sums` for zone 0 and polarity ``q`` in plain Python (same
+    operations, same result; called on every batch, where a Numba dispatch costs more than the work)."""
+    if a <= 0.0:
+        return 0.0
+    r = a / b if b > 0.0 else math.inf
+    target = _comp_level_py(u, r)
+    lv, k, s = int(lev[ref, q, 0]), int(kk[ref, q, 0]), int(ss[ref, q, 0])
+    if target > lv:
+        while lv < target and k > 0:
+            lv += 1
+            hk = int(hist[ref, q, 0, lv])
+            k -= hk
+            s -= lv * hk
+    else:
+        lv = min(lv, hist.shape[3] - 1)
+        while lv > target:
+            hk = int(hist[ref, q, 0, lv])
+            k += hk
+            s += lv * hk
+            lv -= 1
+    return a * s - b * u * k
 
 
 @dataclass(frozen=True)
@@ -213,6 +253,7 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         self._wint = np.zeros((max_pending, k), np.float64)
         self._webase = np.ones((max_pending, k), np.float64)
         self._open = -1
+        self._latest = -1  # the window of the latest exposure start
         self._age = 0
         self.dropped_windows = 0
         # anchors
@@ -223,7 +264,9 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         self.frames_seen = 0
         self.frames_skipped = 0
         self.frames_bounded = 0
-        # per-pixel compensation state (only while a+ or a- > 0; see the notes above ptedi_update_comp)
+        # per-pixel compensation state (only while a+ or a- > 0; see the notes above ptedi_update_comp), or
+        # an event side shared with other estimators (share_events: their slots instead of this state)
+        self._side = None
         self._comp = False
         if self.params.a_on > 0.0 or self.params.a_off > 0.0:
             self._comp_start()
@@ -250,6 +293,8 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         """
         if not isinstance(params, TediParams):
             raise ParameterError("params must be a TediParams")
+        if self._side is not None:  # its own thresholds from now on: it continues on its own
+            self._side.detach(self)
         self._derive(params)
         comp = params.a_on > 0.0 or params.a_off > 0.0
         if comp and not self._comp:
@@ -261,6 +306,7 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         elif self._comp:
             self._comp = False
             self._pc = self._wsnap = self._hist = self._lev = self._kk = self._ss = None
+            self._wacc = None
         w = self._open
         if w >= 0:  # the zone kernel's running exp restarts from the counts with the new thresholds
             self._webase[w] = np.exp(
@@ -268,14 +314,39 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
                 * self._inv_n
             )
 
+    def share_events(self, side) -> None:
+        """Keep the compensation's per-pixel bookkeeping in ``side`` (a :class:`~necviz.core.ptedi_shared.EventSide`
+        shared with the other estimators of one source's lanes; see :func:`~necviz.core.ptedi_shared.share_event_side`).
+        Only before the first packet; estimates stay exactly those of a stand-alone estimator."""
+        if not self._comp or self.frames_seen or self._open >= 0 or self.last_event_us != np.iinfo(np.int64).min:
+            raise ParameterError("only a fresh compensated estimator can share its event side")
+        if (
+            side.params.as_tuple() != self.params.as_tuple()
+            or side.sensor.shape != self.sensor.shape
+            or not np.array_equal(side.zmap, self.zmap)
+        ):
+            raise ParameterError("estimators sharing an event side need the same sensor, region and parameters")
+        self._side = side
+        self._seen = side.batches
+        self._wslot = [0] * len(self._wstate)
+        self._aslot = np.zeros(self.num_zones, np.int64)
+        self.counts_on, self.counts_off = side.counts_on, side.counts_off
+        self._pc = self._wsnap = self._hist = self._lev = self._kk = self._ss = None  # the side's instead
+
     # -- per-pixel compensation bookkeeping (Eq. 11 with the Eq. 6 terms per pixel) ---------------
     def _comp_start(self) -> None:
         """Allocate the per-pixel counts and the per-zone histograms; counting starts now."""
         k = self.num_zones
         npix = self.sensor.width * self.sensor.height
         self._comp = True
-        self._pc = np.zeros((npix, 6), np.int32)  # [ON, OFF, ON/OFF at the anchor, ON/OFF at the window start]
-        self._wsnap = np.zeros((len(self._wstate), npix, 2), np.int32)  # counts at each window's start
+        # per pixel, ON/OFF counts since the anchor (columns 0, 1) and since the latest exposure start
+        # (columns 2, 3; _iw = -1: not kept); uint16 until a count could overflow it (_comp_grow)
+        self._pc = np.zeros((npix, 4), np.uint16)
+        self._iw = 2
+        # per window slot awaiting its frame while a later exposure started: its counts up to that start
+        # (allocated when first needed; _wacc[w] says whether slot w holds any)
+        self._wsnap = None
+        self._wacc = [False] * len(self._wstate)
         self._hist = np.zeros((2, 2, k, 64), np.int32)
         self._hist[:, :, :, 0] = self.sizes
         self._lev = np.zeros((2, 2, k), np.int64)
@@ -307,30 +378,75 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         )
 
     def _comp_grow(self, need: int) -> None:
-        """Widen the count histograms to hold counts up to ``need``."""
+        """Widen the count histograms to hold counts up to ``need`` (and the per-pixel counts to int32
+        before a count could pass what uint16 holds)."""
         cap = self._hist.shape[3]
         if need < cap:
             return
-        new = np.zeros(self._hist.shape[:3] + (max(2 * cap, need + 1),), np.int32)
+        size = max(2 * cap, need + 1)
+        if self._pc.dtype == np.uint16 and size > np.iinfo(np.uint16).max + 1:
+            self._pc = self._pc.astype(np.int32)
+        new = np.zeros(self._hist.shape[:3] + (size,), np.int32)
         new[..., :cap] = self._hist
         self._hist = new
 
+    def _latest_counts(self) -> np.ndarray:
+        """Per pixel, the ON/OFF counts since the latest exposure start (a view). When they are not kept
+        the anchor is that start (it took them over), so they are the anchor's."""
+        return self._pc[:, 2:4] if self._iw >= 0 else self._pc[:, 0:2]
+
+    def _since(self, w: int) -> np.ndarray:
+        """Per pixel, the ON/OFF counts since window ``w``'s start (a view when it is the latest start)."""
+        if self._wacc[w]:
+            return self._wsnap[w] + self._latest_counts()
+        return self._latest_counts()
+
+    def _words(self) -> np.ndarray:
+        """``_pc`` with each pixel's pair of counts as one word (columns: anchor, window)."""
+        return self._pc.view(np.uint32 if self._pc.itemsize == 2 else np.uint64)
+
     def _comp_anchor(self, w: int, zones: np.ndarray, s: int) -> None:
-        """``zones`` re-anchored on window ``w`` (start ``s``): their per-pixel counts restart there."""
+        """``zones`` re-anchored on window ``w`` (start ``s``): their per-pixel counts restart there.
+
+        The usual case — every zone, on the latest exposure, no other exposure awaiting its frame —
+        copies the latest exposure's counts over the anchor's (one word per pixel) and its histogram;
+        the window's counts are then not kept until the next exposure starts. Otherwise the pixels of
+        ``zones`` take their counts since ``s`` and their histograms are rebuilt (O(pixels)).
+        """
+        if self._side is not None:
+            self._side.anchor(self, w, zones, s)
+            return
         flags = np.zeros(self.num_zones, np.bool_)
         flags[zones] = True
-        while (need := comp_rebase(self._pc, self._wsnap[w], self._zone_flat, flags, self.sizes, self._hist)) >= 0:
-            self._comp_grow(need)
+        others = any(st == _CLOSED and i != w for i, st in enumerate(self._wstate))
+        if flags.all() and w == self._latest and self._open < 0 and not others and self._iw >= 0:
+            words = self._words()
+            words[:, 0] = words[:, 1]
+            self._iw = -1
+            self._hist[0] = self._hist[1]
+        else:
+            since = self._since(w)
+            while (need := comp_reanchor(self._pc, since, self._zone_flat, flags, self.sizes, self._hist)) >= 0:
+                self._comp_grow(need)
         self._comp_restate(0, zones, np.full(self.num_zones, float(max(0, self.last_event_us - s))))
 
     def _comp_between(self, w: int, u: np.ndarray) -> np.ndarray:
         """Per zone ``Σ_x max(0, a± n±_x - b± u)`` for the counts between the anchor and window ``w``'s
         start (brute force over the pixels, O(pixels), :func:`comp_between`; used only for the saturation bound)."""
+        if self._side is not None:
+            return self._side.between(self, w, u)
         c_on, c_off, a_on, b_on, a_off, b_off = self._kp
         out = np.empty((2, self.num_zones))
-        comp_between(
-            self._pc, self._wsnap[w], self._zone_flat, np.asarray(u, np.float64), a_on, b_on, a_off, b_off, out
-        )
+        # comp_between takes (base, counts) and subtracts base columns 2, 3: the counts between the anchor and s
+        # are the anchor's (columns 0, 1) minus those since s (columns 2, 3 when s is the latest start: no copy)
+        if self._iw < 0:  # the anchor is the latest start: nothing between them
+            counts, base = self._pc[:, 0:2], np.zeros((self._pc.shape[0], 4), np.int32)
+            base[:, 2:4] = counts
+        elif self._wacc[w]:
+            counts, base = self._pc[:, 0:2] - self._wsnap[w], self._pc
+        else:
+            counts, base = self._pc[:, 0:2], self._pc
+        comp_between(base, counts, self._zone_flat, np.asarray(u, np.float64), a_on, b_on, a_off, b_off, out)
         return out
 
     # -- stream input -------------------------------------------------------------------------
@@ -339,6 +455,9 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         if not isinstance(events, np.ndarray) or events.dtype != EVENT_DTYPE:
             raise EventFormatError(f"events must be a structured array of dtype {EVENT_DTYPE}")
         if events.size == 0:
+            return
+        if self._side is not None:
+            self._side.update(self, events)
             return
         w = self._open
         if self._comp:
@@ -411,6 +530,7 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
                 y[pos:],
                 p[pos:],
                 self._zone_flat,
+                self.whole,
                 self.sensor.width,
                 self.sensor.height,
                 last,
@@ -418,6 +538,7 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
                 self.counts_off,
                 self._inv_n,
                 self._pc,
+                self._iw,
                 self._hist,
                 self._lev,
                 self._kk,
@@ -437,6 +558,22 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
             pos += stop
             self._comp_grow(2 * self._hist.shape[3])
 
+    def _comp_begin(self, w: int) -> None:
+        """Compensation at an exposure start in slot ``w``: the counts since the latest start go to every
+        exposure still awaiting its frame; the window's pair of columns restarts from zero."""
+        latest = self._latest_counts()
+        for v, st in enumerate(self._wstate):
+            if st == _CLOSED and v != w:
+                if self._wsnap is None:
+                    self._wsnap = np.zeros((len(self._wstate), self._pc.shape[0], 2), np.int32)
+                if not self._wacc[v]:
+                    self._wsnap[v] = 0
+                    self._wacc[v] = True
+                self._wsnap[v] += latest
+        self._wacc[w] = False
+        self._iw = 2
+        self._words()[:, 1] = 0  # one word per pixel (a strided fill of a 2-column slice is ~8x slower)
+
     def begin_exposure(self, t_us: int) -> None:
         """An exposure starts at ``t_us`` (all events before it already applied)."""
         t_us = int(t_us)
@@ -455,7 +592,14 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         else:  # every slot awaits a frame that never came: recycle the oldest
             w = self._wage.index(min(self._wage))
             self.dropped_windows += 1
+            if self._side is not None:
+                self._side.drop_window(self, w)
+        if self._side is not None:
+            self._side.begin(self, w, t_us)
+        elif self._comp:
+            self._comp_begin(w)
         self._wstate[w] = _OPEN
+        self._latest = w
         self._wstart[w] = t_us
         self._age += 1
         self._wage[w] = self._age
@@ -470,8 +614,7 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
             self._wlast[w] = t_us
             self._wint[w] = 0.0
             self._webase[w] = 1.0
-        if self._comp:
-            comp_snapshot(self._pc, self._wsnap[w])
+        if self._comp and self._side is None:
             self._hist[1] = 0
             self._hist[1, :, :, 0] = self.sizes
             self._lev[1] = 0
@@ -490,7 +633,9 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
                 f"exposure end at {t_us} µs is not after its start ({int(self._wstart[w])} µs) and the events "
                 f"already processed ({self.last_event_us} µs)"
             )
-        if self._comp:
+        if self._side is not None:
+            self._side.end(self, w, t_us)
+        elif self._comp:
             ptedi_close_comp(
                 t_us,
                 self.counts_on,
@@ -554,6 +699,8 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
                 self.anchor_off[0] = w0[1][0]
                 if self._comp:
                     self._comp_anchor(w, np.zeros(1, np.int64), s)
+                if self._side is not None:
+                    self._side.drop_window(self, w)
                 self._wstate[w] = _FREE
                 self.frames_seen += 1
                 anchor = np.array([lp - log_e])
@@ -608,6 +755,8 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         self.anchor_off[new] = w0[1][new]
         if self._comp and new.any():
             self._comp_anchor(w, np.flatnonzero(new), s)
+        if self._side is not None:
+            self._side.drop_window(self, w)
         self._wstate[w] = _FREE
         self.frames_seen += 1
         if not ok.all():
@@ -680,9 +829,12 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         pred = self._propagate(self.counts_on, self.counts_off)
         if self._comp:  # Eq. 11: the mean over the zone's pixels of their compensation terms
             u = np.where(anchored, (t - self.anchor_t).astype(np.float64), 0.0)
-            comp = np.empty((2, self.num_zones))
             c_on, c_off, a_on, b_on, a_off, b_off = self._kp
-            comp_sums(self._hist, self._lev, self._kk, self._ss, 0, u, a_on, b_on, a_off, b_off, comp)
+            if self._side is not None:
+                comp = self._side.sums(self, u)
+            else:
+                comp = np.empty((2, self.num_zones))
+                comp_sums(self._hist, self._lev, self._kk, self._ss, 0, u, a_on, b_on, a_off, b_off, comp)
             pred = pred + (c_on * comp[0] - c_off * comp[1]) * self._inv_n
         return pred
 
@@ -701,6 +853,29 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
             m_off = (counts[1] - int(self.anchor_off[0])) * inv
             # the kernel's Python form: called from Python, it skips Numba's dispatch
             return float(self.anchor_log[0]) + _direct_integral_py(1.0, float(t - g), m_on, m_off, *self._kp)
+        if self.num_zones == 1:  # compensated, scalar: predict_zones' operations without its arrays
+            if not math.isfinite(self.anchor_log[0]):
+                raise NotAnchoredError("P-TEDI has no anchor yet: no usable frame has arrived")
+            t = self.last_event_us if t_us is None else int(t_us)
+            g = int(self.anchor_t[0])
+            if t < g:
+                raise ParameterError(f"prediction time {t} µs precedes the anchor at {g} µs")
+            inv = float(self._inv_n[0])
+            c_on, c_off, a_on, b_on, a_off, b_off = self._kp
+            m_on = (int(self.counts_on[0]) - int(self.anchor_on[0])) * inv
+            m_off = (int(self.counts_off[0]) - int(self.anchor_off[0])) * inv
+            pred = float(self.anchor_log[0]) + c_on * m_on - c_off * m_off
+            if self._side is not None:
+                side, ref = self._side, int(self._aslot[0])
+                hist, lev, kk, ss = side.hist, side.lev, side.kk, side.ss
+            else:
+                hist, lev, kk, ss, ref = self._hist, self._lev, self._kk, self._ss, 0
+            u = float(t - g)
+            comp_on = _comp_sum_one(hist, lev, kk, ss, ref, 0, u, a_on, b_on)
+            comp_off = _comp_sum_one(hist, lev, kk, ss, ref, 1, u, a_off, b_off)
+            z0 = pred + (c_on * comp_on - c_off * comp_off) * inv
+            n = float(self.sizes[0])
+            return z0 * n / n  # the weighted mean of one zone, as np.dot(z, sizes) / sizes.sum() rounds it
         z = self.predict_zones(t_us)
         ok = np.isfinite(z)
         if not ok.any():

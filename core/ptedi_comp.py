@@ -29,7 +29,14 @@ from necviz.core.event_model import exp_linear_integral
 # past (L+1) r the pixels with count L+1 stop being active (K -= h[L+1], S -= (L+1) h[L+1]).
 # Between events C(u) is linear in u with breakpoints at multiples of r: the exposure integral
 # is a sum of exp-of-linear pieces in closed form. Arrays: hist[ref, q, zone, k] (int32),
-# lev/kk/ss[ref, q, zone] (int64) with ref 0 = anchor, 1 = open exposure; q 0 = ON, 1 = OFF.
+# lev/kk/ss[ref, q, zone] (int64) with ref 0 = anchor, 1 = the latest exposure (open, or awaiting its
+# frame); q 0 = ON, 1 = OFF.
+#
+# Per pixel, pc[pixel] holds its counts since each reference directly (ON/OFF since the anchor, ON/OFF
+# since the latest exposure start: one row, so an event touches one cache line), as uint16 while every
+# count fits (the estimator widens them to int32 before one could overflow). Re-anchoring on the latest
+# exposure's start, the usual case, copies the window's pair of counts over the anchor's (one word per
+# pixel) and its histogram; a new exposure start zeroes the window's pair (one word per pixel).
 
 MAX_LEVEL = 1 << 50  # levels beyond any per-pixel count (keeps u/r for a tiny r inside int64)
 
@@ -144,6 +151,7 @@ def ptedi_update_comp(
     y,
     p,
     zflat,
+    whole,
     width,
     height,
     last_t,
@@ -151,6 +159,7 @@ def ptedi_update_comp(
     counts_off,
     inv_n,
     pc,
+    iw,
     hist,
     lev,
     kk,
@@ -172,15 +181,16 @@ def ptedi_update_comp(
 ):
     """:func:`ptedi_update` with the TEDI compensation applied per pixel and averaged (Eq. 11).
 
-    ``pc[pixel] = [count ON, count OFF, ON and OFF counts at the anchor, at the window start]``
-    (cumulative); the histograms and sums of the module notes above give each zone's
-    ``Σ_x max(0, a± n±_x - b± u)`` exactly. Per event: the open window's integral up to the
-    event (one ``exp`` while no pixel of the zone is compensated, else the closed-form pieces
-    of :func:`_comp_window_integral`), then O(1) updates of both references. Levels may lag
-    behind time (the sums are exact for the kept level; an event is classified against it):
-    the window's catch up when a piece is integrated, the anchor's once per batch. O(1) per
-    event plus the levels crossed (at most ``b u / a`` per reference in time ``u``, and never
-    more than the largest per-pixel count).
+    ``pc[pixel]`` holds the pixel's counts: columns 0, 1 ON and OFF since the anchor, ``iw, iw + 1``
+    (2, 3) since the latest exposure start (``iw < 0``: not kept, no exposure needs them);
+    ``whole``: every pixel is in zone 0 (``zflat`` is not read). The histograms and sums of the
+    module notes above give each zone's ``Σ_x max(0, a± n±_x - b± u)`` exactly. Per event: the open
+    window's integral up to the event (one ``exp`` while no pixel of the zone is compensated, else
+    the closed-form pieces of :func:`_comp_window_integral`), then O(1) updates of both references.
+    Levels may lag behind time (the sums are exact for the kept level; an event is classified
+    against it): the window's catch up when a piece is integrated, the anchor's once per batch.
+    O(1) per event plus the levels crossed (at most ``b u / a`` per reference in time ``u``, and
+    never more than the largest per-pixel count).
 
     Returns ``(index, code, last time)``: code 0 all applied, 1 time decreased, 2 coordinates
     off the sensor, 3 a histogram is full (grow it and resume at ``index``).
@@ -188,6 +198,7 @@ def ptedi_update_comp(
     r_on = a_on / b_on if b_on > 0.0 else math.inf
     r_off = a_off / b_off if b_off > 0.0 else math.inf
     cap = hist.shape[3]
+    keep_w = iw >= 0
     prev = last_t
     stop = -1
     code = 0
@@ -204,15 +215,14 @@ def ptedi_update_comp(
             code = 2
             break
         pix = yi * width + xi
-        z = zflat[pix]
+        z = 0 if whole else zflat[pix]
         if z < 0:
             prev = ti
             continue
         q = 0 if p[i] > 0 else 1
-        cnt = pc[pix, q]
-        na = cnt - pc[pix, 2 + q]
-        nw = cnt - pc[pix, 4 + q]
-        if na + 2 > cap or (w >= 0 and nw + 2 > cap):
+        na = np.int64(pc[pix, q])
+        nw = np.int64(pc[pix, iw + q]) if keep_w else np.int64(0)
+        if na + 2 > cap or nw + 2 > cap:
             stop = i
             code = 3
             break
@@ -247,7 +257,7 @@ def ptedi_update_comp(
                         r_off,
                     )
                 w_last[w, z] = ti
-            # the pixel moves from count nw to nw + 1 (written out: faster than an inlined helper here)
+        if keep_w:  # the pixel moves from count nw to nw + 1 (written out: faster than an inlined helper here)
             hist[1, q, z, nw] -= 1
             hist[1, q, z, nw + 1] += 1
             lv = lev[1, q, z]
@@ -257,6 +267,7 @@ def ptedi_update_comp(
                 else:
                     kk[1, q, z] += 1
                     ss[1, q, z] += nw + 1
+            pc[pix, iw + q] = nw + 1
         hist[0, q, z, na] -= 1
         hist[0, q, z, na + 1] += 1
         lv = lev[0, q, z]
@@ -266,7 +277,7 @@ def ptedi_update_comp(
             else:
                 kk[0, q, z] += 1
                 ss[0, q, z] += na + 1
-        pc[pix, q] = cnt + 1
+        pc[pix, q] = na + 1
         if q == 0:
             counts_on[z] += 1
         else:
@@ -367,6 +378,7 @@ def ptedi_update_comp_one(
     y,
     p,
     zflat,
+    whole,
     width,
     height,
     last_t,
@@ -374,6 +386,7 @@ def ptedi_update_comp_one(
     counts_off,
     inv_n,
     pc,
+    iw,
     hist,
     lev,
     kk,
@@ -425,6 +438,7 @@ def ptedi_update_comp_one(
         b_off0 = c0_off[w, 0]
     live_on = a_on > 0.0
     live_off = a_off > 0.0
+    keep_w = iw >= 0
     prev = last_t
     stop = -1
     code = 0
@@ -441,15 +455,14 @@ def ptedi_update_comp_one(
             code = 2
             break
         pix = yi * width + xi
-        if zflat[pix] < 0:
+        if not whole and zflat[pix] < 0:
             prev = ti
             continue
         on = p[i] > 0
         q = 0 if on else 1
-        cnt = pc[pix, q]
-        na = cnt - pc[pix, 2 + q]
-        nw = cnt - pc[pix, 4 + q]
-        if na + 2 > cap or (w >= 0 and nw + 2 > cap):
+        na = np.int64(pc[pix, q])
+        nw = np.int64(pc[pix, iw + q]) if keep_w else np.int64(0)
+        if na + 2 > cap or nw + 2 > cap:
             stop = i
             code = 3
             break
@@ -487,7 +500,8 @@ def ptedi_update_comp_one(
                     )
                     wi += piece
                 wl = ti
-            # the pixel moves from count nw to nw + 1 in the window's histogram
+        if keep_w:  # the pixel moves from count nw to nw + 1 in the latest exposure's histogram
+            pc[pix, iw + q] = nw + 1
             if on:
                 h1_on[nw] -= 1
                 h1_on[nw + 1] += 1
@@ -507,6 +521,7 @@ def ptedi_update_comp_one(
                         k1_off += 1
                         s1_off += nw + 1
         # and from na to na + 1 in the anchor's
+        pc[pix, q] = na + 1
         if on:
             h0_on[na] -= 1
             h0_on[na + 1] += 1
@@ -527,7 +542,6 @@ def ptedi_update_comp_one(
                     k0_off += 1
                     s0_off += na + 1
             n_off += 1
-        pc[pix, q] = cnt + 1
     counts_on[0] = n_on
     counts_off[0] = n_off
     lev[0, 0, 0], lev[0, 1, 0], lev[1, 0, 0], lev[1, 1, 0] = l0_on, l0_off, l1_on, l1_off
@@ -598,25 +612,14 @@ def ptedi_close_comp(
 
 
 @nb.njit(cache=True)
-def comp_snapshot(pc, snap):
-    """At an exposure start: ``snap = counts`` (kept for a later anchor) and the window's base. O(pixels)."""
-    for i in range(pc.shape[0]):
-        a = pc[i, 0]
-        b = pc[i, 1]
-        snap[i, 0] = a
-        snap[i, 1] = b
-        pc[i, 4] = a
-        pc[i, 5] = b
+def comp_reanchor(pc, since, zflat, zones, sizes, hist):
+    """Re-anchor the pixels of the zones flagged in ``zones`` at an exposure start: their counts since
+    the anchor (``pc`` columns 0, 1) become ``since`` (their counts since that start) and
+    their anchor histograms (``hist[0]``) are rebuilt. Returns ``-1``, or the histogram size needed
+    when a count does not fit (then grow and call again: the rebuild starts from scratch). O(pixels).
 
-
-@nb.njit(cache=True)
-def comp_rebase(pc, snap, zflat, zones, sizes, hist):
-    """Re-anchor the pixels of the zones flagged in ``zones`` on the counts ``snap`` and rebuild
-    their anchor histograms (``hist[0]``). Returns ``-1``, or the histogram size needed when a
-    count does not fit (then grow and call again: the rebuild starts from scratch). O(pixels).
-
-    Pixels without events since the snapshot (most of them, usually) are not added one by one:
-    bin 0 is the zone size minus the others (a chain of increments of one bin would serialise).
+    Pixels without events since the start (most of them, usually) are not added one by one: bin 0
+    is the zone size minus the others (a chain of increments of one bin would serialise).
     """
     cap = hist.shape[3]
     need = -1
@@ -630,12 +633,10 @@ def comp_rebase(pc, snap, zflat, zones, sizes, hist):
         z = zflat[i]
         if z < 0 or not (every or zones[z]):
             continue
-        b0 = snap[i, 0]
-        b1 = snap[i, 1]
-        n0 = pc[i, 0] - b0
-        n1 = pc[i, 1] - b1
-        pc[i, 2] = b0
-        pc[i, 3] = b1
+        n0 = since[i, 0]
+        n1 = since[i, 1]
+        pc[i, 0] = n0
+        pc[i, 1] = n1
         if n0 > 0:
             if n0 + 2 > cap:
                 need = max(need, n0 + 2)

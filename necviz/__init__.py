@@ -18,7 +18,6 @@ loop), :mod:`necviz.dashboard.sink` (Rerun), :mod:`necviz.layouts` (blueprints).
 
 import os
 from importlib import import_module
-from importlib.metadata import PackageNotFoundError, version
 
 
 def _numba_cache_fallback() -> None:
@@ -76,10 +75,7 @@ os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd=off")
 # gigabytes. No frame of an event camera exceeds necviz.core.sensor.MAX_PIXELS (2048 x 2048).
 os.environ.setdefault("OPENCV_IO_MAX_IMAGE_PIXELS", str(1 << 22))
 
-try:
-    __version__ = version("necviz")
-except PackageNotFoundError:  # running from a source tree that is not installed
-    __version__ = "0+unknown"
+from necviz._version import __version__  # noqa: E402 - after the environment is set for what follows
 
 # name -> "module:attribute", imported on first use (importing necviz stays light for the CLI)
 _API = {

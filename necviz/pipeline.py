@@ -14,7 +14,9 @@ through methods that only append to memory, so control never waits for them.
 
 Measured per command: the processing latency from the moment the packet that caused it left the
 source to the moment the command was handed back (the source's batch period, ≤ 1 ms, comes on
-top in sensor time).
+top in sensor time). Start-up is not in it: before the first packet, every kernel the lanes and
+observers use is compiled or loaded from Numba's cache (:mod:`necviz.warmup`, on copies of the
+lanes; ``warm_up=False`` skips it).
 
 Changes while running (live tuning, switching the controller) are submitted from any thread
 (:meth:`Pipeline.tune`, :meth:`Pipeline.drive`) and applied on the streaming thread between two
@@ -98,6 +100,10 @@ class Observer:
     """Something that watches a run (the Rerun sink, the native recorder). Every method is called
     on the streaming thread and must only append to memory; the defaults ignore everything."""
 
+    def warm_up(self) -> None:
+        """Before the first packet (on the streaming thread): compile or load the kernels this observer
+        will run, so none of it happens while commands are timed."""
+
     def started(self, t_us: int, initial: dict) -> None:
         """The first packet arrived at ``t_us``; ``initial`` maps lane -> its starting command."""
 
@@ -136,6 +142,8 @@ class Pipeline:
     speed : ``None`` as fast as possible; ``1.0`` real time; ``N`` N times real time.
     sample_period_us : predictions go to observers at most this often (sensor time).
     stop_after_s : end the run after this much sensor time (``None``: when the source ends).
+    warm_up : compile or load every kernel before the first packet (:mod:`necviz.warmup`), so
+        start-up never counts as command latency.
     """
 
     def __init__(
@@ -148,6 +156,7 @@ class Pipeline:
         speed: float | None = None,
         sample_period_us: int = 2_000,
         stop_after_s: float | None = None,
+        warm_up: bool = True,
     ):
         if not lanes:
             raise ParameterError("the pipeline needs at least one lane")
@@ -184,6 +193,7 @@ class Pipeline:
         self.speed = speed
         self.sample_period_us = int(sample_period_us)
         self.stop_after_us = None if stop_after_s is None else int(stop_after_s * 1e6)
+        self.warm_up = bool(warm_up)
         self.error: BaseException | None = None
         self.wall_s = 0.0
         self._stop = threading.Event()
@@ -362,6 +372,15 @@ class Pipeline:
         lanes = list(self.lanes.values())
         tel, observers, source = self.telemetry, self.observers, self.source
         lane_tel = {ln.name: tel[ln.name] for ln in lanes}
+        if self.warm_up:  # before the first packet: compilation and cache loads never count as latency
+            from necviz.warmup import warm_up_lanes
+
+            warm_up_lanes(lanes, source.sensor)
+            if hasattr(source, "warm_up"):
+                source.warm_up()
+            for o in observers:
+                if hasattr(o, "warm_up"):
+                    o.warm_up()
         perf_ns = time.perf_counter_ns
         wall0 = time.perf_counter()
         next_sample = -(2**62)

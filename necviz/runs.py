@@ -90,14 +90,19 @@ def build_rig(
     profile=None,
     controller_params: dict | None = None,
     sim: dict | None = None,
+    cache=None,
 ):
-    """The scene, the rig (one camera per controller) and one driving lane per controller."""
+    """The scene, the rig (one camera per controller) and one driving lane per controller.
+
+    ``cache``: a :class:`~necviz.drivers.sim.scene_cache.SceneCache` the rig reads the rendered scene from,
+    or writes it to (a replayed demo; the packets are the same either way)."""
     from necviz.core.ptedi import PeripheralEstimator
+    from necviz.core.ptedi_shared import share_event_side
     from necviz.drivers.sim.rig import SimRig
 
     scene = scene_options.build()
     dvs, aps = sim_models(sim)
-    rig = SimRig(scene, list(controllers), dvs=dvs, aps=aps, seed=scene_options.resolved_seed)
+    rig = SimRig(scene, list(controllers), dvs=dvs, aps=aps, seed=scene_options.resolved_seed, cache=cache)
     limits = CameraLimits(aps.exposure_min_us, aps.exposure_max_us, aps.gain_max)
     unknown = set(controller_params or {}) - set(controllers)
     if unknown:
@@ -116,6 +121,9 @@ def build_rig(
         )
         passive = None if ctrl.estimator is not None else PeripheralEstimator(scene.sensor, profile.tedi, profile.crf)
         lanes.append(Lane(n, ctrl, estimator=passive))
+    # the lanes see the same events with the same thresholds: one compensated event side for all of them
+    # (exactly the estimates of separate ones, at a fraction of the work; necviz.core.ptedi_shared)
+    share_event_side([ln.estimator for ln in lanes])
     return scene, rig, lanes, limits
 
 

@@ -1,4 +1,8 @@
+import atexit
+import os
+import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -7,6 +11,11 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+# demos write the scene cache (necviz.drivers.sim.scene_cache): into a scratch directory, never the user's
+if "NECVIZ_CACHE_DIR" not in os.environ:
+    os.environ["NECVIZ_CACHE_DIR"] = _cache = tempfile.mkdtemp(prefix="necviz-test-cache-")
+    atexit.register(shutil.rmtree, _cache, ignore_errors=True)
 
 
 @pytest.fixture(scope="session")

@@ -15,6 +15,60 @@ def test_version_and_module_entry_point():
     assert out.returncode == 0 and out.stdout.strip() == f"necviz {__version__}"
 
 
+# What the command line must not load before a command runs (a second and more of start-up).
+HEAVY = ("numpy", "numba", "scipy", "rerun", "cv2", "necviz.core.control", "necviz.drivers.sim", "necviz.core.ptedi")
+_PROBE = """
+import contextlib, io, json, sys
+from necviz.commands.cli import main
+with contextlib.redirect_stdout(io.StringIO()) as out, contextlib.redirect_stderr(io.StringIO()) as err:
+    try:
+        rc = main(sys.argv[1:])
+    except SystemExit as e:
+        rc = e.code
+print(json.dumps({"rc": rc, "modules": sorted(sys.modules), "out": out.getvalue(), "err": err.getvalue()}))
+"""
+
+
+@pytest.mark.parametrize(
+    "argv, rc",
+    [
+        (["--version"], 0),
+        (["--help"], 0),
+        (["demo", "--help"], 0),
+        (["calibrate", "--help"], 0),
+        (["sweep", "run", "--help"], 0),
+        (["demo", "--bogus"], 2),  # argument errors
+        (["compare", "--controllers", "nec,nope"], 2),
+        (["live", "--controller", "nope"], 2),
+        (["replay"], 2),
+    ],
+)
+def test_version_help_and_argument_errors_import_nothing_heavy(argv, rc):
+    """Start-up: --version, --help and a mistyped flag answer without NumPy, Numba, Rerun or the controllers
+    (asserted on the modules a fresh interpreter holds afterwards, not on a timing)."""
+    got = json.loads(subprocess.run([sys.executable, "-c", _PROBE, *argv], capture_output=True, text=True).stdout)
+    assert got["rc"] == rc, got["err"]
+    loaded = [m for m in got["modules"] if any(m == h or m.startswith(h + ".") for h in HEAVY)]
+    assert loaded == [], f"{argv} imported {loaded[:5]}"
+    if rc == 2:
+        assert "error:" in got["err"]
+    if argv == ["--help"]:
+        assert "demo" in got["out"] and "calibrate" in got["out"]
+
+
+def test_the_help_names_are_the_registered_ones():
+    """The constants the parser shows (so it need not import the registries) are the registries' names."""
+    from necviz.core.control import CONTROLLERS
+    from necviz.dashboard.viewer_flags import LAYOUT_NAMES as VIEWER_LAYOUTS
+    from necviz.drivers.sim.scenes import SCENARIOS
+    from necviz.names import CONTROLLER_NAMES, LAYOUT_NAMES, SCENARIO_NAMES
+    from necviz.options import LAYOUT_NAMES as OPTION_LAYOUTS
+
+    assert sorted(CONTROLLER_NAMES) == sorted(CONTROLLERS)
+    assert sorted(SCENARIO_NAMES) == sorted(SCENARIOS)
+    assert LAYOUT_NAMES == VIEWER_LAYOUTS == OPTION_LAYOUTS
+
+
 def test_info_lists_versions_threading_layer_and_controllers(capsys):
     assert main(["info"]) == 0
     out = capsys.readouterr().out
@@ -115,7 +169,7 @@ def test_every_numeric_flag_is_checked_through_the_one_table():
 
 
 def test_every_numeric_flag_refuses_nan_infinity_garbage_and_out_of_range(capsys):
-    from necviz.options import NUMBER_FLAGS
+    from necviz.flags import NUMBER_FLAGS
 
     flags, _ = _numeric_flags()
     for prefix, flag, (name, command) in flags:

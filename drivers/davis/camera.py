@@ -38,7 +38,7 @@ import numpy as np
 
 from necviz.core.checks import check_number
 from necviz.core.control.controller import CameraLimits
-from necviz.core.errors import ParameterError
+from necviz.core.errors import NecvizError, ParameterError
 from necviz.core.events import EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import SensorGeometry, known_event_rate_max
@@ -298,6 +298,36 @@ class DavisCamera:
     def camera_info(self) -> CameraInfo:
         """The camera's limits and frame period, and the DAVIS event bus ceiling (its command latency is not known)."""
         return CameraInfo(self.limits, None, known_event_rate_max(self.sensor), self.frame_interval_us)
+
+    def warm_up(self) -> None:
+        """Compile or load the stream kernels before the run: a few synthetic words (a clock reset, events, a
+        small frame) are encoded and decoded by a throwaway encoder and decoder; an emulated device warms up
+        its simulator too. The camera's own state is untouched."""
+        from necviz.core.events import EVENT_DTYPE
+        from necviz.drivers.davis.encoder import FrameTiming, StreamEncoder
+
+        d = self.device
+        enc = StreamEncoder(d.aps_orientation)
+        ev = np.zeros(4, EVENT_DTYPE)
+        ev["t"] = [10, 11, 40, 90]
+        ev["x"], ev["y"], ev["p"] = [1, 2, 3, 4], [1, 1, 2, 3], [1, -1, 1, -1]
+        img = np.full((2, 2), 512, np.int64)
+        words = np.concatenate(
+            [
+                enc.timestamp_reset(),
+                enc.events(ev),
+                enc.frame(FrameTiming(100, 110, 150, 160), img, img, (0, 0, 1, 1), 40),
+            ]
+        )
+        try:  # a warm-up that fails costs latency later, never the run
+            DavisDecoder(DecoderOptions(d.dvs_size[0], d.dvs_size[1], aps_width=2, aps_height=2)).decode(
+                words.tobytes()
+            )
+        except NecvizError:
+            pass
+        backend = getattr(d, "backend", None)
+        if hasattr(backend, "warm_up"):
+            backend.warm_up()
 
     def close(self) -> None:
         """Stop the device (documented stop order), join the reader thread, release USB. Idempotent."""

@@ -201,7 +201,8 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         self.serial = o.serial
         self.aps_orientation = o.aps_orientation
         self.bus, self.address = o.bus, o.address
-        self.lock = threading.RLock()
+        self.lock = threading.RLock()  # registers, FIFO and faults (control and data paths)
+        self._data_lock = threading.Lock()  # the simulator (non-realtime data path): not held by control transfers
         #: the last TRANSFER_LOG control transfers, in order (``transfers_total`` counts them all)
         self.transfers: deque[ControlRecord] = deque(maxlen=TRANSFER_LOG)
         self.transfers_total = 0

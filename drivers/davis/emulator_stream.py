@@ -56,6 +56,16 @@ class DataPathMixin:
     and the counters, set by its ``_power_on``)."""
 
     # -- streaming -----------------------------------------------------------------------------------
+    def warm_up(self) -> None:
+        """Compile or load the simulator's kernels on a throwaway rig of the same scenario (a few ms of it)."""
+        from necviz.drivers.sim.rig import SimRig
+        from necviz.drivers.sim.scenes import make_scenario
+
+        scene = make_scenario(
+            self.scenario, sensor=self.sensor, duration_us=50_000, seed=self.seed, **self.scenario_params
+        )
+        SimRig(scene, ["camera"], seed=self.seed, threads=False).warm_up()
+
     def _ensure_rig(self) -> None:
         from necviz.drivers.sim.aps import ApsParams
         from necviz.drivers.sim.rig import SimRig
@@ -260,8 +270,11 @@ class DataPathMixin:
             return self._bulk_read_realtime(ep, buff, timeout_s)
         with self.lock:
             running = self._faults_and_state(ep)
-            if running and not self._pending and not self._scene_done:
+            produce = running and not self._pending and not self._scene_done
+        if produce:  # simulate without the control lock: a control transfer (an exposure command) does not
+            with self._data_lock:  # wait for the simulator, as a real device's does not wait for its sensor
                 self._produce()
+        with self.lock:
             n = self._take(memoryview(buff).cast("B"), 0)
             if n:
                 self.bulk_reads += 1

@@ -99,6 +99,9 @@ class SimRig:
     truth : attach :class:`~necviz.core.ground_truth.GroundTruth` to every frame (``frame.truth``).
     threads : render, simulate events and form frames on worker threads (``None``: :attr:`THREADS`);
         ``False`` runs everything on the consumer's thread. The packets are identical either way.
+    cache : a :class:`~necviz.drivers.sim.scene_cache.SceneCache`: read the rendered scene and its events
+        from it when this stream is there, else write it there (when the whole scene is simulated). The
+        packets are identical either way; only the scene's rendering and the event model are skipped.
     """
 
     #: default of ``threads``: worker threads for rendering, events and frames
@@ -123,6 +126,7 @@ class SimRig:
         first_start_us: int = 1_000,
         truth: bool = True,
         threads: bool | None = None,
+        cache=None,
     ):
         if not isinstance(scene, Scene):
             raise ParameterError("SimRig needs a Scene (see necviz.drivers.sim.scenes)")
@@ -146,6 +150,9 @@ class SimRig:
         self.first_start_us = int(first_start_us)
         self.truth = bool(truth)
         self.threads = self.THREADS if threads is None else bool(threads)
+        self.cache = cache
+        self.samples_cached = 0  # scene samples read from the cache instead of rendered
+        self.cache_written = False
         # the lighting trace kept for ground truth: (sample time, mean ln L on the TRACE_STEP grid)
         self._trace_t: deque = deque()
         self._trace_l: deque = deque()
@@ -343,23 +350,49 @@ class SimRig:
             event_thresholds=(float(self.dvs_params.c_on), float(self.dvs_params.c_off)),
         )
 
+    def _open_cache(self, last_target: int):
+        """``(reader, writer)`` of the scene cache for this stream (either or both ``None``)."""
+        if self.cache is None:
+            return None, None
+        key = self.cache.key(self)
+        if key is None:
+            return None, None
+        reader = self.cache.open(key, self.sensor.shape)
+        if reader is not None:
+            return reader, None
+        expected = int(1.2 * (last_target // self.sample_us + 1))  # with a margin for refined samples
+        return None, self.cache.writer(key, self.sensor.shape, expected)
+
     def packets(self):
         """Yield ``(camera name or None, packet)`` in time order until the scene ends."""
-        dvs = EventSimulator(self.sensor, self.dvs_params, seed=self.seed)
-        l_prev = self.scene.log_irradiance(0)
-        self.samples_rendered += 1
-        dvs.reset(l_prev, 0)
+        end = self.scene.duration_us
+        last_target = -(-(end + 2 * self.sample_us) // self.sample_us) * self.sample_us  # as the serial loop
+        reader, writer = self._open_cache(last_target)
         self._trace_t.clear()
         self._trace_l.clear()
         self._lost.clear()
         self._lost.append((0, 0, 0))
-        self._trace(0, l_prev)
+        dvs = None
+        if reader is not None:  # the scene and its events from the cache: nothing to render or simulate
+            lin0, trace0 = reader.first()
+            self.samples_cached += 1
+            self._trace(0, value=trace0)
+            l_prev = None
+        else:
+            dvs = EventSimulator(self.sensor, self.dvs_params, seed=self.seed)
+            l_prev = self.scene.log_irradiance(0)
+            self.samples_rendered += 1
+            dvs.reset(l_prev, 0)
+            self._trace(0, l_prev)
+            lin0 = np.exp(l_prev)
+            if writer is not None:
+                writer.sample(0, lin0, self._trace_l[-1] if self.truth else None)
+                writer.events(np.zeros(0, EVENT_DTYPE))
         buf_t: deque = deque([0])
-        buf_l: deque = deque([np.exp(l_prev)])
+        buf_l: deque = deque([lin0])
         held = np.zeros(0, EVENT_DTYPE)
         pending: deque = deque()
         t_rendered = t_gathered = 0
-        end = self.scene.duration_us
         render_state = [0, l_prev]
         # with threads: [render worker, DVS worker, frame worker]; each runs its jobs in submission order
         pools = (
@@ -367,10 +400,10 @@ class SimRig:
             if self.threads
             else []
         )
+        complete = False
         renders: deque = deque()  # futures of the periods rendered ahead (threads), a chunk of periods each
         ready: deque = deque()  # rendered periods not yet taken
         t_submitted = 0
-        last_target = -(-(end + 2 * self.sample_us) // self.sample_us) * self.sample_us  # as the serial loop
         forming: dict = {}  # (camera index, exposure start) -> future of (image, Lbar) (threads)
         heap: list = []
         for i, name in enumerate(self.cams):
@@ -383,7 +416,10 @@ class SimRig:
                 # threads, RENDER_AHEAD periods ahead on the render worker, whose samples go on to the DVS
                 # worker). Events past t1 wait for the next batch.
                 while t_rendered < t1 + 2 * self.sample_us:
-                    if pools:
+                    if reader is not None:
+                        samples = reader.period()
+                        self.samples_cached += len(samples)
+                    elif pools:
                         ahead = len(ready) + sum(f[1] for f in renders)
                         while t_submitted < last_target and ahead < self.RENDER_AHEAD:
                             k = min(self.RENDER_CHUNK, (last_target - t_submitted) // self.sample_us)
@@ -400,15 +436,19 @@ class SimRig:
                         pending.append((ts, ev))
                         buf_t.append(ts)
                         buf_l.append(lin)
+                        if writer is not None:
+                            writer.sample(ts, lin, trace)
                     t_rendered += self.sample_us
                 chunks = [held] if held.size else []
                 while t_gathered < t1:
                     t_gathered, ev = pending.popleft()
-                    if pools:
+                    if pools and reader is None:
                         ev = ev[0].result()[ev[1]]
                     ev, lost_on, lost_off = ev
                     if self.truth:
                         self._lost.append((t_gathered, lost_on, lost_off))
+                    if writer is not None:
+                        writer.events(ev, lost_on, lost_off)
                     if ev.size:
                         chunks.append(ev)
                 events = np.concatenate(chunks) if len(chunks) > 1 else (chunks[0] if chunks else held)
@@ -475,9 +515,47 @@ class SimRig:
                 while len(self._lost) > 2 and self._lost[1][0] <= keep:
                     self._lost.popleft()
                 t0 = t1
+            complete = True
         finally:
+            if writer is not None:
+                if complete:  # the samples rendered ahead of the end: their events too (a replay reads them)
+                    for _, ev in pending:
+                        writer.events(*(ev[0].result()[ev[1]] if pools else ev))
+                    self.cache_written = writer.commit(self.sample_us)
+                else:
+                    writer.abort()
             for pool in pools:  # the render worker first: it feeds the DVS worker
                 pool.shutdown(wait=True, cancel_futures=True)
+
+    def warm_up(self) -> None:
+        """Compile or load the simulator's kernels (events, frame formation) before the run: a throwaway rig
+        on the same scene and models simulates until its first frame (a few ms of scene time, no threads).
+        This rig's state, random streams included, is untouched."""
+        dvs = self.dvs_params
+        if dvs.shot_noise_hz > 0:  # enough shot noise that its kernel runs within the few ms simulated
+            dvs = dvs.replace(shot_noise_hz=max(dvs.shot_noise_hz, 1e3))
+        mini = SimRig(
+            self.scene,
+            {"warm-up": (self.aps.exposure_min_us, 1.0)},
+            dvs=dvs,
+            aps=self.aps,
+            crf=self.crf,
+            seed=self.seed,
+            sample_us=self.sample_us,
+            refine_log=self.refine_log,
+            min_sample_us=self.min_sample_us,
+            batch_us=self.batch_us,
+            first_start_us=self.first_start_us,
+            truth=self.truth,
+            threads=False,
+        )
+        gen = mini.packets()
+        try:
+            for _, p in gen:
+                if isinstance(p, Frame):
+                    break
+        finally:
+            gen.close()
 
     def close(self) -> None:
         """Nothing to release: the simulation ends with its generator."""

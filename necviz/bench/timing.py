@@ -11,14 +11,23 @@ import numpy as np
 
 
 def machine() -> dict:
-    """Python, processor, core count and the numeric libraries the figures depend on."""
+    """Python, processor, core count, the numeric libraries the figures depend on, and the load average
+    (1, 5, 15 min) when the figures were taken: the machine may be shared, so a figure without its load
+    is not comparable."""
     return {
         "python": platform.python_version(),
         "processor": platform.processor() or platform.machine(),
         "cpu_count": os.cpu_count(),
         "numba": nb.__version__,
         "numpy": np.__version__,
+        "load_average": [round(v, 2) for v in os.getloadavg()] if hasattr(os, "getloadavg") else None,
     }
+
+
+def spread(values) -> dict:
+    """``{"median", "min", "max", "runs"}`` of repeated measurements (the figure and its spread)."""
+    v = np.asarray(list(values), dtype=np.float64)
+    return {"median": float(np.median(v)), "min": float(v.min()), "max": float(v.max()), "runs": int(v.size)}
 
 
 def write_result(result: dict, json_path, out) -> None:

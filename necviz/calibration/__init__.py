@@ -21,23 +21,27 @@ Modules: :mod:`.pairs` (choosing the frame pairs and the exposure brackets from 
 
 from __future__ import annotations
 
-from necviz.calibration.fit import (
-    DEFAULT_F_SCALE,
-    DEFAULT_LOSS,
-    DEFAULT_SLOW_RATE,
-    FIT_CHOICES,
-    CalibrationResult,
-    calibrate_collected,
-)
-from necviz.calibration.from_recordings import calibrate_from_recordings
-from necviz.calibration.from_simulation import (
-    BRACKET_OFFSETS,
-    ExposureOracle,
-    calibrate_from_simulation,
-    make_sim_scene,
-    simulate_calibration_stream,
-)
-from necviz.calibration.pairs import DEFAULTS, PairCollector
+from importlib import import_module
+
+# name -> module, imported on first use (the command line reads the defaults without loading the fit)
+_API = {
+    **dict.fromkeys(
+        ("DEFAULT_F_SCALE", "DEFAULT_LOSS", "DEFAULT_SLOW_RATE", "DEFAULTS"), "necviz.calibration.settings"
+    ),
+    **dict.fromkeys(("FIT_CHOICES", "CalibrationResult", "calibrate_collected"), "necviz.calibration.fit"),
+    "calibrate_from_recordings": "necviz.calibration.from_recordings",
+    **dict.fromkeys(
+        (
+            "BRACKET_OFFSETS",
+            "ExposureOracle",
+            "calibrate_from_simulation",
+            "make_sim_scene",
+            "simulate_calibration_stream",
+        ),
+        "necviz.calibration.from_simulation",
+    ),
+    "PairCollector": "necviz.calibration.pairs",
+}
 
 __all__ = [
     "BRACKET_OFFSETS",
@@ -55,3 +59,15 @@ __all__ = [
     "make_sim_scene",
     "simulate_calibration_stream",
 ]
+
+
+def __getattr__(name):
+    if name in _API:
+        value = getattr(import_module(_API[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'necviz.calibration' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted({*globals(), *_API})

@@ -21,6 +21,7 @@ import numpy as np
 
 from necviz.calibration.holdout import BLOCK_S, FitPlan, validate_compensation
 from necviz.calibration.pairs import PairCollector
+from necviz.calibration.settings import DEFAULT_F_SCALE, DEFAULT_LOSS, DEFAULT_SLOW_RATE
 from necviz.core.camera_profile import CameraProfile
 from necviz.core.control import CameraLimits
 from necviz.core.crf import CameraResponse, debevec_malik
@@ -30,15 +31,6 @@ from necviz.core.sensor import SensorGeometry
 from necviz.core.tedi import PARAM_NAMES, TediCalibration, TediFitOptions, fit_tedi_pairs, pair_residuals
 
 FIT_CHOICES = {"all": PARAM_NAMES, "c": ("c_on", "c_off")}
-
-#: Lower bound of the compensation knee b/a (events per pixel per second): below it a pixel's events
-#: are taken at face value. A third of the DAVIS346's whole-array bus ceiling (12 Mev/s / 89,960
-#: pixels = 133 ev/s per pixel), far below its refractory limit (~10 kev/s).
-DEFAULT_SLOW_RATE = 50.0
-
-#: Loss of the least-squares fit (SciPy ``least_squares``): see :func:`calibrate_collected`.
-DEFAULT_LOSS = "linear"
-DEFAULT_F_SCALE = 0.25
 
 
 @dataclass

@@ -36,6 +36,7 @@ import math
 
 import numpy as np
 
+from necviz.calibration.settings import DEFAULTS
 from necviz.core.camera_profile import CameraProfile
 from necviz.core.crf import CameraResponse
 from necviz.core.errors import EventFormatError, ParameterError
@@ -43,18 +44,6 @@ from necviz.core.events import EVENT_DTYPE, EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.tedi import REFERENCES, CalibrationPair, PairSelection, prepare_pair
 from necviz.core.tedi_kernels import update_last_polarity
-
-DEFAULTS = {
-    "min_change": 0.5,
-    "min_pixels": 200,
-    "max_pixels": 5_000,
-    "max_pairs": 200,
-    "max_bytes": 400_000_000,
-    "max_gap_us": 1_000_000,
-    "max_lag": 8,
-    "static_events": 0.05,
-    "continuation": True,
-}
 
 
 class _Recent:

@@ -6,16 +6,15 @@ import argparse
 import math
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from necviz.calibration.fit import DEFAULT_LOSS, DEFAULT_SLOW_RATE, _resolve_fit
-from necviz.calibration.from_recordings import calibrate_from_recordings
-from necviz.calibration.from_simulation import calibrate_from_simulation
-from necviz.calibration.pairs import DEFAULTS
-from necviz.core.camera_profile import CameraProfile
+# light imports only: the parser is built for every command line (`necviz --help` must not load NumPy)
+from necviz.calibration.settings import DEFAULT_LOSS, DEFAULT_SLOW_RATE, DEFAULTS
 from necviz.core.errors import ParameterError
-from necviz.core.event_model import TediParams
-from necviz.core.sensor import DAVIS346, SensorGeometry
-from necviz.profiles import load_profile
+
+if TYPE_CHECKING:
+    from necviz.core.event_model import TediParams
+    from necviz.core.sensor import SensorGeometry
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -38,6 +37,8 @@ def parse_seeds(text: str) -> list[int]:
 
 
 def _parse_init(text: str, base: TediParams) -> TediParams:
+    from necviz.core.event_model import TediParams
+
     parts = [p.strip() for p in str(text).split(",")]
     try:
         if len(parts) != 2:
@@ -51,6 +52,8 @@ def _parse_init(text: str, base: TediParams) -> TediParams:
 
 
 def _parse_sensor(text: str) -> SensorGeometry:
+    from necviz.core.sensor import DAVIS346, SensorGeometry
+
     if text.upper() == "DAVIS346":
         return DAVIS346
     try:
@@ -64,7 +67,7 @@ def _parse_sensor(text: str) -> SensorGeometry:
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Register ``necviz calibrate`` on an ``argparse`` subparsers object; returns the parser."""
-    from necviz.options import number
+    from necviz.flags import number
 
     p = subparsers.add_parser(
         "calibrate",
@@ -196,7 +199,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
+    from necviz.calibration.fit import _resolve_fit
+    from necviz.calibration.from_recordings import calibrate_from_recordings
+    from necviz.calibration.from_simulation import calibrate_from_simulation
+    from necviz.core.camera_profile import CameraProfile
     from necviz.outputs import check_distinct, check_output, write_json
+    from necviz.profiles import load_profile
 
     files = list(args.files or [])
     if files and args.sim:

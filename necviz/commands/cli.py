@@ -3,6 +3,11 @@
 Exit codes: 0 success; 2 a user mistake or bad input (one line ``necviz: error: …``); 3 an
 internal error (one line saying it is a bug, with the traceback saved to a file for the report);
 130 interrupted.
+
+Start-up: building the parser imports nothing heavy (no NumPy, Numba, Rerun or controllers), so
+``--version``, ``--help`` and a mistyped flag answer at once; each command imports what it needs
+when it runs. The names the help lists come from plain constants (:data:`CONTROLLER_NAMES`,
+:data:`SCENARIO_NAMES`), which ``tests/test_cli.py`` keeps equal to the registries.
 """
 
 from __future__ import annotations
@@ -14,38 +19,44 @@ from necviz import __version__
 
 EXIT_USER = 2
 EXIT_BUG = 3
-LAYOUT_NAMES = ("live", "inspect", "compare")  # necviz.options.LAYOUT_NAMES, without importing it for --help
-FORMATS = ("necviz", "aedat4", "aedat3", "aedat2", "rosbag1", "rosbag2", "hdf5", "rpg-text")
+from necviz.names import CONTROLLER_NAMES, FORMATS, LAYOUT_NAMES, SCENARIO_NAMES  # noqa: E402, F401 - light
 
 
 # -- shared option groups -----------------------------------------------------------------------
 def _controllers():
-    from necviz.core.control import CONTROLLERS
-
-    return sorted(CONTROLLERS)
+    return sorted(CONTROLLER_NAMES)
 
 
 def _controller_list(text: str):
-    from necviz.core.errors import ParameterError
-    from necviz.options import parse_controllers
-
-    try:
-        return parse_controllers(text)
-    except ParameterError as e:
-        raise argparse.ArgumentTypeError(str(e)) from None
+    """``--controllers``: checked against :data:`CONTROLLER_NAMES` without importing the controllers
+    (the same rules and message as :func:`necviz.options.parse_controllers`, which checks again)."""
+    names = [n.strip() for n in text.split(",") if n.strip()] if isinstance(text, str) else [str(n) for n in text]
+    unknown = [
+        n
+        for n in names
+        if n.split("@", 1)[0] not in CONTROLLER_NAMES
+        or ("@" in n and not n.split("@", 1)[1].replace("-", "_").isidentifier())
+    ]
+    if not names or unknown:
+        raise argparse.ArgumentTypeError(
+            f"unknown controller(s) {', '.join(unknown) or '(none given)'}; "
+            f"available: {', '.join(sorted(CONTROLLER_NAMES))} (a variant: KIND@LABEL)"
+        )
+    if len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError("each controller may appear once in --controllers")
+    return tuple(names)
 
 
 def add_scene_args(parser, emulated: bool = False) -> None:
     """``--scenario`` (a preset or a TOML file), ``--seed``, ``--duration`` and ``--set KEY=VALUE``."""
-    from necviz.drivers.sim.scenes import SCENARIOS
-    from necviz.options import number
+    from necviz.flags import number
 
     g = parser.add_argument_group("emulated scene" if emulated else "scene")
     g.add_argument(
         "--scenario",
         default="tunnel_exit",
         metavar="NAME|FILE.toml",
-        help=f"a preset ({', '.join(sorted(SCENARIOS))}) or a TOML scenario file (default tunnel_exit)",
+        help=f"a preset ({', '.join(SCENARIO_NAMES)}) or a TOML scenario file (default tunnel_exit)",
     )
     g.add_argument(
         "--seed", type=number("--seed"), default=None, help="scene and noise seed (default: the file's, or 0)"
@@ -78,8 +89,8 @@ def scene_options(args, duration_s=None, *, scene_duration: bool = True):
 
 
 def add_show_args(parser, tuning: bool = True) -> None:
-    from necviz.dashboard.viewer import add_viewer_args
-    from necviz.options import number
+    from necviz.dashboard.viewer_flags import add_viewer_args
+    from necviz.flags import number
 
     add_viewer_args(parser, LAYOUT_NAMES)
     g = parser.add_argument_group("run")
@@ -108,7 +119,7 @@ def add_show_args(parser, tuning: bool = True) -> None:
 
 def add_clip_args(parser) -> None:
     """``--clips DIR`` and its bounds: the flight recorder (necviz.flight_recorder)."""
-    from necviz.options import number
+    from necviz.flags import number
 
     g = parser.add_argument_group("flight recorder (a clip around every saturated frame and every 'mark')")
     g.add_argument("--clips", metavar="DIR", help="write a clip (.necrec + .rrd) around every failure into DIR")
@@ -137,7 +148,7 @@ def _clips(args):
 
 def add_video_args(parser) -> None:
 
-    from necviz.options import number
+    from necviz.flags import number
 
     g = parser.add_argument_group("video")
     g.add_argument(
@@ -221,7 +232,7 @@ def _info_file(args) -> int:
 
 def _cmd_demo(args) -> int:
     from necviz.commands.demo import run
-    from necviz.dashboard.viewer import viewer_options
+    from necviz.dashboard.viewer_flags import viewer_options
     from necviz.options import DemoOptions
 
     run(
@@ -243,7 +254,7 @@ def _cmd_demo(args) -> int:
 
 def _cmd_replay(args) -> int:
     from necviz.commands.replay import run
-    from necviz.dashboard.viewer import viewer_options
+    from necviz.dashboard.viewer_flags import viewer_options
     from necviz.options import ReplayOptions
 
     run(
@@ -268,7 +279,7 @@ def _cmd_replay(args) -> int:
 
 def _cmd_live(args) -> int:
     from necviz.commands.live import run
-    from necviz.dashboard.viewer import viewer_options
+    from necviz.dashboard.viewer_flags import viewer_options
     from necviz.options import LiveOptions
 
     run(
@@ -370,7 +381,13 @@ def _cmd_bench_estimators(args) -> int:
 def _cmd_bench_sim(args) -> int:
     from necviz.bench.sim_speed import run
 
-    run(duration_s=args.duration or 5.0, cameras=args.cameras, scene=scene_options(args), json_path=_bench_json(args))
+    run(
+        duration_s=args.duration or 5.0,
+        cameras=args.cameras,
+        scene=scene_options(args),
+        json_path=_bench_json(args),
+        repeats=args.repeats,
+    )
     return 0
 
 
@@ -389,13 +406,13 @@ class Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from necviz.options import number
+    from necviz.flags import number
 
     p = Parser(prog="necviz", description="Neuromorphic exposure control: estimators, controllers, dashboard.")
     p.add_argument("--version", action="version", version=f"necviz {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     controllers = _controllers()
-    from necviz.options import COMPARE_CONTROLLERS, DEFAULT_CONTROLLERS
+    from necviz.names import COMPARE_CONTROLLERS, DEFAULT_CONTROLLERS
 
     info = sub.add_parser("info", help="versions and capabilities; with FILE, what a recording holds")
     info.add_argument("file", nargs="?", metavar="FILE", help="a recording (any supported format)")
@@ -556,7 +573,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_bench(sub) -> None:
-    from necviz.options import number
+    from necviz.flags import number
 
     def B(flag):
         return number(flag, "bench")
@@ -590,6 +607,12 @@ def _add_bench(sub) -> None:
     common(sim)
     add_scene_args(sim)
     sim.add_argument("--cameras", type=B("--cameras"), default=6, help="cameras sharing the scene (default 6)")
+    sim.add_argument(
+        "--repeats",
+        type=B("--repeats"),
+        default=3,
+        help="timed runs (and replays from a scene cache); the median is reported",
+    )
     sim.set_defaults(func=_cmd_bench_sim)
     dec = bsub.add_parser("decode", help="DAVIS stream decoder throughput on a 12 Mev/s-style stream")
     common(dec)

@@ -2,7 +2,9 @@
 
 Every controller drives its own simulated camera; all cameras share one scene and one event
 stream (:class:`~necviz.drivers.sim.rig.SimRig`), as in ``necviz compare``, shown side by side
-in the ``compare`` layout. No hardware and no files needed. From Python::
+in the ``compare`` layout. No hardware and no files needed. The rendered scene and its events are kept in
+the scene cache (:mod:`necviz.drivers.sim.scene_cache`), so running the same demo again skips the
+rendering (the packets are the same). From Python::
 
     import necviz
     necviz.run_demo(necviz.DemoOptions(necviz.SceneOptions("indoor_outdoor")),
@@ -13,6 +15,7 @@ from __future__ import annotations
 
 from necviz.dashboard.recorders import open_recorder
 from necviz.dashboard.session import Session, preflight, run_session, scene_inputs
+from necviz.drivers.sim.scene_cache import SceneCache
 from necviz.options import DemoOptions, ViewerOptions
 from necviz.progress import output
 from necviz.runs import build_rig
@@ -53,7 +56,8 @@ def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None,
     if options.clips is not None:
         options.clips.check()
     sc = options.scene
-    scene, rig, lanes, limits = build_rig(sc, options.controllers, profile)
+    # a demo is replayed: its scene and events come from the scene cache from the second run on
+    scene, rig, lanes, limits = build_rig(sc, options.controllers, profile, cache=SceneCache.default())
     props = {
         "command": "demo",
         "scenario": sc.name,

@@ -86,7 +86,7 @@ def run(options: ExportOptions, out=...) -> dict:
 
 
 def add_parser(sub) -> None:
-    from necviz.options import number
+    from necviz.flags import number
 
     p = sub.add_parser(
         "export",

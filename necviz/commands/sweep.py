@@ -151,7 +151,7 @@ def _cmd_report(args) -> int:
 
 
 def _cmd_show(args) -> int:
-    from necviz.dashboard.viewer import viewer_options
+    from necviz.dashboard.viewer_flags import viewer_options
     from necviz.sweeps.show import show
 
     show(args.out, args.run, viewer_options(args), speed=args.speed)
@@ -160,7 +160,7 @@ def _cmd_show(args) -> int:
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Register ``necviz sweep`` and its subcommands on an ``argparse`` subparsers object."""
-    from necviz.options import number
+    from necviz.flags import number
 
     p = subparsers.add_parser(
         "sweep",
@@ -248,7 +248,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     sh = sub.add_parser("show", help="re-run one run deterministically in the Rerun dashboard (or --save)")
     sh.add_argument("out", metavar="DIR", help="the sweep folder")
     sh.add_argument("--run", required=True, metavar="HASH", help="the run's hash (or its first digits)")
-    from necviz.dashboard.viewer import add_viewer_args
+    from necviz.dashboard.viewer_flags import add_viewer_args
 
     add_viewer_args(sh, ("live", "inspect", "compare"))
     sh.add_argument(

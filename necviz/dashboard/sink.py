@@ -57,6 +57,7 @@ import numpy as np
 import rerun as rr
 
 from necviz.core.event_image import BACKGROUND_RGB, OFF_RGB, ON_RGB, EventImage, colour_table, palette_rows
+from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import Frame
 from necviz.dashboard import schema as S
 from necviz.dashboard.telemetry import FrameRecord
@@ -120,6 +121,17 @@ def _palette_bits(n: int) -> int:
     return 4 if n <= 16 else 8
 
 
+def _deflate(data: bytes, level: int) -> bytes:
+    """zlib stream of ``data``: run-length strategy (``Z_RLE``) from level 6 up. Event images are long runs of
+    the background index between sparse events; matching runs only, instead of searching back for repeated
+    strings, gives ~10 % fewer bytes than the default strategy at level 9 (and ~15 % less than level 6)
+    on the 2 s demo's event images, and is faster. Any PNG decoder reads either."""
+    if level < 6:
+        return zlib.compress(data, level)
+    c = zlib.compressobj(level, zlib.DEFLATED, 15, 9, zlib.Z_RLE)
+    return c.compress(data) + c.flush()
+
+
 def png_from_rows(raw: np.ndarray, width: int, bits: int, palette: np.ndarray, level: int = 6) -> bytes:
     """A paletted PNG from its filtered rows ``raw`` (H x (1 + row bytes) uint8, filter byte first)."""
 
@@ -130,7 +142,7 @@ def png_from_rows(raw: np.ndarray, width: int, bits: int, palette: np.ndarray, l
         b"\x89PNG\r\n\x1a\n"
         + chunk(b"IHDR", struct.pack(">IIBBBBB", width, raw.shape[0], bits, 3, 0, 0, 0))
         + chunk(b"PLTE", np.ascontiguousarray(palette, np.uint8).tobytes())
-        + chunk(b"IDAT", zlib.compress(raw.tobytes(), level))
+        + chunk(b"IDAT", _deflate(raw.tobytes(), level))
         + chunk(b"IEND", b"")
     )
 
@@ -299,6 +311,19 @@ class RerunSink(Observer):
 
     def _scalar(self, lane: str, leaf: str, t_us: int, value: float) -> None:
         self._scalar_q.append((S.path(lane, leaf), t_us, self._seq.get(lane, 0), value))
+
+    def warm_up(self) -> None:
+        """Load the event-image kernels (drawing, palette rows) before the run, on a scratch image."""
+        h, w = self._image.counts_on.shape
+        img = EventImage(h, w, self._image.saturate_at)
+        ev = np.zeros(4, EVENT_DTYPE)
+        ev["x"], ev["y"], ev["p"] = [0, 1, 2, 3], [0, 0, 1, 1], [1, -1, 1, -1]
+        img.add(ev, 1)
+        img.add(ev[::2], 2)
+        img.add(ev[:1], 1)  # one event: contiguous field views, another signature
+        pal = EventPalette(img)  # its rows kernel (what EventPalette.png runs), nothing logged or encoded
+        bits = _palette_bits(len(pal.palette))
+        palette_rows(img.counts_on, img.counts_off, pal.k, bits, np.empty((h, 1 + (w * bits + 7) // 8), np.uint8))
 
     def started(self, t_us: int, initial: dict) -> None:
         for lane, cmd in initial.items():  # the commanded series start with the setting the run began with

@@ -23,7 +23,6 @@ growing and fails with one line instead.
 
 from __future__ import annotations
 
-import argparse
 import os
 import shutil
 import socket
@@ -37,12 +36,16 @@ from pathlib import Path
 import rerun as rr
 
 from necviz.core.errors import ParameterError
-from necviz.options import LAYOUT_NAMES, ViewerOptions
+from necviz.dashboard.viewer_flags import (  # noqa: F401 - re-exported: the flags live in a module without Rerun
+    DEFAULT_CONNECT,
+    DEFAULT_GRPC_PORT,
+    DEFAULT_WEB_PORT,
+    add_viewer_args,
+    viewer_options,
+)
+from necviz.options import ViewerOptions
 from necviz.outputs import OutputError, StreamedOutput, check_output, free_bytes
 
-DEFAULT_GRPC_PORT = 9876
-DEFAULT_WEB_PORT = 9090
-DEFAULT_CONNECT = f"rerun+http://127.0.0.1:{DEFAULT_GRPC_PORT}/proxy"
 LOOPBACK = ("127.0.0.1", "::1", "localhost")
 
 
@@ -50,53 +53,6 @@ def text(value) -> str:
     """``str(value)`` that Rerun accepts: a file name that is not UTF-8 (kept by Python as surrogate
     escapes) shows its undecodable bytes as U+FFFD instead of failing to encode."""
     return str(value).encode("utf-8", "surrogateescape").decode("utf-8", "replace")
-
-
-def add_viewer_args(parser: argparse.ArgumentParser, layouts: tuple[str, ...] = LAYOUT_NAMES) -> None:
-    g = parser.add_argument_group("viewer (combine freely; headless default: save to a file)")
-    g.add_argument("--spawn", action="store_true", help="spawn a native Rerun viewer (default when a display exists)")
-    g.add_argument(
-        "--serve",
-        action="store_true",
-        help=f"serve the web viewer (:{DEFAULT_WEB_PORT}) and its data (:{DEFAULT_GRPC_PORT}) on 127.0.0.1",
-    )
-    g.add_argument(
-        "--bind",
-        metavar="ADDR",
-        default="127.0.0.1",
-        help="with --serve: the address to listen on (default 127.0.0.1; anything else exposes the "
-        "recording to the network)",
-    )
-    g.add_argument(
-        "--connect",
-        metavar="URL",
-        nargs="?",
-        const=DEFAULT_CONNECT,
-        help=f"stream to a running viewer (default URL {DEFAULT_CONNECT})",
-    )
-    g.add_argument("--save", metavar="FILE.rrd", type=Path, help="write the recording to FILE.rrd")
-    g.add_argument("--layout", choices=layouts, help="override the command's layout")
-    from necviz.options import number
-
-    g.add_argument("--grpc-port", type=number("--grpc-port"), default=DEFAULT_GRPC_PORT, help=argparse.SUPPRESS)
-    g.add_argument("--web-port", type=number("--web-port"), default=DEFAULT_WEB_PORT, help=argparse.SUPPRESS)
-    g.add_argument("--memory-limit", default="1GB", help="viewer / server memory limit (default 1GB)")
-
-
-def viewer_options(args: argparse.Namespace) -> ViewerOptions:
-    """The viewer flags of a parsed command line."""
-    return ViewerOptions(
-        spawn=args.spawn,
-        serve=args.serve,
-        connect=args.connect,
-        save=args.save,
-        force=getattr(args, "force", False),
-        layout=args.layout,
-        memory_limit=args.memory_limit,
-        bind=args.bind,
-        grpc_port=args.grpc_port,
-        web_port=args.web_port,
-    )
 
 
 def has_display() -> bool:

@@ -525,7 +525,7 @@ def _duration(v, where):
     from necviz.core.checks import check_number
 
     try:
-        from necviz.drivers.sim.scenes.toml import MAX_DURATION_S
+        from necviz.core.limits import MAX_DURATION_S
 
         return check_number(where, v, 0.0, MAX_DURATION_S, lo_open=True)
     except ParameterError as e:

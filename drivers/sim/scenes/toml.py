@@ -18,6 +18,7 @@ from pathlib import Path
 
 from necviz.core.checks import check_number
 from necviz.core.errors import ParameterError, ProfileError
+from necviz.core.limits import MAX_DURATION_S, MAX_SEED
 from necviz.core.sensor import DAVIS240, DAVIS346, SensorGeometry
 from necviz.drivers.sim.scene import Scene
 from necviz.drivers.sim.scenes.preset import US
@@ -26,10 +27,6 @@ from necviz.drivers.sim.scenes.registry import SCENARIOS, make_scenario
 __all__ = ["load_scenario_spec", "scenario_from_toml"]
 
 _SENSORS = {"DAVIS346": DAVIS346, "DAVIS240": DAVIS240}
-#: Longest simulated scene, in a file as on the command line (``--duration``): 600 s.
-MAX_DURATION_S = 600.0
-#: Largest seed (NumPy seeds the simulator with 32-bit words).
-MAX_SEED = 2**32 - 1
 _TOML_KEYS = {"name", "seed", "duration_s", "duration_us", "sensor", "params"}
 
 
