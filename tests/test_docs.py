@@ -219,3 +219,59 @@ def test_every_command_line_flag_is_documented():
 
     walk(build_parser())
     assert sorted(missing) == []
+
+
+def test_the_public_api_has_numpydoc_sections():
+    """What a user calls first says what it takes, what it gives and what it refuses (numpydoc)."""
+    import inspect
+
+    import necviz
+    import necviz.options as O
+    from necviz.core import control
+    from necviz.core.ptedi import PeripheralEstimator
+    from necviz.drivers.recordings import open_recording
+    from necviz.pipeline import Lane, Pipeline
+
+    want = {
+        necviz.run_demo: "PRX",
+        necviz.run_replay: "PRX",
+        necviz.run_live: "PRX",
+        necviz.run_compare: "PRX",
+        open_recording: "PRX",
+        Pipeline: "P",
+        Lane: "P",
+        PeripheralEstimator: "P",
+        control.make_controller: "PRX",
+        control.register_controller: "PX",
+    }
+    for name in (
+        "SceneOptions",
+        "ViewerOptions",
+        "ShowOptions",
+        "TuneOptions",
+        "ClipOptions",
+        "VideoOptions",
+        "DemoOptions",
+        "ReplayOptions",
+        "ExportOptions",
+        "LiveOptions",
+        "CompareOptions",
+    ):
+        want[getattr(O, name)] = "P"
+    for name in (
+        "NECController",
+        "NavidController",
+        "ShimController",
+        "BeginController",
+        "NECOptions",
+        "NavidOptions",
+        "ShimOptions",
+        "BeginOptions",
+    ):
+        want[getattr(control, name)] = "P"
+    sections = {"P": "Parameters\n----------", "R": "Returns\n-------", "X": "Raises\n------"}
+    missing = []
+    for obj, need in want.items():
+        doc = inspect.getdoc(obj) or ""
+        missing += [f"{obj.__qualname__}: {sections[k].splitlines()[0]}" for k in need if sections[k] not in doc]
+    assert missing == []
