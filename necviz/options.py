@@ -18,9 +18,15 @@ import necviz.tuned  # noqa: F401 - registers the tuned controllers (navid-tuned
 from necviz.core.checks import check_number
 from necviz.core.control import CONTROLLERS
 from necviz.core.errors import ParameterError
-from necviz.dashboard.viewer_flags import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 from necviz.flags import NUMBER_FLAGS, NumberRule, check_flag, number, parse_memory_limit  # noqa: F401 - re-exported
-from necviz.names import BASELINES, COMPARE_CONTROLLERS, DEFAULT_CONTROLLERS, LAYOUT_NAMES  # noqa: F401 - re-exported
+from necviz.names import (  # noqa: F401 - re-exported
+    BASELINES,
+    COMPARE_CONTROLLERS,
+    DEFAULT_CONTROLLERS,
+    DEFAULT_GRPC_PORT,
+    DEFAULT_WEB_PORT,
+    LAYOUT_NAMES,
+)
 
 
 def controller_kind(name: str) -> str:
