@@ -57,6 +57,21 @@ def parse_controllers(text) -> tuple[str, ...]:
     return tuple(names)
 
 
+def check_param_lanes(controller_params: dict | None, controllers) -> None:
+    """Every controller that parameters are given for runs (``--param NAME.KEY=VALUE``, a run spec).
+
+    Raises
+    ------
+    ParameterError
+        Parameters for a controller that is not among ``controllers``.
+    """
+    unknown = set(controller_params or {}) - set(controllers)
+    if unknown:
+        raise ParameterError(
+            f"--param names {', '.join(sorted(unknown))}, which is not among the controllers ({', '.join(controllers)})"
+        )
+
+
 def parse_speed(text) -> float | None:
     """``max`` (as fast as possible) -> None; ``1`` / ``x1`` real time; ``x4`` or ``4`` four times.
 
@@ -659,9 +674,7 @@ class CompareOptions:
         self.controllers = parse_controllers(self.controllers)
         self.seeds = check_flag("--seeds", self.seeds)
         self.controller_params = {k: dict(v) for k, v in (self.controller_params or {}).items()}
-        unknown = set(self.controller_params) - set(self.controllers)
-        if unknown:
-            raise ParameterError(f"--param names {', '.join(sorted(unknown))}, which is not among --controllers")
+        check_param_lanes(self.controller_params, self.controllers)
         self.sim = dict(self.sim or {})
 
 
