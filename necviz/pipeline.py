@@ -376,11 +376,9 @@ class Pipeline:
             from necviz.warmup import warm_up_lanes
 
             warm_up_lanes(lanes, source.sensor)
-            if hasattr(source, "warm_up"):
-                source.warm_up()
+            source.warm_up()
             for o in observers:
-                if hasattr(o, "warm_up"):
-                    o.warm_up()
+                o.warm_up()
         perf_ns = time.perf_counter_ns
         wall0 = time.perf_counter()
         next_sample = -(2**62)
