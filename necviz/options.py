@@ -86,6 +86,7 @@ def parse_speed(text) -> float | None:
         except ValueError:
             raise ParameterError(f"--speed must be 'max', a factor like 1 or x4, got {text!r}") from None
     r = NUMBER_FLAGS["--speed"]
+    assert r.lo is not None and r.hi is not None  # the table bounds --speed at both ends
     if not (math.isfinite(v) and r.lo <= v <= r.hi):
         raise ParameterError(
             f"--speed must be 'max' (as fast as possible) or a factor between x0.001 and x10000, got {text!r}"

@@ -40,7 +40,8 @@ def sim_models(sim: dict | None):
     dvs, aps = DvsParams(), ApsParams()
     for key, value in (sim or {}).items():
         model, _, field = str(key).partition(".")
-        target = {"dvs": dvs, "aps": aps}.get(model)
+        models: dict[str, DvsParams | ApsParams] = {"dvs": dvs, "aps": aps}
+        target = models.get(model)
         if target is None or field not in {f.name for f in fields(target)}:
             known = [f"dvs.{f.name}" for f in fields(dvs)] + [f"aps.{f.name}" for f in fields(aps)]
             raise ParameterError(f"unknown simulator parameter {key!r}; known: {', '.join(known)}")
