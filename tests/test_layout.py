@@ -111,7 +111,6 @@ WIDE_ALLOWED = {  # being converted on another branch
     "necviz/dashboard/sink.py:RerunSink.__init__",
     "necviz/bench/estimator_speed.py:run",
     "drivers/sim/rig.py:SimRig.__init__",
-    "drivers/sim/scenes/tunnel_exit.py:_Corridor.__init__",
     "core/ptedi.py:PeripheralEstimator.__init__",
 }
 MAX_PARAMETERS = 8
