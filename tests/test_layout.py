@@ -109,7 +109,6 @@ WIDE_ALLOWED = {  # being converted on another branch
     "necviz/calibration/pairs.py:PairCollector.__init__",
     "necviz/sweeps/engine.py:run_sweep",
     "necviz/dashboard/sink.py:RerunSink.__init__",
-    "necviz/bench/estimator_speed.py:run",
     "drivers/sim/rig.py:SimRig.__init__",
     "core/ptedi.py:PeripheralEstimator.__init__",
 }
