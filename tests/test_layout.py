@@ -108,7 +108,6 @@ WIDE_ALLOWED = {  # being converted on another branch
     "necviz/calibration/from_recordings.py:calibrate_from_recordings",
     "necviz/calibration/pairs.py:PairCollector.__init__",
     "necviz/dashboard/sink.py:RerunSink.__init__",
-    "drivers/sim/rig.py:SimRig.__init__",
     "core/ptedi.py:PeripheralEstimator.__init__",
 }
 MAX_PARAMETERS = 8

@@ -69,14 +69,16 @@ def simulate_calibration_stream(
     is far shorter than a frame interval), so every frame gets the oracle's exposure.
     """
     from necviz.drivers.sim.aps import ApsParams
-    from necviz.drivers.sim.rig import SimRig
+    from necviz.drivers.sim.rig import RigOptions, SimRig
 
     aps = aps or ApsParams()
     crf = crf or default_davis346()
     oracle = ExposureOracle(scene, crf, aps, brackets)
     first = 1_000
     t0, k0 = oracle(first, 0)
-    rig = SimRig(scene, {"cal": (t0, k0)}, dvs=dvs, aps=aps, crf=crf, seed=seed, first_start_us=first)
+    rig = SimRig(
+        scene, {"cal": (t0, k0)}, dvs=dvs, aps=aps, crf=crf, seed=seed, options=RigOptions(first_start_us=first)
+    )
     k = 0
     for _, packet in rig.packets():
         if isinstance(packet, ExposureMarker) and packet.kind == "start":
