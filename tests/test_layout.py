@@ -107,7 +107,6 @@ WIDE_ALLOWED = {  # being converted on another branch
     "necviz/calibration/from_simulation.py:calibrate_from_simulation",
     "necviz/calibration/from_recordings.py:calibrate_from_recordings",
     "necviz/calibration/pairs.py:PairCollector.__init__",
-    "necviz/dashboard/sink.py:RerunSink.__init__",
     "core/ptedi.py:PeripheralEstimator.__init__",
 }
 MAX_PARAMETERS = 8
