@@ -280,7 +280,7 @@ class CalibrationOptions:
     init : TediParams, optional
         The fit's start (default: the profile's TEDI parameters).
     fit : str or sequence of str
-        ``"all"`` (the six), ``"c"`` (the thresholds) or distinct names among
+        ``"all"`` (the six, the default), ``"c"`` (the thresholds) or distinct names among
         :data:`~necviz.core.tedi.PARAM_NAMES` (a comma-separated string or a sequence); kept as a tuple.
     crf_mode : str
         ``"auto"``: fit the response by Debevec-Malik when the data hold a static exposure bracket;
@@ -313,7 +313,7 @@ class CalibrationOptions:
 
     profile: CameraProfile | None = None
     init: TediParams | None = None
-    fit: tuple[str, ...] | str = "all"
+    fit: tuple[str, ...] = PARAM_NAMES
     crf_mode: str = "auto"
     name: str | None = None
     max_event_rate: float | str | None = "auto"
@@ -326,13 +326,16 @@ class CalibrationOptions:
     collection: CollectorOptions = CollectorOptions()
 
     def __post_init__(self) -> None:
-        for attr, kind in (("profile", CameraProfile), ("init", TediParams)):
+        kinds: tuple[tuple[str, type, bool], ...] = (
+            ("profile", CameraProfile, True),
+            ("init", TediParams, True),
+            ("selection", PairSelection, False),
+            ("collection", CollectorOptions, False),
+        )
+        for attr, kind, optional in kinds:
             v = getattr(self, attr)
-            if v is not None and not isinstance(v, kind):
+            if not (isinstance(v, kind) or (optional and v is None)):
                 raise ParameterError(f"{attr} must be a {kind.__name__}, got {type(v).__name__}")
-        for attr, kind in (("selection", PairSelection), ("collection", CollectorOptions)):
-            if not isinstance(getattr(self, attr), kind):
-                raise ParameterError(f"{attr} must be a {kind.__name__}, got {type(getattr(self, attr)).__name__}")
         object.__setattr__(self, "fit", _resolve_fit(self.fit))
         if self.crf_mode not in ("auto", "keep"):
             raise ParameterError(f"--crf must be auto or keep, got {self.crf_mode!r}")

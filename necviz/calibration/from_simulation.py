@@ -124,8 +124,8 @@ class CalibrationSimulation:
         No scenario or seed, an unknown scenario, a negative or non-integer seed, or a duration out of range.
     """
 
-    scenarios: tuple[str, ...] | str = ("calibration",)
-    seeds: tuple[int, ...] | int = (0,)
+    scenarios: tuple[str, ...] = ("calibration",)
+    seeds: tuple[int, ...] = (0,)
     duration_s: float | None = None
     sensor: SensorGeometry = DAVIS346
     dvs: DvsParams | None = None
