@@ -19,7 +19,7 @@ intervals + latency`` before the exposure to its end, the camera's limits and co
 the scene's lighting changes and, where the scene has them, the pedestrian's box and the fiducial
 markers' corners at mid-exposure. Attaching it
 reads the simulation and changes nothing in it: the frames and events are the same with
-``truth=False``.
+``RigOptions(truth=False)``.
 
 Threads: with ``RigOptions(threads=True)`` (the default, :attr:`SimRig.THREADS`) the work that does not depend
 on the consumer runs beside it — scene rendering up to :attr:`SimRig.RENDER_AHEAD` sample periods
