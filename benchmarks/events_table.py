@@ -177,10 +177,15 @@ def section_events(idx, metric, out: list, data: dict) -> None:
     if not by_scene:
         return
     scenes, fams = diff_cells(by_scene)
-    data["events"] = {"scenes": scenes, "families": fams}
+    allpairs = [x for items in by_scene.values() for x in items]
+    m, ci, n = t_ci([x[1] for x in allpairs])
+    overall = (float(np.mean([x[2] for x in allpairs])), float(np.mean([x[3] for x in allpairs])), m, ci, n)
+    data["events"] = {"scenes": scenes, "families": fams, "all": overall}
     out.append(f"### What events add: `nec` − `nec-frames`, {metric} (simulator defaults: 12 Mev/s, 1 ms)\n")
     out.append("| scene | nec | nec-frames | nec − nec-frames (95 % CI, paired by seed) |")
     out.append("|---|---|---|---|")
+    a, b, m, ci, n = overall
+    out.append(f"| **every scene** | {a:.2f} | {b:.2f} | **{fmt(m, ci, n, 2)}** |")
     for f, (a, b, m, ci, n) in fams.items():
         out.append(f"| **{f}** (all its scenes) | {a:.2f} | {b:.2f} | **{fmt(m, ci, n, 2)}** |")
         for s, (a, b, m, ci, n) in scenes.items():
@@ -281,19 +286,27 @@ def section_baselines(idx, metric, out: list, data: dict) -> None:
     fams = sorted({family(k[1]) for k in idx if k[0] in present})
     out.append(f"### Baselines, published and tuned, {metric} (simulator defaults)\n")
     out.append("Mean per family; in brackets the tuned − published paired difference ± 95 % CI. `nec` for reference.\n")
-    out.append("| controller | " + " | ".join(fams) + " |")
-    out.append("|---|" + "---|" * len(fams))
+    out.append("| controller | " + " | ".join(fams) + " | every scene |")
+    out.append("|---|" + "---|" * (len(fams) + 1))
     data["baselines"] = {}
-    for name in ("nec", *[x for b in present for x in (b, f"{b}-tuned")]):
+    for name in ("nec", "nec-frames", "nec-paper", *[x for b in present for x in (b, f"{b}-tuned")]):
+        if not any(k[0] == name for k in idx):
+            continue
         cells = []
-        for f in fams:
-            vals = [r[metric] for k, r in idx.items() if k[0] == name and family(k[1]) == f and default_condition(r)]
+        for f in [*fams, "all"]:
+            vals = [
+                r[metric]
+                for k, r in idx.items()
+                if k[0] == name and (f == "all" or family(k[1]) == f) and default_condition(r)
+            ]
             vals = [v for v in vals if v is not None]
             m, ci, n = t_ci(vals)
             cell = fmt(m, ci, None, 2) if n else "—"
             if name.endswith("-tuned"):
                 base = name[: -len("-tuned")]
-                by = paired(idx, name, base, metric, lambda r, f=f: default_condition(r) and r["family"] == f)
+                by = paired(
+                    idx, name, base, metric, lambda r, f=f: default_condition(r) and (f == "all" or r["family"] == f)
+                )
                 d = [x[1] for items in by.values() for x in items]
                 dm, dci, dn = t_ci(d)
                 if dn:

@@ -75,7 +75,7 @@ class CameraResponse:
     @property
     def goal_intensity(self) -> float:
         """``I_opt``, the digital value at the log mid-point of the valid range."""
-        return self.intensity(self.goal_log_exposure)
+        return float(self.intensity(self.goal_log_exposure))
 
     def to_list(self) -> list[float]:
         return [float(v) for v in self.g]

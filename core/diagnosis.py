@@ -459,6 +459,7 @@ def rule_controller(ev: Evidence, timing: Timing | None) -> str:
                 "pattern, not its level, clipped the frame)"
             )
         else:
+            assert timing.onset_us is not None  # crossing_time gives "crossed" with its onset
             parts.append(
                 f"the light crossed the level this setting holds {_ms(ev.start_us - timing.onset_us)} "
                 "before the exposure started"

@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from necviz.core.crf import CameraResponse
+
 #: Digits at or above ``OVER`` are over-exposed, at or below ``UNDER`` under-exposed (the paper's 9..250).
 OVER = 250
 UNDER = 9
@@ -49,7 +51,7 @@ class GroundTruth:
     """
 
     mean_irradiance: np.ndarray
-    crf: object
+    crf: CameraResponse
     light_t_us: np.ndarray
     light_log: np.ndarray
     latency_us: float = 0.0

@@ -206,7 +206,7 @@ def summarise_markers(
     n_vis, n_hit = popcount(vis), popcount(hit)
     total_vis = int(n_vis.sum())
     ok = np.isfinite(err) & (n_hit > 0)
-    out = {
+    out: dict[str, object] = {
         "marker_detection_rate": float(n_hit.sum() / total_vis) if total_vis else None,
         "marker_corner_error_px": float((err[ok] * n_hit[ok]).sum() / n_hit[ok].sum()) if ok.any() else None,
     }

@@ -96,7 +96,8 @@ def summarise(starts_us, over, under, step_times_us, sift_inliers=None, end_us=N
     over = np.asarray(over, dtype=np.float64)
     under = np.asarray(under, dtype=np.float64)
     rec = recovery_times_ms(starts_us, over + under, step_times_us, end_us=end_us)
-    rec_mean = None if (not rec or any(r is None for r in rec)) else float(np.mean(rec))
+    recovered = [r for r in rec if r is not None]
+    rec_mean = float(np.mean(recovered)) if rec and len(recovered) == len(rec) else None
     sift = [s for s in (sift_inliers or []) if s is not None]
     return RunMetrics(
         frames=int(over.size),
@@ -174,7 +175,7 @@ def summarise_details(
     ``None`` where nothing was measured (no SIFT, real frames without ground truth).
     """
     seq = np.asarray(sequence)
-    out = {
+    out: dict[str, object] = {
         "sift_inliers_normalised_mean": _finite_mean(sift_normalised if sift_normalised is not None else []),
         "true_valid_fraction_mean": _finite_mean(true_valid if true_valid is not None else []),
         "rank_correlation_mean": _finite_mean(rank_corr if rank_corr is not None else []),

@@ -78,7 +78,7 @@ class SkillTracker:
 
     def summary(self) -> dict:
         """``{"persistence" | "trend": {"frames", "rmse_ptedi", "rmse_reference", "skill"}}`` (``None`` where undefined)."""
-        return {r: _summary(*self._sums[r]) for r in REFERENCES}
+        return {r: _summary(int(n), sse_p, sse_r) for r, (n, sse_p, sse_r) in self._sums.items()}
 
 
 def skill_from_columns(measured, prediction_error, t_mid_us) -> dict:

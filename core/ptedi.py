@@ -63,6 +63,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -86,6 +87,9 @@ from necviz.core.ptedi_kernels import BLOCK, ptedi_close, ptedi_update, ptedi_up
 from necviz.core.regions import zone_map, zone_sizes
 from necviz.core.sensor import SensorGeometry
 from necviz.core.stream import Packet, PacketHandler, dispatch
+
+if TYPE_CHECKING:
+    from necviz.core.ptedi_shared import EventSide
 
 __all__ = ["FrameEstimate", "IMAGE_FORMS", "PeripheralEstimator"]
 
@@ -188,6 +192,16 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         adopts an estimator sets it (:class:`~necviz.core.control.nec.NECController`).
     """
 
+    # Per-pixel compensation state (see _comp_start): arrays while the compensation is on and the
+    # event side is the estimator's own, else None (off, or kept by a shared EventSide).
+    _pc: np.ndarray | None
+    _wsnap: np.ndarray | None
+    _wacc: list[bool] | None
+    _hist: np.ndarray | None
+    _lev: np.ndarray | None
+    _kk: np.ndarray | None
+    _ss: np.ndarray | None
+
     def __init__(
         self,
         sensor: SensorGeometry,
@@ -266,7 +280,7 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         self.frames_bounded = 0
         # per-pixel compensation state (only while a+ or a- > 0; see the notes above ptedi_update_comp), or
         # an event side shared with other estimators (share_events: their slots instead of this state)
-        self._side = None
+        self._side: EventSide | None = None
         self._comp = False
         if self.params.a_on > 0.0 or self.params.a_off > 0.0:
             self._comp_start()
@@ -380,6 +394,9 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
     def _comp_grow(self, need: int) -> None:
         """Widen the count histograms to hold counts up to ``need`` (and the per-pixel counts to int32
         before a count could pass what uint16 holds)."""
+        assert (
+            self._hist is not None and self._pc is not None
+        )  # the compensation is on and the event side is this estimator's own
         cap = self._hist.shape[3]
         if need < cap:
             return
@@ -393,16 +410,20 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
     def _latest_counts(self) -> np.ndarray:
         """Per pixel, the ON/OFF counts since the latest exposure start (a view). When they are not kept
         the anchor is that start (it took them over), so they are the anchor's."""
+        assert self._pc is not None  # the compensation is on and the event side is this estimator's own
         return self._pc[:, 2:4] if self._iw >= 0 else self._pc[:, 0:2]
 
     def _since(self, w: int) -> np.ndarray:
         """Per pixel, the ON/OFF counts since window ``w``'s start (a view when it is the latest start)."""
+        assert self._wacc is not None  # the compensation is on and the event side is this estimator's own
         if self._wacc[w]:
+            assert self._wsnap is not None  # allocated before any slot holds counts (_comp_begin)
             return self._wsnap[w] + self._latest_counts()
         return self._latest_counts()
 
     def _words(self) -> np.ndarray:
         """``_pc`` with each pixel's pair of counts as one word (columns: anchor, window)."""
+        assert self._pc is not None  # the compensation is on and the event side is this estimator's own
         return self._pc.view(np.uint32 if self._pc.itemsize == 2 else np.uint64)
 
     def _comp_anchor(self, w: int, zones: np.ndarray, s: int) -> None:
@@ -416,6 +437,7 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         if self._side is not None:
             self._side.anchor(self, w, zones, s)
             return
+        assert self._hist is not None and self._pc is not None  # the compensation is on
         flags = np.zeros(self.num_zones, np.bool_)
         flags[zones] = True
         others = any(st == _CLOSED and i != w for i, st in enumerate(self._wstate))
@@ -435,6 +457,7 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         start (brute force over the pixels, O(pixels), :func:`comp_between`; used only for the saturation bound)."""
         if self._side is not None:
             return self._side.between(self, w, u)
+        assert self._pc is not None and self._wacc is not None  # the compensation is on
         c_on, c_off, a_on, b_on, a_off, b_off = self._kp
         out = np.empty((2, self.num_zones))
         # comp_between takes (base, counts) and subtracts base columns 2, 3: the counts between the anchor and s
@@ -443,6 +466,7 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
             counts, base = self._pc[:, 0:2], np.zeros((self._pc.shape[0], 4), np.int32)
             base[:, 2:4] = counts
         elif self._wacc[w]:
+            assert self._wsnap is not None  # allocated before any slot holds counts (_comp_begin)
             counts, base = self._pc[:, 0:2] - self._wsnap[w], self._pc
         else:
             counts, base = self._pc[:, 0:2], self._pc
@@ -519,6 +543,7 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
     def _update_comp(self, events: np.ndarray, w: int) -> int:
         """The batch through :func:`ptedi_update_comp` (:func:`ptedi_update_comp_one` for a single zone),
         widening the histograms when needed."""
+        assert self._hist is not None  # the compensation is on and the event side is this estimator's own
         t, x, y, p = events["t"], events["x"], events["y"], events["p"]
         ws = int(self._wstart[w]) if w >= 0 else 0
         pos, last = 0, self.last_event_us
@@ -561,6 +586,9 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
     def _comp_begin(self, w: int) -> None:
         """Compensation at an exposure start in slot ``w``: the counts since the latest start go to every
         exposure still awaiting its frame; the window's pair of columns restarts from zero."""
+        assert (
+            self._pc is not None and self._wacc is not None
+        )  # the compensation is on and the event side is this estimator's own
         latest = self._latest_counts()
         for v, st in enumerate(self._wstate):
             if st == _CLOSED and v != w:
@@ -615,6 +643,7 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
             self._wint[w] = 0.0
             self._webase[w] = 1.0
         if self._comp and self._side is None:
+            assert self._hist is not None and self._lev is not None and self._kk is not None and self._ss is not None
             self._hist[1] = 0
             self._hist[1, :, :, 0] = self.sizes
             self._lev[1] = 0
@@ -691,9 +720,9 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         w0 = self._c0_on[w], self._c0_off[w]
         if self.whole:
             lp, fr, ov = self._whole_frame_log_irradiance(frame)
-            log_e = math.log(self._wint[w, 0] / (e - s))
-            if fr >= self.min_valid_fraction and math.isfinite(lp - log_e):  # the common case, scalar
-                self.anchor_log[0] = lp - log_e
+            log_e0 = math.log(self._wint[w, 0] / (e - s))
+            if fr >= self.min_valid_fraction and math.isfinite(lp - log_e0):  # the common case, scalar
+                self.anchor_log[0] = lp - log_e0
                 self.anchor_t[0] = s
                 self.anchor_on[0] = w0[0][0]
                 self.anchor_off[0] = w0[1][0]
@@ -703,13 +732,13 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
                     self._side.drop_window(self, w)
                 self._wstate[w] = _FREE
                 self.frames_seen += 1
-                anchor = np.array([lp - log_e])
+                anchor = np.array([lp - log_e0])
                 return FrameEstimate(
                     frame.sequence,
                     s,
                     e,
                     np.array([lp]),
-                    np.array([log_e]),
+                    np.array([log_e0]),
                     anchor,
                     np.array([fr]),
                     np.array([True]),
@@ -718,7 +747,7 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
                     anchor,
                 )
             log_pbar, frac, over = np.array([lp]), np.array([fr]), np.array([ov])
-            log_e = np.array([log_e])
+            log_e = np.array([log_e0])
         else:
             log_pbar, frac, over = self.frame_log_irradiance(frame)
             log_e = np.log(self._wint[w] / (e - s))
@@ -869,6 +898,9 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
                 side, ref = self._side, int(self._aslot[0])
                 hist, lev, kk, ss = side.hist, side.lev, side.kk, side.ss
             else:
+                assert (
+                    self._hist is not None and self._lev is not None and self._kk is not None and self._ss is not None
+                )
                 hist, lev, kk, ss, ref = self._hist, self._lev, self._kk, self._ss, 0
             u = float(t - g)
             comp_on = _comp_sum_one(hist, lev, kk, ss, ref, 0, u, a_on, b_on)

@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from necviz.core.crf import US_PER_S
+from necviz.core.crf import US_PER_S, CameraResponse
 from necviz.core.frames import Frame
 from necviz.core.ptedi_kernels import digit_histogram
 
@@ -25,6 +25,16 @@ _DIGITS = np.arange(256, dtype=np.int64)
 class FrameSideMixin:
     """The frame-side methods of :class:`~necviz.core.ptedi.PeripheralEstimator` (a mixin: it reads the
     estimator's ``crf``, ``image_form``, ``one_sided_clip``, ``whole``, ``num_zones``, ``sizes`` and zone map)."""
+
+    # what the estimator sets in its __init__ (declared here so the methods type-check)
+    crf: CameraResponse
+    image_form: str
+    one_sided_clip: float
+    whole: bool
+    num_zones: int
+    sizes: np.ndarray
+    _zone_flat: np.ndarray
+    _in_region: np.ndarray
 
     def frame_log_irradiance(self, frame: Frame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(ln Pbar, valid fraction, over-exposed fraction)`` per zone from the image alone

@@ -396,7 +396,7 @@ class EventSide:
         self.last_event_us = np.iinfo(np.int64).min
         self.batches = 0
         self.events = 0
-        self._last_batch = None
+        self._last_batch: np.ndarray | None = None
         self._alloc(slots)
 
     # -- slots ------------------------------------------------------------------------------------------

@@ -108,7 +108,7 @@ def interleave(
         if b.exposure_start_us < a.exposure_end_us:
             raise StreamError(f"exposures of frames {a.sequence} and {b.sequence} overlap")
     # (time, order, packet): order puts markers before the frame delivered at the same time
-    cuts: list[tuple[int, int, object]] = []
+    cuts: list[tuple[int, int, Packet | None]] = []
     for f in frames:
         cuts.append((int(f.exposure_start_us), 0, ExposureMarker(int(f.exposure_start_us), "start")))
         cuts.append((int(f.exposure_end_us), 1, ExposureMarker(int(f.exposure_end_us), "end")))

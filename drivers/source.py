@@ -74,7 +74,8 @@ class Source(Protocol):
     """One camera, or a rig of cameras sharing a scene (see the module docstring).
 
     ``camera_info`` says what the source knows about its cameras (limits, command latency, event bus
-    ceiling); ``close`` releases it (a device, a file) and may be called more than once.
+    ceiling); ``warm_up`` readies its kernels before the first packet (start-up is never latency);
+    ``close`` releases it (a device, a file) and may be called more than once.
     """
 
     sensor: SensorGeometry
@@ -88,6 +89,9 @@ class Source(Protocol):
     ) -> None: ...
 
     def close(self) -> None: ...
+
+    def warm_up(self) -> None:
+        """Compile or load what the source's own kernels need, before its first packet (may do nothing)."""
 
 
 def route(camera: str, packets: Iterable[Packet]) -> Iterator[tuple[str | None, Packet]]:

@@ -40,10 +40,9 @@ import time
 from collections import deque
 from pathlib import Path
 
-import numpy as np
-
 from necviz.core.errors import ParameterError
 from necviz.core.frames import ExposureMarker, Frame
+from necviz.core.imu import ImuBatch, TriggerBatch
 from necviz.options import ClipOptions
 from necviz.pipeline import Observer, RecorderObserver, packet_time_us
 
@@ -287,12 +286,16 @@ class FlightRecorder(Observer):
         return bare
 
     def packet(self, camera, packet):
-        if isinstance(packet, Frame):
-            packet = self._bare(packet)
-            n = packet.image.nbytes + SMALL
-        else:
-            arr = getattr(packet, "samples", getattr(packet, "triggers", None))
-            n = SMALL + (arr.nbytes if isinstance(arr, np.ndarray) else 0)
+        match packet:
+            case Frame():
+                packet = self._bare(packet)
+                n = packet.image.nbytes + SMALL
+            case ImuBatch():
+                n = SMALL + packet.samples.nbytes
+            case TriggerBatch():
+                n = SMALL + packet.triggers.nbytes
+            case _:
+                n = SMALL
         self._add(packet_time_us(packet), n, "packet", (camera, packet))
 
     def command(self, lane, command, latency_us):

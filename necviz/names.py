@@ -27,6 +27,10 @@ CONTROLLER_NAMES = (
 SCENARIO_NAMES = ("flicker", "handheld_scan", "indoor_outdoor", "static_lab", "tunnel_exit")
 FORMATS = ("necviz", "aedat4", "aedat3", "aedat2", "rosbag1", "rosbag2", "hdf5", "rpg-text")
 
+#: The ports ``--serve`` listens on (gRPC data, web viewer) and where ``--connect`` streams by default.
+DEFAULT_GRPC_PORT = 9876
+DEFAULT_WEB_PORT = 9090
+DEFAULT_CONNECT = f"rerun+http://127.0.0.1:{DEFAULT_GRPC_PORT}/proxy"
 #: The layouts a command can be shown with (layouts/: live, inspect, compare).
 LAYOUT_NAMES = ("live", "inspect", "compare")
 #: The five published auto-exposure baselines (image only), in the order every table lists them.
@@ -42,6 +46,9 @@ __all__ = [
     "BASELINES",
     "COMPARE_CONTROLLERS",
     "CONTROLLER_NAMES",
+    "DEFAULT_CONNECT",
+    "DEFAULT_GRPC_PORT",
+    "DEFAULT_WEB_PORT",
     "DEFAULT_CONTROLLERS",
     "FORMATS",
     "LAYOUT_NAMES",

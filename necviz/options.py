@@ -19,7 +19,14 @@ from necviz.core.checks import check_number
 from necviz.core.control import CONTROLLERS
 from necviz.core.errors import ParameterError
 from necviz.flags import NUMBER_FLAGS, NumberRule, check_flag, number, parse_memory_limit  # noqa: F401 - re-exported
-from necviz.names import BASELINES, COMPARE_CONTROLLERS, DEFAULT_CONTROLLERS, LAYOUT_NAMES  # noqa: F401 - re-exported
+from necviz.names import (  # noqa: F401 - re-exported
+    BASELINES,
+    COMPARE_CONTROLLERS,
+    DEFAULT_CONTROLLERS,
+    DEFAULT_GRPC_PORT,
+    DEFAULT_WEB_PORT,
+    LAYOUT_NAMES,
+)
 
 
 def controller_kind(name: str) -> str:
@@ -50,6 +57,21 @@ def parse_controllers(text) -> tuple[str, ...]:
     return tuple(names)
 
 
+def check_param_lanes(controller_params: dict | None, controllers) -> None:
+    """Every controller that parameters are given for runs (``--param NAME.KEY=VALUE``, a run spec).
+
+    Raises
+    ------
+    ParameterError
+        Parameters for a controller that is not among ``controllers``.
+    """
+    unknown = set(controller_params or {}) - set(controllers)
+    if unknown:
+        raise ParameterError(
+            f"--param names {', '.join(sorted(unknown))}, which is not among the controllers ({', '.join(controllers)})"
+        )
+
+
 def parse_speed(text) -> float | None:
     """``max`` (as fast as possible) -> None; ``1`` / ``x1`` real time; ``x4`` or ``4`` four times.
 
@@ -64,6 +86,7 @@ def parse_speed(text) -> float | None:
         except ValueError:
             raise ParameterError(f"--speed must be 'max', a factor like 1 or x4, got {text!r}") from None
     r = NUMBER_FLAGS["--speed"]
+    assert r.lo is not None and r.hi is not None  # the table bounds --speed at both ends
     if not (math.isfinite(v) and r.lo <= v <= r.hi):
         raise ParameterError(
             f"--speed must be 'max' (as fast as possible) or a factor between x0.001 and x10000, got {text!r}"
@@ -103,8 +126,22 @@ def parse_params(items, flag: str = "--param") -> dict:
 class SceneOptions:
     """A simulated scene: a preset name or a TOML scenario file, a seed, a duration, overrides.
 
-    ``seed`` and ``duration_s`` ``None`` take the scenario file's values (or 0 and the preset's
-    own duration); ``params`` override the preset's parameters (``--set key=value``).
+    Parameters
+    ----------
+    scenario : str
+        A preset (``tunnel_exit``, ``indoor_outdoor``, ``flicker``, ``static_lab``, ``handheld_scan``)
+        or the path of a TOML scenario file.
+    seed : int, optional
+        The scene's and the sensor noise's seed (``None``: the file's, or 0).
+    duration_s : float, optional
+        Simulated seconds (``None``: the file's, or the preset's own), at most 600.
+    params : dict
+        Preset parameters overriding the defaults (``--set key=value``).
+
+    Raises
+    ------
+    ParameterError
+        An unknown preset, an unreadable file, a seed or duration out of range.
     """
 
     scenario: str = "tunnel_exit"
@@ -181,10 +218,36 @@ class ViewerOptions:
     """Where the Rerun data goes (as the flags of Rerun's own examples); combine freely.
 
     With nothing set: a native viewer when a display exists, else a file
-    ``necviz-<command>-<time>.rrd``. ``serve`` binds the web viewer and its data port to ``bind``
-    (127.0.0.1 unless the user asks otherwise). ``force`` lets ``save`` replace an existing file.
-    ``notebook``: show the viewer inline in the Jupyter cell that runs the command, streaming as the
-    run goes (``rerun-notebook``, the optional extra ``notebook``); not combined with the others.
+    ``necviz-<command>-<time>.rrd``.
+
+    Parameters
+    ----------
+    spawn : bool
+        A native Rerun viewer.
+    serve : bool
+        Serve the web viewer (``web_port``) and its data (``grpc_port``) on ``bind``.
+    connect : str, optional
+        Stream to a running viewer at this URL.
+    save : path, optional
+        Write the recording to this ``.rrd`` file (an existing one only with ``force``; never an input).
+    force : bool
+        Let ``save`` replace an existing file.
+    layout : str, optional
+        Override the command's layout (``live``, ``inspect``, ``compare``).
+    memory_limit : str
+        The viewer's or server's memory limit (``1GB``, ``75%``).
+    bind : str
+        The address ``serve`` listens on (127.0.0.1 unless the user asks otherwise).
+    grpc_port, web_port : int
+        The ports of ``serve`` (checked free before anything starts).
+    notebook : bool
+        Show the viewer inline in the Jupyter cell that runs the command (``rerun-notebook``, the
+        optional extra ``notebook``); not combined with the others.
+
+    Raises
+    ------
+    ParameterError
+        A bad port, memory limit or layout, or ``notebook`` combined with another target.
     """
 
     spawn: bool = False
@@ -195,8 +258,8 @@ class ViewerOptions:
     layout: str | None = None
     memory_limit: str = "1GB"
     bind: str = "127.0.0.1"
-    grpc_port: int = 9876
-    web_port: int = 9090
+    grpc_port: int = DEFAULT_GRPC_PORT
+    web_port: int = DEFAULT_WEB_PORT
     notebook: bool = False
 
     def __post_init__(self):
@@ -219,7 +282,23 @@ class ViewerOptions:
 
 @dataclass
 class ShowOptions:
-    """How a dashboard run paces and draws (shared by demo, replay and live)."""
+    """How a dashboard run paces and draws (shared by demo, replay and live).
+
+    Parameters
+    ----------
+    speed : "auto", "max", float or "xN"
+        ``auto``: real time when a viewer watches, as fast as possible into a file; ``1`` real time,
+        ``x4`` four times faster, ``max`` as fast as possible.
+    event_window_ms : float
+        The window of each event image (ms).
+    event_points : int
+        Also log up to this many raw events per window as points.
+
+    Raises
+    ------
+    ParameterError
+        A speed of zero or below, a window or count out of range.
+    """
 
     speed: object = "auto"  # "auto": real time when a viewer watches, as fast as possible into a file
     event_window_ms: float = 33.3
@@ -234,7 +313,15 @@ class ShowOptions:
 
 @dataclass
 class TuneOptions:
-    """Live tuning: a prompt on the terminal and/or a watched file."""
+    """Live tuning: a prompt on the terminal and/or a watched file.
+
+    Parameters
+    ----------
+    prompt : bool
+        Read tuning commands at a ``tune>`` prompt when the terminal is interactive.
+    file : path, optional
+        Watch this file: every changed ``key = value`` line is applied when it is saved.
+    """
 
     prompt: bool = True
     file: str | os.PathLike | None = None
@@ -244,8 +331,21 @@ class TuneOptions:
 class ClipOptions:
     """The flight recorder (``--clips DIR``): a clip around every saturated frame and every ``mark``.
 
-    ``before_s``/``after_s``: seconds kept before a failure and recorded after it; ``memory_mb``: the
-    ring buffer's budget (oldest data dropped beyond it, and counted). See :mod:`necviz.flight_recorder`.
+    See :mod:`necviz.flight_recorder`.
+
+    Parameters
+    ----------
+    folder : path
+        An existing, writable folder for the clips.
+    before_s, after_s : float
+        Seconds kept before a failure and recorded after it (each at most 600).
+    memory_mb : float
+        The ring buffer's budget; the oldest data is dropped beyond it, and counted.
+
+    Raises
+    ------
+    ParameterError
+        No folder, a folder that does not exist or cannot be written, a bound out of range.
     """
 
     folder: str | os.PathLike = ""
@@ -273,8 +373,22 @@ class ClipOptions:
 class VideoOptions:
     """``--video OUT.mp4``: an H.264 video of what the dashboard shows (:mod:`necviz.dashboard.video`).
 
-    ``speed``: video time per sensor time (0.1: ten times slower than real); ``None``: the run's own
-    ``--speed`` when it is a number, else real time. ``fps``: frames per second of the video.
+    Parameters
+    ----------
+    path : path
+        The ``.mp4`` to write (an existing one only with ``force``; never an input).
+    speed : float, optional
+        Video time per sensor time (0.1: ten times slower than real); ``None``: the run's own
+        ``--speed`` when it is a number, else real time.
+    fps : float
+        Frames per second of the video.
+    force : bool
+        Replace an existing file.
+
+    Raises
+    ------
+    ParameterError
+        No path, a speed that is not a positive number, a frame rate out of range.
     """
 
     path: str | os.PathLike = ""
@@ -294,7 +408,32 @@ class VideoOptions:
 
 @dataclass
 class DemoOptions:
-    """``necviz demo``: every controller drives its own simulated camera; one scene, side by side."""
+    """``necviz demo``: every controller drives its own simulated camera; one scene, side by side.
+
+    Parameters
+    ----------
+    scene : SceneOptions
+        The simulated scene.
+    controllers : tuple of str
+        Registered controller names (default: ``nec``, ``nec-frames`` and the five baselines).
+    record : path, optional
+        Keep the first controller's camera in a native ``.necrec`` recording.
+    force : bool
+        Replace existing output files (never an input).
+    profile : path, optional
+        A camera profile for the controllers (default: the shipped simulator profile).
+    show, tune : ShowOptions, TuneOptions
+        Pacing and drawing; live tuning.
+    clips : ClipOptions, optional
+        The flight recorder.
+    video : VideoOptions, optional
+        Also write an MP4 of the dashboard.
+
+    Raises
+    ------
+    ParameterError
+        An unknown controller, a name given twice, a bad scene.
+    """
 
     scene: SceneOptions = field(default_factory=SceneOptions)
     controllers: tuple = DEFAULT_CONTROLLERS
@@ -312,7 +451,38 @@ class DemoOptions:
 
 @dataclass
 class ReplayOptions:
-    """``necviz replay FILE``: a recording through P-TEDI and a controller in open loop."""
+    """``necviz replay FILE``: a recording through P-TEDI and a controller in open loop.
+
+    Parameters
+    ----------
+    file : path
+        The recording (any format ``necviz info`` reads).
+    start_s, end_s : float, optional
+        Seconds from the recording's first timestamp.
+    exposure_us : float, optional
+        The exposure of formats that do not store one.
+    format : str, optional
+        Skip format detection.
+    controller : str
+        The controller shown in open loop (default ``nec``).
+    json : path, optional
+        Also write the summary (prediction errors, skill scores, saturated frames) as JSON.
+    force : bool
+        Replace existing output files (never the input).
+    profile : path, optional
+        A camera profile.
+    show : ShowOptions
+        Pacing and drawing.
+    video : VideoOptions, optional
+        Also write an MP4 of the dashboard.
+    pipe_timeout_s : float, optional
+        Accept a named pipe as ``file``, waiting at most this long for its data.
+
+    Raises
+    ------
+    ParameterError
+        No file, an unknown controller, a bad range or exposure.
+    """
 
     file: str | os.PathLike = ""
     start_s: float | None = None
@@ -393,7 +563,42 @@ class ExportOptions:
 
 @dataclass
 class LiveOptions:
-    """``necviz live``: a DAVIS camera (USB or emulated) with a controller closing the loop."""
+    """``necviz live``: a DAVIS camera (USB or emulated) with a controller closing the loop.
+
+    Parameters
+    ----------
+    device : str
+        ``usb`` (a DAVIS346/DAVIS240 on USB) or ``emulated`` (the driver on a virtual DAVIS346).
+    serial : str, optional
+        The camera's serial number (default: the first found).
+    reconnect : bool
+        After an unplug, wait for the same camera and carry on.
+    controller : str
+        The controller closing the loop (default ``nec``).
+    duration_s : float, optional
+        Stop after this much sensor time (default: until Ctrl-C).
+    scene : SceneOptions
+        The emulated device's scene.
+    emulate_unplug_s : float, optional
+        Unplug the emulated device after this many seconds.
+    record : path, optional
+        Keep the session in a native ``.necrec`` recording.
+    force : bool
+        Replace existing output files.
+    profile : path, optional
+        A camera profile.
+    history : int
+        Frames of per-frame telemetry kept (a live run may last hours).
+    show, tune : ShowOptions, TuneOptions
+        Pacing and drawing; live tuning.
+    clips : ClipOptions, optional
+        The flight recorder.
+
+    Raises
+    ------
+    ParameterError
+        An unknown device or controller, a bad duration.
+    """
 
     device: str = "usb"
     serial: str | None = None
@@ -423,7 +628,36 @@ class LiveOptions:
 
 @dataclass
 class CompareOptions:
-    """``necviz compare``: every controller in closed loop on one simulated scene, over seeds."""
+    """``necviz compare``: every controller in closed loop on one simulated scene, over seeds.
+
+    Parameters
+    ----------
+    scene : SceneOptions
+        The simulated scene; seeds run from its seed on.
+    controllers : tuple of str
+        Registered controller names (default: NEC, its ablations and the five baselines).
+    seeds : int
+        Independent replicates: every metric is reported as a mean with a 95 % confidence interval.
+    sift : bool
+        Count SIFT inliers between consecutive frames (most of the run time).
+    json, save : path, optional
+        Write the table as JSON; the first seed's recording as ``.rrd``.
+    force : bool
+        Replace existing output files (never an input).
+    profile : path, optional
+        A camera profile for the controllers.
+    controller_params : dict
+        ``{controller: {parameter: value}}`` (``--param NAME.KEY=VALUE``).
+    sim : dict
+        Simulator overrides ``{"dvs.KEY" | "aps.KEY": value}`` (``--sim``).
+    markers : bool
+        Detect the scene's fiducial markers on every frame.
+
+    Raises
+    ------
+    ParameterError
+        An unknown controller or parameter, a seed count out of range.
+    """
 
     scene: SceneOptions = field(default_factory=SceneOptions)
     controllers: tuple = COMPARE_CONTROLLERS
@@ -441,9 +675,7 @@ class CompareOptions:
         self.controllers = parse_controllers(self.controllers)
         self.seeds = check_flag("--seeds", self.seeds)
         self.controller_params = {k: dict(v) for k, v in (self.controller_params or {}).items()}
-        unknown = set(self.controller_params) - set(self.controllers)
-        if unknown:
-            raise ParameterError(f"--param names {', '.join(sorted(unknown))}, which is not among --controllers")
+        check_param_lanes(self.controller_params, self.controllers)
         self.sim = dict(self.sim or {})
 
 

@@ -96,6 +96,13 @@ class Lane:
         return [*THRESHOLD_KEYS, *self.controller.tunables()]
 
 
+def _estimator(lane: Lane) -> PeripheralEstimator:
+    """The lane's estimator once it is in a :class:`Pipeline` (which gives every lane one)."""
+    est = lane.estimator
+    assert est is not None  # Pipeline gives a lane without one a passive estimator; switch() keeps it
+    return est
+
+
 class Observer:
     """Something that watches a run (the Rerun sink, the native recorder). Every method is called
     on the streaming thread and must only append to memory; the defaults ignore everything."""
@@ -290,8 +297,9 @@ class Pipeline:
             v = [ln.controller.check_param(key, value) for ln in targets][0]
         for ln in targets:
             if key in THRESHOLD_KEYS:
-                p = ln.estimator.params
-                ln.estimator.set_params(replace(p, c_on=v, c_off=v) if key == "c" else replace(p, **{key: v}))
+                est = _estimator(ln)
+                p = est.params
+                est.set_params(replace(p, c_on=v, c_off=v) if key == "c" else replace(p, **{key: v}))
             else:
                 ln.controller.set_param(key, v)
         names = ", ".join(ln.name for ln in targets)
@@ -309,7 +317,7 @@ class Pipeline:
         else:
             ln = self._targets(lane)[0]
         old = ln.controller
-        est = ln.estimator  # a controller that owns an estimator adopts the lane's anchored one
+        est = _estimator(ln)  # a controller that owns an estimator adopts the lane's anchored one
         rate = self.source.camera_info.event_rate_max  # the source's bus ceiling (NEC's escape rule)
         ctx = ControllerContext(
             self.source.sensor, old.limits, old.exposure_us, old.gain, est.crf, est.params, est, rate
@@ -326,7 +334,7 @@ class Pipeline:
         """The current settings of every lane, one line each."""
         lines = []
         for ln in self.lanes.values():
-            c, p, lim = ln.controller, ln.estimator.params, ln.controller.limits
+            c, p, lim = ln.controller, _estimator(ln).params, ln.controller.limits
             own = ", ".join(f"{k}={v:.4g}" for k, v in c.params().items())
             lines.append(
                 f"{ln.name}: {c.name}{'' if ln.drives else ' (open loop)'}, c_on={p.c_on:g} c_off={p.c_off:g}, "
@@ -376,19 +384,17 @@ class Pipeline:
             from necviz.warmup import warm_up_lanes
 
             warm_up_lanes(lanes, source.sensor)
-            if hasattr(source, "warm_up"):
-                source.warm_up()
+            source.warm_up()
             for o in observers:
-                if hasattr(o, "warm_up"):
-                    o.warm_up()
+                o.warm_up()
         perf_ns = time.perf_counter_ns
         wall0 = time.perf_counter()
         next_sample = -(2**62)
         initial = {}
         for ln in lanes:  # the controller's starting setting goes to the camera first
             if ln.drives:
-                initial[ln.name] = cmd = ln.controller.initial_command(0)
-                source.set_exposure(ln.camera, cmd.exposure_us, cmd.gain)
+                initial[ln.name] = first = ln.controller.initial_command(0)
+                source.set_exposure(ln.camera, first.exposure_us, first.gain)
         for cam, packet in source.packets():
             t_in = perf_ns()
             if self._pending:
@@ -415,6 +421,7 @@ class Pipeline:
                 case EventBatch(events=batch):  # shared by every lane: the common case, kept short
                     if not len(batch):
                         continue
+                    assert t is not None  # a batch with events has a time
                     tel.events += len(batch)
                     for ln in lanes:  # control first: a lossless observer may make the thread wait
                         if ln.passive is not None:
@@ -440,7 +447,7 @@ class Pipeline:
                             self._command(ln, cmd, t_in)
                         if est is None:
                             est = ln.controller.last_frame_estimate
-                        rec = lane_tel[ln.name].frame(packet, est, ln.estimator.min_valid_fraction)
+                        rec = lane_tel[ln.name].frame(packet, est, _estimator(ln).min_valid_fraction)
                         for o in observers:
                             o.frame(ln.name, packet, rec)
                 case ExposureMarker():
@@ -466,7 +473,7 @@ class Pipeline:
     def _sample(self, lanes: list[Lane], t: int) -> None:
         """Every lane's P-TEDI prediction ln P(t), for the observers."""
         for ln in lanes:
-            est = ln.estimator
+            est = _estimator(ln)
             if not est.ready:
                 continue
             lp = math.nan if ln.passive is not None else ln.controller.last_log_irradiance

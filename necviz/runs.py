@@ -28,7 +28,7 @@ from necviz.core.errors import ParameterError
 from necviz.core.markers import MARKER_KEYS, summarise_markers
 from necviz.core.metrics import summarise, summarise_details
 from necviz.dashboard.telemetry import Telemetry
-from necviz.options import SceneOptions
+from necviz.options import SceneOptions, check_param_lanes
 from necviz.pipeline import Lane, Pipeline
 
 
@@ -40,7 +40,8 @@ def sim_models(sim: dict | None):
     dvs, aps = DvsParams(), ApsParams()
     for key, value in (sim or {}).items():
         model, _, field = str(key).partition(".")
-        target = {"dvs": dvs, "aps": aps}.get(model)
+        models: dict[str, DvsParams | ApsParams] = {"dvs": dvs, "aps": aps}
+        target = models.get(model)
         if target is None or field not in {f.name for f in fields(target)}:
             known = [f"dvs.{f.name}" for f in fields(dvs)] + [f"aps.{f.name}" for f in fields(aps)]
             raise ParameterError(f"unknown simulator parameter {key!r}; known: {', '.join(known)}")
@@ -104,9 +105,7 @@ def build_rig(
     dvs, aps = sim_models(sim)
     rig = SimRig(scene, list(controllers), dvs=dvs, aps=aps, seed=scene_options.resolved_seed, cache=cache)
     limits = CameraLimits(aps.exposure_min_us, aps.exposure_max_us, aps.gain_max)
-    unknown = set(controller_params or {}) - set(controllers)
-    if unknown:
-        raise ParameterError(f"parameters given for {', '.join(sorted(unknown))}, which does not run here")
+    check_param_lanes(controller_params, controllers)
     profile = profile if profile is not None else simulator_profile()
     lanes = []
     for n in controllers:

@@ -191,3 +191,87 @@ def test_docs_pages_exist_and_the_index_links_every_page():
 @pytest.mark.parametrize("md", link_sources(), ids=lambda p: p.relative_to(ROOT).as_posix())
 def test_relative_links_resolve(md):
     assert not broken_links(md), f"{md.relative_to(ROOT)}: " + "; ".join(broken_links(md))
+
+
+def test_every_command_line_flag_is_documented():
+    """Every flag a user can see in ``--help`` is described somewhere in docs/ (the option lists of
+    commands.md and the pages it links), so the docs cannot fall behind the parser."""
+    import argparse
+
+    from necviz.commands.cli import build_parser
+
+    doc = "\n".join(f.read_text(encoding="utf-8") for f in DOCS.glob("*.md"))
+    missing = set()
+
+    def walk(parser):
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for sub in action.choices.values():
+                    walk(sub)
+            elif action.help != argparse.SUPPRESS:
+                missing.update(
+                    o
+                    for o in action.option_strings
+                    if o.startswith("--")
+                    and o != "--help"
+                    and not re.search(rf"(?<![\w-]){re.escape(o)}(?![\w-])", doc)
+                )
+
+    walk(build_parser())
+    assert sorted(missing) == []
+
+
+def test_the_public_api_has_numpydoc_sections():
+    """What a user calls first says what it takes, what it gives and what it refuses (numpydoc)."""
+    import inspect
+
+    import necviz
+    import necviz.options as O
+    from necviz.core import control
+    from necviz.core.ptedi import PeripheralEstimator
+    from necviz.drivers.recordings import open_recording
+    from necviz.pipeline import Lane, Pipeline
+
+    want = {
+        necviz.run_demo: "PRX",
+        necviz.run_replay: "PRX",
+        necviz.run_live: "PRX",
+        necviz.run_compare: "PRX",
+        open_recording: "PRX",
+        Pipeline: "P",
+        Lane: "P",
+        PeripheralEstimator: "P",
+        control.make_controller: "PRX",
+        control.register_controller: "PX",
+    }
+    for name in (
+        "SceneOptions",
+        "ViewerOptions",
+        "ShowOptions",
+        "TuneOptions",
+        "ClipOptions",
+        "VideoOptions",
+        "DemoOptions",
+        "ReplayOptions",
+        "ExportOptions",
+        "LiveOptions",
+        "CompareOptions",
+    ):
+        want[getattr(O, name)] = "P"
+    for name in (
+        "NECController",
+        "NavidController",
+        "ShimController",
+        "BeginController",
+        "NECOptions",
+        "NavidOptions",
+        "ShimOptions",
+        "BeginOptions",
+    ):
+        want[getattr(control, name)] = "P"
+    sections = {"P": "Parameters\n----------", "R": "Returns\n-------", "X": "Raises\n------"}
+    missing = []
+    for obj, need in want.items():
+        doc = inspect.getdoc(obj) or ""
+        missing += [f"{obj.__qualname__}: {sections[k].splitlines()[0]}" for k in need if sections[k] not in doc]
+    assert missing == []

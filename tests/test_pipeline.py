@@ -58,6 +58,9 @@ class ListSource:
     def close(self):
         self.closed = True
 
+    def warm_up(self) -> None:
+        pass
+
 
 def stream(n_frames=10, period_us=10_000, exposure_us=2_000, level=120, brighten_at=None, seed=0):
     """Events at 200 kev/s (balanced, or net ON after ``brighten_at``), frames of a flat scene."""

@@ -85,12 +85,14 @@ def _estimator(ctx: ControllerContext, options: NECOptions, tedi: TediParams) ->
     return PeripheralEstimator(ctx.sensor, tedi, ctx.crf, grid=grid, saturation_bound=options.saturation_bound)
 
 
-def _build_nec(ctx: ControllerContext, options: NECOptions) -> Controller:
+def _build_nec(ctx: ControllerContext, options: ControllerOptions | None) -> Controller:
+    assert isinstance(options, NECOptions)  # make_options gives an instance of NECController.OPTIONS
     est = _estimator(ctx, options, ctx.tedi)
     return NECController(est, ctx.limits, ctx.exposure_us, ctx.gain, options, ctx.event_rate_max)
 
 
-def _build_nec_frames(ctx: ControllerContext, options: NECOptions) -> Controller:
+def _build_nec_frames(ctx: ControllerContext, options: ControllerOptions | None) -> Controller:
+    assert isinstance(options, NECOptions)  # make_options gives an instance of NECController.OPTIONS
     est = _estimator(ctx, options, ctx.tedi)
     return NECFramesController(est, ctx.limits, ctx.exposure_us, ctx.gain, options, ctx.event_rate_max)
 
@@ -106,7 +108,8 @@ PAPER_OPTIONS = {
 }
 
 
-def _build_begin(ctx: ControllerContext, options: BeginOptions) -> Controller:
+def _build_begin(ctx: ControllerContext, options: ControllerOptions | None) -> Controller:
+    assert isinstance(options, BeginOptions)  # make_options gives an instance of BeginController.OPTIONS
     return BeginController(ctx.limits, ctx.exposure_us, ctx.gain, options, crf=ctx.crf)
 
 

@@ -128,7 +128,8 @@ def newton_optimum(
 
 def flow_speed(prev_small: np.ndarray, small: np.ndarray, scale_x: float, scale_y: float) -> float:
     """``v = (mean |flow|)²`` in full-resolution px²/frame² (Farneback, published parameters)."""
-    flow = cv2.calcOpticalFlowFarneback(prev_small, small, None, *FARNEBACK, 0)
+    # OpenCV allocates the flow when it is None; its stubs do not allow None
+    flow = cv2.calcOpticalFlowFarneback(prev_small, small, None, *FARNEBACK, 0)  # type: ignore[call-overload]
     mag = np.hypot(flow[..., 0] * scale_x, flow[..., 1] * scale_y)
     v = float(mag.mean()) ** 2
     return v if math.isfinite(v) else 0.0
@@ -203,6 +204,7 @@ class BeginController(Controller):
 
     name = "begin"
     OPTIONS = BeginOptions
+    options: BeginOptions  # set by Controller.__init__ (always an instance of OPTIONS)
 
     def __init__(
         self,
@@ -227,7 +229,8 @@ class BeginController(Controller):
         self.last_motion = 0.0
         self.last_ev = -math.log2(self.exposure_us * self.gain / 1e6)
 
-    def _apply_options(self, options: BeginOptions) -> None:
+    def _apply_options(self, options: ControllerOptions) -> None:
+        assert isinstance(options, BeginOptions)  # Controller checks it; replace() keeps the class
         super()._apply_options(options)
         self.q = shim_lut(options.sigma, options.lam)
         self.delta_evs = DELTA_EVS * (options.ev_range / EV_RANGE)

@@ -228,7 +228,8 @@ class Controller(PacketHandler):
     # -- tunable parameters --------------------------------------------------------------------
     def tunables(self) -> dict[str, Tunable]:
         """Every parameter that may change while running, by name (the limits first)."""
-        own = type(self).OPTIONS.TUNABLE if type(self).OPTIONS is not None else type(self).TUNABLE
+        options_cls = type(self).OPTIONS
+        own = options_cls.TUNABLE if options_cls is not None else type(self).TUNABLE
         return {t.name: t for t in (*LIMIT_TUNABLES, *own)}
 
     def _spec(self, name: str) -> Tunable:

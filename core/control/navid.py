@@ -147,11 +147,12 @@ class NavidOptions(ControllerOptions):
         c = self.image_fraction
         if c is None:
             c = 1.0 if self.mask is None else float(np.count_nonzero(self.mask)) / self.mask.size
-        set_("image_fraction", _num("image_fraction", c, 0.0, 1.0, lo_open=True))
+        c = _num("image_fraction", c, 0.0, 1.0, lo_open=True)
+        set_("image_fraction", c)
         if self.k_exposure is None:
-            set_("k_exposure", 30.0 * self.image_fraction + 20.0)
+            set_("k_exposure", 30.0 * c + 20.0)
         if self.k_gain is None:
-            set_("k_gain", 10.0 * self.image_fraction + 15.0)
+            set_("k_gain", 10.0 * c + 15.0)
         set_("ki_ratio", _num("ki_ratio", self.ki_ratio, 0.0))
         set_("integral_limit", _num("integral_limit", self.integral_limit, 0.0))
 
@@ -171,6 +172,7 @@ class NavidController(Controller):
 
     name = "navid"
     OPTIONS = NavidOptions
+    options: NavidOptions  # set by Controller.__init__ (always an instance of OPTIONS)
 
     def __init__(
         self,
@@ -222,18 +224,18 @@ class NavidController(Controller):
                 self.loop, self.integral_gain = "gain", 0.0
             pinned = (e > 0 and self.gain >= lim.gain_max) or (e < 0 and self.gain <= 1.0)
             self.integral_gain = self._integrate(self.integral_gain, e, pinned)
-            u = self.options.ev_per_unit * self.options.k_gain * (e + self.options.ki_ratio * self.integral_gain)
+            k_gain = self.options.k_gain
+            assert k_gain is not None  # NavidOptions.check fills in the published default
+            u = self.options.ev_per_unit * k_gain * (e + self.options.ki_ratio * self.integral_gain)
             exposure, gain = lim.exposure_max_us, self.gain * 2.0**u
         else:
             if self.loop != "exposure":
                 self.loop, self.integral_exposure = "exposure", 0.0
             pinned = (e > 0 and self._at_exposure_max()) or (e < 0 and self.exposure_us <= lim.exposure_min_us)
             self.integral_exposure = self._integrate(self.integral_exposure, e, pinned)
-            u = (
-                self.options.ev_per_unit
-                * self.options.k_exposure
-                * (e + self.options.ki_ratio * self.integral_exposure)
-            )
+            k_exposure = self.options.k_exposure
+            assert k_exposure is not None  # NavidOptions.check fills in the published default
+            u = self.options.ev_per_unit * k_exposure * (e + self.options.ki_ratio * self.integral_exposure)
             # normally gain is 1 here; a frame taken with gain below T_max (a foreign start
             # setting) is corrected on the product T·K, split exposure-first
             if self.gain > 1.0:

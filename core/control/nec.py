@@ -406,6 +406,8 @@ class NECController(Controller):
     name = "nec"
     OPTIONS = NECOptions
     uses_events = True
+    options: NECOptions  # set by Controller.__init__ (always an instance of OPTIONS)
+    estimator: PeripheralEstimator  # NEC always owns one
 
     def __init__(
         self,
@@ -436,7 +438,7 @@ class NECController(Controller):
         self._determined_s = np.iinfo(np.int64).min  # exposure start of the last frame that determined M
         self._sat_t = np.iinfo(np.int64).min  # last event time of the last ceiling-saturated window
         self._sat_dir = 0
-        self._win_t0 = None
+        self._win_t0: int | None = None
         self._win_n = 0
         self._win_on = 0
         self._counts_seen = (0, 0)
@@ -462,7 +464,8 @@ class NECController(Controller):
             dn = MEASURED_GOAL_DN.get(options.metering)
         return crf.goal_log_exposure if dn is None else float(crf.log_exposure(float(dn)))
 
-    def _check_options(self, options: NECOptions) -> None:
+    def _check_options(self, options: ControllerOptions) -> None:
+        assert isinstance(options, NECOptions)  # Controller checks it; replace() keeps the class
         crf = self.estimator.crf
         if options.metering == "zones" and self.estimator.num_zones < 2:
             raise ParameterError(
@@ -488,7 +491,8 @@ class NECController(Controller):
                 f"{goal:.1f}, {options.highlight:g} DN"
             )
 
-    def _apply_options(self, options: NECOptions) -> None:
+    def _apply_options(self, options: ControllerOptions) -> None:
+        assert isinstance(options, NECOptions)  # Controller checks it; replace() keeps the class
         super()._apply_options(options)
         self.goal_log_exposure = self._goal_log_exposure(options)
         rate = options.bus_event_rate
@@ -562,9 +566,10 @@ class NECController(Controller):
             ok = np.isfinite(z)
             if ok.any():
                 self.last_log_irradiance = float(np.dot(z[ok], est.sizes[ok]) / est.sizes[ok].sum())
-            off = np.where(np.isfinite(self._offset), self._offset, 0.0)
+            offsets = np.where(np.isfinite(self._offset), self._offset, 0.0)
             lp = self.last_log_irradiance
-            return weighted_median(z + off, self._weights) + self._credit() - self._absorbed(lp)
+            assert self._weights is not None  # built for zones metering, which cannot change while running
+            return weighted_median(z + offsets, self._weights) + self._credit() - self._absorbed(lp)
         lp = est.predict(t_us)
         self.last_log_irradiance = lp
         lp = lp + self._credit() - self._absorbed(lp)
@@ -636,8 +641,10 @@ class NECController(Controller):
         span = t_last - self._win_t0
         if span < BUS_WINDOW_US:
             return
+        rate = self._bus_rate
+        assert rate is not None  # on_events watches the bus only when it has a rate
         if (
-            self._win_n >= BUS_FRACTION * self._bus_rate * span / US_PER_S
+            self._win_n >= BUS_FRACTION * rate * span / US_PER_S
             and abs(self._win_on) >= POLARITY_DOMINANCE * self._win_n
         ):
             self._sat_t = t_last
@@ -676,23 +683,24 @@ class NECController(Controller):
         """After a frame: open a lag gap at a saturation bound no ceiling window explains, close it at a
         normal anchor (``bound_lag``; module docstring)."""
         s = int(fe.exposure_start_us)
-        bounded = fe.bounded is not None and bool(fe.bounded.any()) and fe.predicted_start is not None
-        if not bounded:
+        bounded, log_start, predicted = fe.bounded, fe.log_start, fe.predicted_start
+        if bounded is None or not bool(bounded.any()) or predicted is None:
             if bool(fe.anchored.any()):
                 self.bound_owed = 0.0
                 self._anchor_s = s
             return
+        assert log_start is not None  # PeripheralEstimator.add_frame sets it on every frame
         sizes = self.estimator.sizes.astype(np.float64)
-        w = np.where(fe.bounded, sizes, 0.0)
+        w = np.where(bounded, sizes, 0.0)
         with np.errstate(invalid="ignore"):
-            gap = float(np.nansum(np.where(fe.bounded, fe.log_start - fe.predicted_start, 0.0) * w) / w.sum())
+            gap = float(np.nansum(np.where(bounded, log_start - predicted, 0.0) * w) / w.sum())
         lost = self._bus_rate is not None and self.options.escape and self._sat_t >= self._anchor_s
         self._anchor_s = s
         if lost or not math.isfinite(gap):  # events lost at the ceiling never come: nothing to absorb
             self.bound_owed = 0.0
             return
         self.bound_owed = gap
-        self._owed_base = float(np.nansum(np.where(fe.bounded, fe.log_start, 0.0) * w) / w.sum())
+        self._owed_base = float(np.nansum(np.where(bounded, log_start, 0.0) * w) / w.sum())
 
     def _credit(self) -> float:
         """The change credited beyond the count, at most half the slack of the valid range
@@ -711,15 +719,16 @@ class NECController(Controller):
         anchored P-TEDI normally (module docstring)."""
         s = int(fe.exposure_start_us)
         sizes = self.estimator.sizes.astype(np.float64)
-        bounded = fe.bounded is not None and bool(fe.bounded.any()) and fe.predicted_start is not None
-        if not bounded:
+        bounded, log_start, predicted = fe.bounded, fe.log_start, fe.predicted_start
+        if bounded is None or not bool(bounded.any()) or predicted is None:
             if bool(fe.anchored.any()):  # a new anchor: the count is exact again from s on
                 self._sat_log = [w for w in self._sat_log if w[0] > s]
                 self._gain, self._gain_dir, self.ceiling_credit = 1.0, 0, 0.0
             return
+        assert log_start is not None  # PeripheralEstimator.add_frame sets it on every frame
         with np.errstate(invalid="ignore"):
-            miss = np.where(fe.bounded, fe.log_start - fe.predicted_start, 0.0)
-        miss = float(np.nansum(miss * sizes) / sizes.sum())
+            miss_zones = np.where(bounded, log_start - predicted, 0.0)
+        miss = float(np.nansum(miss_zones * sizes) / sizes.sum())
         d = 1 if miss > 0 else -1
         before = sum(c for t, c in self._sat_log if t <= s and c * d > 0)
         after = sum(c for t, c in self._sat_log if t > s and c * d > 0)

@@ -174,6 +174,7 @@ class ShimController(Controller):
 
     name = "shim"
     OPTIONS = ShimOptions
+    options: ShimOptions  # set by Controller.__init__ (always an instance of OPTIONS)
 
     def __init__(
         self,
@@ -210,7 +211,9 @@ class ShimController(Controller):
             step = nonlinear_ratio(gamma_hat, self.options.d) - 1.0
         else:
             step = 1.0 - gamma_hat
-        ratio = 1.0 + alpha * self.options.kp * step
+        kp = self.options.kp
+        assert kp is not None  # ShimOptions.check fills in the rule's default
+        ratio = 1.0 + alpha * kp * step
         if not math.isfinite(ratio):
             return 1.0
         return min(max(ratio, 0.05), 20.0)  # a non-positive factor (large kp) would be meaningless

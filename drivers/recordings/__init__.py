@@ -153,15 +153,35 @@ def open_recording(
     sensor: SensorGeometry | None = None,
     pipe_timeout_s: float | None = None,
 ) -> Recording:
-    """Open a recording for replay.
+    """Open a recording for replay (the format detected from its content).
 
-    ``exposure_us``: exposure (µs) for formats that do not store it (AEDAT 2.0, RPG text, HDF5, bags
-    without an exposure topic); ignored where exposure is stored. ``start_us``/``end_us``: replay
-    only that time range (sensor clock, µs). ``format``: skip detection (one of :data:`FORMATS`).
-    ``sensor``: geometry hint for files that store none. ``pipe_timeout_s``: accept a named pipe
-    (refused otherwise): its data are copied to a temporary file first (:func:`spool_pipe`), waiting
-    at most that long for them. Raises :class:`RecordingError` (and nothing else) for a missing,
-    unreadable or damaged file; iterating the recording does the same (see :mod:`.base`).
+    Parameters
+    ----------
+    path : path
+        The file (or, for the RPG text format, its folder).
+    exposure_us : float, optional
+        Exposure (µs) for formats that do not store it (AEDAT 2.0, RPG text, HDF5, bags without an
+        exposure topic); ignored where exposure is stored.
+    start_us, end_us : int, optional
+        Replay only that time range (sensor clock, µs).
+    format : str, optional
+        Skip detection (one of :data:`FORMATS`).
+    sensor : SensorGeometry, optional
+        Geometry hint for files that store none.
+    pipe_timeout_s : float, optional
+        Accept a named pipe (refused otherwise): its data are copied to a temporary file first
+        (:func:`spool_pipe`), waiting at most that long for them.
+
+    Returns
+    -------
+    Recording
+        A :class:`~necviz.drivers.source.Source`; iterating it yields the packets in stream order.
+
+    Raises
+    ------
+    RecordingError
+        (and nothing else) a missing, unreadable or damaged file; iterating the recording does the
+        same, after delivering everything before the damage.
     """
     p = Path(path)
     kind = check_source(p)

@@ -330,6 +330,9 @@ class Recording:
     # -- Source protocol ----------------------------------------------------------------------
     cameras = (CAMERA,)
 
+    def warm_up(self) -> None:
+        """Nothing to ready: a reader's decoding is paid while reading, and a replay is open loop."""
+
     @property
     def camera_info(self) -> CameraInfo:
         """What a recording says about its camera: the event bus ceiling of a known sensor (replay is open loop)."""

@@ -108,6 +108,9 @@ class SyntheticStream:
     def close(self) -> None:
         pass
 
+    def warm_up(self) -> None:
+        pass
+
     def _image(self, s: int, e: int) -> np.ndarray:
         lp = float(log_irradiance(0.5 * (s + e)))
         z = float(self._crf.intensity(lp + math.log((e - s) / US_PER_S) + math.log(self.gain)))

@@ -35,7 +35,29 @@ def _observers(options: DemoOptions, video) -> list:
 
 
 def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None, out=..., stdin=None) -> dict:
-    """Run the demo; returns the run's summary (see :func:`necviz.dashboard.session.run_session`)."""
+    """Run the demo: every controller drives its own simulated camera through one scene, side by side.
+
+    Parameters
+    ----------
+    options : DemoOptions, optional
+        The scene, the controllers, recordings, clips, video (default: ``DemoOptions()``).
+    viewer : ViewerOptions, optional
+        Where the Rerun data goes (default: a native viewer with a display, else a file).
+    out : file, optional
+        Where progress and the summary are printed (default: standard output; ``None``: nothing).
+    stdin : file, optional
+        Where tuning commands are read from (default: the terminal, when interactive).
+
+    Returns
+    -------
+    dict
+        The run's summary (see :func:`necviz.dashboard.session.run_session`).
+
+    Raises
+    ------
+    ParameterError
+        Bad options or output files (an output that exists without ``force``, or is an input).
+    """
     out = output(out)
     options = options or DemoOptions()
     video = options.video.path if options.video is not None else None

@@ -25,6 +25,32 @@ LANE = "camera"
 
 
 def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None, out=..., stdin=None) -> dict:
+    """Run a DAVIS camera (USB or emulated) with a controller closing the loop, with live tuning.
+
+    Parameters
+    ----------
+    options : LiveOptions, optional
+        The device, the controller, duration, recordings, clips (default: ``LiveOptions()``).
+    viewer : ViewerOptions, optional
+        Where the Rerun data goes (default: a native viewer with a display, else a file).
+    out : file, optional
+        Where progress and the summary are printed (default: standard output; ``None``: nothing).
+    stdin : file, optional
+        Where tuning commands are read from (default: the terminal, when interactive).
+
+    Returns
+    -------
+    dict
+        The run's summary (see :func:`necviz.dashboard.session.run_session`).
+
+    Raises
+    ------
+    DeviceError
+        No camera, the wrong firmware, no permission; an unplug without ``reconnect`` (after
+        everything decoded was processed and the recordings were flushed).
+    ParameterError
+        Bad options or output files.
+    """
     out = output(out)
     options = options or LiveOptions()
     viewer, profile = preflight(

@@ -117,6 +117,30 @@ def skill_lines(skill: dict) -> list[str]:
 
 
 def run(options: ReplayOptions, viewer: ViewerOptions | None = None, out=...) -> dict:
+    """Replay a recording through P-TEDI and a controller in open loop, frame by frame.
+
+    Parameters
+    ----------
+    options : ReplayOptions
+        The file, the range, the controller, the JSON summary, video.
+    viewer : ViewerOptions, optional
+        Where the Rerun data goes (default: a native viewer with a display, else a file).
+    out : file, optional
+        Where progress and the summary are printed (default: standard output; ``None``: nothing).
+
+    Returns
+    -------
+    dict
+        The summary: per-frame prediction errors, P-TEDI's skill score against the frame-only
+        predictors, saturated frames and their diagnosed causes.
+
+    Raises
+    ------
+    RecordingError
+        A missing, unreadable or damaged file (what preceded the damage is replayed first).
+    ParameterError
+        Bad options or output files, or an empty range.
+    """
     out = output(out)
     path = Path(options.file)
     video = options.video.path if options.video is not None else None

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import rerun as rr
 
+from necviz.dashboard.recorders import RecordingFile
 from necviz.dashboard.sink import RerunSink, SinkOptions
 from necviz.dashboard.telemetry import Telemetry
 from necviz.dashboard.tuning import TuningConsole, TuningFile
@@ -49,7 +50,7 @@ class Session:
     viewer: ViewerOptions = field(default_factory=ViewerOptions)
     show: ShowOptions = field(default_factory=ShowOptions)
     tune: TuneOptions | None = None
-    recorder: object = None
+    recorder: RecordingFile | None = None  # the native recorder (--record)
     record_camera: str | None = None
     lossless: bool = True
     history: int | None = None
@@ -109,7 +110,7 @@ def run_session(session: Session, out=..., stdin=None) -> dict:
     out = output(out)
     bound_heap_retention()  # a burst of events must not stay resident for the rest of a long session
     outputs: list = []  # what to commit or discard: the recorder, the viewer's --save file
-    if session.recorder is not None and hasattr(session.recorder, "output"):
+    if session.recorder is not None:
         outputs.append(session.recorder)
     try:
         stats, viewer = _run(session, out, stdin, outputs)
@@ -118,16 +119,15 @@ def run_session(session: Session, out=..., stdin=None) -> dict:
         for o in outputs:
             o.commit()
     except BaseException as e:
-        if session.recorder is not None and not getattr(session.recorder, "closed", False):
+        if session.recorder is not None and not session.recorder.closed:
             try:
                 session.recorder.close()
             except BaseException:  # noqa: BLE001 - a full disk: the run's error (or this one) is reported
                 pass
-        if hasattr(session.source, "close"):
-            try:
-                session.source.close()
-            except BaseException:  # noqa: BLE001
-                pass
+        try:
+            session.source.close()
+        except BaseException:  # noqa: BLE001
+            pass
         notes = []
         for o in outputs:
             try:
@@ -143,7 +143,7 @@ def run_session(session: Session, out=..., stdin=None) -> dict:
         if new is e:
             raise
         raise new from None
-    if session.recorder is not None and hasattr(session.recorder, "output") and out is not None:
+    if session.recorder is not None and out is not None:
         rec = session.recorder.path
         print(f"  recorded to {rec} (replay it with: necviz replay {rec})", file=out)
     if viewer.save_path is not None and out is not None:

@@ -9,11 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from necviz.names import LAYOUT_NAMES
-
-DEFAULT_GRPC_PORT = 9876
-DEFAULT_WEB_PORT = 9090
-DEFAULT_CONNECT = f"rerun+http://127.0.0.1:{DEFAULT_GRPC_PORT}/proxy"
+from necviz.names import DEFAULT_CONNECT, DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, LAYOUT_NAMES
 
 
 def add_viewer_args(parser: argparse.ArgumentParser, layouts: tuple[str, ...] = LAYOUT_NAMES) -> None:

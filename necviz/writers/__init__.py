@@ -25,6 +25,9 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from necviz.core.errors import ParameterError
+from necviz.core.events import EventBatch
+from necviz.core.frames import Frame
+from necviz.core.imu import ImuBatch, TriggerBatch
 from necviz.pipeline import packet_time_us
 
 #: Output suffix -> format name.
@@ -80,20 +83,16 @@ class _NativeWriter:
         self.counts = {"events": 0, "frames": 0, "imu": 0, "triggers": 0, "commands": 0, "annotations": 0}
 
     def write(self, packet) -> None:
-        from necviz.core.frames import ExposureMarker, Frame
-        from necviz.core.imu import ImuBatch
-
         self.recorder.write(packet)
-        if isinstance(packet, Frame):
-            self.counts["frames"] += 1
-        elif isinstance(packet, ExposureMarker):
-            pass
-        elif isinstance(packet, ImuBatch):
-            self.counts["imu"] += len(packet)
-        elif hasattr(packet, "triggers"):
-            self.counts["triggers"] += len(packet)
-        else:
-            self.counts["events"] += len(packet)
+        match packet:
+            case Frame():
+                self.counts["frames"] += 1
+            case ImuBatch():
+                self.counts["imu"] += len(packet)
+            case TriggerBatch():
+                self.counts["triggers"] += len(packet)
+            case EventBatch():
+                self.counts["events"] += len(packet)
 
     def command(self, record) -> None:
         self.recorder.command(record)
