@@ -202,7 +202,9 @@ def _run_ptedi(monkeypatch, general: bool, **kw):
     if general:  # the reference: the kernel written for any number of zones
         monkeypatch.setattr(P, "ptedi_update_comp_one", P.ptedi_update_comp)
     ev, frames = _ptedi_stream()
-    est = P.PeripheralEstimator(DAVIS346, TediParams(0.26, 0.24, 0.45, 150.0, 0.35, 120.0), options=P.PeripheralOptions(**kw))
+    est = P.PeripheralEstimator(
+        DAVIS346, TediParams(0.26, 0.24, 0.45, 150.0, 0.35, 120.0), options=P.PeripheralOptions(**kw)
+    )
     out = []
     for pk in interleave(ev, frames, batch_us=700):
         if isinstance(pk, ExposureMarker) and pk.kind == "start" and est.ready:
