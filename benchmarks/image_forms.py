@@ -30,7 +30,7 @@ from analytic import AnalyticScene, Trajectory, texture  # noqa: E402
 from necviz.core.control import CameraLimits, NECController, NECOptions  # noqa: E402
 from necviz.core.crf import default_davis346  # noqa: E402
 from necviz.core.event_model import TediParams  # noqa: E402
-from necviz.core.ptedi import PeripheralEstimator  # noqa: E402
+from necviz.core.ptedi import PeripheralEstimator, PeripheralOptions  # noqa: E402
 from necviz.core.sensor import SensorGeometry  # noqa: E402
 from necviz.core.stream import interleave  # noqa: E402
 
@@ -43,7 +43,9 @@ def measure(sigma: float, offset: float, form: str, crf, w=128, h=96) -> dict:
     t_good = math.exp(crf.goal_log_exposure - mean_log) * 1e6
     t0 = max(2, round(t_good * math.exp(offset)))
     frame = scene.frame(crf, 0, t0)
-    est = PeripheralEstimator(SensorGeometry(w, h), TediParams(), crf, image_form=form, min_valid_fraction=0.01)
+    est = PeripheralEstimator(
+        SensorGeometry(w, h), TediParams(), crf, options=PeripheralOptions(image_form=form, min_valid_fraction=0.01)
+    )
     for pk in interleave(scene.events(0.26, 0.24), [frame]):
         est.feed(pk)
     lp = est.predict(t0)

@@ -32,7 +32,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from necviz.sweeps import load_plan, run_sweep
+from necviz.sweeps import SweepOptions, load_plan, run_sweep
 
 GRID = """
 name = "sweep-scaling benchmark"
@@ -48,7 +48,7 @@ params = {{ transition_ms = [15, 40, 150, 400] }}
 def one(plan, workers: int, folder: Path) -> dict:
     out = folder / f"w{workers}-{time.time_ns()}"
     t0 = time.perf_counter()
-    res = run_sweep(plan, out, workers=workers, dashboard=None, stream=None)
+    res = run_sweep(plan, out, SweepOptions(workers=workers, dashboard=None), stream=None)
     total = time.perf_counter() - t0
     assert res.ok == len(plan.runs), f"{res.failed} runs failed"
     # gaps between consecutive runs on each worker (scheduling, result transfer, row building)

@@ -166,6 +166,64 @@ class FrameEstimate:
     predicted_start: np.ndarray | None = None
 
 
+@dataclass(frozen=True)
+class PeripheralOptions:
+    """Where a :class:`PeripheralEstimator` meters and how it anchors, checked once.
+
+    Parameters
+    ----------
+    rectangle : tuple of int, optional
+        The peripheral region ``(x0, y0, x1, y1)`` (``None``: the whole sensor; see
+        :func:`necviz.core.regions.zone_map`).
+    grid : tuple of int
+        Zones across and down inside the region (``(1, 1)``: one zone).
+    image_form : str
+        ``"paper"`` (``g(mean Z)``, Eq. 15) or ``"mean_log"`` (mean over valid pixels of ``g(Z)``,
+        consistent with Eq. 8).
+    min_valid_fraction : float
+        Anchor rule threshold on the fraction of pixels in 9..250, in (0, 1].
+    max_pending : int
+        Exposures that may await their frame at once.
+    one_sided_clip : float
+        The clipped fraction at the "other" end that a one-sided saturation bound tolerates (a few
+        hot or dead pixels; default 5 %, see :meth:`PeripheralEstimator.frame_bounds`).
+    saturation_bound : bool
+        Re-anchor a zone at the bound a saturated frame proves when the event-propagated prediction
+        breaks it (necviz's addition, the default); ``False`` keeps the paper's rule alone (skip the
+        frame, keep propagating).
+
+    Raises
+    ------
+    ParameterError
+        An unknown image form, a fraction outside its range, or a ``max_pending`` below 1.
+    """
+
+    rectangle: tuple[int, int, int, int] | None = None
+    grid: tuple[int, int] = (1, 1)
+    image_form: str = "paper"
+    min_valid_fraction: float = 0.5
+    max_pending: int = 4
+    one_sided_clip: float = 0.05
+    saturation_bound: bool = True
+
+    def __post_init__(self) -> None:
+        if self.image_form not in IMAGE_FORMS:
+            raise ParameterError(f"image_form must be one of {IMAGE_FORMS}, got {self.image_form!r}")
+        f = self.min_valid_fraction
+        if isinstance(f, bool) or not (isinstance(f, (int, float)) and 0.0 < f <= 1.0):
+            raise ParameterError(f"min_valid_fraction must lie in (0, 1], got {f!r}")
+        c = self.one_sided_clip
+        if isinstance(c, bool) or not isinstance(c, (int, float)) or not 0.0 <= c <= 1.0:
+            raise ParameterError(f"one_sided_clip must lie in [0, 1], got {c!r}")
+        if not isinstance(self.saturation_bound, bool):
+            raise ParameterError(f"saturation_bound must be true or false, got {self.saturation_bound!r}")
+        m = self.max_pending
+        if isinstance(m, bool) or not (isinstance(m, int) and m >= 1):
+            raise ParameterError(f"max_pending must be a positive integer, got {m!r}")
+        object.__setattr__(self, "min_valid_fraction", float(f))
+        object.__setattr__(self, "one_sided_clip", float(c))
+
+
 class PeripheralEstimator(FrameSideMixin, PacketHandler):
     """Streaming P-TEDI estimate of the mean log irradiance of one or more peripheral zones.
 
@@ -179,16 +237,8 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
     sensor : the pixel array.
     params : thresholds and TEDI compensation.
     crf : camera response (default: :func:`default_davis346`).
-    rectangle, grid : the peripheral region (see :func:`necviz.core.regions.zone_map`).
-    image_form : ``"paper"`` (``g(mean Z)``, Eq. 15) or ``"mean_log"`` (mean over valid pixels
-        of ``g(Z)``, consistent with Eq. 8).
-    min_valid_fraction : anchor rule threshold on the fraction of pixels in 9..250.
-    max_pending : exposures that may await their frame at once.
-    one_sided_clip : the clipped fraction at the "other" end that a one-sided saturation bound
-        tolerates (a few hot or dead pixels; default 5 %, see :meth:`frame_bounds`).
-    saturation_bound : re-anchor a zone at the bound a saturated frame proves when the
-        event-propagated prediction breaks it (necviz's addition, the default); ``False`` keeps the
-        paper's rule alone (skip the frame, keep propagating). An attribute: a controller that
+    options : region, zones, image form, anchor rule and saturation bound (:class:`PeripheralOptions`;
+        default ``PeripheralOptions()``). ``saturation_bound`` is also an attribute: a controller that
         adopts an estimator sets it (:class:`~necviz.core.control.nec.NECController`).
     """
 
@@ -207,36 +257,22 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         sensor: SensorGeometry,
         params: TediParams = TediParams(),
         crf: CameraResponse | None = None,
-        rectangle: tuple[int, int, int, int] | None = None,
-        grid: tuple[int, int] = (1, 1),
-        image_form: str = "paper",
-        min_valid_fraction: float = 0.5,
-        max_pending: int = 4,
-        one_sided_clip: float = 0.05,
-        saturation_bound: bool = True,
+        options: PeripheralOptions | None = None,
     ):
-        if image_form not in IMAGE_FORMS:
-            raise ParameterError(f"image_form must be one of {IMAGE_FORMS}, got {image_form!r}")
-        if not (isinstance(min_valid_fraction, (int, float)) and 0.0 < min_valid_fraction <= 1.0):
-            raise ParameterError(f"min_valid_fraction must lie in (0, 1], got {min_valid_fraction!r}")
+        opts = PeripheralOptions() if options is None else options
+        if not isinstance(opts, PeripheralOptions):
+            raise ParameterError(f"options must be a PeripheralOptions, got {type(opts).__name__}")
         if not isinstance(params, TediParams):
             raise ParameterError("params must be a TediParams")
+        self.options = opts
         self.sensor = sensor
         self.params = params
         self.crf = crf if crf is not None else default_davis346()
-        self.image_form = image_form
-        self.min_valid_fraction = float(min_valid_fraction)
-        if (
-            isinstance(one_sided_clip, bool)
-            or not isinstance(one_sided_clip, (int, float))
-            or not 0.0 <= one_sided_clip <= 1.0
-        ):
-            raise ParameterError(f"one_sided_clip must lie in [0, 1], got {one_sided_clip!r}")
-        self.one_sided_clip = float(one_sided_clip)
-        if not isinstance(saturation_bound, bool):
-            raise ParameterError(f"saturation_bound must be true or false, got {saturation_bound!r}")
-        self.saturation_bound = saturation_bound
-        self.zmap = zone_map(sensor, rectangle, grid)
+        self.image_form = opts.image_form
+        self.min_valid_fraction = opts.min_valid_fraction
+        self.one_sided_clip = opts.one_sided_clip
+        self.saturation_bound = opts.saturation_bound
+        self.zmap = zone_map(sensor, opts.rectangle, opts.grid)
         self.whole = bool(np.all(self.zmap == 0))
         self.sizes = zone_sizes(self.zmap)
         k = self.sizes.size
@@ -255,8 +291,7 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
             self.counts_off = np.zeros(k, np.int64)
         self.last_event_us = np.iinfo(np.int64).min
         # exposure windows
-        if not (isinstance(max_pending, int) and max_pending >= 1):
-            raise ParameterError(f"max_pending must be a positive integer, got {max_pending!r}")
+        max_pending = opts.max_pending
         self._wstate = [_FREE] * max_pending  # window bookkeeping stays in Python lists (a few entries)
         self._wstart = [0] * max_pending
         self._wend = [0] * max_pending

@@ -402,7 +402,7 @@ class FlightRecorder(Observer):
     def _write_rrd(self, clip: _Clip, path: Path, props: dict, start_us: int) -> None:
         import rerun as rr
 
-        from necviz.dashboard.sink import RerunSink
+        from necviz.dashboard.sink import RerunSink, SinkOptions
         from necviz.dashboard.viewer import file_batching
         from necviz.layouts import make_blueprint, style_series
 
@@ -419,15 +419,8 @@ class FlightRecorder(Observer):
             rec.send_recording_name(f"necviz clip: {clip.cause or 'saturated'} at {self._t(clip.failure_us):.3f} s")
             rec.send_property("run", rr.AnyValues(**{k: str(v) for k, v in props.items()}, layout=self.layout))
             style_series(rec, names)
-            sink = RerunSink(
-                rec,
-                names,
-                self.sensor.height,
-                self.sensor.width,
-                event_window_us=self.event_window_us,
-                origin_us=origin,
-                lossless=True,
-            )
+            options = SinkOptions(event_window_us=self.event_window_us, origin_us=origin, lossless=True)
+            sink = RerunSink(rec, names, self.sensor.height, self.sensor.width, options)
             sink.started(start_us, self._initial)
             self._replay(clip, sink)
             sink.close()

@@ -9,12 +9,21 @@ finite and not worse after the fit than at its start (least squares never accept
 import argparse
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from necviz.calibration import PairCollector, calibrate_from_recordings, calibrate_from_simulation
+from necviz.calibration import (
+    DEFAULT_SELECTION,
+    CalibrationOptions,
+    CalibrationSimulation,
+    CollectorOptions,
+    PairCollector,
+    calibrate_from_recordings,
+    calibrate_from_simulation,
+)
 from necviz.commands.calibrate import add_parser, parse_seeds
 from necviz.core.camera_profile import CameraProfile
 from necviz.core.crf import default_davis346
@@ -47,7 +56,10 @@ def sim_result():
     3-5, 6-8, 9-11 and two threshold settings: errors within 2.3 %.
     """
     dvs = DvsParams(c_on=TRUE_ON, c_off=TRUE_OFF, sigma_threshold=0.01)
-    return calibrate_from_simulation("calibration", [0, 1, 2], 6.0, sensor=SMALL, dvs=dvs, fit="c", min_pixels=50)
+    sim = CalibrationSimulation("calibration", [0, 1, 2], 6.0, sensor=SMALL, dvs=dvs)
+    return calibrate_from_simulation(
+        sim, CalibrationOptions(fit="c", selection=replace(DEFAULT_SELECTION, min_pixels=50))
+    )
 
 
 def test_simulated_thresholds_are_recovered_within_5_percent(sim_result):
@@ -76,7 +88,10 @@ def test_all_six_parameters_keep_the_thresholds():
     """Fitting the compensation too (knee bounded below) leaves the thresholds within 5 %, and
     the compensation stage (thresholds fixed) never ends worse than it started (no compensation)."""
     dvs = DvsParams(c_on=0.2, c_off=0.28, sigma_threshold=0.01)
-    r = calibrate_from_simulation("calibration", [6, 7, 8], 6.0, sensor=SMALL, dvs=dvs, fit="all", min_pixels=50)
+    sim = CalibrationSimulation("calibration", [6, 7, 8], 6.0, sensor=SMALL, dvs=dvs)
+    r = calibrate_from_simulation(
+        sim, CalibrationOptions(fit="all", selection=replace(DEFAULT_SELECTION, min_pixels=50))
+    )
     assert r.params.c_on == pytest.approx(0.2, rel=0.05)
     assert r.params.c_off == pytest.approx(0.28, rel=0.05)
     assert r.plain is not None and "two stages" in r.method
@@ -227,7 +242,7 @@ def test_memory_stays_bounded_and_pairs_spread():
     from necviz.calibration import simulate_calibration_stream
 
     scene = CalibrationScene(SensorGeometry(32, 24), duration_us=3_000_000, seed=2)
-    col = PairCollector(default_davis346(), min_pixels=20, max_pairs=4)
+    col = PairCollector(default_davis346(), replace(DEFAULT_SELECTION, min_pixels=20), CollectorOptions(max_pairs=4))
     col.begin("sim")
     for packet in simulate_calibration_stream(scene, dvs=DvsParams(sigma_threshold=0.01)):
         col.feed(packet)

@@ -102,18 +102,7 @@ def test_top_level_folders_refuse_to_import_as_packages(folder):
 
 #: Expected failures of the rule below: public functions still wider than the limit, each being converted on
 #: another branch. Exact: an entry that no longer needs to be here fails the test too, so the list only shrinks.
-WIDE_ALLOWED = {  # being converted on another branch
-    "necviz/calibration/fit.py:calibrate_collected",
-    "necviz/calibration/from_simulation.py:calibrate_from_simulation",
-    "necviz/calibration/from_recordings.py:calibrate_from_recordings",
-    "necviz/calibration/pairs.py:PairCollector.__init__",
-    "necviz/sweeps/engine.py:run_sweep",
-    "necviz/dashboard/sink.py:RerunSink.__init__",
-    "necviz/bench/estimator_speed.py:run",
-    "drivers/sim/rig.py:SimRig.__init__",
-    "drivers/sim/scenes/tunnel_exit.py:_Corridor.__init__",
-    "core/ptedi.py:PeripheralEstimator.__init__",
-}
+WIDE_ALLOWED: set[str] = set()  # none left; a new entry needs a reason here
 MAX_PARAMETERS = 8
 
 

@@ -20,7 +20,7 @@ from necviz.core.metrics import rank_correlation, region_valid_fraction, summari
 from necviz.core.sensor import SensorGeometry
 from necviz.dashboard.telemetry import Telemetry
 from necviz.drivers.sim.aps import ApsParams
-from necviz.drivers.sim.rig import SimRig
+from necviz.drivers.sim.rig import RigOptions, SimRig
 from necviz.drivers.sim.scene import FunctionScene
 from necviz.drivers.sim.scenes import TunnelExit
 from necviz.image_quality import SiftMatcher, normalise_brightness
@@ -102,7 +102,11 @@ def test_rank_correlation_properties():
 def test_ground_truth_is_attached_without_changing_the_simulation():
     a, _ = frames_of(ramp, 4_000, noise=True)
     rig = SimRig(
-        FunctionScene(ramp, SENSOR, 90_000), {"cam": (4_000, 1.0)}, aps=ApsParams(noise=True), seed=2, truth=False
+        FunctionScene(ramp, SENSOR, 90_000),
+        {"cam": (4_000, 1.0)},
+        aps=ApsParams(noise=True),
+        seed=2,
+        options=RigOptions(truth=False),
     )
     plain = [p for cam, p in rig.packets() if hasattr(p, "image")]
     assert len(plain) == len(a) and all(np.array_equal(f.image, p.image) for (f, _), p in zip(a, plain))

@@ -19,7 +19,7 @@ from necviz.core.imu import IMU_DTYPE, ImuBatch
 from necviz.core.sensor import SensorGeometry
 from necviz.core.stream import packet_time_us
 from necviz.dashboard import schema as S
-from necviz.dashboard.sink import RerunSink
+from necviz.dashboard.sink import RerunSink, SinkOptions
 from necviz.drivers.recordings import Recorder, open_recording
 from necviz.drivers.source import CameraInfo, route
 from necviz.pipeline import Lane, Pipeline, RecorderObserver
@@ -122,7 +122,7 @@ def test_source_error_ends_the_run_and_everything_before_it_is_kept(tmp_path):
     packets = stream(n_frames=8)
     src = ListSource(packets, fail_after=len(packets) // 2)
     rec = open_rec(tmp_path / "run.rrd")
-    sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, lossless=True)
+    sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, SinkOptions(lossless=True))
     recorder = Recorder(tmp_path / "run.necrec", sensor=SENSOR, properties={})
     pipe = Pipeline(src, [nec_lane()], observers=[sink, RecorderObserver(recorder, "camera")]).start()
     assert pipe.wait(30)
@@ -174,7 +174,8 @@ def test_imu_packets_pass_through_to_the_recorder(tmp_path):
 def test_a_slow_viewer_never_slows_the_control_path(tmp_path, monkeypatch):
     """The sink's worker is stuck; the stream still runs through, and the drops are counted."""
     rec = open_rec(tmp_path / "slow.rrd")
-    sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, frame_queue_size=2, queue_size=16, max_rate_hz=1e6)
+    options = SinkOptions(frame_queue_size=2, queue_size=16, max_rate_hz=1e6)
+    sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, options)
     release = threading.Event()
     monkeypatch.setattr(sink, "_collect", lambda batches: release.wait(30))  # the viewer hangs
     src = ListSource(stream(n_frames=20))
@@ -192,9 +193,8 @@ def test_a_slow_viewer_never_slows_the_control_path(tmp_path, monkeypatch):
 
 def test_sink_decimates_by_stride_and_counts(tmp_path):
     rec = open_rec(tmp_path / "dec.rrd")
-    sink = RerunSink(
-        rec, ["camera"], SENSOR.height, SENSOR.width, event_window_us=10_000, max_events_per_window=500, lossless=True
-    )
+    options = SinkOptions(event_window_us=10_000, max_events_per_window=500, lossless=True)
+    sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, options)
     src = ListSource(stream(n_frames=5))
     Pipeline(src, [nec_lane()], observers=[sink]).run()
     s = sink.close()
@@ -255,7 +255,7 @@ def test_a_gap_in_the_stream_costs_one_window_not_one_per_window(tmp_path):
                 )
             )
     rec = open_rec(tmp_path / "gap.rrd")
-    sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, lossless=True)
+    sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, SinkOptions(lossless=True))
     t0 = time.perf_counter()
     Pipeline(ListSource(a + later), [nec_lane()], observers=[sink]).run().finish()
     rr.disconnect(rec)

@@ -19,7 +19,7 @@ from necviz.core.errors import EventFormatError, FrameFormatError, NotAnchoredEr
 from necviz.core.event_model import TediParams
 from necviz.core.events import EventBatch, make_events
 from necviz.core.frames import Frame
-from necviz.core.ptedi import PeripheralEstimator
+from necviz.core.ptedi import PeripheralEstimator, PeripheralOptions
 from necviz.core.sensor import SensorGeometry
 from necviz.core.stream import interleave
 
@@ -55,7 +55,7 @@ def _run(scene, frames, crf, form="paper", batch_us=1_000, query_us=500, end_us=
 
     A query at time q is answered after every packet before q has been applied.
     """
-    est = PeripheralEstimator(SENSOR, PARAMS, crf, image_form=form, **kw)
+    est = PeripheralEstimator(SENSOR, PARAMS, crf, options=PeripheralOptions(image_form=form, **kw))
     preds, fes = [], []
     queries = list(range(query_us // 2, end_us, query_us))  # never exactly at a step instant
     qi = 0
@@ -160,7 +160,9 @@ def test_zones_follow_their_own_lighting(crf):
     ]
     scene = AnalyticScene(64, 48, trs, groups=groups, log_level=5.0)
     frames = [scene.frame(crf, s, s + 3_000, seq=i) for i, s in enumerate(range(0, 100_000, 20_000))]
-    est = PeripheralEstimator(SENSOR, PARAMS, crf, grid=(2, 2), image_form="mean_log", min_valid_fraction=0.3)
+    est = PeripheralEstimator(
+        SENSOR, PARAMS, crf, options=PeripheralOptions(grid=(2, 2), image_form="mean_log", min_valid_fraction=0.3)
+    )
     assert est.num_zones == 4 and not est.whole
     for pk in interleave(scene.events(C_ON, C_OFF), frames[:1]):
         est.feed(pk)
@@ -185,7 +187,9 @@ def test_rectangle_region_ignores_events_outside(crf):
         log_level=5.0,
     )
     frames = [scene.frame(crf, 0, 4_000)]
-    est = PeripheralEstimator(SENSOR, PARAMS, crf, rectangle=(0, 0, 32, 48), image_form="mean_log")
+    est = PeripheralEstimator(
+        SENSOR, PARAMS, crf, options=PeripheralOptions(rectangle=(0, 0, 32, 48), image_form="mean_log")
+    )
     for pk in interleave(scene.events(C_ON, C_OFF), frames):
         est.feed(pk)
     t = est.last_event_us
@@ -242,7 +246,7 @@ def test_compensation_adds_the_documented_term():
     docs/method.md); with equal counts on every pixel that is the term of the mean count."""
     sensor = SensorGeometry(4, 1)
     params = TediParams(0.2, 0.3, a_on=0.5, b_on=1_000.0, a_off=0.0, b_off=0.0)
-    est = PeripheralEstimator(sensor, params, image_form="mean_log")
+    est = PeripheralEstimator(sensor, params, options=PeripheralOptions(image_form="mean_log"))
     img = np.full((1, 4), 128, np.uint8)
     est.begin_exposure(0)
     est.end_exposure(1_000)
@@ -286,7 +290,7 @@ def test_stream_errors_are_clear(crf):
         est.predict(10)
     with pytest.raises(StreamError, match="without a matching start"):
         est.end_exposure(60)
-    zoned = PeripheralEstimator(SENSOR, PARAMS, crf, grid=(2, 2))
+    zoned = PeripheralEstimator(SENSOR, PARAMS, crf, options=PeripheralOptions(grid=(2, 2)))
     bad = np.zeros(2, dtype=make_events([], [], [], []).dtype)
     bad["t"] = [1, 2]
     bad["x"] = [3, 70]
@@ -297,16 +301,16 @@ def test_stream_errors_are_clear(crf):
     with pytest.raises(ParameterError):
         TediParams(c_on=float("nan"))
     with pytest.raises(ParameterError, match="image_form"):
-        PeripheralEstimator(SENSOR, PARAMS, crf, image_form="median")
+        PeripheralEstimator(SENSOR, PARAMS, crf, options=PeripheralOptions(image_form="median"))
     with pytest.raises(ParameterError, match="rectangle"):
-        PeripheralEstimator(SENSOR, PARAMS, crf, rectangle=(0, 0, 100, 10))
+        PeripheralEstimator(SENSOR, PARAMS, crf, options=PeripheralOptions(rectangle=(0, 0, 100, 10)))
 
 
 @pytest.mark.parametrize("form", ["paper", "mean_log"])
 def test_image_side_zone_path_agrees_with_whole_sensor_path(form, crf):
     scene = AnalyticScene(64, 48, [Trajectory("flat")], log_level=6.0)
     frame = scene.frame(crf, 0, 900)
-    est = PeripheralEstimator(SENSOR, PARAMS, crf, image_form=form)
+    est = PeripheralEstimator(SENSOR, PARAMS, crf, options=PeripheralOptions(image_form=form))
     whole = est.frame_log_irradiance(frame)
     est.whole = False  # force the per-zone (bincount) path on the same single zone
     general = est.frame_log_irradiance(frame)
@@ -357,7 +361,7 @@ def test_saturation_bounds_are_what_a_clipped_frame_proves(zoned, form, crf):
         (frame_with({0: 0.60, 40: 0.40}), True),  # under-exposed only: an upper bound below the prediction
     ]
     for image, expect in cases:
-        est = PeripheralEstimator(sensor, PARAMS, crf, image_form=form)
+        est = PeripheralEstimator(sensor, PARAMS, crf, options=PeripheralOptions(image_form=form))
         est.whole = not zoned  # zoned: the per-zone (bincount) image path on the same single zone
         est.begin_exposure(0)
         est.end_exposure(1_000)
@@ -402,4 +406,4 @@ def test_the_lower_bound_never_exceeds_the_truth(log_l, log_t):
         assert hi[0] >= truth - slack
 
     with pytest.raises(ParameterError, match="one_sided_clip"):
-        PeripheralEstimator(SensorGeometry(20, 10), PARAMS, crf, one_sided_clip=1.5)
+        PeripheralEstimator(SensorGeometry(20, 10), PARAMS, crf, options=PeripheralOptions(one_sided_clip=1.5))

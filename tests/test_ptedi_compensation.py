@@ -18,7 +18,7 @@ import pytest
 from necviz.core.event_model import TediParams
 from necviz.core.events import EventBatch, make_events
 from necviz.core.frames import Frame
-from necviz.core.ptedi import PeripheralEstimator
+from necviz.core.ptedi import PeripheralEstimator, PeripheralOptions
 from necviz.core.sensor import SensorGeometry
 from necviz.core.stream import interleave
 from necviz.core.tedi_kernels import tedi_exposure_integral
@@ -122,7 +122,7 @@ REGIONS = {
 
 def run_and_check(seed, region, batch_us, params=PARAMS):
     ev = random_stream(seed)
-    est = PeripheralEstimator(SENSOR, params, min_valid_fraction=0.5, **REGIONS[region])
+    est = PeripheralEstimator(SENSOR, params, options=PeripheralOptions(min_valid_fraction=0.5, **REGIONS[region]))
     zflat = est.zmap.ravel().astype(np.int64)
     k = est.num_zones
     n_done = 0
@@ -201,7 +201,7 @@ def test_one_pixel_zones_are_per_pixel_tedi():
 def test_prediction_at_a_saturated_frames_start_uses_per_pixel_terms():
     """The saturation bound compares the frame with Eq. 12 at its exposure start: per pixel there too."""
     ev = random_stream(4)
-    est = PeripheralEstimator(SENSOR, PARAMS, grid=(2, 2))
+    est = PeripheralEstimator(SENSOR, PARAMS, options=PeripheralOptions(grid=(2, 2)))
     zflat = est.zmap.ravel().astype(np.int64)
     fr = frames()
     for pk in interleave(ev[ev["t"] < 20_000], fr[:2]):

@@ -11,7 +11,7 @@ from test_ptedi_compensation import PARAMS, SENSOR, H, W, random_stream
 
 from necviz.core.errors import StreamError
 from necviz.core.frames import ExposureMarker, Frame
-from necviz.core.ptedi import PeripheralEstimator
+from necviz.core.ptedi import PeripheralEstimator, PeripheralOptions
 from necviz.core.ptedi_shared import share_event_side
 from necviz.core.stream import interleave
 
@@ -57,8 +57,8 @@ def _lanes_stream(seed: int, delay_us: int):
 @pytest.mark.parametrize("delay_us", [0, 12_000])
 def test_shared_estimators_equal_stand_alone_ones_bit_for_bit(grid, delay_us):
     stream = _lanes_stream(7, delay_us)
-    alone = [PeripheralEstimator(SENSOR, PARAMS, grid=grid) for _ in range(3)]
-    shared = [PeripheralEstimator(SENSOR, PARAMS, grid=grid) for _ in range(3)]
+    alone = [PeripheralEstimator(SENSOR, PARAMS, options=PeripheralOptions(grid=grid)) for _ in range(3)]
+    shared = [PeripheralEstimator(SENSOR, PARAMS, options=PeripheralOptions(grid=grid)) for _ in range(3)]
     (side,) = share_event_side(shared)
     got, want, most_live = [], [], 0
     for cam, pk in stream:

@@ -14,7 +14,7 @@ from test_ptedi_compensation import EXPOSURES, PARAMS, SENSOR, H, W, brute_log_e
 
 from necviz.core.events import EventBatch, make_events
 from necviz.core.frames import Frame
-from necviz.core.ptedi import PeripheralEstimator
+from necviz.core.ptedi import PeripheralEstimator, PeripheralOptions
 from necviz.core.stream import interleave
 
 
@@ -34,7 +34,7 @@ def test_frames_arriving_after_the_next_exposure_started(seed, grid, saturated):
     """Every frame is delivered 8 ms after its exposure ends, after the next exposure started: the
     estimator keeps the counts since each pending exposure's start, and still matches the brute force."""
     ev = random_stream(seed)
-    est = PeripheralEstimator(SENSOR, PARAMS, grid=grid, min_valid_fraction=0.5)
+    est = PeripheralEstimator(SENSOR, PARAMS, options=PeripheralOptions(grid=grid, min_valid_fraction=0.5))
     zflat = est.zmap.ravel().astype(np.int64)
     k = est.num_zones
     fes, checks, n_done = [], 0, 0

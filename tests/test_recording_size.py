@@ -25,7 +25,7 @@ from necviz.core.event_image import EventImage
 from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import Frame
 from necviz.dashboard import schema as S
-from necviz.dashboard.sink import EventPalette, RerunSink, encode_indexed_png
+from necviz.dashboard.sink import EventPalette, RerunSink, SinkOptions, encode_indexed_png
 from necviz.dashboard.telemetry import FrameRecord
 from necviz.image_quality import ssim
 
@@ -237,7 +237,7 @@ def _feed(sink: RerunSink, n_frames: int, height=20, width=30) -> None:
 def test_live_sink_sends_series_while_running_lossless_sink_sends_by_size():
     live, file_ = Spy(), Spy()
     a = RerunSink(live, ["camera"], 20, 30)
-    b = RerunSink(file_, ["camera"], 20, 30, lossless=True)
+    b = RerunSink(file_, ["camera"], 20, 30, SinkOptions(lossless=True))
     assert a.flush_period_s == 0.1 and b.flush_period_s == float("inf")
     for s in (a, b):
         _feed(s, 5)
@@ -263,16 +263,10 @@ def test_file_sink_writes_everything_in_order_at_close(tmp_path, chunk_rows, ima
     path = tmp_path / "run.rrd"
     rec = rr.RecordingStream("necviz-test")
     rec.save(str(path))
-    sink = RerunSink(
-        rec,
-        ["camera"],
-        20,
-        30,
-        lossless=True,
-        chunk_rows=chunk_rows,
-        image_chunk_bytes=image_chunk_bytes,
-        event_window_us=10_000,
+    options = SinkOptions(
+        lossless=True, chunk_rows=chunk_rows, image_chunk_bytes=image_chunk_bytes, event_window_us=10_000
     )
+    sink = RerunSink(rec, ["camera"], 20, 30, options)
     n = 12
     _feed(sink, n)
     stats = sink.close()

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from necviz.core.frames import Frame
-from necviz.drivers.sim.rig import SimRig
+from necviz.drivers.sim.rig import RigOptions, SimRig
 from necviz.drivers.sim.scene_cache import SceneCache
 from necviz.options import SceneOptions
 
@@ -16,7 +16,7 @@ from necviz.options import SceneOptions
 def _rig(cache, duration_s=0.2, threads=True, seed=0, **params):
     scene = SceneOptions("tunnel_exit", seed, duration_s, params).build()
     cams = {f"cam{i}": (float(e), 1.0) for i, e in enumerate(np.geomspace(20, 15_000, 4))}
-    return SimRig(scene, cams, seed=seed, threads=threads, cache=cache)
+    return SimRig(scene, cams, seed=seed, options=RigOptions(threads=threads), cache=cache)
 
 
 def _digest(rig, stop_after=None) -> str:

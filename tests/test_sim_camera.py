@@ -11,7 +11,7 @@ from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import SensorGeometry
 from necviz.drivers.sim.aps import ApsParams, expose, integrate_samples
 from necviz.drivers.sim.dvs import DvsParams
-from necviz.drivers.sim.rig import SimRig
+from necviz.drivers.sim.rig import RigOptions, SimRig
 from necviz.drivers.sim.scene import FunctionScene
 from necviz.drivers.source import Source
 
@@ -84,8 +84,7 @@ def test_light_changing_during_the_exposure_is_averaged(crf):
         {"camera": (4_000, 1.0)},
         aps=ApsParams(noise=False),
         dvs=DvsParams.ideal(),
-        first_start_us=1_000,
-        sample_us=250,
+        options=RigOptions(first_start_us=1_000, sample_us=250),
     )
     f0 = frames_of(cam)[0]
     assert (f0.exposure_start_us, f0.exposure_end_us) == (1_000, 5_000)
@@ -201,7 +200,7 @@ def test_bad_rig_parameters():
     with pytest.raises(ParameterError, match="at least one camera"):
         SimRig(static_scene(), [])
     with pytest.raises(ParameterError, match="sample_us"):
-        SimRig(static_scene(), ["a"], sample_us=0)
+        SimRig(static_scene(), ["a"], options=RigOptions(sample_us=0))
     with pytest.raises(ParameterError, match="Scene"):
         SimRig("tunnel", ["a"])
     rig = SimRig(static_scene(), ["a"])

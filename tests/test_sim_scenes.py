@@ -1,6 +1,5 @@
 """Scenario presets of the simulator (drivers/sim/scenes/)."""
 
-import inspect
 import re
 from pathlib import Path
 
@@ -11,7 +10,7 @@ import pytest
 from necviz.core.errors import ParameterError, ProfileError
 from necviz.core.sensor import DAVIS240, DAVIS346
 from necviz.drivers.sim.aps import ApsParams
-from necviz.drivers.sim.rig import SimRig
+from necviz.drivers.sim.rig import RigOptions
 from necviz.drivers.sim.scene import FunctionScene, LightingChange, Scene, db_to_log
 from necviz.drivers.sim.scenes import (
     COMMON_PARAMS,
@@ -222,7 +221,7 @@ def test_static_lab_levels_and_no_motion():
 def default_frame_clock():
     """(first exposure start, frame interval, command latency) of SimRig/ApsParams defaults, in µs."""
     return (
-        inspect.signature(SimRig).parameters["first_start_us"].default,
+        RigOptions().first_start_us,
         ApsParams().frame_interval_us,
         ApsParams().latency_us,
     )

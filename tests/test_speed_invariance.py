@@ -25,7 +25,7 @@ import pytest
 from necviz.core.crf import US_PER_S, default_davis346
 from necviz.core.frames import Frame
 from necviz.drivers.sim.aps import ApsParams, DigitLut, expose
-from necviz.drivers.sim.rig import SimRig
+from necviz.drivers.sim.rig import RigOptions, SimRig
 from necviz.options import SceneOptions
 from necviz.pipeline import Observer
 
@@ -44,8 +44,12 @@ def sim_digest(threads=None, duration_s: float = 0.3) -> str:
     """Hash every packet of a six-camera rig, in order: events, markers, frames and their ground truth."""
     scene = SceneOptions("tunnel_exit", 0, duration_s, dict(NOMINAL)).build()
     exposures = np.geomspace(20, 15_000, 6)
-    kw = {} if threads is None else {"threads": threads}
-    rig = SimRig(scene, {f"cam{i}": (float(e), 1.0) for i, e in enumerate(exposures)}, seed=0, **kw)
+    rig = SimRig(
+        scene,
+        {f"cam{i}": (float(e), 1.0) for i, e in enumerate(exposures)},
+        seed=0,
+        options=RigOptions(threads=threads),
+    )
     h = hashlib.sha256()
     for name, p in rig.packets():
         h.update(str(name).encode())
@@ -198,7 +202,9 @@ def _run_ptedi(monkeypatch, general: bool, **kw):
     if general:  # the reference: the kernel written for any number of zones
         monkeypatch.setattr(P, "ptedi_update_comp_one", P.ptedi_update_comp)
     ev, frames = _ptedi_stream()
-    est = P.PeripheralEstimator(DAVIS346, TediParams(0.26, 0.24, 0.45, 150.0, 0.35, 120.0), **kw)
+    est = P.PeripheralEstimator(
+        DAVIS346, TediParams(0.26, 0.24, 0.45, 150.0, 0.35, 120.0), options=P.PeripheralOptions(**kw)
+    )
     out = []
     for pk in interleave(ev, frames, batch_us=700):
         if isinstance(pk, ExposureMarker) and pk.kind == "start" and est.ready:

@@ -23,7 +23,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from necviz.commands.cli import main
-from necviz.sweeps import load_plan, run_sweep
+from necviz.sweeps import SweepOptions, load_plan, run_sweep
 from necviz.sweeps.spec import spec_hash
 from necviz.sweeps.store import Store
 
@@ -282,7 +282,7 @@ def test_ctrl_c_keeps_finished_rows_and_resume_adds_only_the_missing(client, tmp
     st = json.loads(_run_cli(["sweep", "status", str(out), "--json"]))
     assert (st["ok"], st["missing"]) == (len(kept), 10 - len(kept))
 
-    res = run_sweep(load_plan(f), out, client=client, resume=True, stream=None)
+    res = run_sweep(load_plan(f), out, SweepOptions(resume=True), client=client, stream=None)
     assert (res.skipped, res.written) == (len(kept), 10 - len(kept))
     assert len(store.done()) == 10
     for h, ident in kept.items():
@@ -435,7 +435,7 @@ def test_output_folder_rules(first, tmp_path, capsys):
     assert (other / "notes.txt").read_text() == "mine"
     assert not (tmp_path / "new").exists()
     # resuming a finished sweep runs nothing; a changed grid is refused
-    res = run_sweep(plan, out, resume=True, stream=None)
+    res = run_sweep(plan, out, SweepOptions(resume=True), stream=None)
     assert (res.skipped, res.written) == (8, 0)
     _write(f, SWEEP.replace('"0..1"', '"0"'))
     assert main(["sweep", "run", str(f), "--out", str(out), "--resume"]) == 2
@@ -465,7 +465,7 @@ def test_damaged_rows_are_named_in_one_line_and_run_again_on_resume(first, clien
     assert main(["sweep", "show", str(out), "--run", empty, "--save", str(tmp_path / "s.rrd")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "unreadable result row" in err and not (tmp_path / "s.rrd").exists()
-    res = run_sweep(plan, out, client=client, resume=True, stream=None)
+    res = run_sweep(plan, out, SweepOptions(resume=True), client=client, stream=None)
     assert (res.skipped, res.written, res.ok) == (6, 2, 2)  # exactly the damaged two, run again
     assert set(_ok_rows(out)) == set(ok) and len(list((out / "runs").glob("*.damaged"))) == 2
 
@@ -486,7 +486,7 @@ def test_a_sweep_may_not_write_over_its_own_sweep_file(first, tmp_path, capsys):
 def test_retry_failed_runs_only_the_failed_again(first, client):
     plan, out, _ = first
     before = {h: Store(out).row_path(h).stat().st_mtime_ns for h in Store(out).done()}
-    res = run_sweep(plan, out, client=client, resume=True, retry_failed=True, stream=None)
+    res = run_sweep(plan, out, SweepOptions(resume=True, retry_failed=True), client=client, stream=None)
     assert (res.skipped, res.failed, res.ok) == (4, 4, 0)  # they fail again, for the same reason
     after = {h: Store(out).row_path(h).stat().st_mtime_ns for h in Store(out).done()}
     ok = set(_ok_rows(out))

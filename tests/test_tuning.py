@@ -18,7 +18,7 @@ from test_pipeline import SENSOR, ListSource, nec_lane, stream
 from necviz.core.control import CONTROLLERS, CameraLimits, NECController, make_controller
 from necviz.core.errors import ParameterError
 from necviz.dashboard import schema as S
-from necviz.dashboard.sink import RerunSink
+from necviz.dashboard.sink import RerunSink, SinkOptions
 from necviz.dashboard.tuning import TuningConsole, TuningFile, execute, parse
 from necviz.drivers.recordings import Recorder, open_recording
 from necviz.pipeline import Lane, Pipeline, RecorderObserver
@@ -144,7 +144,7 @@ def test_changes_are_applied_between_packets_and_logged(tmp_path):
     """A change made while streaming lands in the .rrd (tuning entity) and the native recording."""
     rec = rr.RecordingStream("necviz-test")
     rec.save(str(tmp_path / "t.rrd"))
-    sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, lossless=True)
+    sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, SinkOptions(lossless=True))
     recorder = Recorder(tmp_path / "t.necrec", sensor=SENSOR, properties={})
     pipe = Pipeline(
         ListSource(stream(n_frames=6)), [nec_lane()], observers=[sink, RecorderObserver(recorder, "camera")]

@@ -15,7 +15,7 @@ from necviz.core.control.shim import ShimController, ShimOptions
 from necviz.core.crf import CameraResponse, default_davis346
 from necviz.core.errors import ParameterError
 from necviz.core.event_model import TediParams
-from necviz.core.ptedi import PeripheralEstimator
+from necviz.core.ptedi import PeripheralEstimator, PeripheralOptions
 from necviz.core.sensor import SensorGeometry
 
 
@@ -82,7 +82,9 @@ def _estimator(ctx: ControllerContext, options: NECOptions, tedi: TediParams) ->
     if not options.compensation:  # the controller would zero them anyway: never allocate their state
         tedi = replace(tedi, a_on=0.0, b_on=0.0, a_off=0.0, b_off=0.0)
     grid = options.zone_grid or (ZONE_GRID if options.metering == "zones" else (1, 1))
-    return PeripheralEstimator(ctx.sensor, tedi, ctx.crf, grid=grid, saturation_bound=options.saturation_bound)
+    return PeripheralEstimator(
+        ctx.sensor, tedi, ctx.crf, options=PeripheralOptions(grid=grid, saturation_bound=options.saturation_bound)
+    )
 
 
 def _build_nec(ctx: ControllerContext, options: ControllerOptions | None) -> Controller:

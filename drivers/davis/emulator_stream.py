@@ -58,13 +58,13 @@ class DataPathMixin:
     # -- streaming -----------------------------------------------------------------------------------
     def warm_up(self) -> None:
         """Compile or load the simulator's kernels on a throwaway rig of the same scenario (a few ms of it)."""
-        from necviz.drivers.sim.rig import SimRig
+        from necviz.drivers.sim.rig import RigOptions, SimRig
         from necviz.drivers.sim.scenes import make_scenario
 
         scene = make_scenario(
             self.scenario, sensor=self.sensor, duration_us=50_000, seed=self.seed, **self.scenario_params
         )
-        SimRig(scene, ["camera"], seed=self.seed, threads=False).warm_up()
+        SimRig(scene, ["camera"], seed=self.seed, options=RigOptions(threads=False)).warm_up()
 
     def _ensure_rig(self) -> None:
         from necviz.drivers.sim.aps import ApsParams

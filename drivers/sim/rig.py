@@ -19,9 +19,9 @@ intervals + latency`` before the exposure to its end, the camera's limits and co
 the scene's lighting changes and, where the scene has them, the pedestrian's box and the fiducial
 markers' corners at mid-exposure. Attaching it
 reads the simulation and changes nothing in it: the frames and events are the same with
-``truth=False``.
+``RigOptions(truth=False)``.
 
-Threads: with ``threads=True`` (the default, :attr:`SimRig.THREADS`) the work that does not depend
+Threads: with ``RigOptions(threads=True)`` (the default, :attr:`SimRig.THREADS`) the work that does not depend
 on the consumer runs beside it — scene rendering up to :attr:`SimRig.RENDER_AHEAD` sample periods
 ahead on one worker thread (:attr:`SimRig.RENDER_CHUNK` periods per job), the DVS steps of each
 rendered chunk on a second, and every frame's formation (integration and noise) on a third,
@@ -42,6 +42,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from necviz.core.checks import check_number
 from necviz.core.control.controller import CameraLimits
 from necviz.core.crf import CameraResponse, default_davis346
 from necviz.core.errors import ParameterError
@@ -83,28 +84,90 @@ def _steps(dvs: EventSimulator, samples: list) -> list:
     return [_step(dvs, ls, ts) for ls, ts in samples]
 
 
+@dataclass(frozen=True)
+class RigOptions:
+    """How a :class:`SimRig` samples its scene and delivers the packets (validated here, once).
+
+    Parameters
+    ----------
+    sample_us : int
+        Base period of the scene samples (µs, > 0); events are interpolated in between.
+    refine_log : float
+        A sample interval over which the mean absolute change of ln L exceeds this (ln, > 0) is
+        halved, down to ``min_sample_us`` (ESIM-style adaptive sampling).
+    min_sample_us : int
+        The shortest sample interval refinement makes (µs, > 0).
+    batch_us : int
+        Event batches are delivered at least this often (µs, > 0).
+    first_start_us : int
+        Start of every camera's first exposure (µs, >= 0).
+    truth : bool
+        Attach :class:`~necviz.core.ground_truth.GroundTruth` to every frame (``frame.truth``).
+    threads : bool, optional
+        Render, simulate events and form frames on worker threads (``None``: :attr:`SimRig.THREADS`);
+        ``False`` runs everything on the consumer's thread. The packets are identical either way.
+
+    Raises
+    ------
+    ParameterError
+        A period that is not a positive whole number of µs, a negative first start, or a
+        ``refine_log`` that is not a positive finite number.
+    """
+
+    sample_us: int = 2_000
+    refine_log: float = 0.12
+    min_sample_us: int = 60
+    batch_us: int = 1_000
+    first_start_us: int = 1_000
+    truth: bool = True
+    threads: bool | None = None
+
+    def __post_init__(self) -> None:
+        for label in ("sample_us", "min_sample_us", "batch_us"):
+            v = getattr(self, label)
+            if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
+                raise ParameterError(f"{label} must be a positive integer (µs), got {v!r}")
+        r = self.refine_log
+        if isinstance(r, bool) or not (isinstance(r, (int, float)) and r > 0 and math.isfinite(r)):
+            raise ParameterError(f"refine_log must be a positive number, got {r!r}")
+        object.__setattr__(self, "refine_log", float(r))
+        object.__setattr__(self, "first_start_us", check_number("first_start_us", self.first_start_us, 0, integer=True))
+        object.__setattr__(self, "truth", bool(self.truth))
+        object.__setattr__(self, "threads", None if self.threads is None else bool(self.threads))
+
+
 class SimRig:
     """Several simulated cameras sharing one scene and one event stream.
 
     Parameters
     ----------
-    scene : the irradiance field.
-    cameras : camera names, or ``{name: (initial exposure µs, initial gain)}``.
-    dvs, aps : event and frame models; ``crf`` the camera response of every camera.
-    sample_us : base period of scene samples (events are interpolated in between).
-    refine_log : a sample interval whose largest per-pixel change of ln L exceeds this is halved,
-        down to ``min_sample_us`` (ESIM-style adaptive sampling).
-    batch_us : event batches are delivered at least this often.
-    first_start_us : start of every camera's first exposure.
-    truth : attach :class:`~necviz.core.ground_truth.GroundTruth` to every frame (``frame.truth``).
-    threads : render, simulate events and form frames on worker threads (``None``: :attr:`THREADS`);
-        ``False`` runs everything on the consumer's thread. The packets are identical either way.
-    cache : a :class:`~necviz.drivers.sim.scene_cache.SceneCache`: read the rendered scene and its events
+    scene : Scene
+        The irradiance field.
+    cameras : sequence of str or dict
+        Camera names, or ``{name: (initial exposure µs, initial gain)}`` (``None``: a mid-range start).
+    dvs : DvsParams, optional
+        The event model (default: ``DvsParams()``, the simulated DAVIS346).
+    aps : ApsParams, optional
+        The frame model (default: ``ApsParams()``).
+    crf : CameraResponse, optional
+        The camera response of every camera (default: the DAVIS346-like curve).
+    seed : int
+        Seed of the event model and of every camera's frame noise.
+    options : RigOptions, optional
+        Sampling, batching, first exposure start, ground truth and threads (default: ``RigOptions()``).
+    cache : SceneCache, optional
+        A :class:`~necviz.drivers.sim.scene_cache.SceneCache`: read the rendered scene and its events
         from it when this stream is there, else write it there (when the whole scene is simulated). The
         packets are identical either way; only the scene's rendering and the event model are skipped.
+
+    Raises
+    ------
+    ParameterError
+        Not a :class:`Scene`, no camera, an initial setting that is not positive (or a gain below 1),
+        or ``options`` that is not a :class:`RigOptions`.
     """
 
-    #: default of ``threads``: worker threads for rendering, events and frames
+    #: default of ``RigOptions.threads``: worker threads for rendering, events and frames
     THREADS = True
     #: scene sample periods rendered ahead of the consumer with threads (bounded memory: one image each)
     RENDER_AHEAD = 8
@@ -115,17 +178,12 @@ class SimRig:
         self,
         scene: Scene,
         cameras,
+        *,
         dvs: DvsParams | None = None,
         aps: ApsParams | None = None,
         crf: CameraResponse | None = None,
         seed: int = 0,
-        sample_us: int = 2_000,
-        refine_log: float = 0.12,
-        min_sample_us: int = 60,
-        batch_us: int = 1_000,
-        first_start_us: int = 1_000,
-        truth: bool = True,
-        threads: bool | None = None,
+        options: RigOptions | None = None,
         cache=None,
     ):
         if not isinstance(scene, Scene):
@@ -134,22 +192,25 @@ class SimRig:
             cameras = {name: None for name in cameras}
         if not cameras:
             raise ParameterError("SimRig needs at least one camera")
-        for label, v in (("sample_us", sample_us), ("min_sample_us", min_sample_us), ("batch_us", batch_us)):
-            if not isinstance(v, int) or v <= 0:
-                raise ParameterError(f"{label} must be a positive integer (µs), got {v!r}")
-        if not (isinstance(refine_log, (int, float)) and refine_log > 0 and math.isfinite(refine_log)):
-            raise ParameterError(f"refine_log must be a positive number, got {refine_log!r}")
+        options = RigOptions() if options is None else options
+        if not isinstance(options, RigOptions):
+            raise ParameterError(f"SimRig takes RigOptions, got {type(options).__name__}")
+        self.options = options
         self.scene = scene
         self.sensor = scene.sensor
         self.dvs_params = dvs or DvsParams()
         self.aps = aps or ApsParams()
         self.crf = crf or default_davis346()
         self.seed = int(seed)
-        self.sample_us, self.refine_log, self.min_sample_us = sample_us, float(refine_log), min_sample_us
-        self.batch_us = batch_us
-        self.first_start_us = int(first_start_us)
-        self.truth = bool(truth)
-        self.threads = self.THREADS if threads is None else bool(threads)
+        self.sample_us, self.refine_log, self.min_sample_us = (
+            options.sample_us,
+            options.refine_log,
+            options.min_sample_us,
+        )
+        self.batch_us = options.batch_us
+        self.first_start_us = options.first_start_us
+        self.truth = options.truth
+        self.threads = self.THREADS if options.threads is None else options.threads
         self.cache = cache
         self.samples_cached = 0  # scene samples read from the cache instead of rendered
         self.cache_written = False
@@ -541,13 +602,7 @@ class SimRig:
             aps=self.aps,
             crf=self.crf,
             seed=self.seed,
-            sample_us=self.sample_us,
-            refine_log=self.refine_log,
-            min_sample_us=self.min_sample_us,
-            batch_us=self.batch_us,
-            first_start_us=self.first_start_us,
-            truth=self.truth,
-            threads=False,
+            options=replace(self.options, threads=False),
         )
         gen = mini.packets()
         try:

@@ -22,6 +22,7 @@ from thread CPU time as well (what a shared, loaded machine disturbs least).
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
@@ -94,26 +95,90 @@ def ptedi_task(packets, predict_at, crf, params):
     return out
 
 
-def run(
-    events=10_000_000,
-    duration_s=2.0,
-    fps=50.0,
-    exposure_us=5_000,
-    repeats=3,
-    edi_samples=64,
-    seed=0,
-    json_path=None,
-    methods=METHODS,
-    out=...,
-) -> dict:
-    """Run the benchmark, print a table, optionally write JSON; returns the result dict."""
+@dataclass(frozen=True)
+class EstimatorBenchOptions:
+    """What the estimator benchmark streams and times (validated here, once).
+
+    Parameters
+    ----------
+    events : int
+        Events in the synthetic stream (>= 1000), uniformly random on the DAVIS346 array.
+    duration_s : float
+        Sensor time the stream spans (s, > 0).
+    fps : float
+        Frame rate (1..1000).
+    exposure_us : int
+        Exposure of every frame (µs), positive and shorter than the frame period.
+    repeats : int
+        Timed runs per method (>= 1); a row is their median.
+    edi_samples : int
+        Samples of the EDI and mEDI integrals (>= 1).
+    seed : int
+        Seed of the synthetic stream.
+    methods : tuple of str
+        The methods to time, among :data:`METHODS`.
+
+    Raises
+    ------
+    ParameterError
+        A value out of its range, or an unknown method.
+    """
+
+    events: int = 10_000_000
+    duration_s: float = 2.0
+    fps: float = 50.0
+    exposure_us: int = 5_000
+    repeats: int = 3
+    edi_samples: int = 64
+    seed: int = 0
+    methods: tuple[str, ...] = METHODS
+
+    def __post_init__(self) -> None:
+        e, d, f, r, n = self.events, self.duration_s, self.fps, self.repeats, self.edi_samples
+        if e < 1000 or d <= 0 or not (1 <= f <= 1000) or r < 1 or n < 1:
+            raise ParameterError(
+                "benchmark needs events >= 1000, duration > 0, fps in 1..1000, repeats >= 1, edi samples >= 1"
+            )
+        if self.exposure_us <= 0 or self.exposure_us >= 1e6 / f:
+            raise ParameterError(f"exposure {self.exposure_us} µs must be positive and shorter than the frame period")
+        methods = (self.methods,) if isinstance(self.methods, str) else tuple(self.methods)
+        unknown = [m for m in methods if m not in METHODS]
+        if not methods or unknown:
+            raise ParameterError(
+                f"unknown method(s) {', '.join(unknown) or '(none given)'}; available: {', '.join(METHODS)}"
+            )
+        object.__setattr__(self, "methods", methods)
+
+
+def run(options: EstimatorBenchOptions | None = None, json_path=None, out=...) -> dict:
+    """Run the benchmark, print a table, optionally write JSON; returns the result dict.
+
+    Parameters
+    ----------
+    options : EstimatorBenchOptions, optional
+        The stream and the methods (default: ``EstimatorBenchOptions()``, 10 M events over 2 s).
+    json_path : str or path, optional
+        Where to write the result as JSON.
+    out : stream, optional
+        Where the table goes (default: standard output; ``None``: nowhere).
+
+    Returns
+    -------
+    dict
+        ``rows`` (one per method), ``ratios`` (from wall time), ``ratios_cpu_time``, ``targets``,
+        ``stream`` (what was timed) and ``machine``.
+
+    Raises
+    ------
+    ParameterError
+        ``options`` that is not an :class:`EstimatorBenchOptions`.
+    """
+    opts = EstimatorBenchOptions() if options is None else options
+    if not isinstance(opts, EstimatorBenchOptions):
+        raise ParameterError(f"options must be an EstimatorBenchOptions, got {type(opts).__name__}")
+    events, duration_s, fps, exposure_us = opts.events, opts.duration_s, opts.fps, opts.exposure_us
+    repeats, edi_samples, seed, methods = opts.repeats, opts.edi_samples, opts.seed, opts.methods
     out = output(out)
-    if events < 1000 or duration_s <= 0 or not (1 <= fps <= 1000) or repeats < 1 or edi_samples < 1:
-        raise ParameterError(
-            "benchmark needs events >= 1000, duration > 0, fps in 1..1000, repeats >= 1, edi samples >= 1"
-        )
-    if exposure_us <= 0 or exposure_us >= 1e6 / fps:
-        raise ParameterError(f"exposure {exposure_us} µs must be positive and shorter than the frame period")
     from necviz.core.edi import edi_reconstruct, fast_edi_reconstruct, medi_reconstruct
     from necviz.core.tedi import tedi_reconstruct
 

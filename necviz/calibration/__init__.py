@@ -13,8 +13,9 @@ runs (:func:`simulate_calibration_stream`: the calibration scene of
 :mod:`necviz.drivers.sim.calibration_scene`, or a preset, driven by an exposure oracle).
 Both are consumed as one stream of packets by :class:`PairCollector`.
 
-Modules: :mod:`.pairs` (choosing the frame pairs and the exposure brackets from a stream),
-:mod:`.fit` (the least-squares fit and :class:`CalibrationResult`), :mod:`.from_recordings` and
+Modules: :mod:`.pairs` (choosing the frame pairs and the exposure brackets from a stream,
+:class:`CollectorOptions`), :mod:`.fit` (the least-squares fit, :class:`CalibrationOptions` shared by
+the three ``calibrate_*`` functions, and :class:`CalibrationResult`), :mod:`.from_recordings` and
 :mod:`.from_simulation` (the two data sources). The shipped simulated-DAVIS346 profile is
 :func:`necviz.profiles.default_sim_profile`; the command is :mod:`necviz.commands.calibrate`.
 """
@@ -28,11 +29,14 @@ _API = {
     **dict.fromkeys(
         ("DEFAULT_F_SCALE", "DEFAULT_LOSS", "DEFAULT_SLOW_RATE", "DEFAULTS"), "necviz.calibration.settings"
     ),
-    **dict.fromkeys(("FIT_CHOICES", "CalibrationResult", "calibrate_collected"), "necviz.calibration.fit"),
+    **dict.fromkeys(
+        ("FIT_CHOICES", "CalibrationOptions", "CalibrationResult", "calibrate_collected"), "necviz.calibration.fit"
+    ),
     "calibrate_from_recordings": "necviz.calibration.from_recordings",
     **dict.fromkeys(
         (
             "BRACKET_OFFSETS",
+            "CalibrationSimulation",
             "ExposureOracle",
             "calibrate_from_simulation",
             "make_sim_scene",
@@ -40,7 +44,7 @@ _API = {
         ),
         "necviz.calibration.from_simulation",
     ),
-    "PairCollector": "necviz.calibration.pairs",
+    **dict.fromkeys(("DEFAULT_SELECTION", "CollectorOptions", "PairCollector"), "necviz.calibration.pairs"),
 }
 
 __all__ = [
@@ -48,9 +52,13 @@ __all__ = [
     "DEFAULTS",
     "DEFAULT_F_SCALE",
     "DEFAULT_LOSS",
+    "DEFAULT_SELECTION",
     "DEFAULT_SLOW_RATE",
     "FIT_CHOICES",
+    "CalibrationOptions",
     "CalibrationResult",
+    "CalibrationSimulation",
+    "CollectorOptions",
     "ExposureOracle",
     "PairCollector",
     "calibrate_collected",

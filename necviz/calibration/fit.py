@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from necviz.calibration.holdout import BLOCK_S, FitPlan, validate_compensation
-from necviz.calibration.pairs import PairCollector
+from necviz.calibration.pairs import DEFAULT_SELECTION, CollectorOptions, PairCollector
 from necviz.calibration.settings import DEFAULT_F_SCALE, DEFAULT_LOSS, DEFAULT_SLOW_RATE
 from necviz.core.camera_profile import CameraProfile
 from necviz.core.control import CameraLimits
@@ -28,7 +28,14 @@ from necviz.core.crf import CameraResponse, debevec_malik
 from necviz.core.errors import ParameterError
 from necviz.core.event_model import TediParams
 from necviz.core.sensor import SensorGeometry
-from necviz.core.tedi import PARAM_NAMES, TediCalibration, TediFitOptions, fit_tedi_pairs, pair_residuals
+from necviz.core.tedi import (
+    PARAM_NAMES,
+    PairSelection,
+    TediCalibration,
+    TediFitOptions,
+    fit_tedi_pairs,
+    pair_residuals,
+)
 
 FIT_CHOICES = {"all": PARAM_NAMES, "c": ("c_on", "c_off")}
 
@@ -254,30 +261,113 @@ def _stage(name: str, pairs, res: TediCalibration) -> dict:
     }
 
 
+def _check_positive(name: str, v, unit: str) -> None:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
+        raise ParameterError(f"{name} must be a positive number of {unit}, got {v!r}")
+
+
+@dataclass(frozen=True)
+class CalibrationOptions:
+    """What a calibration fits, from which start, and on which frame pairs (validated here, once).
+
+    Shared by :func:`calibrate_collected`, :func:`~necviz.calibration.calibrate_from_recordings` and
+    :func:`~necviz.calibration.calibrate_from_simulation`.
+
+    Parameters
+    ----------
+    profile : CameraProfile, optional
+        The starting profile: response, limits, initial parameters (default: ``CameraProfile()``, DAVIS346).
+    init : TediParams, optional
+        The fit's start (default: the profile's TEDI parameters).
+    fit : str or sequence of str
+        ``"all"`` (the six, the default), ``"c"`` (the thresholds) or distinct names among
+        :data:`~necviz.core.tedi.PARAM_NAMES` (a comma-separated string or a sequence); kept as a tuple.
+    crf_mode : str
+        ``"auto"``: fit the response by Debevec-Malik when the data hold a static exposure bracket;
+        ``"keep"``: keep the profile's.
+    name : str, optional
+        The new profile's name (default: the starting profile's).
+    max_event_rate : float, "auto" or None
+        The sensor's bus ceiling (events/s, > 0); pairs that reached 90 % of it count as saturated
+        (:func:`calibrate_collected`). ``"auto"``: the data source's own — 12 Mev/s for DAVIS346 and
+        DAVIS240 recordings, the simulated sensor's for simulator runs, unknown for
+        :func:`calibrate_collected` alone; ``None``: unknown.
+    slow_rate : float
+        Lower bound of the compensation knee ``b/a`` (events per pixel per second, > 0).
+    loss, f_scale, max_nfev : str, float, int
+        The least-squares loss, its scale (ln units) and the residual evaluations per fit
+        (:class:`~necviz.core.tedi.TediFitOptions` checks them).
+    holdout_block_s : float
+        Length of the alternating fit / held-out blocks (s, > 0; :mod:`.holdout`).
+    selection : PairSelection
+        Which pixels of a frame pair are used (default :data:`~.pairs.DEFAULT_SELECTION`).
+    collection : CollectorOptions
+        How many pairs are kept and how much is held (:class:`~.pairs.CollectorOptions`).
+
+    Raises
+    ------
+    ParameterError
+        An unknown ``fit`` or ``crf_mode``, a rate, knee or block length that is not positive,
+        solver settings :class:`~necviz.core.tedi.TediFitOptions` refuses, or an argument of the wrong type.
+    """
+
+    profile: CameraProfile | None = None
+    init: TediParams | None = None
+    fit: tuple[str, ...] = PARAM_NAMES
+    crf_mode: str = "auto"
+    name: str | None = None
+    max_event_rate: float | str | None = "auto"
+    slow_rate: float = DEFAULT_SLOW_RATE
+    loss: str = DEFAULT_LOSS
+    f_scale: float = DEFAULT_F_SCALE
+    max_nfev: int = 200
+    holdout_block_s: float = BLOCK_S
+    selection: PairSelection = DEFAULT_SELECTION
+    collection: CollectorOptions = CollectorOptions()
+
+    def __post_init__(self) -> None:
+        kinds: tuple[tuple[str, type, bool], ...] = (
+            ("profile", CameraProfile, True),
+            ("init", TediParams, True),
+            ("selection", PairSelection, False),
+            ("collection", CollectorOptions, False),
+        )
+        for attr, kind, optional in kinds:
+            v = getattr(self, attr)
+            if not (isinstance(v, kind) or (optional and v is None)):
+                raise ParameterError(f"{attr} must be a {kind.__name__}, got {type(v).__name__}")
+        object.__setattr__(self, "fit", _resolve_fit(self.fit))
+        if self.crf_mode not in ("auto", "keep"):
+            raise ParameterError(f"--crf must be auto or keep, got {self.crf_mode!r}")
+        _check_positive("slow_rate", self.slow_rate, "events per pixel per second")
+        if self.max_event_rate is not None and not (
+            isinstance(self.max_event_rate, str) and self.max_event_rate == "auto"
+        ):
+            _check_positive("max_event_rate", self.max_event_rate, "events per second")
+        _check_positive("holdout_block_s", self.holdout_block_s, "seconds")
+        self.solver  # noqa: B018 - TediFitOptions checks the solver settings now, not after the data are read
+
+    @property
+    def solver(self) -> TediFitOptions:
+        """The solver settings every fit of the calibration shares; as it stands, the thresholds-only
+        fit without compensation."""
+        return TediFitOptions(fit=("c_on", "c_off"), max_nfev=self.max_nfev, loss=self.loss, f_scale=self.f_scale)
+
+
 def calibrate_collected(
     collector: PairCollector,
+    options: CalibrationOptions | None = None,
     *,
-    base: CameraProfile | None = None,
-    init: TediParams | None = None,
-    fit="all",
-    crf_mode: str = "auto",
-    name: str | None = None,
     limits: CameraLimits | None = None,
-    max_event_rate: float | None = None,
-    slow_rate: float = DEFAULT_SLOW_RATE,
-    loss: str = DEFAULT_LOSS,
-    f_scale: float = DEFAULT_F_SCALE,
     extra: dict | None = None,
     progress=None,
-    max_nfev: int = 200,
-    holdout_block_s: float = BLOCK_S,
 ) -> CalibrationResult:
     """Fit response (if brackets) and TEDI parameters on what ``collector`` kept; build the profile.
 
-    **Saturated pairs.** ``max_event_rate`` (events/s) is the sensor's bus ceiling: a pair whose
+    **Saturated pairs.** ``options.max_event_rate`` (events/s) is the sensor's bus ceiling: a pair whose
     sensor-wide event rate reached 90 % of it in any 1 ms bin is *saturated* — the sensor dropped
-    events there, so its counts are incomplete whatever the thresholds are (``None``: unknown, no
-    pair counts as saturated).
+    events there, so its counts are incomplete whatever the thresholds are (``None`` or ``"auto"``:
+    unknown here, no pair counts as saturated).
 
     **Stages.** When thresholds and compensation are both fitted and at least 3 pairs are not
     saturated, the fit runs in two stages:
@@ -291,47 +381,59 @@ def calibrate_collected(
     which the least-squares fit prefers to a compensation that acts only above its knee. Otherwise
     (only one kind fitted, or too few unsaturated pairs) the named parameters are fitted jointly on
     all pairs. When ``a±`` and ``b±`` of a polarity are both fitted, the knee ``b±/a±`` is bounded
-    below by ``slow_rate`` events per pixel per second: with a knee of zero the compensation
+    below by ``options.slow_rate`` events per pixel per second: with a knee of zero the compensation
     ``a m`` is a mere rescaling of ``c``.
 
     **Does the compensation earn its place?** Whenever compensation terms are fitted, the same fit is
-    repeated on alternate ``holdout_block_s`` blocks of the data and its residual compared, with and
+    repeated on alternate ``options.holdout_block_s`` blocks of the data and its residual compared, with and
     without the compensation, on the blocks left out (:func:`.holdout.validate_compensation`). The
     profile keeps the compensation only if it improves that held-out residual (overall, and not at
     the cost of the pairs below the bus ceiling); otherwise ``a± = b± = 0`` with the thresholds of
     the fit, and ``result.compensation["reason"]`` says why.
+
+    Parameters
+    ----------
+    collector : PairCollector
+        The pairs (and exposure brackets) collected from the data.
+    options : CalibrationOptions, optional
+        What to fit and how (default: ``CalibrationOptions()``).
+    limits : CameraLimits, optional
+        The profile's camera limits (default: the starting profile's).
+    extra : dict, optional
+        More about the data for the report (``{"simulation": ...}`` is kept in the profile too).
+    progress : callable, optional
+        ``progress(text)`` gets a status line now and then.
+
+    Returns
+    -------
+    CalibrationResult
+
+    Raises
+    ------
+    ParameterError
+        ``options`` that is not a :class:`CalibrationOptions`, or data without a qualifying pair.
     """
-    base = base or CameraProfile()
-    init = init or base.tedi
-    fit = _resolve_fit(fit)
-    if crf_mode not in ("auto", "keep"):
-        raise ParameterError(f"--crf must be auto or keep, got {crf_mode!r}")
-    if (
-        isinstance(slow_rate, bool)
-        or not isinstance(slow_rate, (int, float))
-        or not (math.isfinite(slow_rate) and slow_rate > 0)
-    ):
-        raise ParameterError(f"slow_rate must be a positive number of events per pixel per second, got {slow_rate!r}")
-    if max_event_rate is not None and (
-        isinstance(max_event_rate, bool)
-        or not isinstance(max_event_rate, (int, float))
-        or not (math.isfinite(max_event_rate) and max_event_rate > 0)
-    ):
-        raise ParameterError(f"max_event_rate must be a positive number of events per second, got {max_event_rate!r}")
+    opts = CalibrationOptions() if options is None else options
+    if not isinstance(opts, CalibrationOptions):
+        raise ParameterError(f"options must be a CalibrationOptions, got {type(opts).__name__}")
+    base = opts.profile or CameraProfile()
+    init = opts.init or base.tedi
+    fit, slow_rate, loss, f_scale = opts.fit, opts.slow_rate, opts.loss, opts.f_scale
+    max_event_rate = None if isinstance(opts.max_event_rate, str) else opts.max_event_rate  # "auto": unknown here
     if not collector.pairs:
-        d = collector
+        d, sel = collector, collector.selection
         if d.frames < 2:
             raise ParameterError(
                 f"calibration needs frames with their exposures: the input held {d.frames} frame(s) "
                 f"(formats without stored exposure need --exposure-us)"
             )
         raise ParameterError(
-            f"no frame pair qualifies: {d.considered} frames tried against up to {d.max_lag} earlier ones, none with "
-            f"{d.min_pixels} pixels valid in both, changed by >= {d.min_change:g} ln"
-            + (" and continuing their last event's direction" if d.continuation else "")
+            f"no frame pair qualifies: {d.considered} frames tried against up to {d.options.max_lag} earlier ones, "
+            f"none with {sel.min_pixels} pixels valid in both, changed by >= {sel.min_change:g} ln"
+            + (" and continuing their last event's direction" if d.options.continuation else "")
             + "; record lighting changes or motion, or lower --min-change / --min-pixels"
         )
-    crf, crf_fitted, crf_info = _fit_crf(collector, base.crf, crf_mode)
+    crf, crf_fitted, crf_info = _fit_crf(collector, base.crf, opts.crf_mode)
     pairs = collector.pairs
     t_fit = time.perf_counter()
     last = [0.0]
@@ -345,8 +447,7 @@ def calibrate_collected(
 
     c_names = tuple(n for n in fit if n.startswith("c_"))
     comp_names = tuple(n for n in fit if not n.startswith("c_"))
-    # the solver settings every fit below shares; as it stands, the thresholds-only fit without compensation
-    solver = TediFitOptions(fit=("c_on", "c_off"), max_nfev=max_nfev, loss=loss, f_scale=f_scale)
+    solver = opts.solver
     knee = slow_rate if any(f"a_{p}" in fit and f"b_{p}" in fit for p in ("on", "off")) else 0.0
     limit = None if max_event_rate is None else 0.9 * float(max_event_rate)
     saturated = [limit is not None and pr.bus_peak_rate >= limit for pr in pairs]
@@ -382,7 +483,9 @@ def calibrate_collected(
     if comp_names:  # does it earn its place? (held-out pairs; .holdout)
         label[0] = "compensation on held-out pairs"
         plan = FitPlan(solver, init, tuple(c_names), tuple(comp_names), knee)
-        compensation = validate_compensation(pairs, saturated, crf, plan, params, block_s=holdout_block_s, progress=cb)
+        compensation = validate_compensation(
+            pairs, saturated, crf, plan, params, block_s=opts.holdout_block_s, progress=cb
+        )
         if not compensation["kept"]:
             params = TediParams(params.c_on, params.c_off)
             stderr = {k: (math.nan if k in comp_names else v) for k, v in stderr.items()}
@@ -437,7 +540,12 @@ def calibrate_collected(
         "crf": "fitted (Debevec-Malik)" if crf_fitted else crf_info.get("reason", "kept"),
     }
     profile = CameraProfile(
-        name=name or base.name, sensor=sensor, crf=crf, tedi=params, limits=limits or base.limits, calibration=calib
+        name=opts.name or base.name,
+        sensor=sensor,
+        crf=crf,
+        tedi=params,
+        limits=limits or base.limits,
+        calibration=calib,
     )
     return CalibrationResult(
         profile,

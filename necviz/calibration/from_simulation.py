@@ -6,25 +6,23 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from necviz.calibration.fit import (
-    DEFAULT_F_SCALE,
-    DEFAULT_LOSS,
-    DEFAULT_SLOW_RATE,
-    CalibrationResult,
-    _report,
-    calibrate_collected,
-)
-from necviz.calibration.pairs import DEFAULTS, _collector
+from necviz.calibration.fit import CalibrationOptions, CalibrationResult, _report, calibrate_collected
+from necviz.calibration.pairs import PairCollector
 from necviz.core.camera_profile import CameraProfile
 from necviz.core.control import CameraLimits
 from necviz.core.crf import CameraResponse, default_davis346
 from necviz.core.errors import ParameterError
-from necviz.core.event_model import TediParams
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import DAVIS346, SensorGeometry
+
+if TYPE_CHECKING:  # the simulator is imported on use
+    from necviz.drivers.sim.aps import ApsParams
+    from necviz.drivers.sim.dvs import DvsParams
 
 BRACKET_OFFSETS = (-2.4, -1.6, -0.8, 0.0, 0.8, 1.6, 2.4)  # ln exposure offsets in the static opening
 
@@ -69,14 +67,16 @@ def simulate_calibration_stream(
     is far shorter than a frame interval), so every frame gets the oracle's exposure.
     """
     from necviz.drivers.sim.aps import ApsParams
-    from necviz.drivers.sim.rig import SimRig
+    from necviz.drivers.sim.rig import RigOptions, SimRig
 
     aps = aps or ApsParams()
     crf = crf or default_davis346()
     oracle = ExposureOracle(scene, crf, aps, brackets)
     first = 1_000
     t0, k0 = oracle(first, 0)
-    rig = SimRig(scene, {"cal": (t0, k0)}, dvs=dvs, aps=aps, crf=crf, seed=seed, first_start_us=first)
+    rig = SimRig(
+        scene, {"cal": (t0, k0)}, dvs=dvs, aps=aps, crf=crf, seed=seed, options=RigOptions(first_start_us=first)
+    )
     k = 0
     for _, packet in rig.packets():
         if isinstance(packet, ExposureMarker) and packet.kind == "start":
@@ -98,53 +98,108 @@ def make_sim_scene(name: str, sensor: SensorGeometry, duration_s: float | None, 
     return make_scenario(name, sensor=sensor, duration_us=dur, seed=seed)
 
 
+@dataclass(frozen=True)
+class CalibrationSimulation:
+    """The simulator runs a calibration fits on: every scenario x seed, one simulated camera each
+    (validated here, once).
+
+    Parameters
+    ----------
+    scenarios : str or sequence of str
+        ``"calibration"`` (the held-out calibration scene) and/or preset names; kept as a tuple.
+    seeds : int or sequence of int
+        The seeds each scenario runs with; kept as a tuple.
+    duration_s : float, optional
+        Simulated seconds per run (0..600; ``None``: the scene's own duration).
+    sensor : SensorGeometry
+        The simulated sensor (default: DAVIS346).
+    dvs, aps : DvsParams, ApsParams, optional
+        The simulated camera's event and frame models (default: the simulated DAVIS346).
+    crf : CameraResponse, optional
+        The response the simulator renders frames with (default: the DAVIS346-like curve).
+
+    Raises
+    ------
+    ParameterError
+        No scenario or seed, an unknown scenario, a negative or non-integer seed, or a duration out of range.
+    """
+
+    scenarios: tuple[str, ...] = ("calibration",)
+    seeds: tuple[int, ...] = (0,)
+    duration_s: float | None = None
+    sensor: SensorGeometry = DAVIS346
+    dvs: DvsParams | None = None
+    aps: ApsParams | None = None
+    crf: CameraResponse | None = None
+
+    def __post_init__(self) -> None:
+        from necviz.drivers.sim.calibration_scene import CALIBRATION_SCENE
+        from necviz.drivers.sim.scenes import SCENARIOS
+
+        scenarios = (self.scenarios,) if isinstance(self.scenarios, str) else tuple(self.scenarios)
+        seeds = (self.seeds,) if isinstance(self.seeds, (int, np.integer)) else tuple(self.seeds)
+        if not scenarios or not seeds:
+            raise ParameterError("give at least one scenario and one seed")
+        bad = [s for s in scenarios if s != CALIBRATION_SCENE and s not in SCENARIOS]
+        if bad:
+            raise ParameterError(
+                f"--sim: unknown scenario(s) {', '.join(map(str, bad))}; available: "
+                f"{CALIBRATION_SCENE}, {', '.join(sorted(SCENARIOS))}"
+            )
+        if any(isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0 for v in seeds):
+            raise ParameterError(f"seeds must be whole numbers >= 0, got {list(seeds)}")
+        d = self.duration_s
+        if d is not None and not (isinstance(d, (int, float)) and 0 < d <= 600):
+            raise ParameterError(f"--duration must lie in (0, 600] s, got {d!r}")
+        if not isinstance(self.sensor, SensorGeometry):
+            raise ParameterError(f"sensor must be a SensorGeometry, got {type(self.sensor).__name__}")
+        object.__setattr__(self, "scenarios", scenarios)
+        object.__setattr__(self, "seeds", tuple(int(v) for v in seeds))
+
+
 def calibrate_from_simulation(
-    scenarios=("calibration",),
-    seeds=(0,),
-    duration_s: float | None = None,
-    *,
-    sensor: SensorGeometry = DAVIS346,
-    dvs=None,
-    aps=None,
-    sim_crf: CameraResponse | None = None,
-    profile: CameraProfile | None = None,
-    init: TediParams | None = None,
-    fit="all",
-    crf: str = "auto",
-    name: str | None = None,
-    max_event_rate="auto",
-    slow_rate: float = DEFAULT_SLOW_RATE,
-    loss: str = DEFAULT_LOSS,
-    f_scale: float = DEFAULT_F_SCALE,
-    progress=None,
-    max_nfev: int = 200,
-    **selection,
+    simulation: CalibrationSimulation | None = None, options: CalibrationOptions | None = None, *, progress=None
 ) -> CalibrationResult:
     """Calibrate from simulator runs: every scenario x seed, one camera driven by :class:`ExposureOracle`.
 
-    ``scenarios``: ``"calibration"`` (the held-out calibration scene) and/or preset names;
-    ``dvs``/``aps``/``sim_crf``: the simulated camera (defaults: the simulated DAVIS346). The
-    profile's limits are the simulated camera's. Other arguments as
-    :func:`calibrate_from_recordings`.
+    The profile's limits are the simulated camera's.
+
+    Parameters
+    ----------
+    simulation : CalibrationSimulation, optional
+        The runs (default: ``CalibrationSimulation()``, the calibration scene, seed 0, DAVIS346).
+    options : CalibrationOptions, optional
+        What to fit, from which start and on which pairs (default: ``CalibrationOptions()``; the
+        starting profile defaults to one of ``simulation.sensor``). Its ``max_event_rate="auto"``
+        is the simulated sensor's bus ceiling.
+    progress : callable, optional
+        ``progress(text)`` gets a status line now and then.
+
+    Returns
+    -------
+    CalibrationResult
+
+    Raises
+    ------
+    ParameterError
+        Arguments of the wrong type, or runs without a qualifying frame pair.
     """
     from necviz.drivers.sim.aps import ApsParams
     from necviz.drivers.sim.dvs import DvsParams
 
-    scenarios = [scenarios] if isinstance(scenarios, str) else list(scenarios)
-    seeds = [seeds] if isinstance(seeds, (int, np.integer)) else list(seeds)
-    if not scenarios or not seeds:
-        raise ParameterError("give at least one scenario and one seed")
-    if duration_s is not None and not (isinstance(duration_s, (int, float)) and 0 < duration_s <= 600):
-        raise ParameterError(f"--duration must lie in (0, 600] s, got {duration_s!r}")
-    aps = aps or ApsParams()
-    dvs = dvs or DvsParams()
-    sim_crf = sim_crf or default_davis346()
-    base = profile or CameraProfile(sensor=sensor)
-    unknown = set(selection) - {"reference", *DEFAULTS}
-    if unknown:
-        raise ParameterError(f"unknown selection option(s): {', '.join(sorted(unknown))}")
+    sim = CalibrationSimulation() if simulation is None else simulation
+    if not isinstance(sim, CalibrationSimulation):
+        raise ParameterError(f"simulation must be a CalibrationSimulation, got {type(sim).__name__}")
+    opts = CalibrationOptions() if options is None else options
+    if not isinstance(opts, CalibrationOptions):
+        raise ParameterError(f"options must be a CalibrationOptions, got {type(opts).__name__}")
+    scenarios, seeds, duration_s, sensor = list(sim.scenarios), list(sim.seeds), sim.duration_s, sim.sensor
+    aps = sim.aps or ApsParams()
+    dvs = sim.dvs or DvsParams()
+    sim_crf = sim.crf or default_davis346()
+    base = opts.profile or CameraProfile(sensor=sensor)
     scenes = [(sc, sd, make_sim_scene(sc, sensor, duration_s, int(sd))) for sc in scenarios for sd in seeds]
-    col = _collector(base, dict(selection))
+    col = PairCollector(base.crf, opts.selection, opts.collection)
     t_wall, last = time.perf_counter(), 0.0
     for sc, sd, scene in scenes:
         col.begin(f"sim:{sc}:seed{sd}")
@@ -161,7 +216,7 @@ def calibrate_from_simulation(
                     )
     col.finish()
     limits = CameraLimits(float(aps.exposure_min_us), float(aps.exposure_max_us), float(aps.gain_max))
-    sim = {
+    described = {
         "scenarios": scenarios,
         "seeds": [int(s) for s in seeds],
         "duration_s": [s.duration_us / 1e6 for _, _, s in scenes][0],
@@ -169,19 +224,6 @@ def calibrate_from_simulation(
         "dvs": dvs.as_dict(),
         "exposure": "oracle (the scene's mean ln L), brackets in the static opening",
     }
-    return calibrate_collected(
-        col,
-        base=base,
-        init=init,
-        fit=fit,
-        crf_mode=crf,
-        name=name,
-        limits=limits,
-        max_event_rate=dvs.max_event_rate if max_event_rate == "auto" else max_event_rate,
-        slow_rate=slow_rate,
-        loss=loss,
-        f_scale=f_scale,
-        extra={"simulation": sim},
-        progress=progress,
-        max_nfev=max_nfev,
-    )
+    rate = dvs.max_event_rate if opts.max_event_rate == "auto" else opts.max_event_rate
+    opts = replace(opts, profile=base, max_event_rate=rate)
+    return calibrate_collected(col, opts, limits=limits, extra={"simulation": described}, progress=progress)

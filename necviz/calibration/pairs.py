@@ -33,16 +33,16 @@ products (at least 3, spanning at least 4x) feeds Debevec-Malik.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from necviz.calibration.settings import DEFAULTS
-from necviz.core.camera_profile import CameraProfile
 from necviz.core.crf import CameraResponse
 from necviz.core.errors import EventFormatError, ParameterError
 from necviz.core.events import EVENT_DTYPE, EventBatch
 from necviz.core.frames import ExposureMarker, Frame
-from necviz.core.tedi import REFERENCES, CalibrationPair, PairSelection, prepare_pair
+from necviz.core.tedi import CalibrationPair, PairSelection, prepare_pair
 from necviz.core.tedi_kernels import update_last_polarity
 
 
@@ -65,66 +65,118 @@ def _well(frame: Frame) -> np.ndarray:
     return (img >= 30) & (img <= 230)
 
 
+#: The pixels a calibration pair uses unless told otherwise (:data:`~necviz.calibration.settings.DEFAULTS`):
+#: at least 0.5 ln of change in at least 200 pixels, at most 5000 of them kept (module docstring).
+DEFAULT_SELECTION = PairSelection(
+    min_change=DEFAULTS["min_change"], min_pixels=DEFAULTS["min_pixels"], max_pixels=DEFAULTS["max_pixels"]
+)
+
+
+@dataclass(frozen=True)
+class CollectorOptions:
+    """How many pairs a :class:`PairCollector` keeps, how far apart their frames may be and how much it
+    holds (validated here, once; which pixels a pair uses is its :class:`~necviz.core.tedi.PairSelection`).
+
+    Parameters
+    ----------
+    max_pairs : int
+        Pairs kept at most (>= 2); beyond it every other pair is dropped and from then on only every
+        second qualifying pair is kept (module docstring).
+    max_bytes : int
+        The kept pairs' memory at most (bytes, >= 1), thinned the same way.
+    max_gap_us : int
+        Frames further apart than this (µs, >= 1; end of one to start of the next) never pair.
+    max_lag : int
+        A frame pairs with up to this many earlier frames (1..50; 1: Eq. 7's consecutive pairs).
+    static_events : float
+        Events per pixel (>= 0) below which two frames count as one static scene (exposure brackets).
+    continuation : bool
+        Use only pixels whose change continues the direction of their last event (module docstring).
+    max_buffer_events : int
+        Events buffered at most (>= 1) while waiting for a frame; beyond it the frames so far are
+        dropped and pairing starts over.
+
+    Raises
+    ------
+    ParameterError
+        A count that is not an integer in its range, or a negative or non-finite ``static_events``.
+    """
+
+    max_pairs: int = DEFAULTS["max_pairs"]
+    max_bytes: int = DEFAULTS["max_bytes"]
+    max_gap_us: int = DEFAULTS["max_gap_us"]
+    max_lag: int = DEFAULTS["max_lag"]
+    static_events: float = DEFAULTS["static_events"]
+    continuation: bool = DEFAULTS["continuation"]
+    max_buffer_events: int = 30_000_000
+
+    def __post_init__(self) -> None:
+        for name, lo in (
+            ("max_pairs", 2),
+            ("max_bytes", 1),
+            ("max_gap_us", 1),
+            ("max_lag", 1),
+            ("max_buffer_events", 1),
+        ):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+                raise ParameterError(f"{name} must be an integer >= {lo}, got {v!r}")
+            object.__setattr__(self, name, int(v))
+        if self.max_lag > 50:
+            raise ParameterError(f"max_lag must be at most 50 frames, got {self.max_lag}")
+        v = self.static_events
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v >= 0):
+            raise ParameterError(f"static_events must be a number >= 0, got {v!r}")
+        object.__setattr__(self, "static_events", float(v))
+        object.__setattr__(self, "continuation", bool(self.continuation))
+
+
 class PairCollector:
     """Consume packets in stream order (event batches, exposure markers, frames) and keep the frame
     pairs Eq. 7 will use, plus the best static exposure-bracket group (module docstring).
 
-    ``crf``: the response used to select pixels (the fit may use a refined one). Call
-    :meth:`begin` before each recording or run (forgets earlier frames), :meth:`feed` for
+    Call :meth:`begin` before each recording or run (forgets earlier frames), :meth:`feed` for
     every packet, :meth:`finish` at the end. Counters (``frames``, ``considered``, ``rejected``
     by reason, ``qualifying``, ``stride``, ``lags``) describe what happened.
 
     Pairing: for each new frame ``i`` the earlier frames ``i-1, i-2, ... i-max_lag`` are tried in
-    that order and the first with at least ``min_pixels`` usable pixels forms the pair; pairs never
+    that order and the first with at least ``selection.min_pixels`` usable pixels forms the pair; pairs never
     overlap (the earlier frame of a pair is never older than the later frame of the previous one),
     so a change is not counted again from every frame of the hold that follows it.
     ``max_lag = 1`` is Eq. 7's consecutive pairs; a longer baseline lets slow changes accumulate
     several events per pixel, which the thresholds need (with about one event per pixel the
     least-squares thresholds come out low).
+
+    Parameters
+    ----------
+    crf : CameraResponse
+        The response used to select pixels (the fit may use a refined one).
+    selection : PairSelection
+        Which pixels of a pair are used: the reference time, the change and pixel counts
+        (default :data:`DEFAULT_SELECTION`).
+    options : CollectorOptions, optional
+        How many pairs are kept and how much is held (default: ``CollectorOptions()``).
+
+    Raises
+    ------
+    ParameterError
+        ``selection`` or ``options`` of another type.
     """
 
     def __init__(
         self,
         crf: CameraResponse,
-        *,
-        reference: str = "previous_start",
-        min_change: float = DEFAULTS["min_change"],
-        min_pixels: int = DEFAULTS["min_pixels"],
-        max_pixels: int = DEFAULTS["max_pixels"],
-        max_pairs: int = DEFAULTS["max_pairs"],
-        max_bytes: int = DEFAULTS["max_bytes"],
-        max_gap_us: int = DEFAULTS["max_gap_us"],
-        max_lag: int = DEFAULTS["max_lag"],
-        static_events: float = DEFAULTS["static_events"],
-        continuation: bool = DEFAULTS["continuation"],
-        max_buffer_events: int = 30_000_000,
+        selection: PairSelection = DEFAULT_SELECTION,
+        options: CollectorOptions | None = None,
     ):
-        if reference not in REFERENCES:
-            raise ParameterError(f"reference must be one of {', '.join(REFERENCES)}, got {reference!r}")
-        for name, v, lo in (
-            ("min_pixels", min_pixels, 1),
-            ("max_pixels", max_pixels, 1),
-            ("max_pairs", max_pairs, 2),
-            ("max_bytes", max_bytes, 1),
-            ("max_gap_us", max_gap_us, 1),
-            ("max_lag", max_lag, 1),
-            ("max_buffer_events", max_buffer_events, 1),
-        ):
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-                raise ParameterError(f"{name} must be an integer >= {lo}, got {v!r}")
-        if max_lag > 50:
-            raise ParameterError(f"max_lag must be at most 50 frames, got {max_lag}")
-        for name, v in (("min_change", min_change), ("static_events", static_events)):
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v >= 0):
-                raise ParameterError(f"{name} must be a number >= 0, got {v!r}")
+        options = CollectorOptions() if options is None else options
+        if not isinstance(selection, PairSelection):
+            raise ParameterError(f"selection must be a PairSelection, got {type(selection).__name__}")
+        if not isinstance(options, CollectorOptions):
+            raise ParameterError(f"options must be a CollectorOptions, got {type(options).__name__}")
         self.crf = crf
-        self.reference = reference
-        self.min_change, self.min_pixels, self.max_pixels = float(min_change), int(min_pixels), int(max_pixels)
-        self.max_pairs, self.max_bytes, self.max_gap_us = int(max_pairs), int(max_bytes), int(max_gap_us)
-        self.max_lag = int(max_lag)
-        self.static_events = float(static_events)
-        self.continuation = bool(continuation)
-        self.max_buffer_events = int(max_buffer_events)
+        self.selection = selection
+        self.options = options
         self.shape: tuple[int, int] | None = None
         self.pairs: list[CalibrationPair] = []
         self.frames = 0
@@ -173,7 +225,7 @@ class PairCollector:
         self._chunks.append(events)
         self._buffered += events.size
         self.events += events.size
-        if self._buffered > self.max_buffer_events:  # frames too far apart: start over
+        if self._buffered > self.options.max_buffer_events:  # frames too far apart: start over
             if self._recent:
                 self.rejected["gap_or_order"] += 1
             self._recent = []
@@ -229,12 +281,12 @@ class PairCollector:
         self.frames += 1
         ev = self._events()
         self._advance_history(ev, cur.exposure_start_us)
-        entry = _Recent(cur, self.crf, self._run_last.copy() if self.continuation else None)
+        entry = _Recent(cur, self.crf, self._run_last.copy() if self.options.continuation else None)
         if self._recent:
             last = self._recent[-1].frame
             if (
                 cur.exposure_start_us <= last.exposure_start_us
-                or cur.exposure_start_us - last.exposure_end_us > self.max_gap_us
+                or cur.exposure_start_us - last.exposure_end_us > self.options.max_gap_us
             ):
                 self.rejected["gap_or_order"] += 1
                 self._close_group()
@@ -247,7 +299,7 @@ class PairCollector:
         else:
             self._group = []
         self._recent.append(entry)
-        if len(self._recent) > self.max_lag:
+        if len(self._recent) > self.options.max_lag:
             self._recent.pop(0)
         self._drop_before(self._recent[0].frame.exposure_start_us)
 
@@ -255,22 +307,23 @@ class PairCollector:
         """The pair of ``cur`` with the nearest earlier frame that has enough usable pixels."""
         for k in range(1, len(self._recent) + 1):
             prev = self._recent[-k]
-            if cur.frame.exposure_start_us - prev.frame.exposure_end_us > self.max_gap_us:
+            if cur.frame.exposure_start_us - prev.frame.exposure_end_us > self.options.max_gap_us:
                 break
             if prev.used:
                 continue
             both = prev.valid & cur.valid
             diff = cur.log_lbar - prev.log_lbar
-            use = both & (np.abs(diff) >= self.min_change) if self.min_change > 0 else both
-            if self.continuation:
+            min_change = self.selection.min_change
+            use = both & (np.abs(diff) >= min_change) if min_change > 0 else both
+            if self.options.continuation:
                 use &= np.sign(diff).astype(np.int8) == prev.last_polarity
-            if int(use.sum()) >= self.min_pixels:
+            if int(use.sum()) >= self.selection.min_pixels:
                 pr = prepare_pair(
                     ev,
                     prev.frame,
                     cur.frame,
                     self.crf,
-                    selection=PairSelection(reference=self.reference, max_pixels=self.max_pixels),
+                    selection=self.selection,
                     mask=use,
                     source=self._source,
                 )
@@ -293,7 +346,8 @@ class PairCollector:
             return
         self.pairs.append(pr)
         self._bytes += pr.nbytes
-        while len(self.pairs) > self.max_pairs or (self._bytes > self.max_bytes and len(self.pairs) > 1):
+        opts = self.options
+        while len(self.pairs) > opts.max_pairs or (self._bytes > opts.max_bytes and len(self.pairs) > 1):
             self.pairs = self.pairs[::2]
             self.stride *= 2
             self._bytes = sum(p.nbytes for p in self.pairs)
@@ -316,7 +370,7 @@ class PairCollector:
         if not self._group:
             self._group = [(pf.image, pf.exposure_us * pf.gain, prev.log_lbar, _well(pf))]
         well = _well(cf)
-        static = n / (h * w) <= self.static_events
+        static = n / (h * w) <= self.options.static_events
         if static:
             for _, _, lg, wl in self._group:
                 both = wl & well
@@ -357,19 +411,14 @@ class PairCollector:
             "rejected": dict(self.rejected),
             "pairs_by_lag": {str(k): v for k, v in sorted(self.lags.items())},
             "selection": {
-                "reference": self.reference,
-                "min_change_ln": self.min_change,
-                "min_pixels": self.min_pixels,
-                "max_pixels": self.max_pixels,
-                "max_pairs": self.max_pairs,
-                "max_gap_us": self.max_gap_us,
-                "max_lag": self.max_lag,
-                "continuation_rule": self.continuation,
+                "reference": self.selection.reference,
+                "min_change_ln": float(self.selection.min_change),
+                "min_pixels": int(self.selection.min_pixels),
+                "max_pixels": None if self.selection.max_pixels is None else int(self.selection.max_pixels),
+                "max_pairs": self.options.max_pairs,
+                "max_gap_us": self.options.max_gap_us,
+                "max_lag": self.options.max_lag,
+                "continuation_rule": self.options.continuation,
             },
             "bracket_frames": 0 if self.best_brackets is None else len(self.best_brackets),
         }
-
-
-def _collector(base: CameraProfile, kw: dict) -> PairCollector:
-    opts = {k: kw.pop(k) for k in list(kw) if k in ("reference", *DEFAULTS) and kw[k] is not None}
-    return PairCollector(base.crf, **opts)

@@ -3,8 +3,10 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 #: Frame-pair selection (:class:`necviz.calibration.pairs.PairCollector`).
-DEFAULTS = {
+DEFAULTS: dict[str, Any] = {
     "min_change": 0.5,
     "min_pixels": 200,
     "max_pixels": 5_000,

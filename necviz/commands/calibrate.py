@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -199,10 +198,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from necviz.calibration.fit import _resolve_fit
+    from necviz.calibration.fit import CalibrationOptions
     from necviz.calibration.from_recordings import calibrate_from_recordings
-    from necviz.calibration.from_simulation import calibrate_from_simulation
+    from necviz.calibration.from_simulation import CalibrationSimulation, calibrate_from_simulation
+    from necviz.calibration.pairs import CollectorOptions
     from necviz.core.camera_profile import CameraProfile
+    from necviz.core.tedi import PairSelection
     from necviz.outputs import check_distinct, check_output, write_json
     from necviz.profiles import load_profile
 
@@ -221,24 +222,31 @@ def run(args: argparse.Namespace) -> int:
         if not Path(f).exists():
             raise ParameterError(f"{f}: no such file or directory")
     base = load_profile(args.profile) if args.profile else None
-    fit = _resolve_fit(args.fit)
     init = _parse_init(args.init, (base or CameraProfile()).tedi) if args.init else None
-    sel = {
-        "min_change": args.min_change,
-        "min_pixels": args.min_pixels,
-        "max_pixels": args.max_pixels,
-        "max_pairs": args.max_pairs,
-        "max_lag": args.max_lag,
-        "continuation": not args.no_continuation,
-        "slow_rate": args.slow_rate,
-        "loss": args.loss,
-    }
-    if args.max_event_rate is not None:
-        if not (math.isfinite(args.max_event_rate) and args.max_event_rate >= 0):
-            raise ParameterError(f"--max-event-rate must be a number of Mev/s >= 0, got {args.max_event_rate}")
-        rate = args.max_event_rate * 1e6 or None
+    sim = None
+    if files:
+        name = args.name or f"calibrated from {', '.join(Path(f).name for f in files)}"[:120]
     else:
-        rate = "auto"
+        sensor = _parse_sensor(args.sensor)
+        scenarios = tuple(s.strip() for s in args.sim.split(",") if s.strip())
+        sim = CalibrationSimulation(scenarios, tuple(parse_seeds(args.seeds)), args.duration, sensor=sensor)
+        name = args.name or f"simulated {sensor.width}x{sensor.height} ({','.join(scenarios)}, seeds {args.seeds})"
+        if base is not None and (base.sensor.width, base.sensor.height) != (sensor.width, sensor.height):
+            base = CameraProfile(base.name, sensor, base.crf, base.tedi, base.limits)
+    options = CalibrationOptions(
+        profile=base,
+        init=init,
+        fit=args.fit,
+        crf_mode=args.crf,
+        name=name,
+        max_event_rate="auto" if args.max_event_rate is None else (args.max_event_rate * 1e6 or None),
+        slow_rate=args.slow_rate,
+        loss=args.loss,
+        selection=PairSelection(min_change=args.min_change, min_pixels=args.min_pixels, max_pixels=args.max_pixels),
+        collection=CollectorOptions(
+            max_pairs=args.max_pairs, max_lag=args.max_lag, continuation=not args.no_continuation
+        ),
+    )
     live = sys.stderr.isatty()
 
     def progress(text):
@@ -246,50 +254,10 @@ def run(args: argparse.Namespace) -> int:
             print("\r  " + text[:100].ljust(100), end="", file=sys.stderr, flush=True)
 
     try:
-        if files:
-            name = args.name or f"calibrated from {', '.join(Path(f).name for f in files)}"[:120]
-            result = calibrate_from_recordings(
-                files,
-                profile=base,
-                init=init,
-                fit=fit,
-                crf=args.crf,
-                exposure_us=args.exposure_us,
-                name=name,
-                max_event_rate=rate,
-                progress=progress,
-                **sel,
-            )
+        if sim is None:
+            result = calibrate_from_recordings(files, options, exposure_us=args.exposure_us, progress=progress)
         else:
-            from necviz.drivers.sim.calibration_scene import CALIBRATION_SCENE
-            from necviz.drivers.sim.scenes import SCENARIOS
-
-            scen = [s.strip() for s in args.sim.split(",") if s.strip()]
-            bad = [s for s in scen if s != CALIBRATION_SCENE and s not in SCENARIOS]
-            if not scen or bad:
-                raise ParameterError(
-                    f"--sim: unknown scenario(s) {', '.join(bad) or '(none given)'}; available: "
-                    f"{CALIBRATION_SCENE}, {', '.join(sorted(SCENARIOS))}"
-                )
-            seeds = parse_seeds(args.seeds)
-            sensor = _parse_sensor(args.sensor)
-            name = args.name or f"simulated {sensor.width}x{sensor.height} ({','.join(scen)}, seeds {args.seeds})"
-            if base is not None and (base.sensor.width, base.sensor.height) != (sensor.width, sensor.height):
-                base = CameraProfile(base.name, sensor, base.crf, base.tedi, base.limits)
-            result = calibrate_from_simulation(
-                scen,
-                seeds,
-                args.duration,
-                sensor=sensor,
-                profile=base,
-                init=init,
-                fit=fit,
-                crf=args.crf,
-                name=name,
-                max_event_rate=rate,
-                progress=progress,
-                **sel,
-            )
+            result = calibrate_from_simulation(sim, options, progress=progress)
     finally:
         if live:
             print("\r" + " " * 104 + "\r", end="", file=sys.stderr, flush=True)

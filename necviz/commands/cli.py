@@ -363,9 +363,9 @@ def _cmd_bench_pipeline(args) -> int:
 
 
 def _cmd_bench_estimators(args) -> int:
-    from necviz.bench.estimator_speed import run
+    from necviz.bench.estimator_speed import EstimatorBenchOptions, run
 
-    run(
+    options = EstimatorBenchOptions(
         events=args.events,
         duration_s=args.duration,
         fps=args.fps,
@@ -373,8 +373,8 @@ def _cmd_bench_estimators(args) -> int:
         repeats=args.repeats,
         edi_samples=args.edi_samples,
         seed=args.seed,
-        json_path=_bench_json(args),
     )
+    run(options, json_path=_bench_json(args))
     return 0
 
 

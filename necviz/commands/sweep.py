@@ -79,13 +79,10 @@ def _seeds(seeds) -> str:
 
 
 def _cmd_run(args) -> int:
-    from necviz.sweeps.engine import run_sweep
+    from necviz.sweeps.engine import SweepOptions, run_sweep
     from necviz.sweeps.spec import load_plan
 
-    plan = load_plan(args.file)
-    res = run_sweep(
-        plan,
-        args.out,
+    options = SweepOptions(
         workers=args.workers,
         scheduler=args.scheduler,
         resume=args.resume,
@@ -93,8 +90,9 @@ def _cmd_run(args) -> int:
         retry_failed=args.retry_failed,
         retries=args.retries,
         dashboard=args.dashboard,
-        stream=sys.stderr,
     )
+    plan = load_plan(args.file)
+    res = run_sweep(plan, args.out, options, stream=sys.stderr)
     if args.json:
         print(json.dumps(res.as_dict(), indent=1))
     else:

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import rerun as rr
 
 from necviz.dashboard.recorders import RecordingFile
-from necviz.dashboard.sink import RerunSink
+from necviz.dashboard.sink import RerunSink, SinkOptions
 from necviz.dashboard.telemetry import Telemetry
 from necviz.dashboard.tuning import TuningConsole, TuningFile
 from necviz.dashboard.viewer import FILE_FLUSH_S, open_viewer, text
@@ -192,17 +192,14 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
     lossless = ss.lossless and speed is None and not v.watched
     # a live session only saved to a file: series in 2 s chunks (Rerun's file sink indexes every chunk)
     flush = FILE_FLUSH_S if not (lossless or v.watched) else None
-    sink = RerunSink(
-        rec,
-        names,
-        sensor.height,
-        sensor.width,
+    sink_options = SinkOptions(
         event_window_us=int(ss.show.event_window_ms * 1000),
         raw_points=ss.show.event_points,
         origin_us=ss.origin_us,
         lossless=lossless,
         flush_period_s=flush,
     )
+    sink = RerunSink(rec, names, sensor.height, sensor.width, sink_options)
     sink.files = [viewer.output.target] if viewer.output is not None else []
     observers = [sink]
     if ss.recorder is not None:

@@ -52,10 +52,13 @@ import threading
 import time
 import zlib
 from collections import defaultdict, deque
+from dataclasses import dataclass, replace
 
 import numpy as np
 import rerun as rr
 
+from necviz.core.checks import check_number
+from necviz.core.errors import ParameterError
 from necviz.core.event_image import BACKGROUND_RGB, OFF_RGB, ON_RGB, EventImage, colour_table, palette_rows
 from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import Frame
@@ -193,82 +196,152 @@ class RateLimit:
         return False
 
 
+def _whole(name: str, value, lo: int, hi: int | None = None, optional: bool = False):
+    """``value`` as an ``int`` in ``[lo, hi]`` (``None`` passes when ``optional``), else a one-line error."""
+    if optional and value is None:
+        return None
+    return check_number(name, value, lo, hi, integer=True, where="SinkOptions")
+
+
+@dataclass(frozen=True)
+class SinkOptions:
+    """How a :class:`RerunSink` draws, decimates and chunks what it logs (validated here, once).
+
+    Parameters
+    ----------
+    event_window_us : int
+        Sensor time per event image (µs, >= 1; 33 ms: 30 images per second).
+    max_events_per_window : int
+        Decimation cap for drawing events (60k: ~0.7 per pixel, already dense; 0: no cap).
+    max_backlog : int
+        When more event batches than this wait for the worker, a finished window's image is
+        skipped (counted in ``event_images_skipped``) so the worker catches up.
+    raw_points : int
+        If > 0, also log up to this many raw events per window as points.
+    queue_size, frame_queue_size : int
+        Event batches / frames waiting for the worker before the oldest are dropped (counted; >= 1).
+    lossless : bool
+        Never drop or skip anything; the streaming thread waits when a queue is full. For runs
+        written to a file where no camera waits for a command (simulations, replays).
+    max_rate_hz : float
+        At most this many frames per lane, and event images, per wall-clock second (> 0; a viewer
+        shows no more); faster streams (replay at xN, benchmarks) are decimated.
+    burst_s : float
+        Seconds the worker sleeps between drains (>= 0).
+    origin_us : int
+        Sensor time shown as 0 on the ``t`` timeline (replays of files stamped with an absolute
+        clock start at their first timestamp).
+    flush_period_s : float, optional
+        Seconds of wall time between sends of the scalar series (> 0); ``None``: 0.1 s for a live
+        sink, none for a lossless one (which sends by size, see ``chunk_rows``).
+    chunk_rows, image_chunk_bytes : int
+        Lossless sinks only: send a series once it holds this many values, an entity's images once
+        their encoded bytes reach this (and everything at close; >= 1).
+    jpeg_quality : int, optional
+        ``None``: frames use :data:`FRAME_QTABLE`; else the JPEG standard's table at this quality (1..95).
+    png_level : int, optional
+        zlib level of the event images (0..9; ``None``: 6 lossless, 1 live: ~4x faster, ~11 % larger).
+
+    Raises
+    ------
+    ParameterError
+        A count, size, period or level out of its range.
+    """
+
+    event_window_us: int = 33_333
+    max_events_per_window: int = 60_000
+    max_backlog: int = 64
+    raw_points: int = 0
+    queue_size: int = 8192
+    frame_queue_size: int = 16
+    lossless: bool = False
+    max_rate_hz: float = 60.0
+    burst_s: float = 0.02
+    origin_us: int = 0
+    flush_period_s: float | None = None
+    chunk_rows: int = 4096
+    image_chunk_bytes: int = 1 << 20
+    jpeg_quality: int | None = None
+    png_level: int | None = None
+
+    def __post_init__(self) -> None:
+        flush = self.flush_period_s
+        for name, value in (
+            ("event_window_us", _whole("event_window_us", self.event_window_us, 1)),
+            ("max_events_per_window", _whole("max_events_per_window", self.max_events_per_window, 0)),
+            ("max_backlog", _whole("max_backlog", self.max_backlog, 0)),
+            ("raw_points", _whole("raw_points", self.raw_points, 0)),
+            ("queue_size", _whole("queue_size", self.queue_size, 1)),
+            ("frame_queue_size", _whole("frame_queue_size", self.frame_queue_size, 1)),
+            ("lossless", bool(self.lossless)),
+            ("max_rate_hz", check_number("max_rate_hz", self.max_rate_hz, 0.0, lo_open=True, where="SinkOptions")),
+            ("burst_s", check_number("burst_s", self.burst_s, 0.0, where="SinkOptions")),
+            ("origin_us", check_number("origin_us", self.origin_us, integer=True, where="SinkOptions")),
+            (
+                "flush_period_s",
+                None
+                if flush is None
+                else check_number("flush_period_s", flush, 0.0, lo_open=True, where="SinkOptions"),
+            ),
+            ("chunk_rows", _whole("chunk_rows", self.chunk_rows, 1)),
+            ("image_chunk_bytes", _whole("image_chunk_bytes", self.image_chunk_bytes, 1)),
+            ("jpeg_quality", _whole("jpeg_quality", self.jpeg_quality, 1, 95, optional=True)),
+            ("png_level", _whole("png_level", self.png_level, 0, 9, optional=True)),
+        ):
+            object.__setattr__(self, name, value)
+
+
 class RerunSink(Observer):
     """Logs a run to a Rerun recording stream from its own thread.
 
     Parameters
     ----------
-    rec : the recording stream (sinks already attached).
-    lanes : lane names (entity roots).
-    height, width : sensor size (event images).
-    event_window_us : sensor time per event image (33 ms: 30 images per second).
-    max_events_per_window : decimation cap for drawing events (60k: ~0.7 per pixel, already dense).
-    max_backlog : when more event batches than this wait for the worker, a finished window's
-        image is skipped (counted in ``event_images_skipped``) so the worker catches up.
-    raw_points : if > 0, also log up to this many raw events per window as points.
-    queue_size, frame_queue_size : event batches / frames waiting for the worker before the
-        oldest are dropped (counted).
-    max_rate_hz : at most this many frames per lane, and event images, per wall-clock second
-        (a viewer shows no more); faster streams (replay at xN, benchmarks) are decimated.
-    origin_us : sensor time shown as 0 on the ``t`` timeline (replays of files stamped with an
-        absolute clock start at their first timestamp).
-    lossless : never drop or skip anything; the streaming thread waits when a queue is full.
-        For runs written to a file where no camera waits for a command (simulations, replays).
-    flush_period_s : seconds of wall time between sends of the scalar series (default: 0.1 s for a
-        live sink; none for a lossless one, which sends by size, see ``chunk_rows``).
-    chunk_rows, image_chunk_bytes : lossless sinks only: send a series once it holds this many
-        values, an entity's images once their encoded bytes reach this (and everything at close).
-    jpeg_quality : ``None`` (default): frames use :data:`FRAME_QTABLE`; else the JPEG standard's
-        table at this quality (1..95).
-    png_level : zlib level of the event images (default 6 lossless, 1 live: ~4x faster, ~11 % larger).
+    rec : rerun.RecordingStream
+        The recording stream (sinks already attached).
+    lanes : sequence of str
+        Lane names (entity roots).
+    height, width : int
+        Sensor size (event images).
+    options : SinkOptions, optional
+        Drawing, decimation, timeline origin and chunking (default: ``SinkOptions()``, a live sink).
+
+    Raises
+    ------
+    ParameterError
+        ``options`` that is not a :class:`SinkOptions`.
     """
 
     name = "sink"
 
-    def __init__(
-        self,
-        rec: rr.RecordingStream,
-        lanes,
-        height: int,
-        width: int,
-        event_window_us: int = 33_333,
-        max_events_per_window: int = 60_000,
-        max_backlog: int = 64,
-        raw_points: int = 0,
-        queue_size: int = 8192,
-        frame_queue_size: int = 16,
-        lossless: bool = False,
-        max_rate_hz: float = 60.0,
-        burst_s: float = 0.02,
-        origin_us: int = 0,
-        flush_period_s: float | None = None,
-        chunk_rows: int = 4096,
-        image_chunk_bytes: int = 1 << 20,
-        jpeg_quality: int | None = None,
-        png_level: int | None = None,
-    ):
+    def __init__(self, rec: rr.RecordingStream, lanes, height: int, width: int, options: SinkOptions | None = None):
+        options = SinkOptions() if options is None else options
+        if not isinstance(options, SinkOptions):
+            raise ParameterError(f"RerunSink takes SinkOptions, got {type(options).__name__}")
+        self.options = options
         self.rec = rec
         self.lanes = list(lanes)
-        self.event_window_us = int(event_window_us)
-        self.max_events_per_window = int(max_events_per_window)
-        self.max_backlog = int(max_backlog)
-        self.raw_points = int(raw_points)
-        self.lossless = bool(lossless)
+        self.event_window_us = options.event_window_us
+        self.max_events_per_window = options.max_events_per_window
+        self.max_backlog = options.max_backlog
+        self.raw_points = options.raw_points
+        self.lossless = options.lossless
+        flush_period_s = options.flush_period_s
         if flush_period_s is None:
             flush_period_s = math.inf if self.lossless else 0.1
         self.flush_period_s = float(flush_period_s)
-        self.chunk_rows = max(1, int(chunk_rows))
-        self.image_chunk_bytes = max(1, int(image_chunk_bytes))
-        self.jpeg_quality = None if jpeg_quality is None else int(jpeg_quality)
-        self.png_level = int(png_level) if png_level is not None else (6 if self.lossless else 1)
+        self.chunk_rows = options.chunk_rows
+        self.image_chunk_bytes = options.image_chunk_bytes
+        self.jpeg_quality = options.jpeg_quality
+        self.png_level = options.png_level if options.png_level is not None else (6 if self.lossless else 1)
         self._events: deque = deque()
         self._frames: deque = deque()
-        self._event_queue_size = int(queue_size)
-        self.origin_us = int(origin_us)
-        self.burst_s = float(burst_s)
+        self._event_queue_size = options.queue_size
+        self.origin_us = options.origin_us
+        self.burst_s = options.burst_s
+        max_rate_hz = options.max_rate_hz
         self._frame_rate: dict[str, RateLimit] = defaultdict(lambda: RateLimit(max_rate_hz))
         self._image_rate = RateLimit(max_rate_hz)
-        self._frame_queue_size = int(frame_queue_size)
+        self._frame_queue_size = options.frame_queue_size
         # written by the streaming thread: deques (append / popleft are atomic), drained by the worker
         self._scalar_q: deque = deque()
         self._text_q: deque = deque()
@@ -611,13 +684,22 @@ class RerunSink(Observer):
 
 
 def open_file_sink(
-    path, lanes, sensor, layout: str, name: str, properties: dict, *, keep_partial: bool = False, **options
+    path,
+    lanes,
+    sensor,
+    layout: str,
+    name: str,
+    properties: dict,
+    *,
+    keep_partial: bool = False,
+    options: SinkOptions | None = None,
 ) -> RerunSink:
     """A lossless sink writing a recording file (with ``layout`` as its blueprint) and nothing else.
 
     The file is written as :mod:`necviz.outputs` says (check the path first with
     :func:`~necviz.outputs.check_output`): closing the sink completes the file; the caller then
     calls ``sink.output.commit()`` (the run succeeded) or ``sink.output.discard()`` (it failed).
+    ``options``: the sink's settings (default ``SinkOptions()``), always made lossless.
     """
     import uuid
 
@@ -635,7 +717,7 @@ def open_file_sink(
         rec.send_recording_name(text(name))
         rec.send_property("run", rr.AnyValues(**{k: text(v) for k, v in properties.items()}, layout=layout))
         style_series(rec, list(lanes))
-        sink = RerunSink(rec, lanes, sensor.height, sensor.width, lossless=True, **options)
+        sink = RerunSink(rec, lanes, sensor.height, sensor.width, replace(options or SinkOptions(), lossless=True))
     except BaseException:
         output.discard()
         raise

@@ -9,13 +9,14 @@ embedded local cluster of worker processes (or an existing Dask cluster) with
 :mod:`.report` turns the rows into per-cell means with 95 % confidence intervals (Markdown, CSV,
 plots); :mod:`.show` re-runs one run in the Rerun dashboard. From Python::
 
-    from necviz.sweeps import load_plan, run_sweep, report
+    from necviz.sweeps import SweepOptions, load_plan, run_sweep, report
     plan = load_plan("benchmarks/sweeps/example.toml")
-    run_sweep(plan, "out/example", workers=2)
+    run_sweep(plan, "out/example", SweepOptions(workers=2))
     report("out/example")
 """
 
 _WHERE = {
+    "SweepOptions": "engine",
     "SweepResult": "engine",
     "connect": "engine",
     "run_sweep": "engine",
@@ -41,6 +42,7 @@ __all__ = [
     "Plan",
     "Run",
     "SweepFileError",
+    "SweepOptions",
     "SweepResult",
     "connect",
     "load_plan",

@@ -306,36 +306,96 @@ def _error_text(exc: BaseException, retries: int | None) -> str:
     return f"{name}: {' '.join(str(exc).split())[:500]}"
 
 
-def run_sweep(
-    plan: Plan,
-    out,
-    *,
-    workers: int | None = None,
-    scheduler: str | None = None,
-    client=None,
-    resume: bool = False,
-    force: bool = False,
-    retry_failed: bool = False,
-    retries: int = 3,
-    dashboard: str | None = DEFAULT_DASHBOARD,
-    stream=...,
-    poll_s: float = 0.05,
-) -> SweepResult:
+@dataclass(frozen=True)
+class SweepOptions:
+    """How a sweep runs: where, whether it continues an earlier one, how often a lost run is tried
+    again (validated here, once).
+
+    Parameters
+    ----------
+    workers : int, optional
+        Worker processes of the embedded cluster (>= 1; default: one per core).
+    scheduler : str, optional
+        ``tcp://HOST:PORT`` of a running Dask cluster to use instead of an embedded one.
+    resume : bool
+        Run only the runs ``out`` does not hold yet.
+    force : bool
+        Delete the rows of the sweep in ``out`` and start over.
+    retry_failed : bool
+        With ``resume``: also run again the runs that failed.
+    retries : int
+        Reschedule a run whose worker died up to this many times (0..100), then record it failed
+        (embedded cluster; a running scheduler uses its own ``allowed-failures``).
+    dashboard : str, optional
+        ``HOST:PORT`` of the embedded cluster's Dask dashboard; ``None`` or ``"off"``: none (kept as ``None``).
+    poll_s : float
+        Seconds between looks at the finished tasks when none was ready (> 0).
+
+    Raises
+    ------
+    ParameterError
+        Workers or retries out of range, both ``workers`` and ``scheduler``, ``retry_failed``
+        without ``resume``, a dashboard that is not ``HOST:PORT`` or a non-positive ``poll_s``.
+    """
+
+    workers: int | None = None
+    scheduler: str | None = None
+    resume: bool = False
+    force: bool = False
+    retry_failed: bool = False
+    retries: int = 3
+    dashboard: str | None = DEFAULT_DASHBOARD
+    poll_s: float = 0.05
+
+    def __post_init__(self) -> None:
+        workers, retries = self.workers, self.retries
+        if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+            raise ParameterError(f"--workers must be a whole number >= 1, got {workers!r}")
+        if workers is not None and self.scheduler:
+            raise ParameterError("give either --workers (an embedded cluster) or --scheduler (a running one), not both")
+        if isinstance(retries, bool) or not isinstance(retries, int) or not 0 <= retries <= 100:
+            raise ParameterError(f"--retries must be a whole number in [0, 100], got {retries!r}")
+        if self.retry_failed and not self.resume:
+            raise ParameterError("--retry-failed runs the failed runs of a sweep again: it needs --resume")
+        object.__setattr__(self, "dashboard", _check_dashboard(self.dashboard))
+        p = self.poll_s
+        if isinstance(p, bool) or not isinstance(p, (int, float)) or not (math.isfinite(p) and p > 0):
+            raise ParameterError(f"poll_s must be a positive number of seconds, got {p!r}")
+
+
+def run_sweep(plan: Plan, out, options: SweepOptions | None = None, *, client=None, stream=...) -> SweepResult:
     """Run every run of ``plan`` not yet in ``out`` (see the module docstring); returns what happened.
 
-    ``client``: an existing :class:`distributed.Client` to use (tests, notebooks); else ``scheduler``
-    or an embedded cluster of ``workers`` processes. Raises ``KeyboardInterrupt`` after a clean stop.
+    Parameters
+    ----------
+    plan : Plan
+        The expanded sweep (:func:`necviz.sweeps.load_plan`).
+    out : str or path
+        The sweep folder: new or empty, or one to resume (``options.resume``).
+    options : SweepOptions, optional
+        Where and how to run (default: ``SweepOptions()``, an embedded cluster of one worker per core).
+    client : distributed.Client, optional
+        An existing client to use (tests, notebooks) instead of ``options.scheduler`` or an
+        embedded cluster.
+    stream : text stream, optional
+        Where progress goes (default: standard error; ``None``: nowhere).
+
+    Returns
+    -------
+    SweepResult
+
+    Raises
+    ------
+    ParameterError
+        ``options`` that is not a :class:`SweepOptions`, or a sweep that reads a file it would write.
+    KeyboardInterrupt
+        After a clean stop (Ctrl-C): every finished row is kept.
     """
+    opts = SweepOptions() if options is None else options
+    if not isinstance(opts, SweepOptions):
+        raise ParameterError(f"options must be a SweepOptions, got {type(opts).__name__}")
     stream = sys.stderr if stream is ... else stream
-    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
-        raise ParameterError(f"--workers must be a whole number >= 1, got {workers!r}")
-    if workers is not None and scheduler:
-        raise ParameterError("give either --workers (an embedded cluster) or --scheduler (a running one), not both")
-    if isinstance(retries, bool) or not isinstance(retries, int) or not 0 <= retries <= 100:
-        raise ParameterError(f"--retries must be a whole number in [0, 100], got {retries!r}")
-    if retry_failed and not resume:
-        raise ParameterError("--retry-failed runs the failed runs of a sweep again: it needs --resume")
-    dashboard = _check_dashboard(dashboard)
+    resume, force, retry_failed = opts.resume, opts.force, opts.retry_failed
     _check_inputs(plan, out)
     store = prepare_out(out, resume=resume, force=force)
     store.lock()
@@ -372,19 +432,7 @@ def run_sweep(
         manifest["sessions"].append(session)
         try:
             if todo:
-                _execute(
-                    plan,
-                    store,
-                    todo,
-                    res,
-                    client=client,
-                    workers=workers,
-                    scheduler=scheduler,
-                    retries=retries,
-                    dashboard=dashboard,
-                    stream=stream,
-                    poll_s=poll_s,
-                )
+                _execute(plan, store, todo, res, opts, client=client, stream=stream)
         except BaseException as e:
             res.interrupted = isinstance(e, KeyboardInterrupt)
             stopped = True
@@ -417,7 +465,8 @@ def run_sweep(
     return res
 
 
-def _execute(plan, store, todo, res, *, client, workers, scheduler, retries, dashboard, stream, poll_s):
+def _execute(plan, store, todo, res, opts: SweepOptions, *, client, stream):
+    workers, scheduler, retries, dashboard = opts.workers, opts.scheduler, opts.retries, opts.dashboard
     t_start = time.perf_counter()
     ctx = _existing(client) if client is not None else connect(workers, scheduler, dashboard, retries)
     with ctx as cl:
@@ -442,7 +491,7 @@ def _execute(plan, store, todo, res, *, client, workers, scheduler, retries, das
             if res.dashboard:
                 print(f"Dask dashboard: {res.dashboard}", file=stream, flush=True)
         limit = retries if client is None and not scheduler else None  # else the scheduler's own setting
-        _loop(plan, store, todo, res, cl, nthreads, limit, stream, poll_s)
+        _loop(plan, store, todo, res, cl, nthreads, limit, stream, opts.poll_s)
 
 
 @contextmanager
@@ -590,6 +639,7 @@ __all__ = [
     "ClusterError",
     "DEFAULT_DASHBOARD",
     "Progress",
+    "SweepOptions",
     "SweepResult",
     "WORKER_ENV",
     "connect",

@@ -25,7 +25,7 @@ __all__ = ["StaticLab", "DEFAULT_STEPS", "between_exposures_us"]
 #: Default light steps: (fraction of the duration, level in dB relative to ``base_log``).
 DEFAULT_STEPS = ((0.2, 20.0), (0.4, -20.0), (0.6, 40.0), (0.8, 0.0))
 #: The simulator's default frame clock: exposures start at ``FIRST_START_US + k FRAME_INTERVAL_US``
-#: (``SimRig(first_start_us=1000)`` and ``ApsParams.frame_interval_us``).
+#: (``RigOptions.first_start_us``, 1000 and ``ApsParams.frame_interval_us``).
 FIRST_START_US = 1_000
 FRAME_INTERVAL_US = ApsParams.frame_interval_us
 #: Fiducial markers (``markers``): patch centres as fractions of the image, cells of ``MARKER_CELL`` px.

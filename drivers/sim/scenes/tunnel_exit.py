@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
+from necviz.core.checks import check_number
 from necviz.core.sensor import SensorGeometry
 from necviz.drivers.sim.scene import LightingChange, db_to_log
 from necviz.drivers.sim.scenes.fiducials import PlacedMarker, paste_quad, quiet_corners
@@ -29,6 +31,24 @@ __all__ = ["TunnelExit"]
 SIGNS = ((-2.0, 2.2, 1.6, 14.0), (2.6, 2.0, 1.6, 22.0), (0.0, 3.2, 2.0, 32.0))
 
 
+@dataclass(frozen=True)
+class _CrossSection:
+    """A corridor's cross-section and texture atlas depth (m): half its width, the floor below and the
+    ceiling (or, when open, the facades' top) above the camera, the atlas period along the corridor and
+    the farthest depth rendered."""
+
+    half_w: float
+    floor_h: float
+    top_h: float
+    closed: bool
+    period_m: float
+    z_max: float = 300.0
+
+    def __post_init__(self) -> None:
+        for name in ("half_w", "floor_h", "top_h", "period_m", "z_max"):
+            check_number(name, getattr(self, name), 0.0, lo_open=True, where="_CrossSection")
+
+
 class _Corridor:
     """Box corridor (or open road with roadside facades and sky) seen from a camera moving along it.
 
@@ -36,22 +56,13 @@ class _Corridor:
     unrolled into one texture atlas (u = position around the cross-section, v = depth), so forward
     motion by ``s`` metres is a shift of the static v map: one ``cv2.remap`` per image, with the
     exact expanding flow from the focus of expansion. Distant texture is attenuated (haze/mip
-    substitute) so it does not alias.
+    substitute) so it does not alias. ``f``: focal length (px); ``foe``: focus of expansion (px);
+    ``res``: atlas texels per metre.
     """
 
-    def __init__(
-        self,
-        sensor: SensorGeometry,
-        f: float,
-        foe: tuple[float, float],
-        half_w: float,
-        floor_h: float,
-        top_h: float,
-        closed: bool,
-        res: float,
-        period_m: float,
-        z_max: float = 300.0,
-    ):
+    def __init__(self, sensor: SensorGeometry, f: float, foe: tuple[float, float], section: _CrossSection, res: float):
+        half_w, floor_h, top_h, closed = section.half_w, section.floor_h, section.top_h, section.closed
+        period_m, z_max = section.period_m, section.z_max
         H, W = sensor.shape
         yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
         dx, dy = xx + 0.5 - foe[0], yy + 0.5 - foe[1]
@@ -170,8 +181,8 @@ class TunnelExit(PresetScene):
         f = 0.75 * W
         self.foe = (W / 2.0, 0.42 * H)
         res = 16.0
-        self.inside = _Corridor(sensor, f, self.foe, 5.0, 1.5, 4.5, True, res, 48.0)
-        self.outside = _Corridor(sensor, f, self.foe, 9.0, 1.5, 14.0, False, res, 60.0)
+        self.inside = _Corridor(sensor, f, self.foe, _CrossSection(5.0, 1.5, 4.5, True, 48.0), res)
+        self.outside = _Corridor(sensor, f, self.foe, _CrossSection(9.0, 1.5, 14.0, False, 60.0), res)
         tc = p["texture_contrast"]
         # --- tunnel atlas: tiles, wall stripes, ceiling lamps ---
         ti = self.inside
