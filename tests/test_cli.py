@@ -60,13 +60,15 @@ def test_the_help_names_are_the_registered_ones():
     """The constants the parser shows (so it need not import the registries) are the registries' names."""
     from necviz.core.control import CONTROLLERS
     from necviz.dashboard.viewer_flags import LAYOUT_NAMES as VIEWER_LAYOUTS
+    from necviz.drivers.recordings import FORMATS as READER_FORMATS
     from necviz.drivers.sim.scenes import SCENARIOS
-    from necviz.names import CONTROLLER_NAMES, LAYOUT_NAMES, SCENARIO_NAMES
+    from necviz.names import CONTROLLER_NAMES, FORMATS, LAYOUT_NAMES, SCENARIO_NAMES
     from necviz.options import LAYOUT_NAMES as OPTION_LAYOUTS
 
     assert sorted(CONTROLLER_NAMES) == sorted(CONTROLLERS)
     assert sorted(SCENARIO_NAMES) == sorted(SCENARIOS)
     assert LAYOUT_NAMES == VIEWER_LAYOUTS == OPTION_LAYOUTS
+    assert FORMATS == READER_FORMATS  # --format's choices are the readers' formats
 
 
 def test_info_lists_versions_threading_layer_and_controllers(capsys):

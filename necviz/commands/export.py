@@ -13,12 +13,11 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from necviz.names import FORMATS
 from necviz.progress import LiveLine, output
 
 if TYPE_CHECKING:
     from necviz.options import ExportOptions
-
-FORMATS = ("necviz", "aedat4", "aedat3", "aedat2", "rosbag1", "rosbag2", "hdf5", "rpg-text")
 
 
 def run(options: ExportOptions, out=...) -> dict:
