@@ -31,6 +31,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -42,6 +43,9 @@ from necviz.core.metrics import over_exposed_rate, rank_correlation, region_vali
 from necviz.core.prediction_skill import SkillTracker
 from necviz.image_quality import SiftMatcher
 from necviz.marker_detection import MarkerDetector
+
+if TYPE_CHECKING:
+    from necviz.core.ptedi import PeripheralEstimator
 
 #: A frame with more than this fraction of pixels clipped (either end) is *saturated* (the paper's
 #: threshold); more than :data:`SLIGHTLY` is *slightly saturated*.
@@ -225,21 +229,15 @@ def _zone_mean(values, sizes=None) -> float:
     return float((v[ok] * w).sum() / w.sum())
 
 
-def _anchor_level(estimator) -> float:
-    """P-TEDI's current anchor ln P(anchor) (mean over anchored zones); NaN if unknown."""
-    a = getattr(estimator, "anchor_log", None)
-    if a is None:
-        return math.nan
-    return _zone_mean(a, getattr(estimator, "sizes", None))
+def _anchor_level(estimator: PeripheralEstimator) -> float:
+    """P-TEDI's current anchor ln P(anchor) (mean over anchored zones); NaN if never anchored."""
+    return _zone_mean(estimator.anchor_log, estimator.sizes)
 
 
-def _anchor_time(estimator) -> int | None:
-    """The oldest anchor time over the anchored zones (µs), ``None`` if unknown."""
-    a, t = getattr(estimator, "anchor_log", None), getattr(estimator, "anchor_t", None)
-    if a is None or t is None:
-        return None
-    ok = np.isfinite(a)
-    return int(np.min(t[ok])) if ok.any() else None
+def _anchor_time(estimator: PeripheralEstimator) -> int | None:
+    """The oldest anchor time over the anchored zones (µs), ``None`` if never anchored."""
+    ok = np.isfinite(estimator.anchor_log)
+    return int(np.min(estimator.anchor_t[ok])) if ok.any() else None
 
 
 class LaneTelemetry:
@@ -294,7 +292,7 @@ class LaneTelemetry:
         """Remember P-TEDI's ln P(s) and its anchor at an exposure start (the frame's prediction error,
         the diagnosis' predicted change)."""
         if estimator is not None and estimator.ready:
-            self._zone_sizes = getattr(estimator, "sizes", None)
+            self._zone_sizes = estimator.sizes
             try:
                 self._predicted_at_start[int(t_us)] = (
                     estimator.predict(t_us),
@@ -311,7 +309,9 @@ class LaneTelemetry:
         command right after the controller's ``feed`` returned it)."""
         self.commands += 1
         self.latency.add(latency_us)
-        cmd = command if command is not None else getattr(getattr(self._lane, "controller", None), "last_command", None)
+        cmd = (
+            command if command is not None else (self._lane.controller.last_command if self._lane is not None else None)
+        )
         if cmd is not None:
             self._commands.append(Command(int(cmd.issue_time_us), float(cmd.exposure_us), float(cmd.gain)))
 
@@ -419,10 +419,10 @@ class LaneTelemetry:
         """What is known about a saturated frame, for :func:`~necviz.core.diagnosis.diagnose`."""
         truth = frame.truth
         lane = self._lane
-        ctrl = getattr(lane, "controller", None)
+        ctrl = lane.controller if lane is not None else None
         mins, maxs, gains = [], [], []
-        lim = getattr(ctrl, "limits", None)
-        if lim is not None:
+        if ctrl is not None:
+            lim = ctrl.limits
             mins.append(lim.exposure_min_us), maxs.append(lim.exposure_max_us), gains.append(lim.gain_max)
         cam = (
             (truth.exposure_min_us, truth.exposure_max_us, truth.gain_max) if truth is not None else self._camera_limits
@@ -452,7 +452,7 @@ class LaneTelemetry:
             min(maxs) if maxs else None,
             min(gains) if gains else None,
             latency,
-            None if ctrl is None else bool(getattr(ctrl, "uses_events", False)),
+            None if ctrl is None else ctrl.uses_events,
             None if lane is None else bool(lane.drives),
             tuple(self._commands),
             pred_s - anchor_s if math.isfinite(anchor_s) else math.nan,
