@@ -19,7 +19,13 @@ on those differences (95 %), over the seeds of a scene, or over every (scene, se
 is paired with ``nec-frames`` at the same scene, seed, latency and transition. A negative difference
 in saturated frames means the first lane saturated fewer frames.
 
-usage: python benchmarks/events_table.py DIR [DIR ...] [--metric saturated_frames_50] [--out FILE.md] [--json FILE]
+Inputs are sweep folders or a rows file this script wrote (``--rows FILE.csv``: one line per run with
+the pairing keys and the metrics, a few hundred kB where the folders' per-frame Parquet files take
+tens of MB); the evaluation's rows are committed as ``benchmarks/results/events_rows.csv``, so the
+tables regenerate without re-running the sweeps.
+
+usage: python benchmarks/events_table.py DIR|ROWS.csv [...] [--metric saturated_frames_50] [--out FILE.md]
+       [--json FILE] [--rows FILE.csv]
 """
 
 from __future__ import annotations
@@ -78,12 +84,68 @@ def _num(v, default):
     return float(v)
 
 
+#: the columns of a rows file before the metrics
+ROW_KEYS = ("scene", "family", "seed", "controller", "ceiling", "latency_us", "transition_ms")
+
+
+def write_rows_csv(path, rows: list[dict], metrics: list[str]) -> None:
+    """The reduced rows (pairing keys, then ``metrics``), one line per run, sorted for a stable diff."""
+    import csv
+
+    def text(v) -> str:
+        return (
+            "" if v is None or (isinstance(v, float) and math.isnan(v)) else repr(v) if isinstance(v, float) else str(v)
+        )
+
+    keyed = sorted(rows, key=lambda r: tuple(str(r[k]) for k in ROW_KEYS))
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        w.writerow([*ROW_KEYS, *metrics])
+        for r in keyed:
+            w.writerow([text(r.get(k)) for k in (*ROW_KEYS, *metrics)])
+
+
+def read_rows_csv(path, metrics) -> list[dict]:
+    """Rows written by :func:`write_rows_csv`, with their types back; a metric it lacks is an error."""
+    import csv
+
+    from necviz.core.errors import NecvizError
+
+    with open(path, newline="", encoding="utf-8") as f:
+        reader = csv.DictReader(f)
+        missing = [m for m in (*ROW_KEYS, *metrics) if m not in (reader.fieldnames or ())]
+        if missing:
+            raise NecvizError(f"{path}: not a rows file of this script, or without {', '.join(missing)}")
+        out = []
+        for r in reader:
+            row = {
+                "scene": r["scene"],
+                "family": r["family"],
+                "seed": int(r["seed"]),
+                "controller": r["controller"],
+                "ceiling": "none" if r["ceiling"] == "none" else float(r["ceiling"]),
+                "latency_us": float(r["latency_us"]),
+                "transition_ms": None if r["transition_ms"] == "" else _parse(r["transition_ms"]),
+            }
+            row.update({m: None if r[m] == "" else float(r[m]) for m in metrics})
+            out.append(row)
+    return out
+
+
+def _parse(v: str):
+    f = float(v)
+    return int(f) if f.is_integer() and "." not in v else f
+
+
 def load_rows(dirs, metrics) -> list[dict]:
-    """The ok rows of every sweep folder, reduced to what pairing needs."""
+    """The ok rows of every sweep folder (or rows file), reduced to what pairing needs."""
     from necviz.sweeps.store import Store
 
     out = []
     for d in dirs:
+        if str(d).endswith(".csv"):
+            out += read_rows_csv(d, metrics)
+            continue
         store = Store(d)
         store.manifest()  # a one-line error when DIR is not a sweep folder
         for r in store.read_rows():
@@ -365,24 +427,33 @@ def build(dirs, metric: str = "saturated_frames_50") -> tuple[str, dict]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("dirs", nargs="+", help="sweep folders (necviz sweep run ... --out DIR)")
+    ap.add_argument("dirs", nargs="+", help="sweep folders (necviz sweep run ... --out DIR) or rows files (--rows)")
     ap.add_argument("--metric", action="append", help="metric(s) (default: saturated_frames_50 and _10)")
     ap.add_argument("--out", help="also write the Markdown here")
     ap.add_argument("--json", help="also write the numbers here")
-    ap.add_argument("--force", action="store_true", help="replace existing --out / --json files")
+    ap.add_argument("--rows", help="also write the runs' rows (pairing keys and the metrics) to this CSV")
+    ap.add_argument("--force", action="store_true", help="replace existing --out / --json / --rows files")
     args = ap.parse_args(argv)
     from necviz.core.errors import NecvizError
 
-    for p in (args.out, args.json):
+    for p in (args.out, args.json, args.rows):
         if p and Path(p).exists() and not args.force:
             print(f"necviz: error: {p} exists (use --force to replace it)", file=sys.stderr)
             return 2
+    inputs = {Path(d).resolve() for d in args.dirs}
+    for p in (args.out, args.json, args.rows):
+        if p and Path(p).resolve() in inputs:
+            print(f"necviz: error: {p} is an input; choose another output", file=sys.stderr)
+            return 2
+    metrics = args.metric or ["saturated_frames_50", "saturated_frames_10"]
     try:
         parts, data = [], {}
-        for metric in args.metric or ["saturated_frames_50", "saturated_frames_10"]:
+        for metric in metrics:
             text, d = build(args.dirs, metric)
             parts.append(text)
             data[metric] = d
+        if args.rows:
+            write_rows_csv(args.rows, load_rows(args.dirs, metrics), metrics)
     except NecvizError as e:
         print(f"necviz: error: {' '.join(str(e).split())}", file=sys.stderr)
         return 2

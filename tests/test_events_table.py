@@ -141,3 +141,27 @@ def test_the_tables_name_each_rung_and_each_tuned_baseline():
     events_table.section_events(idx, "saturated_frames_50", out, data)
     last = 10 - 2 * (len(events_table.LADDER) - 1)  # nec, the ladder's last rung
     assert data["events"]["families"]["flicker"][2] == pytest.approx(last - 3.0)  # nec - nec-frames
+
+
+def test_a_rows_file_gives_back_the_rows_and_the_same_tables(tmp_path):
+    """The committed rows file stands in for the sweep folders: the same rows, so the same numbers."""
+    rows = []
+    for seed in range(100, 104):
+        rows.append(row("nec", "tunnel_exit_1000", seed, seed % 2, ceiling=6e6))
+        rows.append(row("nec", "tunnel_exit_1000", seed, 0.0, ceiling="none"))
+        rows.append(row("nec", "tunnel_exit_1000", seed, 1.0, transition=40))
+        rows.append(row("nec-frames", "tunnel_exit_1000", seed, 2.0 + seed % 3, latency=200.0))
+        rows.append(row("nec-frames", "tunnel_exit_1000", seed, math.nan))
+    path = tmp_path / "rows.csv"
+    events_table.write_rows_csv(path, rows, ["saturated_frames_50"])
+    back = events_table.read_rows_csv(path, ["saturated_frames_50"])
+    key = lambda r: tuple(str(r[k]) for k in events_table.ROW_KEYS)  # noqa: E731
+    for a, b in zip(sorted(rows, key=key), sorted(back, key=key), strict=True):
+        for k in events_table.ROW_KEYS:
+            assert a[k] == b[k] and type(a[k]) is type(b[k]), k
+        v, w = a["saturated_frames_50"], b["saturated_frames_50"]
+        assert (math.isnan(v) and w is None) or v == w
+    with pytest.raises(Exception, match="without saturated_frames_10"):
+        events_table.read_rows_csv(path, ["saturated_frames_10"])
+    # the script refuses to write its rows over an input
+    assert events_table.main([str(path), "--rows", str(path), "--force"]) == 2
