@@ -183,6 +183,29 @@ def r_soak(d: dict) -> str:
     return out
 
 
+def r_rerun_footer(d: dict) -> str:
+    """The three ways of writing a long Rerun file, outside necviz (benchmarks/rerun_footer.py)."""
+    rows = [
+        [
+            f"`{r['mode']}`",
+            num(r["stream_hours"], 1),
+            f"{num(r['rss_start_mb'], 1)} → {num(r['rss_end_mb'], 1)}",
+            f"**{num(r['growth_mb_per_hour'], 1)}**",
+            num(r["files"], 0),
+            num(r["bytes"] / 1e6, 1),
+        ]
+        for r in d.get("rows", [])
+    ]
+    out = table(["file sink", "stream h", "RSS MB (after warm-up → end)", "MB per hour", "files", "MB written"], rows)
+    return out + (
+        f"\n\nRerun SDK {d.get('rerun_sdk', '?')}, necviz's live sink's per-2-s load sent straight to a Rerun "
+        "`FileSink`, no necviz code in the loop. Most of a long session's growth is the file sink's footer index "
+        "(one entry per chunk written); without the footer, or with the file replaced every 10 minutes, the process "
+        "stays flat. necviz does not rotate the user's `--save` file (it would split one recording into several); "
+        "the open upstream reports are rerun-io/rerun#12623 (memory growth with a file sink) and #12622 (file rotation)."
+    )
+
+
 def r_fuzz(d: dict) -> str:
     rows = []
     for part, p in d.get("parts", {}).items():
@@ -318,6 +341,7 @@ RENDERERS: dict[str, tuple[str, Callable[[dict], str]]] = {
     "recording_size": ("Recording size", r_recording_size),
     "soak": ("Long live sessions: memory", r_soak),
     "fuzz": ("Robustness: damaged inputs", r_fuzz),
+    "rerun_footer": ("Long sessions: where the memory goes (Rerun's file sink alone)", r_rerun_footer),
     "image_forms": ("Which image form P-TEDI uses", r_image_forms),
     "flight_recorder": ("Flight recorder memory", r_flight_recorder),
     "sweep_scaling": ("Sweeps on one and two workers", r_sweep_scaling),
