@@ -361,13 +361,49 @@ def demote_headings(md: str) -> str:
     return re.sub(r"^(#{1,4}) ", lambda m: "#" * min(6, len(m.group(1)) + 2) + " ", md, flags=re.M)
 
 
+def _cell(v) -> str | None:
+    """A scalar as a table cell; ``None`` for what a cell cannot show (lists, nested objects)."""
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, (int, float)):
+        return num(v)
+    if isinstance(v, str):
+        return v
+    return None
+
+
+def _records_table(records: list[tuple[str, dict]], name_field: str | None = None) -> str:
+    """Named records (dicts) as one table: a column for every scalar field any of them has (but the
+    field the names came from)."""
+    cols: list[str] = []
+    for _, r in records:
+        cols += [k for k, v in r.items() if k not in cols and k != name_field and _cell(v) is not None]
+    rows = [[name, *[_cell(r.get(k)) or "" for k in cols]] for name, r in records]
+    return table(["", *[c.replace("_", " ") for c in cols]], rows)
+
+
 def r_generic(d: dict) -> str:
-    rows = [
-        [k, num(v) if not isinstance(v, str) else v]
-        for k, v in d.items()
-        if isinstance(v, (int, float, str)) and k != "command"
-    ]
-    return table(["", "value"], rows) if rows else "(no top-level figures)"
+    """Any results file: its top-level figures, then every table it holds (a list of records, or
+    records by name, or figures by name); nested lists are left to the JSON."""
+    parts = []
+    rows = [[k, _cell(v)] for k, v in d.items() if _cell(v) is not None and k != "command"]
+    if rows:
+        parts.append(table(["", "value"], rows))
+    for key, v in d.items():
+        if key == "machine":
+            continue
+        if isinstance(v, list) and v and all(isinstance(r, dict) for r in v):
+            first = next(iter(v[0]))
+            parts.append(
+                f"**{key.replace('_', ' ')}**\n\n" + _records_table([(str(r.get(first, "")), r) for r in v], first)
+            )
+        elif isinstance(v, dict) and v and all(isinstance(r, dict) for r in v.values()):
+            parts.append(f"**{key.replace('_', ' ')}**\n\n" + _records_table([(str(k), r) for k, r in v.items()]))
+        elif isinstance(v, dict) and v and all(_cell(x) is not None for x in v.values()):
+            parts.append(
+                f"**{key.replace('_', ' ')}**\n\n" + table(["", "value"], [[k, _cell(x)] for k, x in v.items()])
+            )
+    return "\n\n".join(parts) if parts else "(no top-level figures)"
 
 
 def _spread(r: dict | None, digits: int = 2, scale: float = 1.0, unit: str = "") -> str:
