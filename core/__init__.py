@@ -7,7 +7,7 @@ if __name__ != "necviz.core":  # the folder imported as a top-level package (e.g
     )
 
 
-from importlib import import_module
+from necviz.core.lazy import lazy_exports
 
 # name -> module, imported on first use: importing a light submodule (necviz.core.errors, say) must not
 # load NumPy, SciPy and Numba through this package's __init__ (the command line answers --help at once)
@@ -68,13 +68,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name):
-    if name in _API:
-        value = getattr(import_module(_API[name]), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module 'necviz.core' has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted({*globals(), *_API})
+__getattr__, __dir__ = lazy_exports(__name__, _API)

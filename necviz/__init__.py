@@ -17,7 +17,6 @@ loop), :mod:`necviz.dashboard.sink` (Rerun), :mod:`necviz.layouts` (blueprints).
 """
 
 import os
-from importlib import import_module
 
 
 def _numba_cache_fallback() -> None:
@@ -76,6 +75,7 @@ os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd=off")
 os.environ.setdefault("OPENCV_IO_MAX_IMAGE_PIXELS", str(1 << 22))
 
 from necviz._version import __version__  # noqa: E402 - after the environment is set for what follows
+from necviz.core.lazy import lazy_exports  # noqa: E402
 
 # name -> "module:attribute", imported on first use (importing necviz stays light for the CLI)
 _API = {
@@ -103,10 +103,4 @@ _API = {
 __all__ = ["__version__", *_API]
 
 
-def __getattr__(name):
-    if name in _API:
-        module, attr = _API[name].split(":")
-        value = getattr(import_module(module), attr)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module 'necviz' has no attribute {name!r}")
+__getattr__, __dir__ = lazy_exports(__name__, _API)

@@ -22,7 +22,7 @@ the three ``calibrate_*`` functions, and :class:`CalibrationResult`), :mod:`.fro
 
 from __future__ import annotations
 
-from importlib import import_module
+from necviz.core.lazy import lazy_exports
 
 # name -> module, imported on first use (the command line reads the defaults without loading the fit)
 _API = {
@@ -69,13 +69,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name):
-    if name in _API:
-        value = getattr(import_module(_API[name]), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module 'necviz.calibration' has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted({*globals(), *_API})
+__getattr__, __dir__ = lazy_exports(__name__, _API)

@@ -15,6 +15,8 @@ plots); :mod:`.show` re-runs one run in the Rerun dashboard. From Python::
     report("out/example")
 """
 
+from necviz.core.lazy import lazy_exports
+
 _WHERE = {
     "SweepOptions": "engine",
     "SweepResult": "engine",
@@ -30,12 +32,8 @@ _WHERE = {
 }
 
 
-def __getattr__(name):  # imported on use: `necviz --help` loads necviz.commands.sweep without Dask or NumPy
-    if name in _WHERE:
-        import importlib
-
-        return getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+# imported on use: `necviz --help` loads necviz.commands.sweep without Dask or NumPy
+__getattr__, __dir__ = lazy_exports(__name__, {name: f".{module}" for name, module in _WHERE.items()})
 
 
 __all__ = [
