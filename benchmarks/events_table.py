@@ -117,19 +117,27 @@ def read_rows_csv(path, metrics) -> list[dict]:
         if missing:
             raise NecvizError(f"{path}: not a rows file of this script, or without {', '.join(missing)}")
         out = []
-        for r in reader:
-            row = {
-                "scene": r["scene"],
-                "family": r["family"],
-                "seed": int(r["seed"]),
-                "controller": r["controller"],
-                "ceiling": "none" if r["ceiling"] == "none" else float(r["ceiling"]),
-                "latency_us": float(r["latency_us"]),
-                "transition_ms": None if r["transition_ms"] == "" else _parse(r["transition_ms"]),
-            }
-            row.update({m: None if r[m] == "" else float(r[m]) for m in metrics})
-            out.append(row)
+        for line, r in enumerate(reader, start=2):
+            try:
+                out.append(_row_from_csv(r, metrics))
+            except (TypeError, ValueError) as e:
+                raise NecvizError(f"{path}, line {line}: not a row of this script ({e})") from None
     return out
+
+
+def _row_from_csv(r: dict, metrics) -> dict:
+    """One line of a rows file with its types back (a short line reads as ``None``: a TypeError)."""
+    row = {
+        "scene": r["scene"],
+        "family": r["family"],
+        "seed": int(r["seed"]),
+        "controller": r["controller"],
+        "ceiling": "none" if r["ceiling"] == "none" else float(r["ceiling"]),
+        "latency_us": float(r["latency_us"]),
+        "transition_ms": None if r["transition_ms"] == "" else _parse(r["transition_ms"]),
+    }
+    row.update({m: None if r[m] == "" else float(r[m]) for m in metrics})
+    return row
 
 
 def _parse(v: str):

@@ -163,5 +163,11 @@ def test_a_rows_file_gives_back_the_rows_and_the_same_tables(tmp_path):
         assert (math.isnan(v) and w is None) or v == w
     with pytest.raises(Exception, match="without saturated_frames_10"):
         events_table.read_rows_csv(path, ["saturated_frames_10"])
+    # a damaged line is named, not a traceback
+    bad = tmp_path / "bad.csv"
+    bad.write_text(path.read_text().replace("tunnel_exit_1000,tunnel_exit,100,", "tunnel_exit_1000,tunnel_exit,x,", 1))
+    with pytest.raises(Exception, match=r"bad.csv, line \d+: not a row"):
+        events_table.read_rows_csv(bad, ["saturated_frames_50"])
+    assert events_table.main([str(bad)]) == 2
     # the script refuses to write its rows over an input
     assert events_table.main([str(path), "--rows", str(path), "--force"]) == 2
