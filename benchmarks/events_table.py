@@ -196,7 +196,7 @@ def paired(idx, a: str, b: str, metric: str, where, b_any_ceiling: bool = False)
     by_scene = defaultdict(list)
     others = defaultdict(list)
     if b_any_ceiling:
-        for (c, s, ceil, lat, tr, seed), r in idx.items():
+        for (c, s, _ceil, lat, tr, seed), r in idx.items():
             if c == b:
                 others[(s, lat, tr, seed)].append(r)
     for (c, s, ceil, lat, tr, seed), ra in idx.items():

@@ -692,7 +692,10 @@ def _table(result: dict, out) -> None:
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     print(file=out)
     for r in rows:
-        print("  " + "  ".join(c.rjust(w) if i else c.ljust(w) for i, (c, w) in enumerate(zip(r, widths))), file=out)
+        print(
+            "  " + "  ".join(c.rjust(w) if i else c.ljust(w) for i, (c, w) in enumerate(zip(r, widths, strict=True))),
+            file=out,
+        )
     for part in ("files", "replay", "hostile"):
         p = result["parts"].get(part)
         if not p:

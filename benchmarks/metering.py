@@ -142,7 +142,7 @@ def heldout_params(name: str, rng: np.random.Generator) -> dict:
             base_log=base,
             initial_db=0.0,
             ramp_ms=u(0.5, 100.0),
-            steps=[[round(float(t), 3), round(float(v), 1)] for t, v in zip(times, levels)],
+            steps=[[round(float(t), 3), round(float(v), 1)] for t, v in zip(times, levels, strict=True)],
         )
     elif name == "handheld_scan":
         base = u(2.0, 6.0)

@@ -97,7 +97,7 @@ def logged_images(path, entity: str) -> list[tuple[int, bytes]]:
         if "EncodedImage:blob" not in rb.schema.names:
             continue
         t = rb.column("t").cast(pa.int64()).to_pylist()
-        for ti, blob in zip(t, rb.column("EncodedImage:blob").to_pylist()):
+        for ti, blob in zip(t, rb.column("EncodedImage:blob").to_pylist(), strict=True):
             b = blob[0] if isinstance(blob, list) and blob and isinstance(blob[0], (list, bytes)) else blob
             rows.append((ti, bytes(bytearray(b))))
     return sorted(rows, key=lambda r: r[0])
@@ -164,7 +164,10 @@ def alternatives(frames: list, event_rgb: list) -> dict:
     for name, enc in cands.items():
         blobs, ms = timed(enc, frames)
         s = np.array(
-            [ssim(f, cv2.imdecode(np.frombuffer(b, np.uint8), cv2.IMREAD_GRAYSCALE)) for f, b in zip(frames, blobs)]
+            [
+                ssim(f, cv2.imdecode(np.frombuffer(b, np.uint8), cv2.IMREAD_GRAYSCALE))
+                for f, b in zip(frames, blobs, strict=True)
+            ]
         )
         res["frames"][name] = {
             "kb_per_frame": float(np.mean([len(b) for b in blobs]) / 1e3),
@@ -198,7 +201,7 @@ def alternatives(frames: list, event_rgb: list) -> dict:
                     == pal.palette[i]
                 ).all()
             )
-            for b, i in zip(blobs, indices)
+            for b, i in zip(blobs, indices, strict=True)
         )
         res["event_images"][name] = {
             "kb_per_image": float(np.mean([len(b) for b in blobs]) / 1e3),
@@ -222,7 +225,7 @@ def fidelity(path, capture: Capture, lanes: list[str]) -> dict:
     ev = logged_images(path, "events")
     exact = sum(
         bool((np.asarray(Image.open(io.BytesIO(b)).convert("RGB")) == rgb).all())
-        for (_, b), rgb in zip(ev, capture.events)
+        for (_, b), rgb in zip(ev, capture.events, strict=True)
     )
     return {
         "frames_logged": len(logged),

@@ -30,6 +30,7 @@ import shutil
 import sys
 import tempfile
 import time
+from itertools import pairwise
 from pathlib import Path
 
 from necviz.sweeps import SweepOptions, load_plan, run_sweep
@@ -58,7 +59,7 @@ def one(plan, workers: int, folder: Path) -> dict:
     gaps = 0.0
     for spans in by_worker.values():
         spans.sort()
-        gaps += sum(max(0.0, b[0] - a[1]) for a, b in zip(spans, spans[1:]))
+        gaps += sum(max(0.0, b[0] - a[1]) for a, b in pairwise(spans))
     shutil.rmtree(out, ignore_errors=True)
     serial = (res.wall_s - res.warmup_s - res.run_s) / res.run_s
     return {
@@ -117,7 +118,9 @@ def main() -> int:
     b1, b2 = best(1), best(2)
     ratios = [
         r2["sweep_wall_s"] / r1["sweep_wall_s"]
-        for r1, r2 in zip([r for r in results if r["workers"] == 1], [r for r in results if r["workers"] == 2])
+        for r1, r2 in zip(
+            [r for r in results if r["workers"] == 1], [r for r in results if r["workers"] == 2], strict=True
+        )
     ]
     summary = {
         "runs": len(plan.runs),

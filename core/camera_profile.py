@@ -54,7 +54,7 @@ class CameraProfile:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict, source: str = "profile") -> "CameraProfile":
+    def from_dict(cls, d: dict, source: str = "profile") -> CameraProfile:
         if not isinstance(d, dict) or d.get("format") != FORMAT:
             raise ProfileError(f'{source}: not a necviz camera profile (missing "format": "{FORMAT}")')
         if d.get("version") != VERSION:

@@ -50,7 +50,7 @@ class TediParams:
                 raise ParameterError(f"TEDI compensation {name} must be >= 0, got {getattr(self, name)}")
 
     @property
-    def plain(self) -> "TediParams":
+    def plain(self) -> TediParams:
         """The same thresholds without compensation (the EDI model)."""
         return TediParams(self.c_on, self.c_off)
 

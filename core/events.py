@@ -52,7 +52,7 @@ def make_events(t, x, y, p, sensor: SensorGeometry | None = None) -> np.ndarray:
     """
     arrays = [np.asarray(a) for a in (t, x, y, p)]
     n = arrays[0].shape
-    for name, a in zip("txyp", arrays):
+    for name, a in zip("txyp", arrays, strict=True):
         if a.ndim != 1:
             raise EventFormatError(f"event field '{name}' must be 1-D, got shape {a.shape}")
         if a.shape != n:

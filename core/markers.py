@@ -168,7 +168,7 @@ def frame_scores(truth: MarkerTruth, detections: dict) -> tuple[int, int, float,
     (NaN when none is visible); the corner error is the mean :func:`corner_error_px` over the
     detected visible markers (NaN when there is none).
     """
-    vis_ids = [int(i) for i, v in zip(np.asarray(truth.ids), np.asarray(truth.visible)) if v]
+    vis_ids = [int(i) for i, v in zip(np.asarray(truth.ids), np.asarray(truth.visible), strict=True) if v]
     det_mask = ids_mask([i for i in detections])
     hits = [i for i in vis_ids if i in detections]
     rate = len(hits) / len(vis_ids) if vis_ids else math.nan

@@ -85,7 +85,10 @@ def skill_from_columns(measured, prediction_error, t_mid_us) -> dict:
     """:meth:`SkillTracker.summary` of a whole sequence from its per-frame columns (frames in order)."""
     tr = SkillTracker()
     for m, e, t in zip(
-        np.asarray(measured, np.float64), np.asarray(prediction_error, np.float64), np.asarray(t_mid_us, np.float64)
+        np.asarray(measured, np.float64),
+        np.asarray(prediction_error, np.float64),
+        np.asarray(t_mid_us, np.float64),
+        strict=True,
     ):
         tr.update(float(m), float(e), float(t))
     return tr.summary()

@@ -12,6 +12,7 @@ produces the live order from arrays, for offline runs, tests and benchmarks.
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
+from itertools import pairwise
 
 import numpy as np
 
@@ -104,7 +105,7 @@ def interleave(
     source delivering every ``batch_us``). Exposures must not overlap.
     """
     frames = sorted(frames, key=lambda f: f.exposure_start_us)
-    for a, b in zip(frames, frames[1:]):
+    for a, b in pairwise(frames):
         if b.exposure_start_us < a.exposure_end_us:
             raise StreamError(f"exposures of frames {a.sequence} and {b.sequence} overlap")
     # (time, order, packet): order puts markers before the frame delivered at the same time
@@ -122,7 +123,7 @@ def interleave(
     # one search for all cut times, on a contiguous copy (searching a strided field view copies it per call)
     ends = np.searchsorted(np.ascontiguousarray(events["t"]), np.array([c[0] for c in cuts], np.int64), side="left")
     pos = 0
-    for end, (_, _, packet) in zip(ends.tolist(), cuts):
+    for end, (_, _, packet) in zip(ends.tolist(), cuts, strict=True):
         if end > pos:
             yield EventBatch(events[pos:end])
             pos = end

@@ -536,7 +536,7 @@ def fit_tedi_pairs(pairs, crf: CameraResponse, options: TediFitOptions | None = 
     def values(xv):
         v = base.copy()
         knees = {}
-        for (name, i, *_), val in zip(spec, xv * scale):
+        for (name, i, *_), val in zip(spec, xv * scale, strict=True):
             if name.startswith("knee_"):
                 knees[i] = val
             else:
@@ -582,7 +582,7 @@ def fit_tedi_pairs(pairs, crf: CameraResponse, options: TediFitOptions | None = 
         f_scale=float(options.f_scale),
     )
     v = values(res.x)
-    params = TediParams(**{n: float(val) for n, val in zip(names, v)})
+    params = TediParams(**{n: float(val) for n, val in zip(names, v, strict=True)})
     rms_after = float(np.sqrt(np.mean(res.fun**2)))
     stderr, at_bound = _standard_errors(res, values, spec, names, num_res)
     # A compensation that acts on no pixel of the data (knee above every rate seen) leaves the
@@ -594,14 +594,14 @@ def fit_tedi_pairs(pairs, crf: CameraResponse, options: TediFitOptions | None = 
             continue
         w = v.copy()
         w[ia] = w[ib] = 0.0
-        r_off = pair_residuals(pairs, crf, TediParams(**{n: float(val) for n, val in zip(names, w)}))
+        r_off = pair_residuals(pairs, crf, TediParams(**{n: float(val) for n, val in zip(names, w, strict=True)}))
         if np.max(np.abs(np.concatenate(r_off) - res.fun)) <= 1e-9:
             v = w
             inactive.append(pol)
             for n in (f"a_{pol}", f"b_{pol}"):
                 stderr[n] = float("nan")
     if inactive:
-        params = TediParams(**{n: float(val) for n, val in zip(names, v)})
+        params = TediParams(**{n: float(val) for n, val in zip(names, v, strict=True)})
     return TediCalibration(
         params,
         float(res.cost),
@@ -730,7 +730,7 @@ def calibrate_tedi(
         raise ParameterError(f"TEDI calibration needs at least 2 frames, got {len(frames)}")
     check_events_fit(events, frames[0].shape)
     pairs = []
-    for prev, cur in zip(frames[:-1], frames[1:]):
+    for prev, cur in zip(frames[:-1], frames[1:], strict=True):
         pr = prepare_pair(events, prev, cur, crf, selection=selection)
         if pr is not None:
             pairs.append(pr)

@@ -31,7 +31,7 @@ def main() -> None:
             out=None,
         )
     except NecvizError as e:  # bad options: one line, like the command
-        raise SystemExit(f"error: {e}")
+        raise SystemExit(f"error: {e}") from None
     print(f"{args.scenario}: {stats['duration_s']:.2f} s simulated, {stats['events']:,} events")
     for lane, s in stats["lanes"].items():
         sat = stats["telemetry"][lane].table.column("over_exposed_rate") > 0.5

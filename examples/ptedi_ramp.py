@@ -115,7 +115,7 @@ def draw(path: str, tr: np.ndarray, end_us: int) -> None:
     lo, hi = tr[:, 1:].min() - 0.1, tr[:, 1:].max() + 0.1
     px = lambda t, v: (int(m + (w - 2 * m) * t / end_us), int(h - m - (h - 2 * m) * (v - lo) / (hi - lo)))  # noqa: E731
     for col, bgr in ((3, (0, 160, 0)), (2, (200, 0, 0)), (1, (0, 0, 220))):
-        pts = np.array([px(t, v) for t, v in zip(tr[:, 0], tr[:, col])], np.int32)
+        pts = np.array([px(t, v) for t, v in zip(tr[:, 0], tr[:, col], strict=True)], np.int32)
         cv2.polylines(img, [pts], False, bgr, 1, cv2.LINE_AA)
     cv2.rectangle(img, (m, m), (w - m, h - m), (0, 0, 0), 1)
     cv2.putText(

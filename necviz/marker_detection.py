@@ -40,7 +40,7 @@ class MarkerDetector:
         out: dict[int, np.ndarray] = {}
         if ids is None:
             return out
-        for c, i in zip(corners, ids.ravel()):
+        for c, i in zip(corners, ids.ravel(), strict=True):
             out.setdefault(int(i), np.asarray(c, np.float64).reshape(4, 2))
         return out
 

@@ -227,12 +227,12 @@ class Pipeline:
         return self.telemetry.frames
 
     # -- running ---------------------------------------------------------------------------------
-    def start(self) -> "Pipeline":
+    def start(self) -> Pipeline:
         self._thread = threading.Thread(target=self._run_guarded, name="necviz-stream", daemon=True)
         self._thread.start()
         return self
 
-    def run(self) -> "Pipeline":
+    def run(self) -> Pipeline:
         """Run on the calling thread (scripts, comparisons, benchmarks)."""
         self._run_guarded()
         return self
@@ -371,7 +371,7 @@ class Pipeline:
             self.error = e
         finally:
             self.wall_s = time.perf_counter() - t0
-            for change, fut in self._pending:  # submitted too late: say so
+            for _change, fut in self._pending:  # submitted too late: say so
                 fut.set_exception(ParameterError("the run ended before the change could be applied"))
             self._pending = []
             self._done.set()

@@ -166,7 +166,7 @@ def native_bytes(sensor=(346, 260, "DAVIS346"), properties=None, chunks=(), end=
 
 def native_events(t, x, y, p) -> bytes:
     """13-byte records: t i64, x u16, y u16, p i8."""
-    return b"".join(struct.pack("<qHHb", int(a), int(b), int(c), int(d)) for a, b, c, d in zip(t, x, y, p))
+    return b"".join(struct.pack("<qHHb", int(a), int(b), int(c), int(d)) for a, b, c, d in zip(t, x, y, p, strict=True))
 
 
 # ----------------------------------------------------------------------------------- RPG text
@@ -178,7 +178,7 @@ def write_rpg_text(folder: Path, t_s, x, y, p01, frames=(), imu=None) -> Path:
 
     folder.mkdir(parents=True, exist_ok=True)
     with open(folder / "events.txt", "w") as f:
-        for row in zip(t_s, x, y, p01):
+        for row in zip(t_s, x, y, p01, strict=True):
             f.write(f"{row[0]:.6f} {int(row[1])} {int(row[2])} {int(row[3])}\n")
     if frames:
         (folder / "images").mkdir(exist_ok=True)
@@ -263,7 +263,7 @@ def write_ros1_bag(path: Path, event_msgs, images=(), exposures=(), width=346, h
 
     msgs = []  # (bag time ns, kind, msg)
     for i, (t, x, y, p) in enumerate(event_msgs):
-        evs = [Event(x=int(a), y=int(b), ts=tm(c), polarity=bool(d > 0)) for c, a, b, d in zip(t, x, y, p)]
+        evs = [Event(x=int(a), y=int(b), ts=tm(c), polarity=bool(d > 0)) for c, a, b, d in zip(t, x, y, p, strict=True)]
         m = EventArray(header=Header(seq=i, stamp=tm(t[-1]), frame_id="cam"), height=height, width=width, events=evs)
         msgs.append((int(t[-1]) * 1000 + 1, "events", m))
     for i, (stamp, img) in enumerate(images):

@@ -116,7 +116,7 @@ def _aedat3(rng) -> bytes:
     w, h = 32, 24
     parts = [aedat3_header("DAVIS32")]  # unknown chip: the size comes from the data
     t = 0
-    for k in range(4):
+    for _k in range(4):
         tt, x, y, p = _events(rng, 200, t, t + 10_000, w, h)
         parts.append(aedat3_polarity(tt, x, y, p))
         img = rng.integers(0, 1024, (h, w))
@@ -159,7 +159,7 @@ def _rosbag2(folder: Path, rng) -> None:
     with Writer(folder, version=8) as w:
         conn = w.add_connection("/dvs/events", "dvs_msgs/msg/EventArray", typestore=store)
         t0 = 1_000_000
-        for k in range(3):
+        for _k in range(3):
             tt, x, y, p = _events(rng, 40, t0, t0 + 10_000, 32, 24)
             evs = [
                 Event(
@@ -168,7 +168,7 @@ def _rosbag2(folder: Path, rng) -> None:
                     ts=Time(sec=int(c) // 1_000_000, nanosec=int(c) % 1_000_000 * 1000),
                     polarity=bool(d),
                 )
-                for c, a, b, d in zip(tt, x, y, p)
+                for c, a, b, d in zip(tt, x, y, p, strict=True)
             ]
             stamp = Time(sec=int(tt[-1]) // 1_000_000, nanosec=int(tt[-1]) % 1_000_000 * 1000)
             msg = EventArray(header=Header(stamp=stamp, frame_id="cam"), height=24, width=32, events=evs)

@@ -66,7 +66,7 @@ def _hdf5_cases(folder: Path) -> list[Case]:
     p = folder / "declares_2e38.h5"
     with h5py.File(p, "w") as f:
         g = f.create_group("events")
-        for k, dt in zip("txyp", ("i8", "u2", "u2", "u1")):
+        for k, dt in zip("txyp", ("i8", "u2", "u2", "u1"), strict=True):
             g.create_dataset(k, shape=(1 << 38,), dtype=dt, chunks=(1 << 16,))
     out.append(Case("hdf5: 3 kB declaring 2^38 events", ["info", str(p)]))
     out.append(Case("hdf5: 3 kB declaring 2^38 events (replay)", ["replay", str(p), "--save", str(folder / "a.rrd")]))
@@ -74,14 +74,14 @@ def _hdf5_cases(folder: Path) -> list[Case]:
     p = folder / "bomb_one_chunk.h5"
     with h5py.File(p, "w") as f:
         g = f.create_group("events")
-        for k, dt in zip("txyp", ("i8", "u2", "u2", "u1")):
+        for k, dt in zip("txyp", ("i8", "u2", "u2", "u1"), strict=True):
             g.create_dataset(k, data=np.zeros(n, dt), chunks=(n,), compression="gzip", compression_opts=1)
     out.append(Case("hdf5: gzip bomb in one 100 MB chunk", ["info", str(p)]))
     p = folder / "bomb_zeros.h5"
     n = 120_000_000 // 13
     with h5py.File(p, "w") as f:
         g = f.create_group("events")
-        for k, dt in zip("txyp", ("i8", "u2", "u2", "u1")):
+        for k, dt in zip("txyp", ("i8", "u2", "u2", "u1"), strict=True):
             g.create_dataset(k, data=np.zeros(n, dt), chunks=(1 << 18,), compression="gzip", compression_opts=1)
     out.append(Case("hdf5: 120 MB of zero events from 0.5 MB", ["info", str(p)], ("clean", "error")))
     out.append(Case("hdf5: zero events bomb (replay)", ["replay", str(p), "--save", str(folder / "b.rrd")]))
@@ -89,7 +89,7 @@ def _hdf5_cases(folder: Path) -> list[Case]:
     with h5py.File(p, "w") as f:
         f.attrs["width"], f.attrs["height"] = 65535, 65535
         g = f.create_group("events")
-        for k, dt in zip("txyp", ("i8", "u2", "u2", "u1")):
+        for k, dt in zip("txyp", ("i8", "u2", "u2", "u1"), strict=True):
             g.create_dataset(k, data=np.arange(10).astype(dt))
     out.append(Case("hdf5: a 65535 x 65535 sensor", ["replay", str(p), "--save", str(folder / "c.rrd")]))
     return out

@@ -88,7 +88,7 @@ class Rrd:
                 cols.append(
                     col.cast(pa.int64()).to_numpy(zero_copy_only=False) / (1e9 if pa.types.is_duration(col.type) else 1)
                 )
-            rows.extend(zip(*cols))
+            rows.extend(zip(*cols, strict=True))
         return np.asarray(sorted(rows), float).reshape(-1, len(timelines))
 
     def texts(self, entity: str) -> list[str]:

@@ -83,7 +83,7 @@ def test_nec_frames_commands_only_at_frames_and_jumps_once_through_the_response(
     from necviz.core.frames import Frame
 
     issued = []
-    for cam, packet in rig.packets():
+    for _cam, packet in rig.packets():
         cmd = ctrl.feed(packet)
         if cmd is not None:
             issued.append((isinstance(packet, Frame), cmd))

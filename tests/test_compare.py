@@ -89,7 +89,7 @@ def test_compare_says_what_the_events_add_paired_by_seed(capsys):
     res = run(opts, out=sys.stdout)
     ev, t = res["events_add"], res["controllers"]
     for key in ("saturated_frames_50", "saturated_frames_10"):
-        want = [a - b for a, b in zip(t["nec"][f"{key}_per_seed"], t["nec-frames"][f"{key}_per_seed"])]
+        want = [a - b for a, b in zip(t["nec"][f"{key}_per_seed"], t["nec-frames"][f"{key}_per_seed"], strict=True)]
         assert ev[key]["per_seed"] == want and ev[key]["mean"] == pytest.approx(sum(want) / 2)
     assert "what the events add (nec − nec-frames, paired over 2 seeds): sat>50%" in capsys.readouterr().out
     assert "events_add" not in run(

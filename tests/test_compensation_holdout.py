@@ -3,6 +3,7 @@ improve the Eq. 7 residual on frame pairs they were not fitted on."""
 
 from __future__ import annotations
 
+from itertools import pairwise
 from types import SimpleNamespace
 
 import numpy as np
@@ -53,7 +54,7 @@ def synthetic_pairs(seed):
     """Frame pairs of data that obey the compensated model (fast pixels under-count; TRUE's a, b)."""
     ev, frames, *_ = undercounting_data(seed=seed, n_frames=16)
     out = []
-    for prev, cur in zip(frames, frames[1:]):
+    for prev, cur in pairwise(frames):
         pr = prepare_pair(ev, prev, cur, LOG_CRF, source=f"seed{seed}")
         if pr is not None:
             out.append(pr)

@@ -189,12 +189,12 @@ def check_against(ex: Expect, summary, dec):
     assert np.array_equal(ev, want)
     assert markers == ex.markers
     assert len(frames) == len(ex.frames)
-    for f, (img, es, ee, cycles) in zip(frames, ex.frames):
+    for f, (img, es, ee, cycles) in zip(frames, ex.frames, strict=True):
         assert (f.exposure_start_us, f.exposure_end_us) == (es, ee)
         assert np.array_equal(f.image, img)
         assert dec.frame_cycles.get(f.sequence, cycles) == cycles
     assert [int(t) for t in imu["t"]] == [t for t, _ in ex.imu]
-    for row, (_, vals) in zip(imu, ex.imu):
+    for row, (_, vals) in zip(imu, ex.imu, strict=True):
         got = [float(row[k]) for k in ("ax", "ay", "az", "gx", "gy", "gz", "temp")]
         np.testing.assert_allclose(got, vals, rtol=1e-6, atol=1e-6)
     assert [(int(a), int(b)) for a, b in trig] == ex.triggers

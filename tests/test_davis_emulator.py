@@ -109,7 +109,7 @@ def test_start_and_stop_follow_the_documented_order_and_pauses():
         (9, 0, 0),
         (0, 3, 0),
     ]
-    t = {r[:3]: rec.t_s for r, rec in zip(seq, run_recs)}
+    t = {r[:3]: rec.t_s for r, rec in zip(seq, run_recs, strict=True)}
     assert t[(9, 0, 1)] - t[(0, 3, 1)] >= 0.19  # 200 ms bias settle after RUN_CHIP
     assert t[(1, 3, 1)] - t[(0, 0, 1)] >= 0.045  # 50 ms before the producers
     # the default configuration (biases etc.) came before any run bit
@@ -151,7 +151,7 @@ def test_decoded_frames_are_the_simulators_frames():
     assert isinstance(cam, Source)
     got = [p for p in cam if isinstance(p, Frame)]
     assert len(got) == len(want) >= 8
-    for g, w in zip(got, want):
+    for g, w in zip(got, want, strict=True):
         assert (g.exposure_start_us, g.exposure_end_us) == (w.exposure_start_us, w.exposure_end_us)
         assert np.array_equal(g.image, w.image)
     assert cam.state == "finished"
@@ -200,7 +200,7 @@ def test_roi_frames_keep_sensor_coordinates():
     cam.device.set_roi(10, 5, 40, 30)
     roi = [p for p in cam if isinstance(p, Frame)]
     assert len(roi) == len(full) >= 3
-    for a, b in zip(roi, full):
+    for a, b in zip(roi, full, strict=True):
         assert a.image.shape == SMALL.shape
         assert np.array_equal(a.image[5:31, 10:41], b.image[5:31, 10:41])
         mask = np.ones(SMALL.shape, bool)

@@ -64,7 +64,7 @@ def _read_output(path: Path) -> dict:
         frames = [
             Frame(img, int(s), int(e), float(g), i)
             for i, (img, s, e, g) in enumerate(
-                zip(z["frames"], z["frame_exposure_start_us"], z["frame_exposure_end_us"], z["frame_gain"])
+                zip(z["frames"], z["frame_exposure_start_us"], z["frame_exposure_end_us"], z["frame_gain"], strict=True)
             )
         ]
         return {"events": z["events"], "frames": frames, "imu": z["imu"], "triggers": z["triggers"]}
@@ -79,7 +79,7 @@ def _assert_same(got: dict, want: dict, suffix: str) -> None:
     assert got["events"].dtype == EVENT_DTYPE
     np.testing.assert_array_equal(got["events"], want["events"])
     assert len(got["frames"]) == len(want["frames"])
-    for a, b in zip(got["frames"], want["frames"]):
+    for a, b in zip(got["frames"], want["frames"], strict=True):
         assert (a.exposure_start_us, a.exposure_end_us) == (b.exposure_start_us, b.exposure_end_us)
         np.testing.assert_array_equal(a.image, b.image)
         if suffix != ".aedat4":  # AEDAT 4 has no field for the digital gain
@@ -198,7 +198,7 @@ def test_aedat4_opens_in_inivation_dv_processing(tmp_path):
     while (f := rec.getNextFrame()) is not None:
         frames.append(f)
     assert len(frames) == len(want["frames"])
-    for got, ref in zip(frames, want["frames"]):
+    for got, ref in zip(frames, want["frames"], strict=True):
         # dv-processing: a frame's timestamp is its exposure start, ``exposure`` its length
         assert got.timestamp == ref.exposure_start_us
         assert got.exposure.total_seconds() * 1e6 == pytest.approx(ref.exposure_us)
@@ -211,7 +211,7 @@ def test_aedat4_opens_in_inivation_dv_processing(tmp_path):
     trg = []
     while (b := rec.getNextTriggerBatch()) is not None:
         trg += [(t.timestamp, int(t.type)) for t in b]
-    assert trg == list(zip(want["triggers"]["t"].tolist(), want["triggers"]["kind"].tolist()))
+    assert trg == list(zip(want["triggers"]["t"].tolist(), want["triggers"]["kind"].tolist(), strict=True))
 
 
 def test_native_clip_keeps_commands_and_annotations(seeds, tmp_path):

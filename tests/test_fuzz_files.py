@@ -281,7 +281,7 @@ def test_declared_sizes_are_checked_against_what_the_file_holds(tmp_path):
     p = tmp_path / "sparse.h5"
     with h5py.File(p, "w") as f:
         g = f.create_group("events")
-        for k, dt in zip("txyp", ("i8", "u2", "u2", "u1")):
+        for k, dt in zip("txyp", ("i8", "u2", "u2", "u1"), strict=True):
             g.create_dataset(k, shape=(1 << 38,), dtype=dt, chunks=(1 << 16,))
     assert p.stat().st_size < 10_000
     with pytest.raises(RecordingError, match=r"/events/t declares 274,877,906,944 entries .* holds 0 bytes"):

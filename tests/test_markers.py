@@ -50,7 +50,7 @@ def test_the_detector_finds_every_visible_marker_where_the_truth_says(name, para
     for f in fracs:
         t = f * s.duration_us
         truth = s.marker_truth(t)
-        visible = [int(i) for i, v in zip(truth.ids, truth.visible) if v]
+        visible = [int(i) for i, v in zip(truth.ids, truth.visible, strict=True) if v]
         assert visible, (name, f)
         found = DET.detect(log_encoded(s.log_irradiance(t)))
         for i in visible:
@@ -189,7 +189,7 @@ def test_compare_reports_marker_figures_that_follow_from_its_frames(tmp_path):
     run(CompareOptions(sc, ("nec", "fixed"), sift=False, json=out, markers=True), out=None)
     data = json.loads(out.read_text())
     assert data["markers"] is True
-    for name, r in data["controllers"].items():
+    for _name, r in data["controllers"].items():
         rows = r["frames_detail"]
         vis = [d["marker_visible_mask"] for d in rows]
         hit = [d["marker_visible_mask"] & d["marker_detected_mask"] for d in rows]

@@ -109,7 +109,7 @@ def test_ground_truth_is_attached_without_changing_the_simulation():
         options=RigOptions(truth=False),
     )
     plain = [p for cam, p in rig.packets() if hasattr(p, "image")]
-    assert len(plain) == len(a) and all(np.array_equal(f.image, p.image) for (f, _), p in zip(a, plain))
+    assert len(plain) == len(a) and all(np.array_equal(f.image, p.image) for (f, _), p in zip(a, plain, strict=True))
     assert all(p.truth is None for p in plain)
     tr = a[3][0].truth
     assert isinstance(tr, GroundTruth) and tr.latency_us == 1_000 and tr.readout_us == 1_000

@@ -26,7 +26,7 @@ def test_skill_on_a_hand_made_sequence():
     m = [1.0, 1.125, NAN, 1.375, 1.5, 1.625]
     e = [NAN, 0.0625, NAN, -0.03125, 0.015625, 0.0]  # P-TEDI's errors
     tr = SkillTracker()
-    out = [tr.update(mi, ei, ti) for mi, ei, ti in zip(m, e, t)]
+    out = [tr.update(mi, ei, ti) for mi, ei, ti in zip(m, e, t, strict=True)]
     pers = [o[0] for o in out]
     # persistence: the last usable frame (frame 3, after the unusable frame 2, is predicted by frame 1)
     np.testing.assert_array_equal(pers[1:], [-0.125, NAN, -0.25, -0.125, -0.125])

@@ -81,7 +81,7 @@ def brute_log_e(ev, s, e, zflat, k, p=PARAMS):
     bps = np.unique(np.concatenate([[s, e], inside] + kinks))
     bps = bps[(bps >= s) & (bps <= e)]
     total = np.zeros(k)
-    for t0, t1 in zip(bps[:-1], bps[1:]):
+    for t0, t1 in zip(bps[:-1], bps[1:], strict=True):
         ev0 = ev[(t >= s) & (t <= t0)]  # what has happened on (t0, t1)
         y0 = zone_means(per_pixel_d(ev0, s, t0, t0 - s, p), zflat, k)
         y1 = zone_means(per_pixel_d(ev0, s, t1, t1 - s, p), zflat, k)

@@ -41,7 +41,7 @@ def _lanes_stream(seed: int, delay_us: int):
     out, pos = [], 0
     cuts = np.searchsorted(ev["t"], times, side="left")
     k = 0
-    for tc, cut in zip(times, cuts):
+    for tc, cut in zip(times, cuts, strict=True):
         if cut > pos:
             out.append((None, ev[pos:cut]))
             pos = cut

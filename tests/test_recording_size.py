@@ -40,7 +40,7 @@ def images(path, entity: str) -> list[tuple[int, bytes]]:
         rb = ch.to_record_batch()
         if str(ch.entity_path).lstrip("/") == entity and "EncodedImage:blob" in rb.schema.names:
             t = rb.column("t").cast(pa.int64()).to_pylist()
-            for ti, blob in zip(t, rb.column("EncodedImage:blob").to_pylist()):
+            for ti, blob in zip(t, rb.column("EncodedImage:blob").to_pylist(), strict=True):
                 out.append((ti, bytes(bytearray(blob[0] if isinstance(blob[0], list) else blob))))
     return sorted(out, key=lambda r: r[0])
 
@@ -113,7 +113,7 @@ def test_every_logged_event_image_decodes_to_exactly_the_rendered_colours(demo):
     path, _, rendered = demo
     logged = images(path, S.EVENTS)
     assert len(logged) == len(rendered) >= DURATION_S * 30 - 1  # one image per 33 ms window, none skipped
-    for (_, blob), rgb in zip(logged, rendered):
+    for (_, blob), rgb in zip(logged, rendered, strict=True):
         assert blob[:8] == b"\x89PNG\r\n\x1a\n"
         decoded = cv2.cvtColor(cv2.imdecode(np.frombuffer(blob, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
         assert np.array_equal(decoded, rgb)
@@ -142,7 +142,7 @@ def test_logged_frames_keep_their_ssim_and_beat_the_standard_table_at_equal_byte
         std = [cv2.imencode(".jpg", s, opts)[1] for s, _ in blobs]
         if np.mean([len(b) for b in std]) >= ours:
             break
-    std_ssim = np.mean([ssim(s, cv2.imdecode(b, cv2.IMREAD_GRAYSCALE)) for (s, _), b in zip(blobs, std)])
+    std_ssim = np.mean([ssim(s, cv2.imdecode(b, cv2.IMREAD_GRAYSCALE)) for (s, _), b in zip(blobs, std, strict=True)])
     assert scores.mean() > std_ssim
 
 

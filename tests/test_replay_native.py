@@ -75,7 +75,7 @@ def test_round_trip_every_packet_type(tmp_path):
     assert r.properties == {"scene": "step", "seed": 3}
     out = list(r)
     assert len(out) == len(packets)
-    for a, b in zip(out, packets):
+    for a, b in zip(out, packets, strict=True):
         _same(a, b)
     assert r.warnings == []
     assert r.commands == [CommandRecord(1000, 2500.0, 2.0, 21_000), CommandRecord(2000, 3000.0, 1.0, None)]

@@ -88,7 +88,7 @@ def test_light_changing_during_the_exposure_is_averaged(crf):
     )
     f0 = frames_of(cam)[0]
     assert (f0.exposure_start_us, f0.exposure_end_us) == (1_000, 5_000)
-    log_h = np.log((np.exp(_field()) * (1 + math.exp(3.0)) / 2)) + math.log(4_000 / 1e6)
+    log_h = np.log(np.exp(_field()) * (1 + math.exp(3.0)) / 2) + math.log(4_000 / 1e6)
     expected = np.clip(np.rint(crf.intensity(log_h)), 0, 255)
     assert np.max(np.abs(f0.image.astype(int) - expected)) <= 1
 
@@ -176,10 +176,10 @@ def test_same_seed_same_output_different_seed_different_noise():
         ]
 
     a, b, c = run(1), run(1), run(2)
-    assert len(a) == len(b) and all(np.array_equal(x, y) for x, y in zip(a, b))
+    assert len(a) == len(b) and all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
     fa = [x for x in a if x.dtype == np.uint8]
     fc = [x for x in c if x.dtype == np.uint8]
-    assert any(not np.array_equal(x, y) for x, y in zip(fa, fc))
+    assert any(not np.array_equal(x, y) for x, y in zip(fa, fc, strict=True))
 
 
 @pytest.mark.parametrize(

@@ -1,6 +1,7 @@
 """Scenario presets of the simulator (drivers/sim/scenes/)."""
 
 import re
+from itertools import pairwise
 from pathlib import Path
 
 import cv2
@@ -146,7 +147,7 @@ def test_tunnel_max_log_rate_bounds_transition():
     s = make_scenario("tunnel_exit", seed=0, speed_kmh=0.0, portal_frac=0.0)
     t0 = 0.4 * s.duration_us - 20_000
     imgs = [s.log_irradiance(t0 + k * 1000) for k in range(41)]
-    observed = max(np.abs(b - a).max() / 1000 for a, b in zip(imgs, imgs[1:]))
+    observed = max(np.abs(b - a).max() / 1000 for a, b in pairwise(imgs))
     assert observed > 0
     assert s.max_log_rate(t0, t0 + 40_000) >= observed
     assert s.max_log_rate(0, 1000) < observed / 100
@@ -249,7 +250,7 @@ def test_static_lab_default_steps_avoid_the_frame_clock(duration_us, seed):
     first, period, _ = default_frame_clock()
     d = s.duration_us
     assert [c.delta_log for c in s.changes] == [db_to_log(x) for x in (20, -40, 60, -40)]
-    for c, frac in zip(s.changes, (0.2, 0.4, 0.6, 0.8)):
+    for c, frac in zip(s.changes, (0.2, 0.4, 0.6, 0.8), strict=True):
         assert not meets_frame_clock(c.t_us, c.t_us + s.ramp_us, d), c
         assert (c.t_us - first) % period == period // 2  # half-way between two exposure starts
         assert 0 <= c.t_us - frac * d < period  # the first such point at or after the nominal fraction
@@ -299,13 +300,13 @@ def test_static_lab_jitter_moves_changes_within_the_bound():
 def test_change_jitter_other_presets(name):
     ref = make_scenario(name, sensor=DAVIS240, seed=3, change_jitter_ms=0)
     jit = make_scenario(name, sensor=DAVIS240, seed=3, change_jitter_ms=5)
-    shift = [a.t_us - b.t_us for a, b in zip(jit.changes, ref.changes)]
+    shift = [a.t_us - b.t_us for a, b in zip(jit.changes, ref.changes, strict=True)]
     assert len(shift) == len(ref.changes) >= 1
     assert all(abs(x) <= 5000 for x in shift) and any(x != 0 for x in shift)
     assert jit.params == {**ref.params, "change_jitter_ms": 5.0}
     default = make_scenario(name, sensor=DAVIS240, seed=3)  # half a frame interval either way
     assert default.changes == make_scenario(name, sensor=DAVIS240, seed=3, change_jitter_ms=10).changes
-    assert all(abs(a.t_us - b.t_us) <= 10_000 for a, b in zip(default.changes, ref.changes))
+    assert all(abs(a.t_us - b.t_us) <= 10_000 for a, b in zip(default.changes, ref.changes, strict=True))
 
 
 def test_change_jitter_handheld_scan_and_errors():

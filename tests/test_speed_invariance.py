@@ -225,7 +225,7 @@ def test_single_zone_compensated_kernel_equals_the_general_one(monkeypatch, kw):
     assert est._hist.shape[3] > 64  # the histograms had to grow mid-batch
     assert est._kk[0].sum() > 0  # some pixels were compensated
     assert got == want  # every FrameEstimate and prediction, exactly (repr: every float to the last bit)
-    for a, b in zip(state_got, state_want):
+    for a, b in zip(state_got, state_want, strict=True):
         assert np.array_equal(a, b)
 
 

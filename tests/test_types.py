@@ -61,7 +61,7 @@ def test_validate_rejects_wrong_dtype():
 )
 def test_sorted_on_sensor_events_always_validate(rows):
     rows.sort(key=lambda r: r[0])
-    t, x, y, p = (list(c) for c in zip(*rows)) if rows else ([], [], [], [])
+    t, x, y, p = (list(c) for c in zip(*rows, strict=True)) if rows else ([], [], [], [])
     ev = make_events(t, x, y, p, DAVIS346)
     assert ev.size == len(rows)
 

@@ -347,7 +347,7 @@ class DavisDevice:
             (D.MODULE, D.EXTERNAL_AER_CONTROL, 0),
         ]
         if self.capabilities["dvs_pixel_filter"]:
-            for r, c in zip(D.FILTER_PIXEL_ROW, D.FILTER_PIXEL_COLUMN):
+            for r, c in zip(D.FILTER_PIXEL_ROW, D.FILTER_PIXEL_COLUMN, strict=True):
                 entries += [(D.MODULE, r, h), (D.MODULE, c, w)]  # out of range = disabled
         if self.capabilities["dvs_background_activity_filter"]:
             entries += [

@@ -414,7 +414,7 @@ class Clocks:
     usb_mhz: float
 
     @classmethod
-    def from_registers(cls, logic: int, adc: int, usb: int, deviation: int) -> "Clocks":
+    def from_registers(cls, logic: int, adc: int, usb: int, deviation: int) -> Clocks:
         d = (deviation or 1000) / 1000.0
         return cls(logic * d, adc * d, usb * d)
 

@@ -216,8 +216,8 @@ class Aedat2Recording(Recording):
                 if stop < n:
                     yield from asm.drain(None)
                     raise self.error(
-                        "timestamp jumps from %d to %d µs (garbage or damaged data)"
-                        % (int(raw[stop - 1] if stop else prev), int(raw[stop])),
+                        f"timestamp jumps from {int(raw[stop - 1] if stop else prev)} to {int(raw[stop])} µs"
+                        " (garbage or damaged data)",
                         self._data_start + 8 * (start + stop),
                     )
                 watermark = asm.holdback_watermark(lag)

@@ -119,7 +119,7 @@ class Recorder:
             "version": VERSION,
             "sensor": {"width": sensor.width, "height": sensor.height, "name": sensor.name},
             "properties": dict(properties or {}),
-            "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            "created_utc": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
         }
         try:
             payload = json.dumps(header, default=str).encode()
@@ -479,7 +479,7 @@ class NativeRecording(Recording):
         index = self.scan()
         # last events chunk starting at or before start_us (events before it are all earlier)
         best = 0
-        for i, (off, kind, length, t) in enumerate(index):
+        for i, (_off, kind, _length, t) in enumerate(index):
             if kind == EVENTS and t <= self.start_us:
                 best = i
             elif kind == EVENTS and t > self.start_us:

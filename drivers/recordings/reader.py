@@ -26,6 +26,7 @@ import zlib
 from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
+from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
@@ -434,7 +435,7 @@ class Recording:
         if text not in self.warnings:
             self.warnings.append(text)
 
-    def _assembled(self, asm: "StreamAssembler", feed: Iterator) -> Iterator:
+    def _assembled(self, asm: StreamAssembler, feed: Iterator) -> Iterator:
         """Run ``feed`` (a generator that pushes into ``asm`` and yields its drains), then the rest
         of ``asm``. ``asm`` becomes ``self._asm``: on damage :meth:`__iter__` delivers what it holds
         before the error, and its warnings become the recording's."""
@@ -660,7 +661,7 @@ class StreamAssembler:
         ev, self._ev = self._split(self._ev, watermark, EVENT_DTYPE)
         self._ev_n = sum(a.size for a in self._ev)
         for name, lst in (("_imu", self._imu), ("_trg", self._trg)):
-            if len(lst) > 1 and any(b["t"][0] < a["t"][-1] for a, b in zip(lst, lst[1:])):
+            if len(lst) > 1 and any(b["t"][0] < a["t"][-1] for a, b in pairwise(lst)):
                 arr = np.concatenate(lst)
                 setattr(self, name, [arr[np.argsort(arr["t"], kind="stable")]])
         imu, self._imu = self._split(self._imu, watermark, IMU_DTYPE)
@@ -727,7 +728,7 @@ class StreamAssembler:
             idx = idx[(idx >= 0) & (idx < ev.size)]
             bounds = np.append(idx, ev.size)
             # refine bins that still exceed max_batch
-            for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist()):
+            for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True):
                 for c in range(a, b, self.max_batch):
                     chunk = ev[c : min(b, c + self.max_batch)]
                     items.append((int(chunk["t"][0]), 3, EventBatch(chunk)))
@@ -735,7 +736,7 @@ class StreamAssembler:
             if arr.size:
                 b = arr["t"] // self.batch_us
                 idx = np.concatenate([[0], np.flatnonzero(np.diff(b)) + 1, [arr.size]])
-                for a, c in zip(idx[:-1].tolist(), idx[1:].tolist()):
+                for a, c in zip(idx[:-1].tolist(), idx[1:].tolist(), strict=True):
                     items.append((int(arr["t"][a]), order, cls(np.ascontiguousarray(arr[a:c]))))
         items.sort(key=lambda it: (it[0], it[1]))
         for _, _, pkt in items:

@@ -216,7 +216,7 @@ class RpgTextRecording(Recording):
         self.imu_path = folder / "imu.txt"
         self._frames: list[tuple[int, Path]] = []
         if self.images_path.is_file():
-            for off, rows in self._image_lines():
+            for _off, rows in self._image_lines():
                 self._frames.append(rows)
         first_img = _imread(self._frames[0][1]) if self._frames else None
         if self.sensor is None and first_img is not None:
@@ -311,7 +311,7 @@ class RpgTextRecording(Recording):
         fi = 0
         imu_iter = self._imu_blocks()
         imu_next = next(imu_iter, None)
-        for off, rows in numeric_blocks(self, self.events_path, 4, self._seek(), valid=_valid_events):
+        for _off, rows in numeric_blocks(self, self.events_path, 4, self._seek(), valid=_valid_events):
             if rows.shape[0] == 0:
                 continue
             ev = events_from_seconds(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3])

@@ -135,7 +135,7 @@ class DvsParams:
             )
 
     @classmethod
-    def ideal(cls, c_on: float = 0.26, c_off: float = 0.24, **overrides) -> "DvsParams":
+    def ideal(cls, c_on: float = 0.26, c_off: float = 0.24, **overrides) -> DvsParams:
         """ESIM's ideal sensor: no mismatch, no low-pass, no noise, no refractory period, no ceiling."""
         base = dict(
             c_on=c_on,
@@ -151,7 +151,7 @@ class DvsParams:
         base.update(overrides)
         return cls(**base)
 
-    def replace(self, **changes) -> "DvsParams":
+    def replace(self, **changes) -> DvsParams:
         return replace(self, **changes)
 
     def as_dict(self) -> dict:

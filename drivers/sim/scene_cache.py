@@ -152,7 +152,7 @@ class SceneCache:
                 size, used = 0, 0.0
             entries.append((used, size, d))
         total = sum(s for _, s, _ in entries)
-        for used, size, d in sorted(entries):
+        for _used, size, d in sorted(entries):
             if total <= self.max_bytes:
                 break
             if d == keep:

@@ -451,7 +451,7 @@ def calibrate_collected(
     knee = slow_rate if any(f"a_{p}" in fit and f"b_{p}" in fit for p in ("on", "off")) else 0.0
     limit = None if max_event_rate is None else 0.9 * float(max_event_rate)
     saturated = [limit is not None and pr.bus_peak_rate >= limit for pr in pairs]
-    complete = [pr for pr, sat in zip(pairs, saturated) if not sat]
+    complete = [pr for pr, sat in zip(pairs, saturated, strict=True) if not sat]
     robust = f", loss {loss}" + (f" (f_scale {f_scale:g} ln)" if loss != "linear" else "")
     knee_text = f", knee b/a >= {knee:g} ev/s per pixel" if knee else ""
     if c_names and comp_names and len(complete) >= 3:
@@ -508,7 +508,7 @@ def calibrate_collected(
         }
     groups["max_event_rate"] = max_event_rate
     per_pair = []
-    for pr, rb, ra, sat in zip(pairs, r_before, r_after, saturated):
+    for pr, rb, ra, sat in zip(pairs, r_before, r_after, saturated, strict=True):
         per_pair.append(
             {
                 **pr.stats(),

@@ -93,7 +93,7 @@ def _fit(pairs, saturated, crf, plan: FitPlan, progress) -> TediParams:
 
 def _fit_stages(pairs, saturated, crf, plan: FitPlan, progress) -> TediParams:
     init, c_names, comp_names, solver = plan.init, plan.c_names, plan.comp_names, plan.solver
-    complete = [pr for pr, sat in zip(pairs, saturated) if not sat]
+    complete = [pr for pr, sat in zip(pairs, saturated, strict=True) if not sat]
     if c_names and comp_names and len(complete) >= 3:
         s1 = fit_tedi_pairs(
             complete, crf, replace(solver, init=TediParams(init.c_on, init.c_off), fit=c_names), progress

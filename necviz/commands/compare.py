@@ -235,7 +235,7 @@ def print_table(result: dict, out) -> None:
         file=out,
     )
     for n, r in table.items():
-        c = lambda k: r.get(k + "_ci95")  # noqa: E731
+        c = lambda k, r=r: r.get(k + "_ci95")  # noqa: E731
         ped = r.get("pedestrian_valid_fraction")
         print(
             f"{n:{w}s} {_fmt(r['frames'], digits=0):>6s} {_fmt(r['saturated_frames_50'], c('saturated_frames_50')):>12s} "
@@ -257,7 +257,7 @@ def print_table(result: dict, out) -> None:
             file=out,
         )
         for n, r in table.items():
-            c = lambda k: r.get(k + "_ci95")  # noqa: E731
+            c = lambda k, r=r: r.get(k + "_ci95")  # noqa: E731
             print(
                 f"  {n:{w}s} rate {_fmt(r.get('marker_detection_rate'), c('marker_detection_rate'), 3)}, "
                 f"latency {_fmt(r.get('marker_latency_ms'), c('marker_latency_ms'))} ms, "

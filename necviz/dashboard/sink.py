@@ -627,7 +627,7 @@ class RerunSink(Observer):
         rows = self._images.pop(entity, None)
         self._image_bytes.pop(entity, None)
         if rows:
-            t, seq, blobs = zip(*rows)
+            t, seq, blobs = zip(*rows, strict=True)
             self.rec.send_columns(
                 entity,
                 indexes=self._index(t, seq),
@@ -651,7 +651,7 @@ class RerunSink(Observer):
             self.rec.send_columns(p, indexes=self._index(t, seq), columns=rr.Scalars.columns(scalars=values))
             self.stats["scalars"] += len(pts)
         for entity in [e for e, rows in self._texts.items() if len(rows) >= min_rows]:
-            t, seq, msgs, levels = zip(*self._texts.pop(entity))
+            t, seq, msgs, levels = zip(*self._texts.pop(entity), strict=True)
             self.rec.send_columns(
                 entity, indexes=self._index(t, seq), columns=rr.TextLog.columns(text=list(msgs), level=list(levels))
             )

@@ -161,7 +161,7 @@ class FrameTable:
         else:
             i = self._n % self.capacity
             self._len = min(self._len + 1, self.capacity)
-        for k, v in zip(_FIELDS, values):
+        for k, v in zip(_FIELDS, values, strict=True):
             self._cols[k][i] = v
         self._n += 1
 
@@ -524,7 +524,7 @@ class Telemetry:
     def __getitem__(self, lane: str) -> LaneTelemetry:
         return self.lanes[lane]
 
-    def attach(self, lanes, source=None) -> "Telemetry":
+    def attach(self, lanes, source=None) -> Telemetry:
         """Bind pipeline lanes (by name) and the source, for the diagnosis of saturated frames: each
         lane's controller (does it see events, its commands, its limits) and whether it drives its
         camera; the source's command latency and camera limits (its

@@ -190,7 +190,7 @@ class TuningConsole:
         self._closed = threading.Event()
         self._thread = threading.Thread(target=self._run, name="necviz-tuning", daemon=True)
 
-    def start(self) -> "TuningConsole":
+    def start(self) -> TuningConsole:
         self._thread.start()
         return self
 
@@ -270,7 +270,7 @@ class TuningFile:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="necviz-tune-file", daemon=True)
 
-    def start(self) -> "TuningFile":
+    def start(self) -> TuningFile:
         self.check()  # the file's current content applies at once
         self._thread.start()
         return self

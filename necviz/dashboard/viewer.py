@@ -352,7 +352,7 @@ def start_web_server(options: ViewerOptions) -> tuple[subprocess.Popen, str, str
 FILE_FLUSH_S = 2.0
 
 
-def file_batching() -> "rr.ChunkBatcherConfig":
+def file_batching() -> rr.ChunkBatcherConfig:
     """The chunk batcher for a recording that only goes to a file: a chunk per entity every 2 s (or 8 MiB).
 
     Rerun's file sink keeps an index entry for every chunk it writes (the .rrd footer), so with the

@@ -513,7 +513,7 @@ def _loop(plan, store, todo, res, client, nthreads, retries, stream, poll_s):
     futures = client.map(
         execute, task_list, key=[f"necviz-run-{r.hash}-{session}" for r in todo], pure=False, retries=0
     )  # one message for the whole grid, in grid order
-    tasks = {f.key: t for f, t in zip(futures, task_list)}
+    tasks = {f.key: t for f, t in zip(futures, task_list, strict=True)}
     progress = Progress(res.runs, res.skipped, stream)
     pending = {f.key: f for f in futures}
     with client.as_current():  # as_completed finds the client through the context

@@ -205,8 +205,8 @@ def _combinations(params, zipped, where: str, none_words: bool = False) -> list[
     if zips and len({len(v) for v in zips.values()}) > 1:
         lens = ", ".join(f"{k} has {len(v)}" for k, v in zips.items())
         raise SweepFileError(f"{where}.zip: lists must have equal lengths ({lens})")
-    zip_rows = [dict(zip(zips, vals)) for vals in zip(*zips.values())] if zips else [{}]
-    grid_rows = [dict(zip(grid, vals)) for vals in itertools.product(*grid.values())] if grid else [{}]
+    zip_rows = [dict(zip(zips, vals, strict=True)) for vals in zip(*zips.values(), strict=True)] if zips else [{}]
+    grid_rows = [dict(zip(grid, vals, strict=True)) for vals in itertools.product(*grid.values())] if grid else [{}]
     return [{**g, **z} for g in grid_rows for z in zip_rows]
 
 
@@ -439,7 +439,7 @@ def expand(data: dict, base: Path = Path("."), source: str = "sweep", text: str 
             )
         dur = _duration(s["duration_s"], f"{where}.duration_s") if "duration_s" in s else duration
         sim = {**top_sim, **_axis_values(s.get("sim", {}), f"{where}.sim", none_words=True)}
-        sim_rows = [dict(zip(sim, vals)) for vals in itertools.product(*sim.values())] if sim else [{}]
+        sim_rows = [dict(zip(sim, vals, strict=True)) for vals in itertools.product(*sim.values())] if sim else [{}]
         combos = _combinations(s.get("params"), s.get("zip"), where, none_words=True)
         if check:
             _check_scenario_params(preset, combos, where)

@@ -84,7 +84,7 @@ class Flicker(PresetScene):
         self.omega = 2 * math.pi * p["mains_hz"] / US
         self.changes = []
         state = 0.0
-        for i, t_us in enumerate(self.t_us):
+        for _i, t_us in enumerate(self.t_us):
             new = 0.0 if state else 1.0
             m0 = np.log(self.A * math.exp(state * self.s_log) + 1e-30)
             m1 = np.log(self.A * math.exp(new * self.s_log) + 1e-30)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import inspect
 import math
 from dataclasses import dataclass
+from itertools import pairwise
 from typing import Any
 
 import cv2
@@ -111,7 +112,7 @@ def params_table(params: dict[str, Param]) -> str:
     rows += [(f"``{k}``", p.default_cell(), p.range_cell(), p.doc) for k, p in params.items()]
     w = [max(len(r[i]) for r in rows) for i in range(3)]
     rule = "  ".join("=" * n for n in (*w, max(len(r[3]) for r in rows)))
-    line = lambda r: "  ".join(c.ljust(n) for c, n in zip(r[:3], w)) + "  " + r[3]
+    line = lambda r: "  ".join(c.ljust(n) for c, n in zip(r[:3], w, strict=True)) + "  " + r[3]
     return "\n".join([rule, line(rows[0]), rule, *(line(r) for r in rows[1:]), rule])
 
 
@@ -370,7 +371,7 @@ class PresetScene(Scene):
         if not isinstance(v, (list, tuple)):
             raise ParameterError(f"{self.name}: {key} must be a list of times in seconds, got {v!r}")
         out = [check_number(f"{key}[{i}]", x, 0.0, self.duration_s, where=self.name) for i, x in enumerate(v)]
-        if any(b <= a for a, b in zip(out, out[1:])):
+        if any(b <= a for a, b in pairwise(out)):
             raise ParameterError(f"{self.name}: {key} must be strictly increasing, got {out}")
         self.params[key] = out
         return out
@@ -418,7 +419,7 @@ class PresetScene(Scene):
                 f"{gaps.min() / 2e3:g} ms"
             )
         d = self._jitter_us(len(nominal_us))
-        return [min(max(t + float(x), 0.0), float(self.duration_us)) for t, x in zip(nominal_us, d)]
+        return [min(max(t + float(x), 0.0), float(self.duration_us)) for t, x in zip(nominal_us, d, strict=True)]
 
     # fiducial markers (COMMON_PARAMS["markers"]; .fiducials)
     def _paint_markers(self, tex: np.ndarray, places, cell: int, layer: str = "scene", first_id: int = 0) -> int:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from itertools import pairwise
 
 import cv2
 import numpy as np
@@ -89,9 +90,9 @@ class StaticLab(PresetScene):
         """The default steps in s and their times in µs (see the class docstring)."""
         D = self.duration_us
         t_us = [between_exposures_us(f * D) for f, _ in DEFAULT_STEPS]
-        if any(b <= a for a, b in zip(t_us, t_us[1:])) or t_us[-1] > D:
+        if any(b <= a for a, b in pairwise(t_us)) or t_us[-1] > D:
             t_us = [f * D for f, _ in DEFAULT_STEPS]
-        return [(t / US, lv) for t, (_, lv) in zip(t_us, DEFAULT_STEPS)], t_us
+        return [(t / US, lv) for t, (_, lv) in zip(t_us, DEFAULT_STEPS, strict=True)], t_us
 
     def _build(self) -> None:
         p, rng, sensor = self.params, self._rng, self.sensor
@@ -108,7 +109,7 @@ class StaticLab(PresetScene):
             ts = check_number(f"steps[{i}] time", st[0], 0.0, self.duration_s, where=self.name)
             lv = check_number(f"steps[{i}] level", st[1], -100.0, 100.0, where=self.name)
             clean.append((ts, lv))
-        if any(b[0] <= a[0] for a, b in zip(clean, clean[1:])):
+        if any(b[0] <= a[0] for a, b in pairwise(clean)):
             raise ParameterError(f"static_lab: step times must be strictly increasing, got {[s[0] for s in clean]}")
         p["steps"] = clean
         nominal_us = default_us if default_us is not None else [ts * US for ts, _ in clean]
@@ -136,7 +137,7 @@ class StaticLab(PresetScene):
         self.ramp_us = p["ramp_ms"] * 1e3
         self.changes = []
         prev = p["initial_db"]
-        for t_us, (_, lv) in zip(self.t_us, clean):
+        for t_us, (_, lv) in zip(self.t_us, clean, strict=True):
             self.changes.append(
                 LightingChange(int(round(t_us)), f"lights {prev:+g} -> {lv:+g} dB", db_to_log(lv - prev))
             )
@@ -145,7 +146,7 @@ class StaticLab(PresetScene):
     def level_db(self, t_us: float) -> float:
         """The light level (dB relative to ``base_log``) at ``t_us``."""
         lv = self.params["initial_db"]
-        for t0, (_, new) in zip(self.t_us, self.params["steps"]):
+        for t0, (_, new) in zip(self.t_us, self.params["steps"], strict=True):
             if t_us <= t0:
                 break
             x = 1.0 if self.ramp_us <= 0 else _smoothstep_scalar((t_us - t0) / self.ramp_us)
@@ -158,7 +159,7 @@ class StaticLab(PresetScene):
 
     def max_log_rate(self, t0_us: float, t1_us: float) -> float | None:
         rate, prev = 0.0, self.params["initial_db"]
-        for ts_us, (_, lv) in zip(self.t_us, self.params["steps"]):
+        for ts_us, (_, lv) in zip(self.t_us, self.params["steps"], strict=True):
             if t1_us >= ts_us and t0_us <= ts_us + self.ramp_us:
                 rate = max(rate, abs(db_to_log(lv - prev)) * 1.5 / max(self.ramp_us, 1.0))
             prev = lv

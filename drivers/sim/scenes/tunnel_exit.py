@@ -288,7 +288,7 @@ class TunnelExit(PresetScene):
         at integers: ``x = foe_x - 0.5 + f X / z``, as the corridor's rays)."""
         f = 0.75 * self.sensor.width
         out = []
-        for mk, ahead in zip(self.markers, self._sign_ahead):
+        for mk, ahead in zip(self.markers, self._sign_ahead, strict=True):
             z = ahead + self.v * (self.t_exit - t)
             if z > 1.0:
                 xy = mk.corners
