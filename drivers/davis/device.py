@@ -1,9 +1,9 @@
 """Open, configure, start and read a DAVIS camera over pyusb (real hardware or the emulator backend).
 
 :func:`find_devices` lists DAVIS FX3 (0x152A:0x841A) and FX2 (0x152A:0x841B) devices;
-:class:`DavisDevice` opens one, checks firmware (``bcdDevice & 0xFF``) and logic (SYSINFO 0 == 18,
-patch >= 1), reads sizes, clocks and capabilities, writes configuration (vendor requests 0xBF/0xC2)
-and runs the documented start/stop sequences (:mod:`.protocol`). :class:`BulkReader` reads the bulk
+:class:`DavisDevice` opens one, checks firmware (``bcdDevice & 0xFF``: older than required is refused,
+newer accepted with a note) and logic (SYSINFO 0 == 18, patch >= 1), reads sizes, clocks and
+capabilities, writes configuration (vendor requests 0xBF/0xC2) and runs the documented start/stop sequences (:mod:`.protocol`). :class:`BulkReader` reads the bulk
 endpoint 0x82 on a dedicated thread.
 
 Reading at full rate: the DAVIS346 peaks at about 12 Mev/s (~70 MB/s of words with frames). The
@@ -98,7 +98,8 @@ class DavisDevice:
     (DAVIS346/DAVIS240/chip name), ``firmware``, ``logic_version``, ``logic_patch``, ``chip_id``,
     ``is_master``, ``clocks`` (:class:`~.protocol.Clocks`, actual MHz), ``dvs_size``/``aps_size``
     ((width, height) pixels), ``dvs_orientation``, ``aps_orientation``, ``aps_color_filter``,
-    ``has_global_shutter``, ``imu_type``, ``imu_orientation``, ``capabilities`` (dict of flags).
+    ``has_global_shutter``, ``imu_type``, ``imu_orientation``, ``capabilities`` (dict of flags), ``notes``
+    (one-line remarks for the user, e.g. a firmware newer than required).
     """
 
     def __init__(self, dev, backend, emulated: bool = False):
@@ -112,6 +113,8 @@ class DavisDevice:
         self.kind = "DAVIS346" if dev.idProduct == P.PID_FX3 else "DAVIS240"
         self.closed = False
         self.running = False
+        #: one-line remarks about this camera worth showing the user (e.g. a firmware newer than required)
+        self.notes: list[str] = []
         try:
             try:
                 self._configure_usb()  # opens the device first: EACCES surfaces here
@@ -158,10 +161,14 @@ class DavisDevice:
 
     def _check_versions(self) -> None:
         need = P.REQUIRED_FIRMWARE.get(self.dev.idProduct)
-        if need is not None and self.firmware != need:
+        if need is not None and self.firmware < need:  # older only: see P.REQUIRED_FIRMWARE
             raise DeviceError(
-                f"{self.product} {self.serial} has firmware version {self.firmware}, this driver needs "
-                f"{need}: {P.FIRMWARE_REMEDY}"
+                f"{self.product} {self.serial} has firmware version {self.firmware}, older than the {need} "
+                f"this driver needs: {P.FIRMWARE_REMEDY}"
+            )
+        if need is not None and self.firmware > need:
+            self.notes.append(
+                f"firmware {self.firmware} is newer than the {need} libcaer requires; not yet tried with this driver"
             )
         self.logic_version = self.get(P.SYSINFO.MODULE, P.SYSINFO.LOGIC_VERSION)
         if self.logic_version != P.REQUIRED_LOGIC:
@@ -231,6 +238,7 @@ class DavisDevice:
             "bus": self.bus,
             "address": self.address,
             "emulated": self.emulated,
+            "notes": list(self.notes),
             "dvs_size": self.dvs_size,
             "aps_size": self.aps_size,
             "global_shutter": self.has_global_shutter,

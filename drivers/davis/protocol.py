@@ -20,7 +20,13 @@ VID = 0x152A
 PID_FX3 = 0x841A  #: DAVIS FX3 boards (DAVIS346)
 PID_FX2 = 0x841B  #: DAVIS FX2 boards (DAVIS240)
 PRODUCTS = {PID_FX3: "DAVIS FX3", PID_FX2: "DAVIS FX2"}
-#: required firmware version (``bcdDevice & 0xFF``) per product id
+#: Oldest firmware version (``bcdDevice & 0xFF``) per product id: libcaer's ``DAVIS_FX3_REQUIRED_FIRMWARE_VERSION``
+#: and ``DAVIS_FX2_REQUIRED_FIRMWARE_VERSION`` (``src/davis.h``). Older firmware is refused, newer is opened with a
+#: note. libcaer's ``usbDeviceOpen`` (``src/usb_utils.c``) refused only older firmware (``firmwareVersion <
+#: required``) until its commit e1c6065 (2018-09, "check for exact required firmware/logic versions"), and refuses
+#: any other version since (so does the libcaer inside dv-processing 2.0). necviz keeps the older rule for the
+#: firmware only: the FX3/FX2 firmware carries the two vendor requests and the bulk endpoint, while the register
+#: map and the word stream belong to the FPGA logic, which is still checked exactly (:data:`REQUIRED_LOGIC`).
 REQUIRED_FIRMWARE = {PID_FX3: 6, PID_FX2: 4}
 REQUIRED_LOGIC = 18  #: SYSINFO LOGIC_VERSION must equal this
 REQUIRED_LOGIC_PATCH = 1  #: SYSINFO LOGIC_PATCH must be at least this
