@@ -23,11 +23,12 @@ from necviz.drivers.davis.device import (
     usb_backend,
 )
 from necviz.drivers.davis.device_errors import DeviceDisconnectedError, DeviceError, DeviceNotFoundError
-from necviz.drivers.davis.emulator import ControlRecord, EmulatedDavis346, EmulatorOptions, Faults
+from necviz.drivers.davis.emulator import CameraVariant, ControlRecord, EmulatedDavis346, EmulatorOptions, Faults
 from necviz.drivers.davis.encoder import FrameTiming, StreamEncoder, cds_pair
 
 __all__ = [
     "BulkReader",
+    "CameraVariant",
     "CameraOptions",
     "ControlRecord",
     "DIGITAL_GAIN_MAX",

@@ -82,6 +82,30 @@ class Faults:
 
 
 @dataclass(frozen=True)
+class CameraVariant:
+    """What differs between real DAVIS cameras and their logic, for the emulator to present (the driver reads
+    every one of these from the device's registers or its word stream, as libcaer does).
+
+    Parameters
+    ----------
+    chip_id : int
+        SYSINFO CHIP_IDENTIFIER (:data:`~.protocol.CHIP_NAMES`; default 5, DAVIS346B). A DAVIS240 id makes the
+        driver write the DAVIS240 bias table.
+
+    Raises
+    ------
+    ParameterError
+        An unknown chip identifier.
+    """
+
+    chip_id: int = 5
+
+    def __post_init__(self) -> None:
+        if self.chip_id not in P.CHIP_NAMES:
+            raise ParameterError(f"unknown DAVIS chip identifier {self.chip_id!r}; known: {sorted(P.CHIP_NAMES)}")
+
+
+@dataclass(frozen=True)
 class EmulatorOptions:
     """Settings of the virtual DAVIS346: its scene, its pacing and its identity (validated here, once).
 
@@ -111,6 +135,9 @@ class EmulatorOptions:
         Serial-number string (at most 8 characters).
     aps_orientation : int
         Value of the APS ORIENTATION_INFO register (readout order of frames; the low 3 bits).
+    variant : CameraVariant
+        The chip and the stream layout the camera presents (default: a DAVIS346B as the FPGA source
+        describes it).
     bus, address : int
         Where pyusb reports the device.
 
@@ -133,6 +160,7 @@ class EmulatorOptions:
     sensor: SensorGeometry = DAVIS346
     serial: str = EMULATED_SERIAL
     aps_orientation: int = 0
+    variant: CameraVariant = CameraVariant()
     bus: int = 0
     address: int = 1
 
@@ -200,6 +228,7 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         self.sensor = o.sensor
         self.serial = o.serial
         self.aps_orientation = o.aps_orientation
+        self.variant = o.variant
         self.bus, self.address = o.bus, o.address
         self.lock = threading.RLock()  # registers, FIFO and faults (control and data paths)
         self._data_lock = threading.Lock()  # the simulator (non-realtime data path): not held by control transfers
@@ -226,7 +255,7 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         f = self.faults
         self.regs: dict[tuple[int, int], int] = {
             (P.SYSINFO.MODULE, P.SYSINFO.LOGIC_VERSION): f.logic,
-            (P.SYSINFO.MODULE, P.SYSINFO.CHIP_IDENTIFIER): 5,  # DAVIS346B
+            (P.SYSINFO.MODULE, P.SYSINFO.CHIP_IDENTIFIER): self.variant.chip_id,
             (P.SYSINFO.MODULE, P.SYSINFO.DEVICE_IS_MASTER): 1,
             (P.SYSINFO.MODULE, P.SYSINFO.LOGIC_CLOCK): logic,
             (P.SYSINFO.MODULE, P.SYSINFO.ADC_CLOCK): adc,
@@ -275,6 +304,11 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         self._next_imu_us = 0
         self._wall_start = None
         self._halted = False
+
+    @property
+    def _adc_shift(self) -> int:
+        """The decoder doubles a DAVIS240's samples (libcaer's ``davisCommonEventTranslator``): encode half."""
+        return 1 if self.variant.chip_id in P.DAVIS240_CHIPS else 0
 
     @property
     def adc_mhz(self) -> float:
@@ -353,6 +387,7 @@ def find_emulated(backend: EmulatedDavis346):
 
 
 __all__ = [
+    "CameraVariant",
     "EmulatedDavis346",
     "EmulatorOptions",
     "Faults",

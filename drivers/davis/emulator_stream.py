@@ -214,7 +214,7 @@ class DataPathMixin:
                     self._put(enc.special(t, EXPOSURE_END))
             elif isinstance(pk, Frame) and self._frame_open:
                 c0, r0, c1, r1 = self._frame_roi
-                _, signal = cds_pair(pk.image[r0 : r1 + 1, c0 : c1 + 1])
+                _, signal = cds_pair(pk.image[r0 : r1 + 1, c0 : c1 + 1], adc_shift=self._adc_shift)
                 self._put(enc.readout(signal, True))
                 self._put(enc.special(self._dev_t(self._rig.now_us), FRAME_END))
                 self._frame_open = False

@@ -282,11 +282,13 @@ class StreamEncoder:
         return np.concatenate([self.time(t_us), _u16(words)])
 
 
-def cds_pair(z8: np.ndarray, reset_level: int = 1023) -> tuple[np.ndarray, np.ndarray]:
-    """Reset and signal samples whose CDS decodes to ``z8``: ``reset - signal = 4 Z8 + 1``.
+def cds_pair(z8: np.ndarray, reset_level: int = 1023, adc_shift: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Reset and signal samples whose CDS decodes to ``z8``: ``reset - signal = (4 Z8 + 1) >> adc_shift``.
 
-    With ``reset_level`` >= 1021 every Z8 in 0..255 gives a signal >= 1, so no sample reads as saturated.
+    ``adc_shift`` is the decoder's left shift of the samples (1 on a DAVIS240, whose samples libcaer
+    doubles), so the decoded 10-bit value is ``4 Z8 + 1`` or ``4 Z8`` and ``>> 2`` gives ``Z8`` back. With
+    ``reset_level`` >= 1021 every Z8 in 0..255 gives a signal >= 1, so no sample reads as saturated.
     """
     z = np.asarray(z8, np.int64)
     reset = np.full(z.shape, int(reset_level), np.int64)
-    return reset, reset - (4 * z + 1)
+    return reset, reset - ((4 * z + 1) >> int(adc_shift))

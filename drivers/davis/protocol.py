@@ -305,15 +305,20 @@ DAVIS346_CHIP_CONFIG = {
     144: 0,
 }
 
-#: DAVIS240 biases (old 22-branch generator). No DAVIS240 defaults were taken from libcaer: these reuse the
-#: DAVIS346 settings of the same-named branches; APSCASEPC, DIFFCASBNC and APSOVERFLOWLEVELBN are
-#: mid-range guesses [inferred, unverified: check on hardware before relying on them].
+def _n_cas(c, f):
+    return coarse_fine(c, f, sex_n=True, type_normal=False)
+
+
+#: DAVIS240 biases (old 22-branch generator), parameter -> word: libcaer's defaults
+#: (``src/davis_common.h``, ``davisCommonSendDefaultChipConfig``, the ``IS_DAVIS240`` branch). Unlike the
+#: DAVIS346 table, OFFBN is (4, 0), PADFOLLBN is enabled, and APSCASEPC and DIFFCASBNC are cascode N-type
+#: (``typeNormal`` off).
 DAVIS240_BIASES = {
     0: _n(4, 39),  # DIFFBN
     1: _n(5, 255),  # ONBN
-    2: _n(4, 1),  # OFFBN
-    3: _n(5, 185),  # APSCASEPC (guess)
-    4: _n(5, 115),  # DIFFCASBNC (guess)
+    2: _n(4, 0),  # OFFBN
+    3: _n_cas(5, 185),  # APSCASEPC
+    4: _n_cas(5, 115),  # DIFFCASBNC
     5: _n(6, 219),  # APSROSFBN
     6: _n(5, 164),  # LOCALBUFBN
     7: _n(6, 144),  # PIXINVBN
@@ -326,12 +331,15 @@ DAVIS240_BIASES = {
     14: _p(7, 152),  # AEPUYBP
     15: _n(5, 255),  # IFTHRBN
     16: _n(5, 255),  # IFREFRBN
-    17: coarse_fine(7, 215, enabled=False),  # PADFOLLBN
-    18: _n(6, 253),  # APSOVERFLOWLEVELBN (guess)
+    17: _n(7, 215),  # PADFOLLBN
+    18: _n(6, 253),  # APSOVERFLOWLEVELBN
     19: _n(5, 254),  # BIASBUFFER
     20: shifted_source(1, 33),  # SSP
     21: shifted_source(1, 33),  # SSN
 }
+#: DAVIS240 chip configuration. libcaer's ``davisCommonSendDefaultChipConfig`` also writes
+#: SPECIALPIXELCONTROL (139) = 0, which its ``davisCommonConfigSet`` passes on for DAVIS240 A/B only
+#: (see :func:`default_chip_config`); SELECTGRAYCOUNTER (143) and TESTADC (144) do not exist on the DAVIS240.
 DAVIS240_CHIP_CONFIG = {
     128: 0,
     129: 0,
@@ -347,6 +355,8 @@ DAVIS240_CHIP_CONFIG = {
     140: 0,
     141: 0,
 }
+#: DAVIS240 A and B (chip ids 0, 1) have the special-pixel control bit.
+DAVIS240_SPECIAL_PIXEL_CHIPS = (0, 1)
 
 
 def default_biases(chip_id: int) -> dict[int, int]:
@@ -356,6 +366,8 @@ def default_biases(chip_id: int) -> dict[int, int]:
 
 def default_chip_config(chip_id: int) -> dict[int, int]:
     """Default chip-configuration words (module 5, params >= 128) for a chip identifier."""
+    if chip_id in DAVIS240_SPECIAL_PIXEL_CHIPS:
+        return {**DAVIS240_CHIP_CONFIG, 139: 0}  # SPECIALPIXELCONTROL off
     return dict(DAVIS240_CHIP_CONFIG if chip_id in DAVIS240_CHIPS else DAVIS346_CHIP_CONFIG)
 
 

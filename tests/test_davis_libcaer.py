@@ -1,0 +1,126 @@
+"""The DAVIS driver against libcaer's own tables and rules, checked on the emulated camera.
+
+Independent truth: the values below are written out here from libcaer's public source
+(github.com/inivation/libcaer, 3.3.9: ``src/davis_common.h`` ``davisCommonSendDefaultChipConfig`` for the
+bias tables, ``src/davis.c`` ``caerBiasCoarseFineGenerate`` / ``caerBiasShiftedSourceGenerate`` for the
+word layout), not imported from the driver; the words are encoded by the small functions of this file.
+"""
+
+import numpy as np
+import pytest
+
+from necviz.core.frames import Frame
+from necviz.core.sensor import SensorGeometry
+from necviz.drivers.davis import CameraOptions, CameraVariant, EmulatedDavis346, EmulatorOptions, open_camera
+
+SMALL = SensorGeometry(64, 48)
+
+
+def backend(**kw):
+    kw.setdefault("duration_s", 0.1)
+    kw.setdefault("sensor", SMALL)
+    return EmulatedDavis346(EmulatorOptions(**kw))
+
+
+def cf_word(kind: str, coarse: int, fine: int) -> int:
+    """libcaer's coarse/fine word: bit0 enabled, bit1 sexN, bit2 typeNormal, bit3 currentLevelNormal,
+    fine << 4, coarse << 12; kinds as libcaer's CF_N_TYPE, CF_P_TYPE, CF_N_TYPE_CAS, CF_N_TYPE_OFF."""
+    enabled, sex_n, type_normal = {
+        "N": (1, 1, 1),
+        "P": (1, 0, 1),
+        "NCAS": (1, 1, 0),
+        "NOFF": (0, 1, 1),
+    }[kind]
+    return enabled | sex_n << 1 | type_normal << 2 | 1 << 3 | fine << 4 | coarse << 12
+
+
+def ss_word(ref: int, reg: int) -> int:
+    """libcaer's shifted-source word in its default mode (SHIFTED_SOURCE, SPLIT_GATE): ref << 4 | reg << 10."""
+    return ref << 4 | reg << 10
+
+
+# libcaer davisCommonSendDefaultChipConfig, IS_DAVIS240 branch: parameter -> (kind, coarse, fine)
+LIBCAER_DAVIS240 = {
+    0: ("N", 4, 39),  # DIFFBN
+    1: ("N", 5, 255),  # ONBN
+    2: ("N", 4, 0),  # OFFBN
+    3: ("NCAS", 5, 185),  # APSCASEPC
+    4: ("NCAS", 5, 115),  # DIFFCASBNC
+    5: ("N", 6, 219),  # APSROSFBN
+    6: ("N", 5, 164),  # LOCALBUFBN
+    7: ("N", 6, 144),  # PIXINVBN
+    8: ("P", 2, 58),  # PRBP
+    9: ("P", 1, 16),  # PRSFBP
+    10: ("P", 4, 25),  # REFRBP
+    11: ("N", 6, 91),  # AEPDBN
+    12: ("N", 5, 49),  # LCOLTIMEOUTBN
+    13: ("P", 4, 80),  # AEPUXBP
+    14: ("P", 7, 152),  # AEPUYBP
+    15: ("N", 5, 255),  # IFTHRBN
+    16: ("N", 5, 255),  # IFREFRBN
+    17: ("N", 7, 215),  # PADFOLLBN
+    18: ("N", 6, 253),  # APSOVERFLOWLEVELBN
+    19: ("N", 5, 254),  # BIASBUFFER
+}
+
+
+@pytest.mark.parametrize("chip_id, special_pixel", [(2, False), (0, True)])
+def test_davis240_default_biases_are_libcaers(chip_id, special_pixel):
+    """The four words that differed (OFFBN, APSCASEPC, DIFFCASBNC, PADFOLLBN) now match too; DAVIS240 A/B also
+    get SPECIALPIXELCONTROL (139) = 0, which libcaer's davisCommonConfigSet passes on for those chips only."""
+    be = backend(variant=CameraVariant(chip_id=chip_id))
+    cam = open_camera("emulated", backend=be)
+    assert cam.device.kind == "DAVIS240"
+    want = {p: cf_word(*v) for p, v in LIBCAER_DAVIS240.items()} | {20: ss_word(1, 33), 21: ss_word(1, 33)}
+    written = {p: v for m, p, v in be.writes() if m == 5 and p < 128}
+    assert written == want
+    chip = {p: v for m, p, v in be.writes() if m == 5 and p >= 128}
+    assert (139 in chip) == special_pixel and chip.get(139, 0) == 0
+    assert not {143, 144} & set(chip)  # gray counter and ADC test exist on the newer chips only
+    cam.close()
+
+
+def test_davis240_frames_decode_with_libcaers_doubled_samples():
+    """libcaer doubles a DAVIS240's ADC samples (davisCommonEventTranslator); the emulated DAVIS240 encodes half,
+    so the decoded frames equal the ones of the same scene on a DAVIS346 id."""
+    got = {}
+    for chip_id in (5, 2):
+        cam = open_camera("emulated", backend=backend(seed=3, variant=CameraVariant(chip_id=chip_id)))
+        got[chip_id] = [p for p in cam if isinstance(p, Frame)]
+    assert len(got[2]) == len(got[5]) >= 3
+    for a, b in zip(got[2], got[5], strict=True):
+        assert np.array_equal(a.image, b.image)
+
+
+def test_davis346_default_biases_are_libcaers():
+    """The DAVIS346 table (libcaer's DAVIS128/208/346/640 branch), every word."""
+    table = {
+        8: ("N", 5, 164),
+        9: ("NOFF", 7, 215),
+        10: ("N", 4, 39),
+        11: ("N", 5, 255),
+        12: ("N", 4, 1),
+        13: ("N", 6, 144),
+        14: ("P", 2, 58),
+        15: ("P", 1, 16),
+        16: ("P", 4, 25),
+        17: ("P", 6, 20),
+        18: ("N", 6, 219),
+        19: ("P", 5, 20),
+        20: ("N", 0, 1),
+        21: ("P", 6, 60),
+        22: ("N", 5, 49),
+        23: ("N", 6, 91),
+        24: ("P", 4, 80),
+        25: ("P", 7, 152),
+        26: ("N", 5, 255),
+        27: ("N", 5, 255),
+        34: ("N", 5, 254),
+    }
+    vdac = {0: (27, 6), 1: (21, 6), 2: (32, 7), 3: (1, 7), 4: (21, 7)}  # (voltage, current): voltage | current << 6
+    want = {p: cf_word(*v) for p, v in table.items()} | {p: v | c << 6 for p, (v, c) in vdac.items()}
+    want |= {35: ss_word(1, 33), 36: ss_word(1, 33)}
+    be = backend()
+    cam = open_camera("emulated", backend=be, options=CameraOptions())
+    assert {p: v for m, p, v in be.writes() if m == 5 and p < 128} == want
+    cam.close()
