@@ -97,7 +97,7 @@ class DavisDevice:
     Attributes after opening: ``serial``, ``product`` ("DAVIS FX3"/"DAVIS FX2"), ``kind``
     (DAVIS346/DAVIS240/chip name), ``firmware``, ``logic_version``, ``logic_patch``, ``chip_id``,
     ``is_master``, ``clocks`` (:class:`~.protocol.Clocks`, actual MHz), ``dvs_size``/``aps_size``
-    ((width, height) pixels), ``dvs_orientation``, ``aps_orientation``, ``aps_color_filter``,
+    ((width, height) pixels in output coordinates: swapped when X/Y are inverted), ``dvs_orientation``, ``aps_orientation``, ``aps_color_filter``,
     ``has_global_shutter``, ``imu_type``, ``imu_orientation``, ``capabilities`` (dict of flags), ``notes``
     (one-line remarks for the user, e.g. a firmware newer than required).
     """
@@ -205,10 +205,15 @@ class DavisDevice:
         }
         self.aps_color_filter = g(A.MODULE, A.COLOR_FILTER)
         self.has_global_shutter = bool(g(A.MODULE, A.HAS_GLOBAL_SHUTTER))
-        self.dvs_size = (g(D.MODULE, D.SIZE_COLUMNS), g(D.MODULE, D.SIZE_ROWS))
+        # Sizes in output coordinates: with X/Y inverted (orientation bit 2) the row count is the width, as
+        # libcaer's populateDeviceInfo (src/davis.c) swaps dvsSizeX/Y and apsSizeX/Y; the decoder, the ROI and
+        # the pixel-filter registers then all speak output coordinates, as libcaer's do.
         self.dvs_orientation = g(D.MODULE, D.ORIENTATION_INFO)
-        self.aps_size = (g(A.MODULE, A.SIZE_COLUMNS), g(A.MODULE, A.SIZE_ROWS))
+        cols, rows = g(D.MODULE, D.SIZE_COLUMNS), g(D.MODULE, D.SIZE_ROWS)
+        self.dvs_size = (rows, cols) if self.dvs_orientation & 4 else (cols, rows)
         self.aps_orientation = g(A.MODULE, A.ORIENTATION_INFO)
+        cols, rows = g(A.MODULE, A.SIZE_COLUMNS), g(A.MODULE, A.SIZE_ROWS)
+        self.aps_size = (rows, cols) if self.aps_orientation & 4 else (cols, rows)
         self.imu_type = g(I.MODULE, I.TYPE)
         self.imu_orientation = g(I.MODULE, I.ORIENTATION_INFO)
         self.clocks = P.Clocks.from_registers(

@@ -91,6 +91,9 @@ class CameraVariant:
     chip_id : int
         SYSINFO CHIP_IDENTIFIER (:data:`~.protocol.CHIP_NAMES`; default 5, DAVIS346B). A DAVIS240 id makes the
         driver write the DAVIS240 bias table.
+    dvs_orientation : int
+        DVS ORIENTATION_INFO (bit 2: X/Y inverted, the row words carry x; the size registers then report the
+        sensor's width as its row count). The APS orientation is :attr:`EmulatorOptions.aps_orientation`.
 
     Raises
     ------
@@ -99,10 +102,12 @@ class CameraVariant:
     """
 
     chip_id: int = 5
+    dvs_orientation: int = 0
 
     def __post_init__(self) -> None:
         if self.chip_id not in P.CHIP_NAMES:
             raise ParameterError(f"unknown DAVIS chip identifier {self.chip_id!r}; known: {sorted(P.CHIP_NAMES)}")
+        object.__setattr__(self, "dvs_orientation", int(self.dvs_orientation) & 4)
 
 
 @dataclass(frozen=True)
@@ -262,11 +267,12 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
             (P.SYSINFO.MODULE, P.SYSINFO.USB_CLOCK): usb_clk,
             (P.SYSINFO.MODULE, P.SYSINFO.CLOCK_DEVIATION): dev,
             (P.SYSINFO.MODULE, P.SYSINFO.LOGIC_PATCH): f.logic_patch,
-            (P.DVS.MODULE, P.DVS.SIZE_COLUMNS): w,
-            (P.DVS.MODULE, P.DVS.SIZE_ROWS): h,
-            (P.DVS.MODULE, P.DVS.ORIENTATION_INFO): 0,
-            (P.APS.MODULE, P.APS.SIZE_COLUMNS): w,
-            (P.APS.MODULE, P.APS.SIZE_ROWS): h,
+            # size registers count the chip's columns and rows: swapped from the output size when X/Y are inverted
+            (P.DVS.MODULE, P.DVS.SIZE_COLUMNS): h if self.variant.dvs_orientation & 4 else w,
+            (P.DVS.MODULE, P.DVS.SIZE_ROWS): w if self.variant.dvs_orientation & 4 else h,
+            (P.DVS.MODULE, P.DVS.ORIENTATION_INFO): self.variant.dvs_orientation,
+            (P.APS.MODULE, P.APS.SIZE_COLUMNS): h if self.aps_orientation & 4 else w,
+            (P.APS.MODULE, P.APS.SIZE_ROWS): w if self.aps_orientation & 4 else h,
             (P.APS.MODULE, P.APS.ORIENTATION_INFO): self.aps_orientation,
             (P.APS.MODULE, P.APS.COLOR_FILTER): 0,
             (P.APS.MODULE, P.APS.HAS_GLOBAL_SHUTTER): 1,

@@ -82,7 +82,7 @@ class DataPathMixin:
             self._rig = SimRig(scene, {"camera": (exp_us, 1.0)}, aps=aps, seed=self.seed)
             self._gen = self._rig.packets()
         if self._encoder is None:  # streaming (re)starts: device time restarts at 0
-            self._encoder = StreamEncoder(self.aps_orientation)
+            self._encoder = StreamEncoder(self.aps_orientation, dvs_invert_xy=bool(self.variant.dvs_orientation & 4))
             self._base_us = self._rig.now_us
             self._pending += self._encoder.timestamp_reset().tobytes()
             self._frame_open = False

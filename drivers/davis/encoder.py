@@ -132,11 +132,14 @@ class StreamEncoder:
     ``aps_orientation`` (bit2 invertXY, bit1 flipX, bit0 flipY) sets the readout order of frame
     samples so that a decoder applying the same bits puts every pixel back where it was.
     ``always_y``: repeat the row word before every X word (a valid, less compact stream).
+    ``dvs_invert_xy``: DVS orientation bit 2 (the row word carries x and the column word y, libcaer's
+    ``dvs.invertXY``).
     """
 
-    def __init__(self, aps_orientation: int = 0, always_y: bool = False):
+    def __init__(self, aps_orientation: int = 0, always_y: bool = False, *, dvs_invert_xy: bool = False):
         self.aps_orientation = int(aps_orientation) & 7
         self.always_y = bool(always_y)
+        self.dvs_invert_xy = bool(dvs_invert_xy)
         self.state = np.array([0, 0, -1], np.int64)  # wrap base, current time, last row
 
     @property
@@ -179,6 +182,8 @@ class StreamEncoder:
         if int(t[0]) < self.now_us or (t.size > 1 and np.any(t[1:] < t[:-1])):
             raise ParameterError("events to encode must be time-sorted and not earlier than the encoder's time")
         x, y, p = (np.ascontiguousarray(ev[f]) for f in ("x", "y", "p"))
+        if self.dvs_invert_xy:  # the row word carries x
+            x, y = y, x
         if int(x.max()) > 0xFFF or int(y.max()) > 0xFFF:
             raise ParameterError("event addresses must fit in 12 bits")
         n = _encode_events(t, x, y, p, self.state.copy(), None, self.always_y)
