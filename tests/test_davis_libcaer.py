@@ -152,3 +152,28 @@ def test_orientation_bits_change_the_wire_format_not_the_output(dvs, aps):
     assert len(frames) == len(plain[1]) >= 3
     for a, b in zip(frames, plain[1], strict=True):
         assert np.array_equal(a.image, b.image)
+
+
+@pytest.mark.parametrize(
+    "layout, lost",
+    [
+        (dict(header="before"), 0),  # ROI and exposure value before the frame start
+        (dict(exposure_specials=False), 1),  # no exposure specials: the first frame teaches the decoder
+        (dict(header="before", exposure_specials=False), 1),
+    ],
+)
+def test_emulated_layouts_decode_to_the_same_frames(layout, lost):
+    """Each word layout a camera may send gives the frames of the default layout, as libcaer accepts them all
+    (apsEndFrame checks column counts only); without exposure specials the decoder places the exposure from
+    the readout and only the first frame (which taught it) is lost."""
+    from necviz.drivers.davis import StreamLayout
+
+    plain = stream(backend(seed=6))
+    cam = open_camera("emulated", backend=backend(seed=6, variant=CameraVariant(layout=StreamLayout(**layout))))
+    frames = [p for p in cam if isinstance(p, Frame)]
+    assert len(plain[1]) >= 4 and len(frames) == len(plain[1]) - lost
+    for a, b in zip(frames, plain[1][lost:], strict=True):
+        assert np.array_equal(a.image, b.image)
+        assert (a.exposure_start_us, a.exposure_end_us) == (b.exposure_start_us, b.exposure_end_us)
+    st = cam.stats
+    assert st["frames_dropped"] == 0 and st["frames_without_exposure"] == lost and st["skipped_words"] == 0

@@ -7,12 +7,16 @@ words once — its word-by-word rules (time, DVS, APS frames, IMU, triggers) are
 :class:`DavisDecoder` keeps its state between calls (so a stream split at any byte decodes exactly as
 the unsplit stream) and turns its output into packets in stream order (see :mod:`necviz.drivers.source`).
 
-Packets (:meth:`DavisDecoder.decode`): event batches are split only at exposure markers and frames
-(and at 65,536 events); IMU samples and triggers are gathered per call and delivered before the next
-marker/frame or after the call's events, so they never fragment event batches.
+Packets (:meth:`DavisDecoder.decode`): event batches are split only at exposure markers, frames and
+timestamp resets (and at 65,536 events); IMU samples and other triggers are gathered per call and
+delivered before the next marker/frame or after the call's events, so they never fragment event batches.
+
+Frames are accepted as libcaer's ``apsEndFrame`` (``src/davis_common.h``) accepts them: by their column
+counts alone; ROI and exposure-value words may come before or after the frame start.
 
 Exposure markers: special 14 (inside a frame) emits ``start``; special 15 emits ``end`` at its
-time. Markers and events together never go back in time, and an ``end`` is always after its
+time; a stream without these specials has its exposures placed by the decoder (see
+:mod:`.decoder_kernels`). Markers and events together never go back in time, and an ``end`` is always after its
 ``start``: when the end arrives within the µs its exposure started (a sub-µs exposure), its marker
 is due at start + 1 µs, which is later than the events that may still follow at the current µs, so
 it is held (the exposure is "pending") and emitted as soon as a timestamp or wrap word moves time
@@ -51,6 +55,7 @@ from necviz.drivers.davis.decoder_kernels import (
     S_LAST_Y,
     S_NEV,
     S_NMK,
+    S_NO_EXPOSURE,
     S_NOW,
     S_OFFSET,
     S_RTYPE,
@@ -58,6 +63,7 @@ from necviz.drivers.davis.decoder_kernels import (
     S_SKIPPED,
     S_TIME_REG,
     S_WORDS,
+    TRIG_RESET,
     decode_words,
 )
 
@@ -203,6 +209,7 @@ class DavisDecoder:
             "events": self.events,
             "frames": self.frames,
             "frames_dropped": int(st[S_FRAMES_DROPPED]),
+            "frames_without_exposure": int(st[S_NO_EXPOSURE]),
             "imu_samples": self.imu_samples,
             "imu_dropped": int(st[S_IMU_DROPPED]),
             "triggers": self.triggers,
@@ -263,10 +270,13 @@ class DavisDecoder:
     def _emit(self, out: list, ev: np.ndarray, mk: np.ndarray, imu_t, imu_v) -> None:
         """Packets of one kernel call in stream order.
 
-        Events are split only at exposure markers and frames. IMU samples and triggers do not split
-        event batches: they are gathered and delivered (each kind as one batch, in time order) right
-        before the next marker/frame, or after the call's last events — at most one transfer later
-        than the events around them. Consumers that ignore them see unfragmented event batches.
+        Events are split only at exposure markers, frames and timestamp resets. IMU samples and other
+        triggers do not split event batches: they are gathered and delivered (each kind as one batch, in
+        time order) right before the next marker/frame/reset, or after the call's last events — at most
+        one transfer later than the events around them. Consumers that ignore them see unfragmented event
+        batches. A timestamp reset is delivered alone, after everything decoded before it and before
+        anything after it: libcaer commits the packets before a reset and sends the reset in a container of
+        its own (``containerGenerationExecute``, ``src/container_generation.h``).
         """
         self.events += ev.size
         done = 0
@@ -295,14 +305,17 @@ class DavisDecoder:
                     imu_a = aux
                 imu_b = aux + 1
                 continue
-            if kind == MK_TRIGGER:
+            if kind == MK_TRIGGER and aux != TRIG_RESET:
                 trig.append((t, aux))
                 continue
             if at > done:
                 out.append(ev[done:at])
                 done = at
             flush_side()
-            if kind == MK_EXPOSURE_START:
+            if kind == MK_TRIGGER:  # a timestamp reset: alone, after everything before it (as libcaer commits it)
+                out.append(TriggerBatch(np.array([(t, aux)], TRIGGER_DTYPE)))
+                self.triggers += 1
+            elif kind == MK_EXPOSURE_START:
                 out.append(ExposureMarker(int(t), "start"))
             elif kind == MK_EXPOSURE_END:
                 out.append(ExposureMarker(int(t), "end"))

@@ -59,6 +59,7 @@ from necviz.core.sensor import DAVIS346, SensorGeometry
 from necviz.drivers.davis import protocol as P
 from necviz.drivers.davis.emulator_stream import EARLY_PACKET_US, FIFO_BYTES, DataPathMixin
 from necviz.drivers.davis.emulator_usb import ControlRecord, UsbInterfaceMixin, _usb_error
+from necviz.drivers.davis.encoder import StreamLayout
 
 #: clocks the emulated DAVIS346 reports: logic, ADC, USB (MHz) and the deviation (x1000)
 EMULATED_CLOCKS = (104, 30, 80, 1008)
@@ -94,6 +95,11 @@ class CameraVariant:
     dvs_orientation : int
         DVS ORIENTATION_INFO (bit 2: X/Y inverted, the row words carry x; the size registers then report the
         sensor's width as its row count). The APS orientation is :attr:`EmulatorOptions.aps_orientation`.
+    layout : StreamLayout
+        Where the frame header words go (after or before the frame start) and whether the exposure specials
+        are sent.
+    echo_offset_cycles : int
+        Added to the exposure each frame reports (an echo that differs from the register by a cycle or two).
 
     Raises
     ------
@@ -103,11 +109,14 @@ class CameraVariant:
 
     chip_id: int = 5
     dvs_orientation: int = 0
+    layout: StreamLayout = StreamLayout()
+    echo_offset_cycles: int = 0
 
     def __post_init__(self) -> None:
         if self.chip_id not in P.CHIP_NAMES:
             raise ParameterError(f"unknown DAVIS chip identifier {self.chip_id!r}; known: {sorted(P.CHIP_NAMES)}")
         object.__setattr__(self, "dvs_orientation", int(self.dvs_orientation) & 4)
+        object.__setattr__(self, "echo_offset_cycles", int(self.echo_offset_cycles))
 
 
 @dataclass(frozen=True)

@@ -305,6 +305,7 @@ DAVIS346_CHIP_CONFIG = {
     144: 0,
 }
 
+
 def _n_cas(c, f):
     return coarse_fine(c, f, sex_n=True, type_normal=False)
 
