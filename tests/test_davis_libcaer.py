@@ -177,3 +177,38 @@ def test_emulated_layouts_decode_to_the_same_frames(layout, lost):
         assert (a.exposure_start_us, a.exposure_end_us) == (b.exposure_start_us, b.exposure_end_us)
     st = cam.stats
     assert st["frames_dropped"] == 0 and st["frames_without_exposure"] == lost and st["skipped_words"] == 0
+
+
+@pytest.mark.parametrize("offset", [1, -2])
+def test_an_exposure_echo_off_by_a_cycle_still_applies_the_command_and_its_gain(offset):
+    """The frame's reported exposure (misc10, ADC cycles) need not equal the register; libcaer never compares
+    them (autoexposure.c only reads it). A command is applied at the first frame echoing its value within a
+    couple of cycles, and its digital gain reaches the frames from then on."""
+    be = backend(duration_s=0.3, variant=CameraVariant(echo_offset_cycles=offset))
+    cam = open_camera("emulated", backend=be, options=CameraOptions(exposure_us=4000))
+    frames = []
+    for p in cam:
+        if isinstance(p, Frame):
+            frames.append(p)
+            if len(frames) == 3:
+                cam.set_exposure("camera", 1500.0, gain=2.0)
+    (cmd,) = cam.commands()
+    assert cmd.applied_start_us is not None
+    after = [f for f in frames if f.exposure_start_us >= cmd.applied_start_us]
+    assert len(after) >= 3 and all(f.exposure_us == 1500 and f.gain == 2.0 for f in after)
+    assert all(f.gain == 1.0 for f in frames if f.exposure_start_us < cmd.applied_start_us)
+
+
+def test_command_log_matches_within_the_tolerance_and_prefers_the_newest():
+    from necviz.drivers.commands import CommandLog
+
+    log = CommandLog(2, 1e-3)
+    log.issue(100, 1000.0, 1.5, 30_240)
+    log.issue(200, 1001.0, 2.0, 30_270)
+    log.issue(300, 2000.0, 3.0, 60_480)
+    assert log.frame(250, 30_900) == 1.0  # matches nothing (630 cycles off): no command applied yet
+    assert log.frame(250, 30_268) == 2.0  # the newest issued before the start that matches (2 cycles off)
+    recs = log.records()
+    assert [r.applied_start_us for r in recs] == [None, 250, None]  # the older one was superseded
+    assert log.frame(320, 60_480 + 60) == 3.0  # 0.1 % of 60,480 cycles is 60
+    assert log.frame(400, 30_240) == 3.0  # no command waits any more: the gain stays
