@@ -770,3 +770,44 @@ def test_timestamp_reset_as_libcaer_drops_the_frame_in_progress_keeps_the_roi_an
     got = frames_of(packets)
     assert len(got) == 2 and dec.stats["frames_dropped"] == 1 and dec.stats["imu_dropped"] == 1
     assert np.array_equal(got[1].image, z) and got[1].exposure_start_us == 710 + 12
+
+
+# ---------------------------------------------------------------------------------------------
+# colour sensors: the Bayer mosaic demosaiced to grey as libcaer does
+# ---------------------------------------------------------------------------------------------
+#: libcaer's colorKeys (src/frame_utils.c): the channel of pixel (x, y) per filter, indexed (x & 1) << 1 | (y & 1)
+LIBCAER_COLOR_KEYS = {
+    1: "RGGB",  # RGBG: (0,0) R, (0,1) G2, (1,0) G1, (1,1) B
+    2: "GBRG",  # GRGB
+    3: "GRBG",  # GBGR
+    4: "BGGR",  # BGRG
+}
+
+
+@pytest.mark.parametrize("color_filter", [1, 2, 3, 4])
+@pytest.mark.parametrize("roi", [(0, 0, 11, 7), (3, 1, 10, 6)])
+def test_colour_mosaic_is_demosaiced_to_grey(color_filter, roi):
+    """A uniformly coloured scene seen through each Bayer layout (and through a ROI starting on an odd pixel,
+    which shifts the filter's phase as libcaer's caerFrameUtilsPixelColor does) decodes to the grey of that
+    colour, 0.299 R + 0.587 G + 0.114 B (the conversion OpenCV's Bayer-to-grey applies), not to a checkerboard
+    of the three channels."""
+    w, h = 12, 8
+    rgb = {"R": 800, "G": 400, "B": 120}  # 10-bit channel values of the scene
+    c0, r0, c1, r1 = roi
+    z10 = np.empty((r1 - r0 + 1, c1 - c0 + 1), np.int64)
+    for y in range(r0, r1 + 1):
+        for x in range(c0, c1 + 1):
+            z10[y - r0, x - c0] = rgb[LIBCAER_COLOR_KEYS[color_filter][(x & 1) << 1 | (y & 1)]]
+    reset = np.full(z10.shape, 1023)
+    enc = StreamEncoder()
+    words = np.concatenate([enc.timestamp_reset(), enc.frame(FrameTiming(0, 1, 2, 3), reset, reset - z10, roi)])
+    (f,) = frames_of(DavisDecoder(DecoderOptions(w, h, color_filter=color_filter)).decode(words))
+    grey8 = (0.299 * rgb["R"] + 0.587 * rgb["G"] + 0.114 * rgb["B"]) / 4
+    inside = f.image[r0 : r1 + 1, c0 : c1 + 1].astype(float)
+    assert np.all(np.abs(inside - grey8) <= 1.0), (inside.min(), inside.max(), grey8)
+    mask = np.ones((h, w), bool)
+    mask[r0 : r1 + 1, c0 : c1 + 1] = False
+    assert not f.image[mask].any()
+    # a grey sensor reading the same words keeps the mosaic
+    (g,) = frames_of(DavisDecoder(DecoderOptions(w, h)).decode(words))
+    assert np.array_equal(g.image[r0 : r1 + 1, c0 : c1 + 1], (z10 >> 2).astype(np.uint8))

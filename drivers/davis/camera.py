@@ -43,6 +43,7 @@ from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import SensorGeometry, known_event_rate_max
 from necviz.drivers.commands import CommandLog
 from necviz.drivers.davis import protocol as P
+from necviz.drivers.davis.color import COLOR_FILTERS
 from necviz.drivers.davis.decoder import DavisDecoder, DecoderOptions
 from necviz.drivers.davis.device import BulkReader, DavisDevice, open_device, usb_backend
 from necviz.drivers.davis.device_errors import DeviceDisconnectedError, DeviceError, DeviceNotFoundError
@@ -389,6 +390,7 @@ class DavisCamera:
             imu_orientation=d.imu_orientation,
             imu_model=d.imu_type,
             adc_shift=1 if d.kind == "DAVIS240" else 0,
+            color_filter=d.aps_color_filter if d.aps_color_filter in COLOR_FILTERS else 0,
         )
         self._decoder = DavisDecoder(fmt, time_offset_us=time_offset_us)
         self._reader = BulkReader(d, transfer_size=self.transfer_size, buffer_s=self.buffer_s)

@@ -38,6 +38,7 @@ from necviz.core.errors import ParameterError
 from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, ImuBatch, TriggerBatch
+from necviz.drivers.davis.color import COLOR_FILTERS, demosaic_to_gray8, is_bayer
 from necviz.drivers.davis.decoder_kernels import (
     MK_EXPOSURE_END,
     MK_EXPOSURE_START,
@@ -58,6 +59,7 @@ from necviz.drivers.davis.decoder_kernels import (
     S_NO_EXPOSURE,
     S_NOW,
     S_OFFSET,
+    S_ROI,
     S_RTYPE,
     S_SIZE,
     S_SKIPPED,
@@ -93,11 +95,14 @@ class DecoderOptions:
         1 (MPU6050/6150) or 2 (MPU9250): selects the temperature formula.
     adc_shift : int
         Left shift of the ADC samples (1 on DAVIS240, as libcaer doubles them).
+    color_filter : int
+        APS ``COLOR_FILTER`` (0 mono; 1..4 the Bayer layouts, whose frames are demosaiced to grey as
+        libcaer does, :mod:`.color`; 5..8 RGBW, left as they are).
 
     Raises
     ------
     ParameterError
-        An array size that is not an integer in 1..4096.
+        An array size that is not an integer in 1..4096, or an unknown colour filter.
     """
 
     width: int = 346
@@ -109,8 +114,11 @@ class DecoderOptions:
     imu_orientation: int = 0
     imu_model: int = 1
     adc_shift: int = 0
+    color_filter: int = 0
 
     def __post_init__(self) -> None:
+        if self.color_filter not in COLOR_FILTERS:
+            raise ParameterError(f"unknown APS colour filter {self.color_filter!r}; known: {sorted(COLOR_FILTERS)}")
         aps_width = self.width if self.aps_width is None else self.aps_width
         aps_height = self.height if self.aps_height is None else self.aps_height
         sizes = {"width": self.width, "height": self.height, "aps_width": aps_width, "aps_height": aps_height}
@@ -162,8 +170,9 @@ class DavisDecoder:
 
     :meth:`decode` accepts any bytes-like object; an odd trailing byte is kept for the next call.
     Frames come out as ``Frame(Z8, exposure_start_us, exposure_end_us, gain=1.0, sequence)`` with
-    ``Z8 = CDS10 >> 2`` in image coordinates (top-left origin); ``last_frame_exposure_cycles`` is
-    the exposure the device reported for the last frame (ADC cycles, -1 if absent).
+    ``Z8 = CDS10 >> 2`` (a colour sensor's mosaic demosaiced to grey first) in image coordinates
+    (top-left origin); ``last_frame_exposure_cycles`` is the exposure the device reported for the
+    last frame (ADC cycles, -1 if absent).
     """
 
     def __init__(self, options: DecoderOptions | None = None, *, time_offset_us: int = 0):
@@ -179,7 +188,7 @@ class DavisDecoder:
         self.st[S_RTYPE] = -1
         self.st[S_OFFSET] = int(time_offset_us)
         self._reset_buf = np.zeros(self.aps_shape[0] * self.aps_shape[1], np.int64)
-        self._frame = np.zeros(self.aps_shape, np.uint8)
+        self._frame = np.zeros(self.aps_shape, np.uint16)  # the frame being assembled: 10-bit CDS values
         self._frame_flat = self._frame.reshape(-1)
         self._carry = b""
         #: events per kernel call (so no event batch is longer than this)
@@ -267,6 +276,18 @@ class DavisDecoder:
             st[S_FRAMES_DROPPED] += 1
         return out
 
+    def _image(self) -> np.ndarray:
+        """The completed frame's 8-bit image: ``Z10 >> 2``, or a colour sensor's ROI demosaiced to grey
+        (:func:`~.color.demosaic_to_gray8`, the ROI's first pixel fixing the filter's phase)."""
+        z = self._frame
+        cf = self.options.color_filter
+        if not is_bayer(cf):
+            return (z >> 2).astype(np.uint8)
+        c0, r0, c1, r1 = (int(v) for v in self.st[S_ROI : S_ROI + 4])
+        img = np.zeros(self.aps_shape, np.uint8)
+        img[r0 : r1 + 1, c0 : c1 + 1] = demosaic_to_gray8(z[r0 : r1 + 1, c0 : c1 + 1], cf, c0, r0)
+        return img
+
     def _emit(self, out: list, ev: np.ndarray, mk: np.ndarray, imu_t, imu_v) -> None:
         """Packets of one kernel call in stream order.
 
@@ -325,7 +346,7 @@ class DavisDecoder:
                 self.last_frame_exposure_cycles = cyc
                 self.frame_cycles[self.frames] = cyc
                 self.frame_cycles.pop(self.frames - 64, None)
-                out.append(Frame(self._frame.copy(), es, ee, 1.0, self.frames))
+                out.append(Frame(self._image(), es, ee, 1.0, self.frames))
                 self.frames += 1
         if done < ev.size:
             out.append(ev[done:])

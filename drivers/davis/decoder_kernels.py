@@ -33,7 +33,8 @@ completed frame):
   outside a frame or before a valid ROI are skipped. Pixel placement: ``x = flipX ? W-1-countX : countX``,
   ``y = flipY ? H-1-countY : countY``, swapped if ``invertXY`` (APS orientation bits 2..0); the image
   origin is top-left. CDS at the signal sample: ``Z10 = 1023`` if ``reset < 384`` or ``signal == 0``
-  (saturated), else ``clip(reset - signal, 0, 1023)``; the frame stores ``Z8 = Z10 >> 2`` (uint8).
+  (saturated), else ``clip(reset - signal, 0, 1023)``; the frame buffer stores ``Z10`` (uint16; the
+  decoder makes the 8-bit image from it, demosaicing a colour sensor's).
 * **Exposure** — special 14/15 mark the exposure's start and end (markers). libcaer does not need them;
   necviz does, to announce the exposure in stream order. A complete frame without a special 14 tells
   the decoder that the logic sends none: it is counted (``frames_without_exposure``) and from then on
@@ -289,7 +290,7 @@ def _aps_run(words, i, st, cfg, reset_buf, frame):
                     z = 0
                 elif z > 1023:
                     z = 1023
-            frame[fb + fs * cy] = z >> 2
+            frame[fb + fs * cy] = z
         cy += 1
     if typ == 0:
         st[S_CY0] = cy
@@ -304,7 +305,7 @@ def decode_words(words, start, st, cfg, ev, mk, imu_t, imu_v, reset_buf, frame):
 
     ``st`` (int64[S_SIZE]) is the persistent state, ``cfg`` (int64[C_SIZE]) the device geometry and
     orientation. Outputs: ``ev`` (EVENT_DTYPE), ``mk`` (int64[m, 4]: kind, t µs, number of events
-    before it, aux; m >= 2), ``imu_t``/``imu_v`` (IMU samples), ``frame`` (uint8 H x W: the frame
+    before it, aux; m >= 2), ``imu_t``/``imu_v`` (IMU samples), ``frame`` (uint16 H x W, the 10-bit CDS values: the frame
     being assembled, flat H*W). Counts of this call are in ``st[S_NEV]``, ``st[S_NMK]``, ``st[S_NIMU]``.
     Decoding stops early when an output array is full, or right after a completed frame
     (``st[S_FRAME_READY] = 1``; its times in ``st[S_F_ES]``/``st[S_F_EE]``) so the caller can copy

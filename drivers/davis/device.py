@@ -97,9 +97,10 @@ class DavisDevice:
     Attributes after opening: ``serial``, ``product`` ("DAVIS FX3"/"DAVIS FX2"), ``kind``
     (DAVIS346/DAVIS240/chip name), ``firmware``, ``logic_version``, ``logic_patch``, ``chip_id``,
     ``is_master``, ``clocks`` (:class:`~.protocol.Clocks`, actual MHz), ``dvs_size``/``aps_size``
-    ((width, height) pixels in output coordinates: swapped when X/Y are inverted), ``dvs_orientation``, ``aps_orientation``, ``aps_color_filter``,
-    ``has_global_shutter``, ``imu_type``, ``imu_orientation``, ``capabilities`` (dict of flags), ``notes``
-    (one-line remarks for the user, e.g. a firmware newer than required).
+    ((width, height) pixels in output coordinates: swapped when X/Y are inverted), ``dvs_orientation``,
+    ``aps_orientation``, ``aps_color_filter``, ``has_global_shutter``, ``imu_type``, ``imu_orientation``,
+    ``capabilities`` (dict of flags), ``notes`` (one-line remarks for the user, e.g. a firmware newer than
+    required).
     """
 
     def __init__(self, dev, backend, emulated: bool = False):
@@ -247,6 +248,7 @@ class DavisDevice:
             "dvs_size": self.dvs_size,
             "aps_size": self.aps_size,
             "global_shutter": self.has_global_shutter,
+            "color_filter": self.aps_color_filter,
             "imu_type": self.imu_type,
             "clocks_mhz": {"logic": c.logic_mhz, "adc": c.adc_mhz, "usb": c.usb_mhz},
             "capabilities": dict(self.capabilities),

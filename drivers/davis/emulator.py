@@ -100,6 +100,9 @@ class CameraVariant:
         are sent.
     echo_offset_cycles : int
         Added to the exposure each frame reports (an echo that differs from the register by a cycle or two).
+    color_filter : int
+        APS COLOR_FILTER (0 mono; 1..4 Bayer RGBG, GRGB, GBGR, BGRG; 5..8 RGBW variants). The emulated scene is
+        neutral grey, so the mosaic it sends is the grey image itself; the driver demosaics it as libcaer does.
 
     Raises
     ------
@@ -111,12 +114,15 @@ class CameraVariant:
     dvs_orientation: int = 0
     layout: StreamLayout = StreamLayout()
     echo_offset_cycles: int = 0
+    color_filter: int = 0
 
     def __post_init__(self) -> None:
         if self.chip_id not in P.CHIP_NAMES:
             raise ParameterError(f"unknown DAVIS chip identifier {self.chip_id!r}; known: {sorted(P.CHIP_NAMES)}")
         object.__setattr__(self, "dvs_orientation", int(self.dvs_orientation) & 4)
         object.__setattr__(self, "echo_offset_cycles", int(self.echo_offset_cycles))
+        if self.color_filter not in range(9):
+            raise ParameterError(f"APS colour filter must be 0..8, got {self.color_filter!r}")
 
 
 @dataclass(frozen=True)
@@ -283,7 +289,7 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
             (P.APS.MODULE, P.APS.SIZE_COLUMNS): h if self.aps_orientation & 4 else w,
             (P.APS.MODULE, P.APS.SIZE_ROWS): w if self.aps_orientation & 4 else h,
             (P.APS.MODULE, P.APS.ORIENTATION_INFO): self.aps_orientation,
-            (P.APS.MODULE, P.APS.COLOR_FILTER): 0,
+            (P.APS.MODULE, P.APS.COLOR_FILTER): self.variant.color_filter,
             (P.APS.MODULE, P.APS.HAS_GLOBAL_SHUTTER): 1,
             (P.APS.MODULE, P.APS.GLOBAL_SHUTTER): 1,
             (P.APS.MODULE, P.APS.START_COLUMN_0): 0,
