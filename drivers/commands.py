@@ -16,6 +16,9 @@ from __future__ import annotations
 import threading
 from collections import deque
 
+import numpy as np
+
+from necviz.core.frames import Frame
 from necviz.drivers.source import CommandRecord
 
 #: commands kept for :meth:`CommandLog.records` (the oldest are forgotten; ``issued`` counts all)
@@ -96,4 +99,13 @@ class CommandLog:
             return [c.record() for c in self._history]
 
 
-__all__ = ["COMMAND_HISTORY", "PENDING_COMMANDS", "CommandLog"]
+def with_gain(frame: Frame, gain: float) -> Frame:
+    """``frame`` with digital gain ``gain`` applied: ``clip(round(Z * gain), 0, 255)``, ``Frame.gain = gain``
+    (a DAVIS has no analog gain; the camera sources apply the commanded gain this way)."""
+    if gain == 1.0:
+        return frame
+    img = np.clip(np.rint(frame.image.astype(np.float32) * np.float32(gain)), 0, 255).astype(np.uint8)
+    return Frame(img, frame.exposure_start_us, frame.exposure_end_us, gain, frame.sequence)
+
+
+__all__ = ["COMMAND_HISTORY", "PENDING_COMMANDS", "CommandLog", "with_gain"]

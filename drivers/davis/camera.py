@@ -41,7 +41,7 @@ from necviz.core.errors import NecvizError, ParameterError
 from necviz.core.events import EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import SensorGeometry, known_event_rate_max
-from necviz.drivers.commands import CommandLog
+from necviz.drivers.commands import CommandLog, with_gain
 from necviz.drivers.davis import protocol as P
 from necviz.drivers.davis.color import COLOR_FILTERS
 from necviz.drivers.davis.decoder import DavisDecoder, DecoderOptions
@@ -468,11 +468,7 @@ class DavisCamera:
     def _apply_command(self, frame: Frame) -> Frame:
         """Mark the command this frame was exposed with as applied; apply its digital gain."""
         cyc = self._decoder.last_frame_exposure_cycles if self._decoder is not None else -1
-        gain = self._commands.frame(int(frame.exposure_start_us), None if cyc < 0 else cyc)
-        if gain == 1.0:
-            return frame
-        img = np.clip(np.rint(frame.image.astype(np.float32) * np.float32(gain)), 0, 255).astype(np.uint8)
-        return Frame(img, frame.exposure_start_us, frame.exposure_end_us, gain, frame.sequence)
+        return with_gain(frame, self._commands.frame(int(frame.exposure_start_us), None if cyc < 0 else cyc))
 
 
 def open_camera(

@@ -74,7 +74,9 @@ def find_devices(backend) -> list:
 
 @dataclass(frozen=True)
 class DeviceInfo:
-    """What ``necviz devices`` shows about one camera (``error`` set when it could not be opened)."""
+    """What ``necviz devices`` shows about one camera: ``error`` set when it could not be opened, ``notes``
+    for what the user should know about a usable one; ``backend`` is ``"usb"`` (necviz's driver), ``"dv"``
+    (dv-processing) or ``"emulated"``."""
 
     kind: str
     serial: str
@@ -84,10 +86,16 @@ class DeviceInfo:
     address: int | None
     emulated: bool = False
     error: str = ""
+    backend: str = "usb"
+    notes: tuple[str, ...] = ()
 
     @property
     def where(self) -> str:
-        return "emulated" if self.emulated else f"bus {self.bus} addr {self.address}"
+        return "virtual" if self.emulated else f"bus {self.bus} addr {self.address}"
+
+    @property
+    def usable(self) -> bool:
+        return not self.error
 
 
 # -- one device -------------------------------------------------------------------------------------
@@ -217,12 +225,14 @@ class DavisDevice:
         self.aps_size = (rows, cols) if self.aps_orientation & 4 else (cols, rows)
         self.imu_type = g(I.MODULE, I.TYPE)
         self.imu_orientation = g(I.MODULE, I.ORIENTATION_INFO)
-        self.clocks = P.Clocks.from_registers(
+        #: SYSINFO logic, ADC and USB clocks (nominal MHz) and the deviation (x1000), as read
+        self.clock_registers = (
             g(S.MODULE, S.LOGIC_CLOCK),
             g(S.MODULE, S.ADC_CLOCK),
             g(S.MODULE, S.USB_CLOCK),
             g(S.MODULE, S.CLOCK_DEVIATION),
         )
+        self.clocks = P.Clocks.from_registers(*self.clock_registers)
         if min(self.dvs_size) <= 0 or min(self.aps_size) <= 0 or self.clocks.adc_mhz <= 0:
             raise DeviceError(
                 f"{self._name()} reports an invalid size {self.dvs_size} or ADC clock {self.clocks.adc_mhz} MHz"
@@ -247,10 +257,14 @@ class DavisDevice:
             "notes": list(self.notes),
             "dvs_size": self.dvs_size,
             "aps_size": self.aps_size,
+            "dvs_orientation": self.dvs_orientation,
+            "aps_orientation": self.aps_orientation,
+            "imu_orientation": self.imu_orientation,
             "global_shutter": self.has_global_shutter,
             "color_filter": self.aps_color_filter,
             "imu_type": self.imu_type,
             "clocks_mhz": {"logic": c.logic_mhz, "adc": c.adc_mhz, "usb": c.usb_mhz},
+            "clock_registers": dict(zip(("logic", "adc", "usb", "deviation"), self.clock_registers, strict=True)),
             "capabilities": dict(self.capabilities),
         }
 
@@ -527,10 +541,32 @@ def describe(backend, emulated: bool = False) -> list[DeviceInfo]:
         except DeviceError as e:
             serial = _serial_of(d) or "?"
             out.append(
-                DeviceInfo(kind, serial, d.bcdDevice & 0xFF, None, d.bus, d.address, emulated, str(e).splitlines()[0])
+                DeviceInfo(
+                    kind,
+                    serial,
+                    d.bcdDevice & 0xFF,
+                    None,
+                    d.bus,
+                    d.address,
+                    emulated,
+                    str(e).splitlines()[0],
+                    backend="emulated" if emulated else "usb",
+                )
             )
             continue
-        out.append(DeviceInfo(dev.kind, dev.serial, dev.firmware, dev.logic_version, dev.bus, dev.address, emulated))
+        out.append(
+            DeviceInfo(
+                dev.kind,
+                dev.serial,
+                dev.firmware,
+                dev.logic_version,
+                dev.bus,
+                dev.address,
+                emulated,
+                backend="emulated" if emulated else "usb",
+                notes=tuple(dev.notes),
+            )
+        )
         dev.close()
     return out
 

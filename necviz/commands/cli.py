@@ -528,13 +528,15 @@ def build_parser() -> argparse.ArgumentParser:
         "live",
         help="a DAVIS camera (USB or emulated) with NEC closing the loop",
         description="Runs a controller (NEC by default) in closed loop on a DAVIS346/DAVIS240 over "
-        "USB, or on a virtual DAVIS346 (--device emulated), in the live layout.",
+        "USB (necviz's driver, or iniVation's dv-processing with --device dv), or on a virtual DAVIS346 "
+        "(--device emulated), in the live layout.",
     )
     live.add_argument(
         "--device",
-        choices=("usb", "emulated"),
+        choices=("usb", "dv", "emulated"),
         default="usb",
-        help="usb (a real camera) or emulated (the same driver on a virtual DAVIS346)",
+        help="usb (a real camera, necviz's driver), dv (the same camera through iniVation's dv-processing: "
+        "pip install 'necviz[dv]') or emulated (necviz's driver on a virtual DAVIS346)",
     )
     live.add_argument("--serial", default=None, help="which camera when several are attached")
     live.add_argument("--reconnect", action="store_true", help="if the camera is unplugged, wait for it to return")
