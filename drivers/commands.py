@@ -13,13 +13,15 @@ are superseded anyway) and :meth:`CommandLog.records` keeps the last :data:`COMM
 
 from __future__ import annotations
 
+import math
 import threading
 from collections import deque
 
 import numpy as np
 
+from necviz.core.errors import ParameterError
 from necviz.core.frames import Frame
-from necviz.drivers.source import CommandRecord
+from necviz.drivers.source import CAMERA, CommandRecord
 
 #: commands kept for :meth:`CommandLog.records` (the oldest are forgotten; ``issued`` counts all)
 COMMAND_HISTORY = 4096
@@ -99,6 +101,47 @@ class CommandLog:
             return [c.record() for c in self._history]
 
 
+def check_command(camera: str, exposure_us, gain) -> tuple[float, float]:
+    """A command for a single-camera source, checked: ``camera`` is ``"camera"``, the exposure a positive finite
+    number of µs and the gain a finite linear factor >= 1. Returns them as floats.
+
+    Raises
+    ------
+    ParameterError
+        Another camera name, or a value out of range.
+    """
+    if camera != CAMERA:
+        raise ParameterError(f"this source has one camera, {CAMERA!r}; got {camera!r}")
+    for label, v in (("exposure_us", exposure_us), ("gain", gain)):
+        if (
+            isinstance(v, bool)
+            or not isinstance(v, (int, float, np.integer, np.floating))
+            or not math.isfinite(v)
+            or v <= 0
+        ):
+            raise ParameterError(f"{label} must be a positive finite number, got {v!r}")
+    if gain < 1.0:
+        raise ParameterError(f"gain must be >= 1 (linear), got {gain}")
+    return float(exposure_us), float(gain)
+
+
+class CommandedCamera:
+    """What a live camera source tells about its commands (mixed into the camera classes; their
+    ``_commands`` is a :class:`CommandLog`)."""
+
+    _commands: CommandLog
+
+    def commands(self) -> list[CommandRecord]:
+        """The last :data:`COMMAND_HISTORY` commands received (all of a short run), each with the start of the
+        first exposure that used it (``commands_issued`` counts every command)."""
+        return self._commands.records()
+
+    @property
+    def commands_issued(self) -> int:
+        """Every exposure command received."""
+        return self._commands.issued
+
+
 def with_gain(frame: Frame, gain: float) -> Frame:
     """``frame`` with digital gain ``gain`` applied: ``clip(round(Z * gain), 0, 255)``, ``Frame.gain = gain``
     (a DAVIS has no analog gain; the camera sources apply the commanded gain this way)."""
@@ -108,4 +151,4 @@ def with_gain(frame: Frame, gain: float) -> Frame:
     return Frame(img, frame.exposure_start_us, frame.exposure_end_us, gain, frame.sequence)
 
 
-__all__ = ["COMMAND_HISTORY", "PENDING_COMMANDS", "CommandLog", "with_gain"]
+__all__ = ["COMMAND_HISTORY", "PENDING_COMMANDS", "CommandLog", "CommandedCamera", "check_command", "with_gain"]

@@ -38,7 +38,6 @@ gain, as with the pyusb driver. :meth:`DvCamera.set_frame_interval` calls ``setF
 from __future__ import annotations
 
 import datetime as _dt
-import math
 import time
 from collections.abc import Iterator
 
@@ -51,13 +50,13 @@ from necviz.core.frames import Frame
 from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, TRIGGER_KINDS
 from necviz.core.sensor import SensorGeometry, known_event_rate_max
 from necviz.core.stream import packet_time_us
-from necviz.drivers.commands import CommandLog, with_gain
+from necviz.drivers.commands import CommandedCamera, CommandLog, check_command, with_gain
 from necviz.drivers.davis import protocol as P
 from necviz.drivers.davis.camera import DIGITAL_GAIN_MAX, READOUT_ALLOWANCE_US, CameraOptions
 from necviz.drivers.davis.device import DeviceInfo
 from necviz.drivers.davis.device_errors import DeviceDisconnectedError, DeviceError, DeviceNotFoundError
 from necviz.drivers.recordings.reader import StreamAssembler, sensor_from_chip, to_gray8
-from necviz.drivers.source import CAMERA, CameraInfo, CommandRecord, route
+from necviz.drivers.source import CAMERA, CameraInfo, route
 
 #: the one line that says how to get this backend
 DV_INSTALL = "--device dv needs iniVation's dv-processing: pip install 'necviz[dv]'"
@@ -159,7 +158,7 @@ def _imu(samples) -> np.ndarray:
     return out
 
 
-class DvCamera:
+class DvCamera(CommandedCamera):
     """A DAVIS camera (or a dv-processing recording reader) as a :class:`~necviz.drivers.source.Source`.
 
     Parameters
@@ -258,16 +257,7 @@ class DvCamera:
         """Command exposure (µs, clamped to ``limits``; ``setExposureDuration``) and digital gain (1..8).
 
         On a recording reader (no setters) the command is only kept: replay is open loop."""
-        if camera != CAMERA:
-            raise ParameterError(f"this source has one camera, {CAMERA!r}; got {camera!r}")
-        for label, v in (("exposure_us", exposure_us), ("gain", gain)):
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v):
-                raise ParameterError(f"{label} must be a finite number, got {v!r}")
-            if v <= 0:
-                raise ParameterError(f"{label} must be positive, got {v!r}")
-        if gain < 1.0:
-            raise ParameterError(f"gain must be >= 1 (linear), got {gain}")
-        exp, g = self.limits.clamp(float(exposure_us), float(gain))
+        exp, g = self.limits.clamp(*check_command(camera, exposure_us, gain))
         t = self._last_t if issue_time_us is None else int(issue_time_us)
         if hasattr(self._reader, "setExposureDuration"):
             self._set_device_exposure(exp)
@@ -290,14 +280,6 @@ class DvCamera:
             exposure_max_us=float(min(P.EXPOSURE_MAX_US, us - READOUT_ALLOWANCE_US)),
             gain_max=DIGITAL_GAIN_MAX,
         )
-
-    def commands(self) -> list[CommandRecord]:
-        """The commands received, each with the start of the first exposure that used it."""
-        return self._commands.records()
-
-    @property
-    def commands_issued(self) -> int:
-        return self._commands.issued
 
     @property
     def exposure_us(self) -> float:

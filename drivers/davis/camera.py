@@ -27,7 +27,6 @@ Unplugging: every packet already decoded is yielded, then iteration raises
 
 from __future__ import annotations
 
-import math
 import threading
 import time
 from dataclasses import dataclass
@@ -41,13 +40,13 @@ from necviz.core.errors import NecvizError, ParameterError
 from necviz.core.events import EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import SensorGeometry, known_event_rate_max
-from necviz.drivers.commands import CommandLog, with_gain
+from necviz.drivers.commands import CommandedCamera, CommandLog, check_command, with_gain
 from necviz.drivers.davis import protocol as P
 from necviz.drivers.davis.color import COLOR_FILTERS
 from necviz.drivers.davis.decoder import DavisDecoder, DecoderOptions
 from necviz.drivers.davis.device import BulkReader, DavisDevice, open_device, usb_backend
 from necviz.drivers.davis.device_errors import DeviceDisconnectedError, DeviceError, DeviceNotFoundError
-from necviz.drivers.source import CAMERA, CameraInfo, CommandRecord, route
+from necviz.drivers.source import CAMERA, CameraInfo, route
 
 if TYPE_CHECKING:
     from necviz.drivers.davis.emulator import EmulatorOptions, Faults
@@ -119,7 +118,7 @@ class CameraOptions:
             object.__setattr__(self, name, value)
 
 
-class DavisCamera:
+class DavisCamera(CommandedCamera):
     """A DAVIS camera (real or emulated) as a closed-loop source. Build it with :func:`open_camera`.
 
     Attributes: ``sensor`` (from the device's DVS size registers), ``info`` (serial, firmware, logic
@@ -242,19 +241,7 @@ class DavisCamera:
         Writes APS EXPOSURE = round(exposure_us x ADC MHz) now; ``issue_time_us`` (default: the time of
         the last packet delivered) is the sensor time recorded with the command.
         """
-        if camera != CAMERA:
-            raise ParameterError(f"this source has one camera, {CAMERA!r}; got {camera!r}")
-        for label, v in (("exposure_us", exposure_us), ("gain", gain)):
-            if (
-                isinstance(v, bool)
-                or not isinstance(v, (int, float, np.integer, np.floating))
-                or not math.isfinite(v)
-                or v <= 0
-            ):
-                raise ParameterError(f"{label} must be a positive finite number, got {v!r}")
-        if gain < 1.0:
-            raise ParameterError(f"gain must be >= 1 (linear), got {gain}")
-        exp, g = self.limits.clamp(float(exposure_us), float(gain))
+        exp, g = self.limits.clamp(*check_command(camera, exposure_us, gain))
         with self._lock:
             t = self._last_t if issue_time_us is None else int(issue_time_us)
             if not self.device.closed and self.state != "waiting":
@@ -269,16 +256,6 @@ class DavisCamera:
                 cycles = self.device.us_to_cycles(exp)  # written when the device returns
             self._exposure_us = exp
             self._commands.issue(t, exp, g, cycles)
-
-    def commands(self) -> list[CommandRecord]:
-        """The last :data:`~necviz.drivers.commands.COMMAND_HISTORY` commands received (all of a short run),
-        each with the start of the first exposure that used it (``commands_issued`` counts every command)."""
-        return self._commands.records()
-
-    @property
-    def commands_issued(self) -> int:
-        """Every exposure command received."""
-        return self._commands.issued
 
     @property
     def camera_info(self) -> CameraInfo:
