@@ -161,8 +161,12 @@ def test_devices_command_lists_the_emulated_camera():
     code = run(out=buf)
     text = buf.getvalue()
     assert "EMU00346" in text and "emulated" in text
+    assert code == 0  # a usable camera was listed: the emulated one
     if not list_devices(include_emulated=False):
-        assert code == 1 and "lsusb" in text and 'ATTR{idVendor}=="152a"' in text
+        assert "no DAVIS camera is attached" in text and "lsusb" in text and 'ATTR{idVendor}=="152a"' in text
+        assert "no DAVIS camera found" not in text  # said plainly, not as a failure
+        buf = io.StringIO()
+        assert run(include_emulated=False, out=buf) == 1 and "found no usable camera" in buf.getvalue()
 
 
 def test_source_contract_batches_and_stats():

@@ -327,8 +327,14 @@ def _cmd_compare(args) -> int:
 
 
 def _cmd_devices(args) -> int:
-    from necviz.commands.devices import run
+    from necviz.commands.devices import check, run
 
+    if args.check:
+        return check(args.device, args.serial, args.capture, args.seconds)
+    if args.capture is not None or args.seconds is not None:
+        from necviz.core.errors import ParameterError
+
+        raise ParameterError("--capture and --seconds go with --check")
     return run(include_emulated=not args.no_emulated)
 
 
@@ -565,8 +571,32 @@ def build_parser() -> argparse.ArgumentParser:
     add_clip_args(live)
     live.set_defaults(func=_cmd_live)
 
-    dev = sub.add_parser("devices", help="attached (and emulated) DAVIS cameras: serial, firmware, logic version")
+    dev = sub.add_parser(
+        "devices",
+        help="attached (and emulated) DAVIS cameras: serial, firmware, logic version; --check: what one sends",
+        description="Lists the DAVIS cameras found through necviz's driver and through dv-processing, and the "
+        "emulated one. --check records a camera's raw stream for a few seconds and says what it held "
+        "(events, frames, exposure echoes, the first frame's words, transfer timing) with a verdict.",
+    )
     dev.add_argument("--no-emulated", action="store_true", help="list real cameras only")
+    dev.add_argument("--check", action="store_true", help="record and judge one camera's stream")
+    dev.add_argument(
+        "--device",
+        choices=("usb", "emulated"),
+        default="usb",
+        help="with --check: usb (default, a real camera) or emulated",
+    )
+    dev.add_argument("--serial", default=None, help="with --check: which camera when several are attached")
+    dev.add_argument(
+        "--capture", metavar="FILE", default=None, help="with --check: keep the raw stream in FILE (a new file)"
+    )
+    dev.add_argument(
+        "--seconds",
+        type=number("--seconds", "devices"),
+        default=None,
+        metavar="S",
+        help="with --check: how long to record (default 2)",
+    )
     dev.set_defaults(func=_cmd_devices)
 
     _add_bench(sub)
