@@ -769,6 +769,7 @@ def test_timestamp_reset_as_libcaer_drops_the_frame_in_progress_keeps_the_roi_an
     assert kinds[resets[1] - 1] == ("event", 60) and kinds[resets[1] + 1] == ("event", 715)
     got = frames_of(packets)
     assert len(got) == 2 and dec.stats["frames_dropped"] == 1 and dec.stats["imu_dropped"] == 1
+    assert dec.stats["skipped_words"] == 0  # the cut frame's remaining words are ignored, not garbage
     assert np.array_equal(got[1].image, z) and got[1].exposure_start_us == 710 + 12
 
 

@@ -75,6 +75,7 @@ S_ROI_TMP = 61
 S_WORDS = 62
 S_SYNTH = 63  # 1: the stream sends no exposure specials, the decoder places the exposure itself
 S_NO_EXPOSURE = 64  # complete frames dropped for want of an exposure (the first of a stream without specials)
+S_APS_CUT = 65  # 1: the rest of a frame cut by a timestamp reset is arriving (ignored, not counted as garbage)
 S_SIZE = 72
 
 # ---- configuration vector layout ----------------------------------------------------------------
@@ -243,9 +244,11 @@ def _aps_run(words, i, st, cfg, reset_buf, frame):
     typ = st[S_RTYPE]
     skipped = 0
     if st[S_IN_FRAME] == 0 or st[S_ROI_OK] == 0 or typ < 0:
+        cut = st[S_IN_FRAME] == 0 and st[S_APS_CUT] == 1  # the rest of a frame cut by a reset: ignored
         while i < n and (words[i] >> 12) == 4:
             i += 1
-            skipped += 1
+            if not cut:
+                skipped += 1
         return i, skipped
     cx = st[S_CX0] if typ == 0 else st[S_CX1]
     cy = st[S_CY0] if typ == 0 else st[S_CY1]
@@ -401,7 +404,7 @@ def decode_words(words, start, st, cfg, ev, mk, imu_t, imu_v, reset_buf, frame):
                     else:
                         skipped += 1
                         st[S_IMU_ACTIVE] = 2  # overfull: the sample is dropped at its end word
-                else:
+                elif st[S_IMU_ACTIVE] != 3:  # 3: the rest of a sample cut by a reset, ignored
                     skipped += 1
             elif sub == 1:  # ROI value, high byte (kept for the low byte, libcaer's roi.tmpData)
                 st[S_ROI_TMP] = v << 8
@@ -416,7 +419,7 @@ def decode_words(words, start, st, cfg, ev, mk, imu_t, imu_v, reset_buf, frame):
                     st[S_IMU_ASCALE] = (v >> 2) & 3
                     st[S_IMU_GSCALE] = v & 3
                     st[S_IMU_TYPE] = (v >> 5) & 7
-                else:
+                elif st[S_IMU_ACTIVE] != 3:
                     skipped += 1
             else:
                 skipped += 1
@@ -448,7 +451,7 @@ def decode_words(words, start, st, cfg, ev, mk, imu_t, imu_v, reset_buf, frame):
                         _start_exposure(mk, st, tcur, nev)
                 else:
                     st[S_CX1] += 1
-            else:
+            elif st[S_APS_CUT] == 0:
                 skipped += 1
         elif data == 11 or data == 12:  # reset / signal column start
             if st[S_IN_FRAME] == 1:
@@ -462,13 +465,14 @@ def decode_words(words, start, st, cfg, ev, mk, imu_t, imu_v, reset_buf, frame):
                     if st[S_SYNTH] == 1 and st[S_EXPO_OPEN] == 1 and st[S_HAS_EE] == 0:
                         st[S_T_EE] = _end_exposure(mk, st, tcur, nev, 0)
                         st[S_HAS_EE] = 1
-            else:
+            elif st[S_APS_CUT] == 0:
                 skipped += 1
         elif data == 8 or data == 9:  # frame start (libcaer's apsInitFrame; the ROI is kept)
             _close_exposure(mk, st, tcur, nev)
             if st[S_IN_FRAME] == 1:
                 st[S_FRAMES_DROPPED] += 1
             st[S_IN_FRAME] = 1
+            st[S_APS_CUT] = 0
             st[S_GS] = 1 if data == 8 else 0
             st[S_ROI_IDX] = 0
             st[S_ROI_TMP] = 0
@@ -488,13 +492,13 @@ def decode_words(words, start, st, cfg, ev, mk, imu_t, imu_v, reset_buf, frame):
             st[S_SYNTH] = 0  # this stream sends exposure specials
             if st[S_IN_FRAME] == 1 and st[S_HAS_ES] == 0 and st[S_EXPO_OPEN] == 0:
                 _start_exposure(mk, st, tcur, nev)
-            else:
+            elif st[S_APS_CUT] == 0:
                 skipped += 1
         elif data == 15:  # exposure end
             if st[S_EXPO_OPEN] == 1:
                 st[S_T_EE] = _end_exposure(mk, st, tcur, nev, 0)
                 st[S_HAS_EE] = 1
-            else:
+            elif st[S_APS_CUT] == 0:
                 skipped += 1
         elif data == 10:  # frame end: complete when both readouts covered every column (libcaer's apsEndFrame)
             if st[S_IN_FRAME] == 1:
@@ -522,10 +526,12 @@ def decode_words(words, start, st, cfg, ev, mk, imu_t, imu_v, reset_buf, frame):
                     st[S_NO_EXPOSURE] += 1
                 else:
                     st[S_FRAMES_DROPPED] += 1
+            elif st[S_APS_CUT] == 1:  # the end of a frame cut by a reset: it was counted as dropped then
+                st[S_APS_CUT] = 0
             else:
                 skipped += 1
         elif data == 5:  # IMU sample start
-            if st[S_IMU_ACTIVE] != 0:
+            if st[S_IMU_ACTIVE] == 1 or st[S_IMU_ACTIVE] == 2:
                 st[S_IMU_DROPPED] += 1
             st[S_IMU_ACTIVE] = 1
             st[S_IMU_COUNT] = 0
@@ -542,7 +548,7 @@ def decode_words(words, start, st, cfg, ev, mk, imu_t, imu_v, reset_buf, frame):
                     st[S_IMU_DROPPED] += 1
             elif st[S_IMU_ACTIVE] == 2:
                 st[S_IMU_DROPPED] += 1
-            else:
+            elif st[S_IMU_ACTIVE] != 3:
                 skipped += 1
             st[S_IMU_ACTIVE] = 0
         elif data == 1:  # timestamp reset
@@ -551,14 +557,19 @@ def decode_words(words, start, st, cfg, ev, mk, imu_t, imu_v, reset_buf, frame):
             wrap = 0
             now = 0
             _marker(mk, st, MK_TRIGGER, tcur, nev, TRIG_RESET)
+            # the frame and the IMU sample in progress are dropped; their remaining words are ignored until the
+            # next start (libcaer's ignoreEvents), without counting them as garbage
             if st[S_IN_FRAME] == 1:
                 st[S_FRAMES_DROPPED] += 1
-            st[S_IN_FRAME] = 0  # APS and IMU words are ignored until their next start (libcaer's ignoreEvents)
+                st[S_APS_CUT] = 1
+            st[S_IN_FRAME] = 0
             st[S_EXP_IDX] = 0
             st[S_EXP_CYC] = 0
-            if st[S_IMU_ACTIVE] != 0:
+            if st[S_IMU_ACTIVE] == 1 or st[S_IMU_ACTIVE] == 2:
                 st[S_IMU_DROPPED] += 1
-            st[S_IMU_ACTIVE] = 0
+                st[S_IMU_ACTIVE] = 3
+            else:
+                st[S_IMU_ACTIVE] = 0
         elif data == 2:
             _marker(mk, st, MK_TRIGGER, tcur, nev, TRIG_FALLING)
         elif data == 3:
