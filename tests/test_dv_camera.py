@@ -303,3 +303,11 @@ def test_nec_runs_on_the_adapter_as_on_any_source():
             cam.set_exposure("camera", cmd.exposure_us, cmd.gain)
         frames += isinstance(p, Frame)
     assert frames == 4 and cam.commands_issued >= 1
+
+
+def test_reconnect_is_refused_with_the_dv_backend(tmp_path, capsys):
+    from necviz.commands.cli import main
+
+    code = main(["live", "--device", "dv", "--reconnect", "--save", str(tmp_path / "x.rrd"), "--no-prompt"])
+    err = capsys.readouterr().err
+    assert code != 0 and "--reconnect works with necviz's driver (--device usb), not with --device dv" in err

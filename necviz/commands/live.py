@@ -15,6 +15,7 @@ If the camera is unplugged, everything recorded so far is flushed (the ``.rrd`` 
 from __future__ import annotations
 
 from necviz.core.control import make_controller
+from necviz.core.errors import ParameterError
 from necviz.dashboard.recorders import open_recorder
 from necviz.dashboard.session import Session, preflight, run_session, scene_inputs
 from necviz.flight_recorder import clip_observer
@@ -81,6 +82,9 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
         backend = EmulatedDavis346(emulated, faults)
     if options.device == "dv":
         from necviz.drivers.dv_camera import open_dv_camera
+
+        if options.reconnect:
+            raise ParameterError("--reconnect works with necviz's driver (--device usb), not with --device dv")
 
         camera = open_dv_camera(options.serial, options=CameraOptions())
     else:
