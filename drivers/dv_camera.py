@@ -31,7 +31,7 @@ they match it exactly), released up to a watermark:
   events past its start were released is dropped and counted (``frames_late``).
 
 Commands: :meth:`DvCamera.set_exposure` calls ``setExposureDuration`` and keeps the command; a frame whose
-exposure (µs) matches it marks it applied (:class:`~necviz.drivers.commands.CommandLog`) and carries its digital
+exposure (µs) matches it marks it applied (:class:`~necviz.drivers.command_log.CommandLog`) and carries its digital
 gain, as with the pyusb driver. :meth:`DvCamera.set_frame_interval` calls ``setFrameInterval``.
 """
 
@@ -50,7 +50,7 @@ from necviz.core.frames import Frame
 from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, TRIGGER_KINDS
 from necviz.core.sensor import SensorGeometry, known_event_rate_max
 from necviz.core.stream import packet_time_us
-from necviz.drivers.commands import CommandedCamera, CommandLog, check_command, with_gain
+from necviz.drivers.command_log import CommandedCamera, CommandLog, check_command, with_gain
 from necviz.drivers.davis import protocol as P
 from necviz.drivers.davis.camera import DIGITAL_GAIN_MAX, READOUT_ALLOWANCE_US, CameraOptions
 from necviz.drivers.davis.device import DeviceInfo

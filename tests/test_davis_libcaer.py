@@ -196,7 +196,7 @@ def test_an_exposure_echo_off_by_a_cycle_still_applies_the_command_and_its_gain(
 
 
 def test_command_log_matches_within_the_tolerance_and_prefers_the_newest():
-    from necviz.drivers.commands import CommandLog
+    from necviz.drivers.command_log import CommandLog
 
     log = CommandLog(2, 1e-3)
     log.issue(100, 1000.0, 1.5, 30_240)

@@ -93,7 +93,7 @@ def test_a_long_session_keeps_the_command_lists_bounded(monkeypatch):
     """Commands waiting for a frame and the command history are bounded (as is the emulator's log of
     control transfers), and matching commands to frames still works at the bounds."""
     from necviz.core.frames import Frame
-    from necviz.drivers import commands as commands_module
+    from necviz.drivers import command_log as commands_module
     from necviz.drivers.davis import emulator as emulator_module
 
     monkeypatch.setattr(commands_module, "COMMAND_HISTORY", 50)

@@ -12,8 +12,8 @@ analog gain, so ``gain`` is applied digitally: ``Frame.image = clip(round(Z8 x g
 ``Z8 = CDS10 >> 2`` and ``Frame.gain = gain``. A command applies from the first frame that starts
 after it was issued and was exposed with its register value (each frame reports its exposure in
 ADC cycles, its *echo*; an echo within :data:`ECHO_TOLERANCE_CYCLES` of the register counts, see
-:mod:`necviz.drivers.commands`); that frame's start is the command's ``applied_start_us``. Memory
-stays bounded over a long session (:class:`~necviz.drivers.commands.CommandLog`).
+:mod:`necviz.drivers.command_log`); that frame's start is the command's ``applied_start_us``. Memory
+stays bounded over a long session (:class:`~necviz.drivers.command_log.CommandLog`).
 
 Loss: the reader thread buffers :attr:`CameraOptions.buffer_s` (2 s) of data at the peak rate, so a consumer that
 pauses (a GC pause, a slow viewer) loses nothing; past that it stops reading and the device drops
@@ -40,7 +40,7 @@ from necviz.core.errors import NecvizError, ParameterError
 from necviz.core.events import EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import SensorGeometry, known_event_rate_max
-from necviz.drivers.commands import CommandedCamera, CommandLog, check_command, with_gain
+from necviz.drivers.command_log import CommandedCamera, CommandLog, check_command, with_gain
 from necviz.drivers.davis import protocol as P
 from necviz.drivers.davis.color import COLOR_FILTERS
 from necviz.drivers.davis.decoder import DavisDecoder, DecoderOptions
