@@ -164,7 +164,7 @@ class _ViewerOutput:
         self.viewer.output.commit()
 
     def discard(self) -> str:
-        return self.viewer.output.discard()
+        return self.viewer.discard()
 
 
 def _run(ss: Session, out, stdin, outputs: list) -> dict:
@@ -200,7 +200,8 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
         flush_period_s=flush,
     )
     sink = RerunSink(rec, names, sensor.height, sensor.width, sink_options)
-    sink.files = [viewer.output.target] if viewer.output is not None else []
+    sink.files = viewer.files
+    sink.rotate = viewer.rotate
     observers = [sink]
     if ss.recorder is not None:
         cam = ss.record_camera or ss.lanes[0].camera or ss.lanes[0].name

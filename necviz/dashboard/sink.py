@@ -374,6 +374,7 @@ class RerunSink(Observer):
         self._error: BaseException | None = None
         self.files: list = []  # files the stream writes: its flush is bounded (see viewer.flush_stream)
         self.on_close = None  # called once the recording is flushed (a file sink completes its file)
+        self.rotate = None  # called by the worker between sends (a --save file's next segment)
         self._thread = threading.Thread(target=self._run, name="necviz-rerun-sink", daemon=True)
         self._thread.start()
 
@@ -496,6 +497,8 @@ class RerunSink(Observer):
                 elif time.perf_counter() >= next_flush:
                     self._flush_series()
                     next_flush = time.perf_counter() + self.flush_period_s
+                if self.rotate is not None:
+                    self.rotate()
                 if stopping:
                     break
                 time.sleep(self.burst_s)

@@ -35,7 +35,8 @@ from pathlib import Path
 
 import rerun as rr
 
-from necviz.core.errors import ParameterError
+from necviz.core.errors import NecvizError, ParameterError
+from necviz.dashboard.rrd_file import SegmentedFile
 from necviz.dashboard.viewer_flags import (  # noqa: F401 - re-exported: the flags live in a module without Rerun
     DEFAULT_CONNECT,
     DEFAULT_GRPC_PORT,
@@ -89,18 +90,53 @@ class Viewer:
     server: subprocess.Popen | None = None
     output: StreamedOutput | None = None
     notebook: object = None  # the rerun.notebook.Viewer shown in the cell (it keeps what was streamed)
+    #: the ``--save`` file written in segments (:mod:`necviz.dashboard.rrd_file`), and the other sinks
+    segments: SegmentedFile | None = None
+    other_sinks: list = field(default_factory=list)
 
     @property
     def target(self) -> Path | None:
         """Where the file is written until it is complete (see :mod:`necviz.outputs`)."""
         return self.output.target if self.output is not None else None
 
+    @property
+    def files(self) -> list:
+        """The file being written now (a live list: a new segment replaces it)."""
+        return self.segments.files if self.segments is not None else []
+
+    def rotate(self) -> None:
+        """Start the ``--save`` file's next segment when the current one is due (called by the thread
+        that logs, between its sends): the footer index Rerun keeps in memory covers one segment."""
+        if self.segments is not None and self.segments.due():
+            self.rec.set_sinks(*self.other_sinks, self.segments.next())
+
     def close(self) -> None:
-        """Flush what was logged (bounded: :func:`flush_stream`). A served recording stays available
-        until :meth:`stop_serving`; a notebook's viewer keeps everything it was sent."""
-        flush_stream(self.rec, [self.output.target] if self.output is not None else [], label=self.save_path)
-        if self.server is None and self.notebook is None:
+        """Flush what was logged (bounded: :func:`flush_stream`) and complete the ``--save`` file (its
+        segments joined into one). A served recording stays available until :meth:`stop_serving`; a
+        notebook's viewer keeps everything it was sent."""
+        flush_stream(self.rec, self.files, label=self.save_path)
+        keep_stream = self.server is not None or self.notebook is not None
+        if self.segments is not None and len(self.segments.segments) > 1:
+            if keep_stream:
+                self.rec.set_sinks(*self.other_sinks)  # the file sink is closed: its footer is written
+            else:
+                rr.disconnect(self.rec)
+                keep_stream = True  # already disconnected
+            self.segments.join()
+        if not keep_stream:
             rr.disconnect(self.rec)
+
+    def discard(self) -> str:
+        """The run failed: remove the ``--save`` file's later segments and discard the file
+        (:meth:`~necviz.outputs.StreamedOutput.discard`, which may keep a camera session's)."""
+        if self.segments is not None and len(self.segments.segments) > 1 and self.output.keep_partial:
+            try:
+                self.segments.join()  # one readable file, if the disk allows
+            except NecvizError:
+                return f"{self.output.discard()} (later parts in {self.segments.parts})"
+        elif self.segments is not None:
+            self.segments.discard()
+        return self.output.discard()
 
     def stop_serving(self) -> None:
         if self.server is not None:
@@ -401,10 +437,12 @@ def _open(options: ViewerOptions, blueprint, name, messages, keep_partial: bool 
     if options.connect:
         sinks.append(rr.GrpcSink(options.connect))
         messages.append(f"streaming to {options.connect}")
-    output = None
+    output = segments = None
+    others = list(sinks)
     if options.save:
         output = StreamedOutput(options.save, keep_partial=keep_partial, flag="--save")
-        sinks.append(rr.FileSink(str(output.target)))
+        segments = SegmentedFile(output.target)
+        sinks.append(segments.sink())
         if not any(m.startswith("saving to") for m in messages):
             messages.append(f"saving to {options.save} (open it with: rerun {options.save})")
     try:
@@ -416,4 +454,6 @@ def _open(options: ViewerOptions, blueprint, name, messages, keep_partial: bool 
         if server is not None:
             stop_process_group(server)
         raise
-    return Viewer(rec, messages, Path(options.save) if options.save else None, url, server, output)
+    return Viewer(
+        rec, messages, Path(options.save) if options.save else None, url, server, output, None, segments, others
+    )
