@@ -125,9 +125,9 @@ def test_start_and_end_cut_the_same_span_as_replay(seeds, suffix, tmp_path):
         export(ExportOptions(path, out, start_s=start_s, end_s=end_s, exposure_us=EXPOSURE_US), out=None)
         got = _read_output(out)
         _assert_same(got, want, suffix)
-        # an independent check of the cut: exactly the events inside [start, end] of the full stream
-        lo, hi = origin + int(round(start_s * 1e6)), origin + int(round(end_s * 1e6))
-        inside = full["events"][(t >= lo) & (t <= hi)]
+        # an independent check of the cut: exactly the events inside [start, end) of the full stream
+        lo, hi = origin + int(np.ceil(start_s * 1e6 - 1e-6)), origin + int(np.ceil(end_s * 1e6 - 1e-6))
+        inside = full["events"][(t >= lo) & (t < hi)]
         np.testing.assert_array_equal(got["events"], inside)
         for f in got["frames"]:
             assert lo <= f.exposure_start_us and f.exposure_end_us <= hi

@@ -5,12 +5,12 @@ from __future__ import annotations
 import subprocess
 
 from rerun.chunk import RrdReader
+from rrd_read import Rrd
 
 import necviz.dashboard.rrd_file as rrd_file
 from necviz.commands.cli import main
 from necviz.dashboard.viewer import _rerun_binary
 from necviz.outputs import OutputError
-from tests.rrd_read import Rrd
 
 DEMO = ["demo", "--duration", "0.6", "--controllers", "nec,fixed", "--no-prompt"]
 

@@ -89,6 +89,8 @@ T_S = struct.Struct("<q")
 MAX_EVENTS_PER_CHUNK = 1 << 20
 BLOCK = 1 << 16
 FLUSH_S = 0.25
+#: How far before ``start_us`` a ranged read starts (see ``NativeRecording._first_offset``).
+SEEK_MARGIN_US = 1_000_000
 #: Longest run of zero bytes accepted as the lost tail of a crash (see ``NativeRecording._zeros_to_end``).
 ZERO_TAIL = 16 << 20
 _PACKED_EVENTS = np.dtype(
@@ -477,12 +479,15 @@ class NativeRecording(Recording):
         if self.start_us is None:
             return self._data_start
         index = self.scan()
-        # last events chunk starting at or before start_us (events before it are all earlier)
+        # the last chunk stamped a second before start_us: whatever precedes it in stream order ended
+        # before start_us (a batch spans 1 ms, an exposure less than a second), so nothing is skipped
         best = 0
         for i, (_off, kind, _length, t) in enumerate(index):
-            if kind == EVENTS and t <= self.start_us:
+            if t < 0 or kind in (COMMAND, ANNOTATION):  # commands and notes are stamped when issued
+                continue
+            if t < self.start_us - SEEK_MARGIN_US:
                 best = i
-            elif kind == EVENTS and t > self.start_us:
+            else:
                 break
         return index[best][0] if index else self._data_start
 
@@ -491,7 +496,7 @@ class NativeRecording(Recording):
         if ranged:
             self.scan()
         lo = -(1 << 62) if self.start_us is None else self.start_us
-        hi = (1 << 62) if self.end_us is None else self.end_us
+        hi = (1 << 62) if self.end_us is None else self.end_us  # excluded: [lo, hi)
         allowed_open = False  # the current exposure is replayed (its start marker was yielded)
         awaiting_frame = False
         off = self._first_offset()
@@ -523,10 +528,10 @@ class NativeRecording(Recording):
                         ev = ev[keep]
                     if ev.size:
                         t = ev["t"]
-                        if t[0] > hi and not awaiting_frame:
+                        if t[0] >= hi and not awaiting_frame:
                             break
-                        if t[0] < lo or t[-1] > hi:
-                            ev = ev[(t >= lo) & (t <= hi)]
+                        if t[0] < lo or t[-1] >= hi:
+                            ev = ev[(t >= lo) & (t < hi)]
                         if ev.size:
                             yield EventBatch(ev)
                 elif kind == MARKER:
@@ -548,7 +553,7 @@ class NativeRecording(Recording):
                 elif kind in (IMU, TRIGGERS):
                     arr = np.frombuffer(data, dtype=IMU_DTYPE if kind == IMU else TRIGGER_DTYPE)
                     if ranged and arr.size:
-                        arr = arr[(arr["t"] >= lo) & (arr["t"] <= hi)]
+                        arr = arr[(arr["t"] >= lo) & (arr["t"] < hi)]
                     if arr.size:
                         yield ImuBatch(arr) if kind == IMU else TriggerBatch(arr)
                 elif kind == COMMAND:

@@ -1,8 +1,8 @@
 """``necviz export IN OUT``: a recording in any format the readers accept, written as AEDAT 4, HDF5,
 NumPy or a native clip — the format chosen by OUT's suffix.
 
-``--start``/``--end`` cut the recording (seconds from its first timestamp, as in ``replay``): events,
-IMU samples and triggers inside the range, frames whose whole exposure lies inside it. The input is
+``--start``/``--end`` cut the recording (seconds from its first timestamp, as in ``replay``): what lies
+in ``[first + start, first + end)``, frames whose whole exposure lies inside it. The input is
 never modified and never overwritten (not even with ``--force``); the output appears only when it is
 complete. See docs/recordings.md for what each format holds.
 """

@@ -28,7 +28,6 @@ from pathlib import Path
 
 from necviz.core.control import CameraLimits, make_controller
 from necviz.core.errors import ParameterError
-from necviz.core.stream import packet_time_us
 from necviz.dashboard.session import Session, preflight, run_session
 from necviz.dashboard.video import video_observer
 from necviz.options import ReplayOptions, ViewerOptions
@@ -39,35 +38,16 @@ from necviz.progress import output
 LANE = "camera"
 
 
-def _first_time_us(path, open_kwargs) -> int | None:
-    """The first packet time of a recording (opens it briefly; streams are lazy)."""
-    from necviz.drivers.recordings import open_recording
-
-    rec = open_recording(path, **open_kwargs)
-    try:
-        for packet in rec:
-            t = packet_time_us(packet)
-            if t is not None:
-                return t
-        return None
-    finally:
-        rec.close()
-
-
 def open_for_replay(path, exposure_us=None, start_s=None, end_s=None, fmt=None):
-    """Open ``path`` restricted to ``[start_s, end_s]`` seconds from its first timestamp.
+    """Open ``path`` restricted to ``[first + start_s, first + end_s)`` seconds from its first
+    timestamp (:mod:`necviz.drivers.recordings.cut`). Returns ``(recording, origin_us)``."""
+    from necviz.drivers.recordings.cut import open_cut
 
-    Returns ``(recording, origin_us)``.
-    """
-    from necviz.drivers.recordings import open_recording
-
-    kw = {"exposure_us": exposure_us, "format": fmt}
-    origin = _first_time_us(path, kw)
+    recording, origin = open_cut(path, start_s, end_s, exposure_us=exposure_us, format=fmt)
     if origin is None:
+        recording.close()
         raise ParameterError(f"{path}: the recording holds no events or frames")
-    start_us = None if start_s is None else origin + int(round(start_s * 1e6))
-    end_us = None if end_s is None else origin + int(round(end_s * 1e6))
-    return open_recording(path, start_us=start_us, end_us=end_us, **kw), origin
+    return recording, origin
 
 
 def clip_focus(properties: dict, origin_us: int) -> tuple[float, float, float] | None:
