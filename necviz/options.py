@@ -532,8 +532,9 @@ class ExportOptions:
         The exposure of input formats that do not store it (µs, > 0).
     format : str, optional
         The input's format (skips detection).
-    compression : str
-        AEDAT 4 packet compression (``lz4``, ``zstd`` or ``none``; checked by the AEDAT 4 writer).
+    compression : str, optional
+        Packet compression of ``.aedat4`` (default ``lz4``) and ``.necrec`` (default ``zstd``):
+        ``lz4``, ``zstd`` or ``none``; ``.h5`` and ``.npz`` have their own and refuse it.
     force : bool
         Replace an existing output (never the input).
 
@@ -549,10 +550,12 @@ class ExportOptions:
     end_s: float | None = None
     exposure_us: float | None = None
     format: str | None = None
-    compression: str = "lz4"
+    compression: str | None = None
     force: bool = False
 
     def __post_init__(self):
+        if self.compression is not None and self.compression not in ("lz4", "zstd", "none"):
+            raise ParameterError(f"--compression must be lz4, zstd or none, got {self.compression!r}")
         if not str(self.file) or not str(self.out_path):
             raise ParameterError("export needs a recording and an output file")
         start_s, end_s, exposure_us = _check_reading(self.start_s, self.end_s, self.exposure_us)

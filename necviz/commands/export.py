@@ -46,13 +46,13 @@ def run(options: ExportOptions, out=...) -> dict:
     from necviz.core.errors import ParameterError
     from necviz.options import ExportOptions
     from necviz.outputs import check_output
-    from necviz.writers import SUFFIXES, export_recording, format_for
+    from necviz.writers import SUFFIXES, check_compression, export_recording, format_for
 
     if not isinstance(options, ExportOptions):
         raise ParameterError(f"export takes ExportOptions, got {type(options).__name__}")
     out = output(out)
     file, out_path = options.file, options.out_path
-    format_for(out_path)
+    check_compression(format_for(out_path), options.compression)  # before anything is read
     check_output(out_path, "OUT", inputs=[file], force=options.force, suffixes=SUFFIXES)
     recording, origin = open_for_replay(Path(file), options.exposure_us, options.start_s, options.end_s, options.format)
     line = LiveLine(out if hasattr(out, "isatty") and out.isatty() else None)
@@ -107,7 +107,10 @@ def add_parser(sub) -> None:
     )
     p.add_argument("--format", default=None, choices=FORMATS, help="the input's format (skip detection)")
     p.add_argument(
-        "--compression", default="lz4", choices=("lz4", "zstd", "none"), help="AEDAT 4 packet compression (default lz4)"
+        "--compression",
+        default=None,
+        choices=("lz4", "zstd", "none"),
+        help="packet compression of .aedat4 (default lz4) and .necrec (default zstd)",
     )
     p.set_defaults(func=_cmd)
 

@@ -76,10 +76,11 @@ def written(path):
 class _NativeWriter:
     """The native recorder with the writers' interface (``counts``)."""
 
-    def __init__(self, path, sensor, *, properties: dict | None = None):
+    def __init__(self, path, sensor, *, properties: dict | None = None, compression: str = "zstd"):
         from necviz.drivers.recordings.native import Recorder
 
-        self.recorder = Recorder(path, sensor=sensor, properties={k: str(v) for k, v in (properties or {}).items()})
+        props = {k: str(v) for k, v in (properties or {}).items()}
+        self.recorder = Recorder(path, sensor=sensor, properties=props, compression=compression)
         self.counts = {"events": 0, "frames": 0, "imu": 0, "triggers": 0, "commands": 0, "annotations": 0}
 
     def write(self, packet) -> None:
@@ -106,7 +107,30 @@ class _NativeWriter:
         self.recorder.close()
 
 
-def open_writer(fmt: str, path, sensor, *, properties: dict | None = None, compression: str = "lz4"):
+#: Packet compression by format when none is asked for (the formats that take ``--compression``).
+DEFAULT_COMPRESSION = {"aedat4": "lz4", "necviz": "zstd"}
+
+
+def check_compression(fmt: str, compression: str | None) -> str | None:
+    """The compression a writer of ``fmt`` uses: ``compression``, or the format's default.
+
+    Raises
+    ------
+    ParameterError
+        ``compression`` given for a format that has its own (``.h5``: gzip; ``.npz``: deflate).
+    """
+    if fmt not in DEFAULT_COMPRESSION:
+        if compression is not None:
+            suffix = {"hdf5": ".h5", "npz": ".npz"}.get(fmt, fmt)
+            own = {"hdf5": "gzip with shuffle", "npz": "deflate"}.get(fmt, "its own")
+            raise ParameterError(
+                f"--compression applies to .aedat4 and .necrec; {suffix} is always compressed with {own}"
+            )
+        return None
+    return compression or DEFAULT_COMPRESSION[fmt]
+
+
+def open_writer(fmt: str, path, sensor, *, properties: dict | None = None, compression: str | None = None):
     """A writer for format ``fmt`` (a :data:`WRITERS` value) creating ``path``: ``write(packet)``, ``close()``,
     ``counts``.
 
@@ -115,6 +139,7 @@ def open_writer(fmt: str, path, sensor, *, properties: dict | None = None, compr
     ParameterError
         For an unknown format or compression.
     """
+    compression = check_compression(fmt, compression)
     if fmt == "aedat4":
         from necviz.writers.aedat4_writer import Aedat4Writer
 
@@ -128,7 +153,7 @@ def open_writer(fmt: str, path, sensor, *, properties: dict | None = None, compr
 
         return NpzWriter(path, sensor, properties=properties)
     if fmt == "necviz":
-        return _NativeWriter(path, sensor, properties=properties)
+        return _NativeWriter(path, sensor, properties=properties, compression=compression)
     raise ParameterError(f"unknown export format {fmt!r}; choose one of {', '.join(sorted(set(WRITERS.values())))}")
 
 
@@ -149,7 +174,7 @@ def format_for(path) -> str:
 
 
 def export_recording(
-    recording, out, *, compression: str = "lz4", properties: dict | None = None, progress=None
+    recording, out, *, compression: str | None = None, properties: dict | None = None, progress=None
 ) -> dict:
     """Write every packet of ``recording`` to ``out`` in the format its suffix names.
 
@@ -157,7 +182,8 @@ def export_recording(
     ----------
     recording : an open :class:`~necviz.drivers.recordings.Recording` (restricted to the range to export).
     out : the output path (checked beforehand with :func:`necviz.outputs.check_output`).
-    compression : AEDAT 4 packet compression: ``"lz4"``, ``"zstd"`` or ``"none"``.
+    compression : packet compression of ``.aedat4`` (default ``"lz4"``) and ``.necrec`` (default
+        ``"zstd"``): ``"lz4"``, ``"zstd"`` or ``"none"``; refused for the other formats.
     properties : run metadata stored where the format has room (native header, HDF5 attributes).
     progress : ``progress(events, frames, seconds)`` called now and then.
 
