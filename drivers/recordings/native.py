@@ -115,6 +115,15 @@ _PACKED_EVENTS = np.dtype(
 assert EVENT_DTYPE.itemsize == 13 and _PACKED_EVENTS == EVENT_DTYPE
 
 
+class WriteError(RecordingError):
+    """The recording could not be written (a full disk, a file too large); ``cause`` is the OS error."""
+
+    def __init__(self, message: str, cause: OSError):
+        super().__init__(message)
+        self.cause = cause
+        self.strerror = cause.strerror
+
+
 def _chunk(kind: int, payload: bytes) -> bytes:
     return CHUNK_HEAD.pack(kind, len(payload), zlib.crc32(payload)) + payload
 
@@ -267,7 +276,7 @@ class Recorder:
         self._io = threading.Lock()  # one writer of the file at a time
         self._buf = bytearray()  # encoded chunks not yet handed to the OS (the encoding thread's)
         self._closed = False
-        self._error: RecordingError | None = None  # a failed write (full disk): raised by every later call
+        self._error: WriteError | None = None  # a failed write (full disk): raised by every later call
         self.bytes_written = 0
         self.raw_bytes = 0  # what the chunks would take uncompressed (version 1)
         try:
@@ -291,7 +300,7 @@ class Recorder:
                     view = view[n:]
                     self.bytes_written += n
         except OSError as exc:
-            self._error = RecordingError(f"{self.path}: cannot write the recording ({exc.strerror or exc})")
+            self._error = WriteError(f"{self.path}: cannot write the recording ({exc.strerror or exc})", exc)
             raise self._error from None
 
     def _append(self, kind: int, encode, *args, raw: int = 0) -> None:
@@ -437,7 +446,7 @@ class Recorder:
                 try:
                     os.fsync(self._fd)
                 except OSError as exc:
-                    self._error = RecordingError(f"{self.path}: cannot write the recording ({exc.strerror or exc})")
+                    self._error = WriteError(f"{self.path}: cannot write the recording ({exc.strerror or exc})", exc)
             if self._error is not None:
                 raise self._error
         finally:

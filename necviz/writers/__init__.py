@@ -28,6 +28,7 @@ from necviz.core.errors import ParameterError
 from necviz.core.events import EventBatch
 from necviz.core.frames import Frame
 from necviz.core.imu import ImuBatch, TriggerBatch
+from necviz.outputs import write_failed
 from necviz.pipeline import packet_time_us
 
 #: Output suffix -> format name.
@@ -130,6 +131,18 @@ def check_compression(fmt: str, compression: str | None) -> str | None:
     return compression or DEFAULT_COMPRESSION[fmt]
 
 
+def write_failure(exc: BaseException) -> BaseException | None:
+    """The OS error behind a failed write (a full disk, a file too large, an I/O error), or None when
+    ``exc`` is something else: a writer's own OSError, or the native recorder's error for one."""
+    from necviz.drivers.recordings.native import WriteError
+
+    if isinstance(exc, WriteError):
+        return exc.cause
+    if isinstance(exc, OSError) and not isinstance(exc, (FileNotFoundError, PermissionError)):
+        return exc
+    return None
+
+
 def open_writer(fmt: str, path, sensor, *, properties: dict | None = None, compression: str | None = None):
     """A writer for format ``fmt`` (a :data:`WRITERS` value) creating ``path``: ``write(packet)``, ``close()``,
     ``counts``.
@@ -203,6 +216,7 @@ def export_recording(
     fmt = format_for(out)
     wall0 = time.perf_counter()
     first = last = None
+    existed = os.path.lexists(out)
     with written(out) as tmp:
         writer = open_writer(fmt, tmp, recording.sensor, properties=properties, compression=compression)
         try:
@@ -224,8 +238,16 @@ def export_recording(
                 for t_us, data in getattr(recording, "annotations", None) or ():
                     if recording.in_range(int(t_us)):
                         writer.annotate(int(t_us), data)
-        finally:
             writer.close()
+        except BaseException as e:
+            try:
+                writer.close()  # whatever it raises now (the same full disk) is not the error to report
+            except BaseException:  # noqa: BLE001
+                pass
+            cause = write_failure(e)
+            if cause is not None:  # a full disk, a file too large: one line, and the partial file is removed
+                raise write_failed(out, cause, existed) from None
+            raise
         c = writer.counts
         if not (c["events"] or c["frames"] or c["imu"] or c["triggers"]):
             raise ParameterError(f"nothing to export from {recording.path.name} in the selected range")
