@@ -336,7 +336,7 @@ class ClipOptions:
     Parameters
     ----------
     folder : path
-        An existing, writable folder for the clips.
+        The folder for the clips (created, parents too, when missing).
     before_s, after_s : float
         Seconds kept before a failure and recorded after it (each at most 600).
     memory_mb : float
@@ -345,7 +345,7 @@ class ClipOptions:
     Raises
     ------
     ParameterError
-        No folder, a folder that does not exist or cannot be written, a bound out of range.
+        No folder, a file where the folder should be, a folder that cannot be written, a bound out of range.
     """
 
     folder: str | os.PathLike = ""
@@ -361,10 +361,10 @@ class ClipOptions:
         self.memory_mb = check_flag("--clip-memory", self.memory_mb)
 
     def check(self) -> None:
-        """The folder exists and is writable (before anything starts)."""
-        folder = os.fspath(self.folder)
-        if not os.path.isdir(folder):
-            raise ParameterError(f"--clips: folder {folder!r} does not exist")
+        """The folder exists (created when missing, said in one line) and is writable; before anything starts."""
+        from necviz.outputs import make_folder
+
+        folder = os.fspath(make_folder(self.folder, "--clips"))
         if not os.access(folder, os.W_OK):
             raise ParameterError(f"--clips: folder {folder!r} is not writable")
 

@@ -118,10 +118,10 @@ assert EVENT_DTYPE.itemsize == 13 and _PACKED_EVENTS == EVENT_DTYPE
 class WriteError(RecordingError):
     """The recording could not be written (a full disk, a file too large); ``cause`` is the OS error."""
 
-    def __init__(self, message: str, cause: OSError):
+    def __init__(self, message: str, cause: OSError | None = None):
         super().__init__(message)
         self.cause = cause
-        self.strerror = cause.strerror
+        self.strerror = cause.strerror if cause is not None else None
 
 
 def _chunk(kind: int, payload: bytes) -> bytes:

@@ -50,18 +50,6 @@ def open_for_replay(path, exposure_us=None, start_s=None, end_s=None, fmt=None):
     return recording, origin
 
 
-def clip_focus(properties: dict, origin_us: int) -> tuple[float, float, float] | None:
-    """A flight-recorder clip's failure as ``(start_s, end_s, failure_s)`` on the replay's time axis
-    (seconds from ``origin_us``), or None for any other recording."""
-    from necviz.flight_recorder import FOCUS_S
-
-    try:
-        t = (int(properties["clip_failure_us"]) - int(origin_us)) / 1e6
-    except (KeyError, TypeError, ValueError):
-        return None
-    return max(0.0, t - FOCUS_S), t + FOCUS_S, t
-
-
 def summarise(stats: dict, lane: str = LANE) -> dict:
     """The replay's JSON summary from the run's statistics (telemetry included)."""
     tel = stats["telemetry"][lane]
@@ -178,8 +166,11 @@ def _replay(options: ReplayOptions, viewer, out, path: Path, source: Path, profi
         f"{recording.exposure_source}); {options.controller} in open loop",
         file=out,
     )
-    focus = clip_focus(getattr(recording, "properties", {}), origin)
+    from necviz.flight_recorder import clip_focus
+
+    focus = clip_focus(getattr(recording, "properties", {}))  # a clip: the session's time axis and window
     if focus is not None:
+        origin = focus[3]
         print(
             f"  clip: {recording.properties.get('clip_cause', 'failure')} at {focus[2]:.3f} s; the viewer loops over "
             f"{focus[0]:.3f}..{focus[1]:.3f} s",

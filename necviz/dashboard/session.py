@@ -209,6 +209,7 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
         observers.append(RecorderObserver(ss.recorder, cam, driver))
     for make in ss.observers:
         observers.append(make(ss, layout, out))
+    files += [o.folder for o in observers if getattr(o, "folder", None) is not None]  # clips fill a disk too
     pipe = Pipeline(
         ss.source,
         ss.lanes,
@@ -247,7 +248,8 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
             while not pipe.wait(0.5):
                 line.show(status())
                 disk_full = low_space(files)
-                if disk_full is not None:  # stop while the files can still be completed
+                broken = _failed(observers)
+                if disk_full is not None or broken is not None:  # stop while the files can still be completed
                     pipe.stop()
                     break
         except KeyboardInterrupt:
@@ -271,6 +273,10 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
             except BaseException:
                 if not failed:
                     raise  # else the run's own error is the one reported
+    broken = _failed(observers)
+    if broken is not None:  # an output that could not be written (a clip on a full disk)
+        at = (pipe.now_us or 0) / 1e6 - (pipe.first_us or 0) / 1e6
+        raise type(broken)(f"{broken}; the run was stopped at {at:.1f} s")
     if disk_full is not None:
         path, free = disk_full
         raise OutputError(
@@ -284,6 +290,11 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
     stats["rrd"] = str(viewer.save_path) if viewer.save_path is not None else None
     stats["telemetry"] = pipe.telemetry
     return stats, viewer
+
+
+def _failed(observers):
+    """The error of an observer whose output could not be written (its ``failure``), or None."""
+    return next((o.failure for o in observers if getattr(o, "failure", None) is not None), None)
 
 
 def _keep_serving(viewer, out) -> None:
@@ -333,8 +344,10 @@ def print_summary(out, stats: dict) -> None:
         )
     fr = stats.get("flight_recorder")
     if fr:
+        from necviz.flight_recorder import plural
+
         dropped = (
-            f"; the {fr['buffer_bytes'] / 2**20:.0f} MB buffer dropped {fr['dropped_events']:,} events "
+            f"; the {fr['buffer_bytes'] / 2**20:.0f} MB budget dropped {fr['dropped_events']:,} events "
             "(clips hold less than --clip-before)"
             if fr["dropped_events"]
             else ""
@@ -342,8 +355,8 @@ def print_summary(out, stats: dict) -> None:
         lost = f", {fr['clips_dropped']} dropped (writer behind)" if fr["clips_dropped"] else ""
         errors = f", {fr['write_errors']} failed to write" if fr["write_errors"] else ""
         print(
-            f"  clips: {fr['clips_written']} written ({fr['failures']} saturated frames, {fr['marks']} marks){lost}"
-            f"{errors}; peak buffer {fr['peak_bytes'] / 2**20:.1f} MB{dropped}",
+            f"  clips: {fr['clips_written']} written ({plural(fr['failures'], 'saturated frame')}, "
+            f"{plural(fr['marks'], 'mark')}){lost}{errors}; peak held {fr['peak_bytes'] / 2**20:.1f} MB{dropped}",
             file=out,
         )
     vd = stats.get("video")

@@ -137,7 +137,7 @@ def write_failure(exc: BaseException) -> BaseException | None:
     from necviz.drivers.recordings.native import WriteError
 
     if isinstance(exc, WriteError):
-        return exc.cause
+        return exc.cause or exc
     if isinstance(exc, OSError) and not isinstance(exc, (FileNotFoundError, PermissionError)):
         return exc
     return None
