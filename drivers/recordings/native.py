@@ -57,6 +57,7 @@ Seeking (``start_us``/``end_us``): a forward scan of the chunk headers (reading 
 from __future__ import annotations
 
 import datetime as _dt
+import functools
 import json
 import os
 import struct
@@ -128,7 +129,9 @@ def _chunk(kind: int, payload: bytes) -> bytes:
     return CHUNK_HEAD.pack(kind, len(payload), zlib.crc32(payload)) + payload
 
 
+@functools.cache
 def _zstd():
+    """The Zstandard module (looked up once: a failed import is not cached by Python and costs ~0.2 ms)."""
     try:  # the standard library from Python 3.14, its backport before
         from compression import zstd
     except ImportError:
