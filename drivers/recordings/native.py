@@ -505,6 +505,7 @@ class NativeRecording(Recording):
         self.header = header
         self.sensor = self.sensor or stored
         self.properties = dict(props)
+        self.camera_name = str(props["camera_name"]) if props.get("camera_name") else None
         self.created_utc = header.get("created_utc")
         self._data_start = PREAMBLE + CHUNK_HEAD.size + length
         self._index: list[tuple[int, int, int, int]] | None = None  # (offset, type, length, t_us)

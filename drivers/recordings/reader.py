@@ -294,7 +294,8 @@ class Recording:
     exposure start >= ``start_us``, exposure end <= ``end_us``). Replay is open
     loop: :meth:`set_exposure` accepts commands and ignores them (the recorded exposures are what
     they are). Attributes: ``sensor``, ``format`` (short name), ``path``, ``properties`` (run
-    metadata; native files only), ``commands`` and ``annotations`` (stored in native files; empty for
+    metadata; native files only), ``camera_name`` (the camera the file names, e.g. AEDAT 4's
+    ``DAVIS346_00000104``, else None), ``commands`` and ``annotations`` (stored in native files; empty for
     foreign formats), ``exposure_source`` (``"stored"``, ``"user (--exposure-us)"``, ``"estimated from
     frame timing"``, ``"none (no frames)"`` or :data:`NO_EXPOSURE_FRAMES`) and ``warnings`` (one-line
     strings about things fixed up or skipped; complete once iteration has finished).
@@ -321,6 +322,7 @@ class Recording:
         if self.start_us is not None and self.end_us is not None and self.end_us < self.start_us:
             raise RecordingError(f"{self.path}: end time {self.end_us} µs precedes start time {self.start_us} µs")
         self.properties: dict = {}
+        self.camera_name: str | None = None  # the camera the file names (AEDAT: DAVIS346_00000104 ...)
         self.commands: list = []
         self.annotations: list = []
         self.exposure_source = "none (no frames)"

@@ -65,7 +65,12 @@ def run(options: ExportOptions, out=...) -> dict:
             recording,
             out_path,
             compression=options.compression,
-            properties={"exported_from": str(file), "format": recording.format, **getattr(recording, "properties", {})},
+            # the input's name, not the path as typed (a relative path means nothing once the file moves)
+            properties={
+                "exported_from": Path(file).name,
+                "format": recording.format,
+                **getattr(recording, "properties", {}),
+            },
             progress=progress,
         )
     finally:

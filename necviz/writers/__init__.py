@@ -143,9 +143,17 @@ def write_failure(exc: BaseException) -> BaseException | None:
     return None
 
 
-def open_writer(fmt: str, path, sensor, *, properties: dict | None = None, compression: str | None = None):
+def open_writer(
+    fmt: str,
+    path,
+    sensor,
+    *,
+    properties: dict | None = None,
+    compression: str | None = None,
+    camera_name: str | None = None,
+):
     """A writer for format ``fmt`` (a :data:`WRITERS` value) creating ``path``: ``write(packet)``, ``close()``,
-    ``counts``.
+    ``counts``. ``camera_name``: the camera the input names (AEDAT 4's ``source``, kept in the output).
 
     Raises
     ------
@@ -156,7 +164,7 @@ def open_writer(fmt: str, path, sensor, *, properties: dict | None = None, compr
     if fmt == "aedat4":
         from necviz.writers.aedat4_writer import Aedat4Writer
 
-        return Aedat4Writer(path, sensor, compression=compression)
+        return Aedat4Writer(path, sensor, compression=compression, source=camera_name)
     if fmt == "hdf5":
         from necviz.writers.hdf5_writer import Hdf5Writer
 
@@ -218,7 +226,9 @@ def export_recording(
     first = last = None
     existed = os.path.lexists(out)
     with written(out) as tmp:
-        writer = open_writer(fmt, tmp, recording.sensor, properties=properties, compression=compression)
+        camera = getattr(recording, "camera_name", None)
+        props = {**(properties or {}), **({"camera_name": camera} if camera else {})}
+        writer = open_writer(fmt, tmp, recording.sensor, properties=props, compression=compression, camera_name=camera)
         try:
             next_report = 0.0
             for packet in recording:
