@@ -54,6 +54,7 @@ from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import ImuBatch, TriggerBatch
 from necviz.options import ClipOptions
 from necviz.pipeline import Observer, RecorderObserver, packet_time_us
+from necviz.progress import plural
 
 #: Clips waiting for the writer beyond the one being written; more are dropped (and counted).
 MAX_PENDING = 2
@@ -73,11 +74,6 @@ def cause_slug(cause: str) -> str:
     """A diagnosed cause as a file-name part (``command_latency``); ``saturated`` when none was named."""
     slug = re.sub(r"[^A-Za-z0-9_-]+", "-", str(cause or "").strip()).strip("-")
     return slug or "saturated"
-
-
-def plural(n: int, word: str, words: str | None = None) -> str:
-    """``1 failure``, ``2 failures``."""
-    return f"{n:,} {word if n == 1 else (words or word + 's')}"
 
 
 class _Item:

@@ -537,6 +537,8 @@ class ExportOptions:
         ``lz4``, ``zstd`` or ``none``; ``.h5`` and ``.npz`` have their own and refuse it.
     force : bool
         Replace an existing output (never the input).
+    pipe_timeout_s : float, optional
+        Accept a named pipe as ``file``, waiting at most this long for its data (copied first).
 
     Raises
     ------
@@ -552,8 +554,11 @@ class ExportOptions:
     format: str | None = None
     compression: str | None = None
     force: bool = False
+    pipe_timeout_s: float | None = None
 
     def __post_init__(self):
+        if self.pipe_timeout_s is not None:
+            object.__setattr__(self, "pipe_timeout_s", check_flag("--pipe-timeout", self.pipe_timeout_s))
         if self.compression is not None and self.compression not in ("lz4", "zstd", "none"):
             raise ParameterError(f"--compression must be lz4, zstd or none, got {self.compression!r}")
         if not str(self.file) or not str(self.out_path):

@@ -333,3 +333,26 @@ def test_compression_is_refused_where_the_format_has_its_own(seeds, tmp_path, ca
         assert main(["export", str(src), str(tmp_path / f"x{suffix}"), "--compression", "zstd"]) == 2
         assert "--compression applies to .aedat4 and .necrec" in capsys.readouterr().err
         assert not (tmp_path / f"x{suffix}").exists()
+
+
+def test_export_reads_a_named_pipe_with_the_flag_it_suggests(seeds, tmp_path, capsys):
+    import os
+    import threading
+
+    src = seeds["necviz:seed.necrec"]
+    fifo = tmp_path / "in.fifo"
+    os.mkfifo(fifo)
+    assert main(["export", str(fifo), str(tmp_path / "a.npz")]) == 2
+    err = capsys.readouterr().err
+    assert "--pipe-timeout" in err and not (tmp_path / "a.npz").exists()
+
+    def feed():
+        with open(fifo, "wb") as f:
+            f.write(src.read_bytes())
+
+    t = threading.Thread(target=feed)
+    t.start()
+    assert main(["export", str(fifo), str(tmp_path / "b.npz"), "--pipe-timeout", "10"]) == 0
+    t.join(10)
+    want = _read_input(src)
+    np.testing.assert_array_equal(load_npz(tmp_path / "b.npz")["events"], want["events"])

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from necviz.names import FORMATS
-from necviz.progress import LiveLine, output
+from necviz.progress import LiveLine, output, plural
 
 if TYPE_CHECKING:
     from necviz.options import ExportOptions
@@ -42,11 +42,10 @@ def run(options: ExportOptions, out=...) -> dict:
     RecordingError
         For a missing, unreadable or damaged input (no output is left behind).
     """
-    from necviz.commands.replay import open_for_replay
     from necviz.core.errors import ParameterError
     from necviz.options import ExportOptions
     from necviz.outputs import check_output
-    from necviz.writers import SUFFIXES, check_compression, export_recording, format_for
+    from necviz.writers import SUFFIXES, check_compression, format_for
 
     if not isinstance(options, ExportOptions):
         raise ParameterError(f"export takes ExportOptions, got {type(options).__name__}")
@@ -54,7 +53,28 @@ def run(options: ExportOptions, out=...) -> dict:
     file, out_path = options.file, options.out_path
     check_compression(format_for(out_path), options.compression)  # before anything is read
     check_output(out_path, "OUT", inputs=[file], force=options.force, suffixes=SUFFIXES)
-    recording, origin = open_for_replay(Path(file), options.exposure_us, options.start_s, options.end_s, options.format)
+    from necviz.drivers.recordings import RecordingError, check_source, spool_pipe
+
+    source = Path(file)
+    if check_source(source) == "pipe":  # read once, into a temporary copy (a cut reads the input twice)
+        if options.pipe_timeout_s is None:
+            raise RecordingError(
+                f"{file}: a named pipe, not a regular file (reading one waits for a writer for ever); "
+                "pass --pipe-timeout S to copy what it delivers"
+            )
+        source = spool_pipe(source, options.pipe_timeout_s)
+    try:
+        return _export(options, out, file, source, out_path)
+    finally:
+        if source != Path(file):
+            source.unlink(missing_ok=True)
+
+
+def _export(options, out, file, source: Path, out_path) -> dict:
+    from necviz.commands.replay import open_for_replay
+    from necviz.writers import export_recording
+
+    recording, origin = open_for_replay(source, options.exposure_us, options.start_s, options.end_s, options.format)
     line = LiveLine(out if hasattr(out, "isatty") and out.isatty() else None)
 
     def progress(events, frames, seconds):
@@ -81,8 +101,8 @@ def run(options: ExportOptions, out=...) -> dict:
     c = stats["counts"]
     span = 0.0 if stats["first_us"] is None else (stats["last_us"] - stats["first_us"]) / 1e6
     print(
-        f"  wrote {out_path} ({stats['format']}): {c['events']:,} events, {c['frames']} frames, {c['imu']} IMU samples, "
-        f"{c['triggers']} triggers over {span:.3f} s",
+        f"  wrote {out_path} ({stats['format']}): {plural(c['events'], 'event')}, {plural(c['frames'], 'frame')}, "
+        f"{plural(c['imu'], 'IMU sample')}, {plural(c['triggers'], 'trigger')} over {span:.3f} s",
         file=out,
     )
     stats["origin_us"] = origin
@@ -112,6 +132,13 @@ def add_parser(sub) -> None:
     )
     p.add_argument("--format", default=None, choices=FORMATS, help="the input's format (skip detection)")
     p.add_argument(
+        "--pipe-timeout",
+        type=number("--pipe-timeout"),
+        default=None,
+        metavar="S",
+        help="accept a named pipe as IN: copy what it delivers, waiting at most S seconds for it",
+    )
+    p.add_argument(
         "--compression",
         default=None,
         choices=("lz4", "zstd", "none"),
@@ -133,6 +160,7 @@ def _cmd(args) -> int:
             format=args.format,
             compression=args.compression,
             force=args.force,
+            pipe_timeout_s=args.pipe_timeout,
         )
     )
     return 0

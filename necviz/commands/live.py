@@ -53,6 +53,16 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     """
     out = output(out)
     options = options or LiveOptions()
+    if options.device == "emulated":  # the scene's --set values against the run's duration, before anything opens
+        from necviz.drivers.sim.scenes import make_scenario
+
+        spec = options.scene.spec()
+        make_scenario(
+            spec["name"],
+            duration_us=None if options.duration_s is None else int(round(options.duration_s * 1e6)),
+            seed=options.scene.resolved_seed,
+            **{**spec["params"], **options.scene.params},
+        )
     viewer, profile = preflight(
         "live",
         viewer,

@@ -26,7 +26,7 @@ from necviz.memory import bound_heap_retention
 from necviz.options import ShowOptions, TuneOptions, ViewerOptions
 from necviz.outputs import OutputError, low_space
 from necviz.pipeline import Lane, Pipeline, RecorderObserver
-from necviz.progress import LiveLine, output
+from necviz.progress import LiveLine, output, plural
 
 
 @dataclass
@@ -344,8 +344,6 @@ def print_summary(out, stats: dict) -> None:
         )
     fr = stats.get("flight_recorder")
     if fr:
-        from necviz.flight_recorder import plural
-
         dropped = (
             f"; the {fr['buffer_bytes'] / 2**20:.0f} MB budget dropped {fr['dropped_events']:,} events "
             "(clips hold less than --clip-before)"

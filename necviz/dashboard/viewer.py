@@ -60,10 +60,22 @@ def has_display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
+def in_notebook() -> bool:
+    """Whether this runs in a Jupyter kernel (where a widget can show), not a plain script or terminal."""
+    ipython = sys.modules.get("IPython")
+    shell = ipython.get_ipython() if ipython is not None and hasattr(ipython, "get_ipython") else None
+    return shell is not None and getattr(shell, "kernel", None) is not None
+
+
 def resolve(options: ViewerOptions, command: str, inputs=()) -> ViewerOptions:
     """Fill in the headless default (a file) and check the save path before anything starts."""
     from dataclasses import replace
 
+    if options.notebook and not in_notebook():
+        raise ParameterError(
+            "notebook=True shows the viewer in a Jupyter notebook's cell, and this is not a notebook (a plain "
+            "script or terminal); use save='run.rrd' or spawn=True instead"
+        )
     if not (options.spawn or options.serve or options.connect or options.save or options.notebook):
         if has_display():
             options = replace(options, spawn=True)
