@@ -42,6 +42,7 @@ mark writes nothing. A clip that cannot be written (a full disk) is removed whol
 from __future__ import annotations
 
 import dataclasses
+import os
 import queue
 import re
 import threading
@@ -68,6 +69,8 @@ FOCUS_S = 1.0
 #: The writer's share of the budget (and its cap): encoders, Rerun's chunk batches, file buffers.
 WRITER_SHARE = 0.25
 WRITER_CAP = 32 << 20
+#: Free space a clip needs on its disk beyond its own bytes before it is written.
+CLIP_SPACE_MARGIN = 4 << 20
 
 
 def cause_slug(cause: str) -> str:
@@ -432,6 +435,21 @@ class FlightRecorder(Observer):
             name, k = f"{base}-{k}", k + 1
         return name
 
+    def _check_space(self, clip: _Clip) -> None:
+        """Refuse a clip its disk cannot hold (its raw bytes, an upper bound of what the files take
+        compressed, and a margin) before anything of it is written: a writer that hits a full disk
+        half-way reports it in its own words (Rerun's file sink logs its own error line)."""
+        import errno
+
+        from necviz.outputs import free_bytes
+
+        need = clip.nbytes + CLIP_SPACE_MARGIN
+        free = free_bytes(self.folder)
+        if free is not None and free < need:
+            raise OSError(
+                errno.ENOSPC, f"{os.strerror(errno.ENOSPC)} (a clip needs about {need >> 20} MB, {free >> 20} MB free)"
+            )
+
     def focus(self, clip: _Clip) -> tuple[float, float]:
         """The seconds (session time) the clip's viewers loop over: the second around its first failure,
         inside the data the clip holds."""
@@ -446,6 +464,7 @@ class FlightRecorder(Observer):
         from necviz.drivers.recordings.native import Recorder
         from necviz.writers import Pending
 
+        self._check_space(clip)
         base = self.base_name(clip)
         first_lane = next(iter(self.lanes))
         per_lane: dict[str, list] = {}

@@ -293,6 +293,9 @@ class ShowOptions:
         The window of each event image (ms).
     event_points : int
         Also log up to this many raw events per window as points.
+    image_rate_hz : float, optional
+        Log at most this many frames per lane, and event images, per second of sensor time (the
+        scalar series stay whole): a lighter ``--save`` for long runs. ``None``: every one.
 
     Raises
     ------
@@ -303,12 +306,15 @@ class ShowOptions:
     speed: object = "auto"  # "auto": real time when a viewer watches, as fast as possible into a file
     event_window_ms: float = 33.3
     event_points: int = 0
+    image_rate_hz: float | None = None
 
     def __post_init__(self):
         if self.speed != "auto":
             self.speed = parse_speed(self.speed)
         self.event_window_ms = check_flag("--event-window-ms", self.event_window_ms)
         self.event_points = check_flag("--event-points", self.event_points)
+        if self.image_rate_hz is not None:
+            self.image_rate_hz = check_flag("--image-rate", self.image_rate_hz)
 
 
 @dataclass

@@ -73,3 +73,50 @@ def test_export_replacing_a_file_on_a_full_disk_keeps_the_old_one(small_disk, re
     proc = _necviz("export", recording, out, "--force")
     assert proc.returncode == 2 and "unchanged" in proc.stderr
     assert out.read_bytes() == b"old" and os.listdir(small_disk) == ["out.npz"]
+
+
+def _one_line_exit_2(proc, *words):
+    assert proc.returncode == 2, proc.stdout[-2000:] + proc.stderr[-2000:]
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("necviz: error:"), proc.stderr
+    for w in words:
+        assert w in lines[0], lines[0]
+    assert ".partial" not in lines[0] and "Traceback" not in proc.stderr
+    return lines[0]
+
+
+DEMO = ["demo", "--duration", "1.0", "--controllers", "nec,fixed", "--no-prompt"]
+
+
+@pytest.fixture
+def no_reserve(monkeypatch):
+    """Let the writes reach the full disk (the run's free-space guard would stop it first)."""
+    monkeypatch.setenv("NECVIZ_DISK_RESERVE_MB", "0")
+
+
+def test_record_on_a_full_disk(small_disk, tmp_path, no_reserve):
+    proc = _necviz(*DEMO, "--record", small_disk / "r.necrec", "--save", tmp_path / "x.rrd", cwd=tmp_path)
+    _one_line_exit_2(proc, "No space left on device")
+    assert os.listdir(small_disk) == [] and not (tmp_path / "x.rrd").exists()
+
+
+def test_save_on_a_full_disk(small_disk, tmp_path, no_reserve):
+    proc = _necviz(*DEMO, "--save", small_disk / "x.rrd", cwd=tmp_path)
+    _one_line_exit_2(proc, "x.rrd")
+    assert os.listdir(small_disk) == []
+
+
+def test_a_clip_on_a_full_disk_stops_the_run_and_leaves_no_part_of_it(small_disk, tmp_path, no_reserve):
+    args = ["--clips", small_disk, "--clip-before", "0.3", "--clip-after", "0.2", "--save", tmp_path / "x.rrd"]
+    proc = _necviz(*DEMO, *args, cwd=tmp_path)
+    _one_line_exit_2(proc, "--clips", "No space left on device")
+    assert os.listdir(small_disk) == []
+
+
+def test_a_video_on_a_full_disk(small_disk, tmp_path, no_reserve):
+    pytest.importorskip("av", reason="PyAV is not installed (pip install 'necviz[video]')")
+    filler = small_disk / "filler"
+    filler.write_bytes(bytes(os.statvfs(small_disk).f_bavail * os.statvfs(small_disk).f_frsize - 60_000))
+    proc = _necviz(*DEMO, "--video", small_disk / "v.mp4", "--save", tmp_path / "x.rrd", cwd=tmp_path)
+    _one_line_exit_2(proc, "v.mp4", "No space left on device")
+    assert os.listdir(small_disk) == ["filler"]

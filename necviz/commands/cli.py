@@ -110,6 +110,14 @@ def add_show_args(parser, tuning: bool = True) -> None:
         metavar="N",
         help="also log up to N raw events per window as points (default 0: images only)",
     )
+    g.add_argument(
+        "--image-rate",
+        type=number("--image-rate"),
+        default=None,
+        metavar="HZ",
+        help="log at most HZ frames per lane and HZ event images per second of sensor time (a lighter --save "
+        "for long runs: 2 keeps an hour of live in ~0.2 GB; default: every one)",
+    )
     g.add_argument("--profile", metavar="FILE.json", help="camera profile (CRF, TEDI thresholds and compensation)")
     g.add_argument("--force", action="store_true", help="replace existing output files")
     if tuning:
@@ -185,7 +193,7 @@ def _video(args):
 def _show(args):
     from necviz.options import ShowOptions
 
-    return ShowOptions(args.speed, args.event_window_ms, args.event_points)
+    return ShowOptions(args.speed, args.event_window_ms, args.event_points, getattr(args, "image_rate", None))
 
 
 def _tune(args):

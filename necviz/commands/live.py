@@ -73,6 +73,12 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     )  # before the camera is opened
     if options.clips is not None:
         options.clips.check()
+    if viewer.save is not None:  # a long session's file grows by GB an hour: say so before it fills a disk
+        from necviz.dashboard.rrd_file import size_warning
+
+        note = size_warning(viewer.save, options.duration_s, options.show.image_rate_hz)
+        if note is not None and out is not None:
+            print(note, file=out)
     from necviz.drivers.davis import CameraOptions, open_camera
 
     backend = None

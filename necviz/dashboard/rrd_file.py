@@ -10,10 +10,15 @@ index of one segment only, so memory stays flat; when the run ends, the segments
 without decoding them and writes one footer for the whole file. The user gets the one file they
 asked for.
 
-Layout while the run goes on: the first segment is the file itself (a run shorter than one segment
-is never joined, and a crash leaves the file as it always did: readable up to its last flush,
-``necviz repair`` makes it whole); later segments go to ``<file>.parts/0001.rrd``, ``0002.rrd``...
-beside it. After a crash both are kept; ``necviz repair <file>`` joins them.
+The layout's blueprint is kept apart from the segments, in a small ``.rbl`` beside them, and joined
+in last: ``rerun rrd route`` 0.41 stops with an assertion on a file whose blueprint store it did not
+write itself (the chunks of a blueprint sent through ``set_sinks(default_blueprint=...)`` are not in
+the order of the file's index), while a blueprint written with ``Blueprint.save`` routes cleanly.
+
+Layout while the run goes on: the first segment is the file itself (a crash leaves it readable up to
+its last flush, without its blueprint; ``necviz repair`` makes it whole); later segments go to
+``<file>.parts/0001.rrd``, ``0002.rrd``... and the blueprint to ``.<file>.blueprint.rbl``, beside it.
+After a crash all are kept; ``necviz repair <file>`` joins them.
 """
 
 from __future__ import annotations
@@ -26,6 +31,37 @@ from pathlib import Path
 
 #: Wall-clock seconds of one segment: the footer index a segment keeps in memory covers this long.
 SEGMENT_S = 300.0
+#: How fast a live session's ``--save`` file grows (bytes per hour of session): every frame (50 fps)
+#: and event image (30 a second) of the emulated DAVIS346 (``benchmarks/results/soak.json``: the
+#: soak's file) ...
+LIVE_BYTES_PER_HOUR = 3.3e9
+#: ... and with ``--image-rate 2`` (two frames and two event images a second; every scalar series kept):
+#: 0.76 MB for 10 s of emulated live against 9.2 MB for the full file.
+LIGHT_BYTES_PER_HOUR = 0.3e9
+#: Runs longer than this (or without ``--duration``) are told how big their file gets.
+LONG_RUN_S = 600.0
+
+
+def size_warning(path, duration_s: float | None, image_rate_hz: float | None) -> str | None:
+    """The line a live session with ``--save`` prints before it starts when it may run long: how fast the
+    file grows, how long the disk lasts, and the bounded ways to keep a long run. None for a short run."""
+    from necviz.outputs import free_bytes
+
+    if duration_s is not None and duration_s <= LONG_RUN_S:
+        return None
+    light = image_rate_hz is not None
+    rate = LIGHT_BYTES_PER_HOUR * max(1.0, image_rate_hz / 2) if light else LIVE_BYTES_PER_HOUR
+    free = free_bytes(path)
+    room = "" if free is None else f"; {free / 1e9:.1f} GB free on its disk: about {free / rate:.1f} h"
+    hours = "" if duration_s is None else f" ({duration_s / 3600:.1f} h: {rate * duration_s / 3600 / 1e9:.1f} GB)"
+    tip = (
+        ""
+        if light
+        else "; to keep a long run in bounded space, --image-rate 2 keeps every series with 2 frames and "
+        f"2 event images a second (~{LIGHT_BYTES_PER_HOUR / 1e9:.1f} GB an hour), and --clips DIR keeps "
+        "the seconds around every failure in full"
+    )
+    return f"  note: --save grows about {rate / 1e9:.1f} GB an hour of live session{hours}{room}{tip}"
 
 
 def parts_folder(path) -> Path:
@@ -34,11 +70,18 @@ def parts_folder(path) -> Path:
     return p.with_name(p.name + ".parts")
 
 
+def blueprint_file(path) -> Path:
+    """Where the blueprint of ``path`` waits to be joined in: ``.<name>.blueprint.rbl`` beside it."""
+    p = Path(path)
+    return p.with_name(f".{p.name}.blueprint.rbl")
+
+
 def segment_files(path) -> list[Path]:
-    """``path`` followed by its later segments (in order), as they are on disk."""
+    """``path``, its later segments (in order) and its blueprint, as they are on disk."""
     folder = parts_folder(path)
     parts = sorted(folder.glob("*.rrd")) if folder.is_dir() else []
-    return [Path(path), *parts]
+    bp = blueprint_file(path)
+    return [Path(path), *parts, *([bp] if bp.is_file() else [])]
 
 
 def _rerun() -> list[str]:
@@ -78,13 +121,21 @@ class SegmentedFile:
     ----------
     target : path
         Where the file is written (the first segment; later ones in :func:`parts_folder`).
+    blueprint : rerun.blueprint.Blueprint, optional
+        The layout, written to :func:`blueprint_file` now and joined in at the end.
+    application_id : str
+        The recording's application id (the blueprint applies to it).
     segment_s : float, optional
         Seconds per segment (default :data:`SEGMENT_S`).
     """
 
-    def __init__(self, target, segment_s: float | None = None):
+    def __init__(self, target, blueprint=None, application_id: str = "necviz", segment_s: float | None = None):
         self.target = Path(target)
         self.segment_s = float(SEGMENT_S if segment_s is None else segment_s)
+        self.blueprint = None
+        if blueprint is not None:
+            self.blueprint = blueprint_file(self.target)
+            blueprint.save(application_id, str(self.blueprint))
         self.segments: list[Path] = [self.target]
         self.files: list[Path] = [self.target]  # the segment being written (a live list: flush bounds read it)
         self._since = time.monotonic()
@@ -122,7 +173,8 @@ class SegmentedFile:
         return total
 
     def join(self) -> None:
-        """Join the segments into :attr:`target` (nothing to do for one segment); the parts are removed.
+        """Join the segments and the blueprint into :attr:`target` (a file of one segment and no blueprint
+        is left as it is); the parts are removed.
 
         Raises
         ------
@@ -132,29 +184,45 @@ class SegmentedFile:
         """
         from necviz.outputs import OutputError, free_bytes
 
-        if len(self.segments) == 1:
+        files = self.segments + ([self.blueprint] if self.blueprint is not None else [])
+        if len(files) == 1:
             return
         need = self.size()
         free = free_bytes(self.target)
         if free is not None and free < need + (16 << 20):
             raise OutputError(
                 f"not enough space to join the {len(self.segments)} segments of {str(self.target)!r} into one file "
-                f"({need >> 20} MB needed, {free >> 20} MB free): they are kept in {str(self.target)!r} and "
-                f"{str(self.parts)!r}; `necviz repair {self.target}` joins them"
+                f"({need >> 20} MB needed, {free >> 20} MB free): they are kept beside it; "
+                f"`necviz repair {self.target}` joins them"
             )
         out = self.target.with_name(f".{self.target.name}.joining")
         try:
-            join_segments(self.segments, out)
+            join_segments(files, out)
         except OutputError as e:
-            raise OutputError(f"{e}: the segments are kept in {str(self.parts)!r}") from None
+            raise OutputError(
+                f"{e}: the segments are kept beside it; `necviz repair {self.target}` joins them"
+            ) from None
         os.replace(out, self.target)
-        shutil.rmtree(self.parts, ignore_errors=True)
+        self.discard()
         self.segments = [self.target]
         self.files[:] = [self.target]
 
     def discard(self) -> None:
-        """Remove the later segments (the first is the file, which its output handles)."""
+        """Remove the later segments and the blueprint (the first segment is the file, which its output handles)."""
         shutil.rmtree(self.parts, ignore_errors=True)
+        if self.blueprint is not None:
+            self.blueprint.unlink(missing_ok=True)
+            self.blueprint = None
 
 
-__all__ = ["SEGMENT_S", "SegmentedFile", "join_segments", "parts_folder", "segment_files"]
+__all__ = [
+    "LIGHT_BYTES_PER_HOUR",
+    "LIVE_BYTES_PER_HOUR",
+    "SEGMENT_S",
+    "SegmentedFile",
+    "blueprint_file",
+    "join_segments",
+    "parts_folder",
+    "segment_files",
+    "size_warning",
+]

@@ -198,6 +198,7 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
         origin_us=ss.origin_us,
         lossless=lossless,
         flush_period_s=flush,
+        image_period_us=0 if ss.show.image_rate_hz is None else int(round(1e6 / ss.show.image_rate_hz)),
     )
     sink = RerunSink(rec, names, sensor.height, sensor.width, sink_options)
     sink.files = viewer.files

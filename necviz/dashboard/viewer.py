@@ -128,7 +128,7 @@ class Viewer:
         notebook's viewer keeps everything it was sent."""
         flush_stream(self.rec, self.files, label=self.save_path)
         keep_stream = self.server is not None or self.notebook is not None
-        if self.segments is not None and len(self.segments.segments) > 1:
+        if self.segments is not None:
             if keep_stream:
                 self.rec.set_sinks(*self.other_sinks)  # the file sink is closed: its footer is written
             else:
@@ -141,11 +141,11 @@ class Viewer:
     def discard(self) -> str:
         """The run failed: remove the ``--save`` file's later segments and discard the file
         (:meth:`~necviz.outputs.StreamedOutput.discard`, which may keep a camera session's)."""
-        if self.segments is not None and len(self.segments.segments) > 1 and self.output.keep_partial:
+        if self.segments is not None and self.output.keep_partial:
             try:
                 self.segments.join()  # one readable file, if the disk allows
             except NecvizError:
-                return f"{self.output.discard()} (later parts in {self.segments.parts})"
+                return f"{self.output.discard()} (and its later segments beside it: `necviz repair` joins them)"
         elif self.segments is not None:
             self.segments.discard()
         return self.output.discard()
@@ -453,15 +453,21 @@ def _open(options: ViewerOptions, blueprint, name, messages, keep_partial: bool 
     others = list(sinks)
     if options.save:
         output = StreamedOutput(options.save, keep_partial=keep_partial, flag="--save")
-        segments = SegmentedFile(output.target)
+        segments = SegmentedFile(output.target, blueprint, "necviz")  # the blueprint beside, joined in at the end
+        if others:  # the viewers get the blueprint; the file, never (rrd_file's docstring)
+            rec.set_sinks(*others, default_blueprint=blueprint)
         sinks.append(segments.sink())
         if not any(m.startswith("saving to") for m in messages):
             messages.append(f"saving to {options.save} (open it with: rerun {options.save})")
     try:
-        rec.set_sinks(*sinks, default_blueprint=blueprint)
+        if segments is not None:
+            rec.set_sinks(*sinks)
+        else:
+            rec.set_sinks(*sinks, default_blueprint=blueprint)
         rec.send_recording_name(text(name))
     except BaseException:
         if output is not None:
+            segments.discard()
             output.discard()
         if server is not None:
             stop_process_group(server)
