@@ -53,21 +53,10 @@ def run(options: ExportOptions, out=...) -> dict:
     file, out_path = options.file, options.out_path
     check_compression(format_for(out_path), options.compression)  # before anything is read
     check_output(out_path, "OUT", inputs=[file], force=options.force, suffixes=SUFFIXES)
-    from necviz.drivers.recordings import RecordingError, check_source, spool_pipe
+    from necviz.drivers.recordings import readable_copy
 
-    source = Path(file)
-    if check_source(source) == "pipe":  # read once, into a temporary copy (a cut reads the input twice)
-        if options.pipe_timeout_s is None:
-            raise RecordingError(
-                f"{file}: a named pipe, not a regular file (reading one waits for a writer for ever); "
-                "pass --pipe-timeout S to copy what it delivers"
-            )
-        source = spool_pipe(source, options.pipe_timeout_s)
-    try:
+    with readable_copy(file, options.pipe_timeout_s) as source:  # a pipe is read once, into a copy
         return _export(options, out, file, source, out_path)
-    finally:
-        if source != Path(file):
-            source.unlink(missing_ok=True)
 
 
 def _export(options, out, file, source: Path, out_path) -> dict:

@@ -120,21 +120,10 @@ def run(options: ReplayOptions, viewer: ViewerOptions | None = None, out=...) ->
         inputs=[path],
         profile=options.profile,
     )  # before anything is opened
-    from necviz.drivers.recordings import RecordingError, check_source, spool_pipe
+    from necviz.drivers.recordings import readable_copy
 
-    source = path
-    if check_source(path) == "pipe":
-        if options.pipe_timeout_s is None:
-            raise RecordingError(
-                f"{path}: a named pipe, not a regular file (reading one waits for a writer for ever); "
-                "pass --pipe-timeout S to copy what it delivers"
-            )
-        source = spool_pipe(path, options.pipe_timeout_s)
-    try:
+    with readable_copy(path, options.pipe_timeout_s) as source:
         return _replay(options, viewer, out, path, source, profile)
-    finally:
-        if source != path:
-            source.unlink(missing_ok=True)
 
 
 def _replay(options: ReplayOptions, viewer, out, path: Path, source: Path, profile) -> dict:
