@@ -543,13 +543,14 @@ class FlightRecorder(Observer):
         import rerun as rr
 
         from necviz.dashboard.sink import RerunSink, SinkOptions
-        from necviz.layouts import make_blueprint, style_series
+        from necviz.layouts import style_series
 
         names = list(self.lanes)
         origin = self._origin if self._origin is not None else clip.items[0].t
-        bp = focus_blueprint(make_blueprint(self.layout, names, self.sensor.width, self.sensor.height), *focus)
+        data = path.with_name(path.name + ".data")
+        layout = path.with_name(path.name + ".rbl")
         rec = self._stream()
-        rec.set_sinks(rr.FileSink(str(path)), default_blueprint=bp)
+        rec.set_sinks(rr.FileSink(str(data)))
         try:
             t = self._t(clip.first[0])
             rec.send_recording_name(f"necviz clip: {clip.first[2] or 'saturated'} at {t:.3f} s")
@@ -569,9 +570,48 @@ class FlightRecorder(Observer):
                 for it in clip.items:
                     getattr(obs, it.method)(*it.args)
             sink.close()
-        finally:
             rec.flush()
             rr.disconnect(rec)
+            save_blueprint_apart(layout, self.layout, names, self.sensor.width, self.sensor.height, focus)
+            from necviz.dashboard.rrd_file import join_segments
+
+            join_segments([data, layout], path)  # the clip's data and its layout, one file
+        finally:
+            rr.disconnect(rec)
+            data.unlink(missing_ok=True)
+            layout.unlink(missing_ok=True)
+
+
+def save_blueprint_apart(path: Path, layout: str, lanes: list, width: int, height: int, focus: tuple) -> None:
+    """Write the clip's layout, looping over ``focus``, as a blueprint file (``.rbl``), in a child process.
+
+    rerun-sdk 0.41 creates a recording stream for every blueprint it writes and keeps most of its memory
+    after it is closed (~1-2.5 MB per blueprint, measured): a blueprint per clip written in the session's
+    process would grow it by every clip. The child takes that memory with it when it ends."""
+    import json
+    import subprocess
+    import sys
+
+    spec = json.dumps({"path": str(path), "layout": layout, "lanes": lanes, "size": [width, height], "focus": focus})
+    proc = subprocess.run(
+        [sys.executable, "-m", "necviz.flight_recorder", spec], stdin=subprocess.DEVNULL, capture_output=True, text=True
+    )
+    if proc.returncode != 0 or not path.is_file():
+        lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+        raise RuntimeError(f"the clip's layout could not be written ({lines[-1] if lines else proc.returncode})")
+
+
+def _blueprint_child(spec_json: str) -> int:
+    """``python -m necviz.flight_recorder SPEC``: :func:`save_blueprint_apart`'s child."""
+    import json
+
+    from necviz.layouts import make_blueprint
+
+    spec = json.loads(spec_json)
+    w, h = spec["size"]
+    bp = focus_blueprint(make_blueprint(spec["layout"], spec["lanes"], w, h), *spec["focus"])
+    bp.save("necviz", spec["path"])
+    return 0
 
 
 def clip_write_error(folder, exc: BaseException):
@@ -649,3 +689,9 @@ __all__ = [
     "focus_blueprint",
     "plural",
 ]
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(_blueprint_child(sys.argv[1]))

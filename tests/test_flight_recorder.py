@@ -122,6 +122,9 @@ def test_a_clip_covers_before_and_after_the_failure_and_opens_at_it(tmp_path, ca
     # the .rrd: what the dashboard showed over the clip (frames, events, series), and the window it declares
     view = Rrd(rrd[0])
     assert any(e.startswith("a/") for e in view.components) and "events" in " ".join(view.components)
+    from rerun.chunk import RrdReader
+
+    assert RrdReader(str(rrd[0])).blueprints()  # the layout, looping over the window, is in the file
     lo, hi = float(view.property("run", "clip_focus_start_s")), float(view.property("run", "clip_focus_end_s"))
     assert t[0] / 1e6 - 0.002 <= lo <= 0.5 + 0.002 and hi == pytest.approx(t[-1] / 1e6, abs=0.003)
     # replay of the clip loops over that same window, on the same time axis, never before its data
