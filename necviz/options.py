@@ -346,7 +346,8 @@ class ClipOptions:
     before_s, after_s : float
         Seconds kept before a failure and recorded after it (each at most 600).
     memory_mb : float
-        The ring buffer's budget; the oldest data is dropped beyond it, and counted.
+        The recorder's whole memory budget (MB), its clip writer included; the oldest data is dropped
+        beyond it, and counted.
 
     Raises
     ------
