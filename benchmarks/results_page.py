@@ -217,8 +217,10 @@ def r_rerun_footer(d: dict) -> str:
         f"\n\nRerun SDK {d.get('rerun_sdk', '?')}, necviz's live sink's per-2-s load sent straight to a Rerun "
         "`FileSink`, no necviz code in the loop. Most of a long session's growth is the file sink's footer index "
         "(one entry per chunk written); without the footer, or with the file replaced every 10 minutes, the process "
-        "stays flat. necviz does not rotate the user's `--save` file (it would split one recording into several); "
-        "the open upstream reports are rerun-io/rerun#12623 (memory growth with a file sink) and #12622 (file rotation)."
+        "stays flat. necviz therefore writes a `--save` file in 5-minute segments and joins them into the one file "
+        "when the run ends (`rerun rrd route`, which copies the messages and writes one footer): the soak below "
+        "measures the result. The open upstream reports are rerun-io/rerun#12623 (memory growth with a file sink) "
+        "and #12622 (file rotation)."
     )
 
 
