@@ -26,6 +26,7 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -84,10 +85,34 @@ def segment_files(path) -> list[Path]:
     return [Path(path), *parts, *([bp] if bp.is_file() else [])]
 
 
-def _rerun() -> list[str]:
-    from necviz.dashboard.viewer import _rerun_binary
+def rerun_program() -> list[str]:
+    """The ``rerun`` command that ships with the SDK (a Python script that runs the binary)."""
+    exe = Path(sys.executable).with_name("rerun")
+    if exe.exists():
+        return [str(exe)]
+    found = shutil.which("rerun")
+    return [found] if found else [sys.executable, "-m", "rerun"]
 
-    return _rerun_binary()
+
+def rerun_binary() -> list[str]:
+    """The ``rerun`` executable itself (``RERUN_CLI_PATH``, else the one in the ``rerun_cli`` package), else
+    :func:`rerun_program`: a signal to the script would not reach the binary it runs as a child."""
+    override = os.environ.get("RERUN_CLI_PATH")
+    if override and os.access(override, os.X_OK):
+        return [override]
+    try:
+        import rerun_cli
+
+        exe = Path(rerun_cli.__file__).with_name("rerun.exe" if sys.platform.startswith("win") else "rerun")
+        if exe.is_file() and os.access(exe, os.X_OK):
+            return [str(exe)]
+    except ImportError:
+        pass
+    return rerun_program()
+
+
+def _rerun() -> list[str]:
+    return rerun_binary()
 
 
 def join_segments(files: list[Path], out: Path) -> None:
@@ -189,7 +214,7 @@ class SegmentedFile:
             return
         need = self.size()
         free = free_bytes(self.target)
-        if free is not None and free < need + (16 << 20):
+        if free is not None and free < need + (1 << 16):
             raise OutputError(
                 f"not enough space to join the {len(self.segments)} segments of {str(self.target)!r} into one file "
                 f"({need >> 20} MB needed, {free >> 20} MB free): they are kept beside it; "

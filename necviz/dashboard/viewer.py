@@ -24,7 +24,6 @@ growing and fails with one line instead.
 from __future__ import annotations
 
 import os
-import shutil
 import socket
 import subprocess
 import sys
@@ -36,7 +35,7 @@ from pathlib import Path
 import rerun as rr
 
 from necviz.core.errors import NecvizError, ParameterError
-from necviz.dashboard.rrd_file import SegmentedFile
+from necviz.dashboard.rrd_file import SegmentedFile, rerun_binary, rerun_program
 from necviz.dashboard.viewer_flags import (  # noqa: F401 - re-exported: the flags live in a module without Rerun
     DEFAULT_CONNECT,
     DEFAULT_GRPC_PORT,
@@ -247,29 +246,8 @@ def open_viewer(options: ViewerOptions, command: str, blueprint, name: str, *, k
         raise ParameterError(f"viewer: {e}") from None
 
 
-def _rerun_program() -> list[str]:
-    exe = Path(sys.executable).with_name("rerun")
-    if exe.exists():
-        return [str(exe)]
-    found = shutil.which("rerun")
-    return [found] if found else [sys.executable, "-m", "rerun"]
-
-
-def _rerun_binary() -> list[str]:
-    """The ``rerun`` executable itself (the SDK's ``rerun`` command is a Python script that runs it as a
-    child: a signal to the script would not reach the server), else :func:`_rerun_program`."""
-    override = os.environ.get("RERUN_CLI_PATH")
-    if override and os.access(override, os.X_OK):
-        return [override]
-    try:
-        import rerun_cli
-
-        exe = Path(rerun_cli.__file__).with_name("rerun.exe" if sys.platform.startswith("win") else "rerun")
-        if exe.is_file() and os.access(exe, os.X_OK):
-            return [str(exe)]
-    except ImportError:
-        pass
-    return _rerun_program()
+_rerun_program = rerun_program  # the rerun command and its binary: necviz.dashboard.rrd_file
+_rerun_binary = rerun_binary
 
 
 def _listener(host: str, port: int) -> str | None:
