@@ -34,8 +34,8 @@ from pathlib import Path
 SEGMENT_S = 300.0
 #: How fast a live session's ``--save`` file grows (bytes per hour of session): every frame (50 fps)
 #: and event image (30 a second) of the emulated DAVIS346 (``benchmarks/results/soak.json``: the
-#: soak's file) ...
-LIVE_BYTES_PER_HOUR = 3.3e9
+#: one-hour soak's file, 3.0 GB) ...
+LIVE_BYTES_PER_HOUR = 3.0e9
 #: ... and with ``--image-rate 2`` (two frames and two event images a second; every scalar series kept):
 #: 0.76 MB for 10 s of emulated live against 9.2 MB for the full file.
 LIGHT_BYTES_PER_HOUR = 0.3e9
