@@ -268,10 +268,11 @@ def check_space(path, flag: str, need: int | None = None) -> None:
         )
 
 
-def low_space(paths, need: int | None = None) -> tuple[str, int] | None:
+def low_space(paths, need: int | None = None, extra: int = 0) -> tuple[str, int] | None:
     """The first of ``paths`` whose disk has fewer than ``need`` bytes free (default: half of
-    :data:`RECORDING_RESERVE`): ``(path, free)``, else None."""
-    need = _reserve() // 2 if need is None else need
+    :data:`RECORDING_RESERVE`) plus ``extra`` (what completing the files will still write, e.g. a
+    segmented ``--save`` joined into one file): ``(path, free)``, else None."""
+    need = (_reserve() // 2 if need is None else need) + int(extra)
     for p in paths:
         if p is None:
             continue

@@ -248,7 +248,8 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
         try:
             while not pipe.wait(0.5):
                 line.show(status())
-                disk_full = low_space(files)
+                joining = viewer.segments.size() if viewer.segments is not None else 0  # the join copies the file
+                disk_full = low_space(files, extra=joining)
                 broken = _failed(observers)
                 if disk_full is not None or broken is not None:  # stop while the files can still be completed
                     pipe.stop()
@@ -272,8 +273,8 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
             try:
                 viewer.close()
             except BaseException:
-                if not failed:
-                    raise  # else the run's own error is the one reported
+                if not failed and disk_full is None:
+                    raise  # else the run's own error (or the disk guard's, below) is the one reported
     broken = _failed(observers)
     if broken is not None:  # an output that could not be written (a clip on a full disk)
         at = (pipe.now_us or 0) / 1e6 - (pipe.first_us or 0) / 1e6
