@@ -5,13 +5,15 @@ a command and a prediction per frame), generated on the fly so the generator hol
 straight to a :class:`~necviz.flight_recorder.FlightRecorder` (the observer calls the pipeline makes),
 as fast as the machine goes. Each scenario runs in its own process; its resident memory (VmRSS) is
 sampled every 0.5 s of sensor time and its peak (``ru_maxrss``) read at the end, against the same
-process before the recorder existed (the baseline):
+process before the recorder existed (the baseline: what a session has loaded and compiled anyway, the
+Rerun SDK and the sink's Numba kernels among them), so the peak includes the clip writer's working memory.
+The bound to meet: the peak stays within ``--clip-memory`` + 10 %:
 
 * ``quiet``: no failure for 20 s, ``--clip-before 5`` (5 s at 12 Mev/s is 780 MB of events): the ring
   fills to its budget, then drops the oldest (counted) and memory stays flat;
 * ``failures``: a saturated frame every 4 s: clips of 5 s before + 2 s after are written (.necrec + .rrd);
-* ``saturated``: every frame saturated: the clip being collected is cut at twice the budget, clips wait
-  for the writer (at most MAX_PENDING), the rest are dropped (counted).
+* ``saturated``: every frame saturated: the clip being collected is cut at half the data budget, clips
+  wait for the writer (at most MAX_PENDING), the rest are dropped (counted).
 
 Run: ``python benchmarks/flight_recorder.py --json benchmarks/results/flight_recorder.json``
 (≈ 5 min on 2 cores; clips go to a temporary folder that is removed).
@@ -49,7 +51,28 @@ def rss_mb() -> float:
     return float("nan")
 
 
+def _warm_sink() -> None:
+    """What a session has done before its recorder exists: the Rerun sink's kernels compiled (Numba) and
+    its encoders loaded (a session's own sink warms them up before the run): the clip writer uses them
+    too, and their code (~100 MB of compiler memory the first time) is not the recorder's."""
+    import rerun as rr
+
+    from necviz.dashboard.sink import RerunSink, SinkOptions, encode_frame
+
+    rec = rr.RecordingStream("warm-up")  # no sink: nothing is written
+    sink = RerunSink(rec, ["camera"], H, W, SinkOptions(lossless=True))
+    sink.warm_up()
+    encode_frame(np.zeros((H, W), np.uint8))
+    sink.close()
+    rr.disconnect(rec)
+
+
 def child(name: str, folder: str) -> dict:
+    import rerun  # noqa: F401 - loaded by every session before the recorder exists
+
+    import necviz.dashboard.sink  # noqa: F401
+    import necviz.drivers.recordings.native  # noqa: F401
+    import necviz.layouts  # noqa: F401
     from necviz.core.control import ExposureCommand
     from necviz.core.events import EVENT_DTYPE
     from necviz.core.frames import ExposureMarker, Frame
@@ -60,6 +83,7 @@ def child(name: str, folder: str) -> dict:
     from necviz.options import ClipOptions
 
     bound_heap_retention()  # as run_session does
+    _warm_sink()
     seconds, budget_mb, period, before, after = SCENARIOS[name]
     rng = np.random.default_rng(0)
     image = rng.integers(0, 256, (H, W), dtype=np.uint8)
@@ -115,6 +139,8 @@ def child(name: str, folder: str) -> dict:
         "after_s": after,
         "baseline_rss_mb": round(base, 1),
         "peak_rss_over_baseline_mb": round(peak - base, 1),
+        "peak_over_budget": round((peak - base) / budget_mb, 3),
+        "within_budget_plus_10pc": bool(peak - base <= 1.1 * budget_mb),
         "rss_over_baseline_last_mb": round(growth[-1], 1),
         "rss_over_baseline_max_sampled_mb": round(max(growth), 1),
         "recorder_peak_mb": round(stats["peak_bytes"] / 2**20, 1),
@@ -151,6 +177,7 @@ def main() -> int:
         results.append(r)
         print(
             f"{name:12s} budget {r['budget_mb']:4d} MB: peak RSS +{r['peak_rss_over_baseline_mb']:7.1f} MB "
+            f"({r['peak_over_budget']:.2f} of the budget) "
             f"(recorder's own count {r['recorder_peak_mb']:6.1f} MB), {r['dropped_events']:>12,} events dropped, "
             f"{r['clips_written']} clips written ({r['clips_cut']} cut, {r['clips_dropped']} dropped), "
             f"fed {r['sensor_s']:g} s in {r['feed_wall_s']:g} s",

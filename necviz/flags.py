@@ -35,6 +35,7 @@ NUMBER_FLAGS: dict[str, NumberRule] = {
     "--seeds": NumberRule(1, 10_000, integer=True),
     "--event-window-ms": NumberRule(0.1, 10_000.0),
     "--event-points": NumberRule(0, 10_000_000, integer=True),
+    "--image-rate": NumberRule(0.0, 1000.0, lo_open=True),
     "--start": NumberRule(0.0, 1e9),
     "--end": NumberRule(0.0, 1e9, lo_open=True),
     "--exposure-us": NumberRule(0.0, 1e8, lo_open=True),

@@ -293,6 +293,9 @@ class ShowOptions:
         The window of each event image (ms).
     event_points : int
         Also log up to this many raw events per window as points.
+    image_rate_hz : float, optional
+        Log at most this many frames per lane, and event images, per second of sensor time (the
+        scalar series stay whole): a lighter ``--save`` for long runs. ``None``: every one.
 
     Raises
     ------
@@ -303,12 +306,15 @@ class ShowOptions:
     speed: object = "auto"  # "auto": real time when a viewer watches, as fast as possible into a file
     event_window_ms: float = 33.3
     event_points: int = 0
+    image_rate_hz: float | None = None
 
     def __post_init__(self):
         if self.speed != "auto":
             self.speed = parse_speed(self.speed)
         self.event_window_ms = check_flag("--event-window-ms", self.event_window_ms)
         self.event_points = check_flag("--event-points", self.event_points)
+        if self.image_rate_hz is not None:
+            self.image_rate_hz = check_flag("--image-rate", self.image_rate_hz)
 
 
 @dataclass
@@ -336,16 +342,17 @@ class ClipOptions:
     Parameters
     ----------
     folder : path
-        An existing, writable folder for the clips.
+        The folder for the clips (created, parents too, when missing).
     before_s, after_s : float
         Seconds kept before a failure and recorded after it (each at most 600).
     memory_mb : float
-        The ring buffer's budget; the oldest data is dropped beyond it, and counted.
+        The recorder's whole memory budget (MB), its clip writer included; the oldest data is dropped
+        beyond it, and counted.
 
     Raises
     ------
     ParameterError
-        No folder, a folder that does not exist or cannot be written, a bound out of range.
+        No folder, a file where the folder should be, a folder that cannot be written, a bound out of range.
     """
 
     folder: str | os.PathLike = ""
@@ -361,10 +368,10 @@ class ClipOptions:
         self.memory_mb = check_flag("--clip-memory", self.memory_mb)
 
     def check(self) -> None:
-        """The folder exists and is writable (before anything starts)."""
-        folder = os.fspath(self.folder)
-        if not os.path.isdir(folder):
-            raise ParameterError(f"--clips: folder {folder!r} does not exist")
+        """The folder exists (created when missing, said in one line) and is writable; before anything starts."""
+        from necviz.outputs import make_folder
+
+        folder = os.fspath(make_folder(self.folder, "--clips"))
         if not os.access(folder, os.W_OK):
             raise ParameterError(f"--clips: folder {folder!r} is not writable")
 
@@ -532,10 +539,13 @@ class ExportOptions:
         The exposure of input formats that do not store it (µs, > 0).
     format : str, optional
         The input's format (skips detection).
-    compression : str
-        AEDAT 4 packet compression (``lz4``, ``zstd`` or ``none``; checked by the AEDAT 4 writer).
+    compression : str, optional
+        Packet compression of ``.aedat4`` (default ``lz4``) and ``.necrec`` (default ``zstd``):
+        ``lz4``, ``zstd`` or ``none``; ``.h5`` and ``.npz`` have their own and refuse it.
     force : bool
         Replace an existing output (never the input).
+    pipe_timeout_s : float, optional
+        Accept a named pipe as ``file``, waiting at most this long for its data (copied first).
 
     Raises
     ------
@@ -549,10 +559,15 @@ class ExportOptions:
     end_s: float | None = None
     exposure_us: float | None = None
     format: str | None = None
-    compression: str = "lz4"
+    compression: str | None = None
     force: bool = False
+    pipe_timeout_s: float | None = None
 
     def __post_init__(self):
+        if self.pipe_timeout_s is not None:
+            object.__setattr__(self, "pipe_timeout_s", check_flag("--pipe-timeout", self.pipe_timeout_s))
+        if self.compression is not None and self.compression not in ("lz4", "zstd", "none"):
+            raise ParameterError(f"--compression must be lz4, zstd or none, got {self.compression!r}")
         if not str(self.file) or not str(self.out_path):
             raise ParameterError("export needs a recording and an output file")
         start_s, end_s, exposure_us = _check_reading(self.start_s, self.end_s, self.exposure_us)

@@ -4,7 +4,8 @@ Every file a command writes (``--json``, ``--save``, ``--record``, ``--out``, ca
 sweep results, reports) goes through this module. The rules (``docs/robustness.md``):
 
 * **Checked before anything starts** (:func:`check_output`, no camera opened, no simulation run):
-  the path is not a folder or a device, its folder exists and is writable, it has the expected
+  the path is not a folder or a device, its folder exists (a missing one is created, parents too,
+  and the command says so in one line: :func:`make_folder`) and is writable, it has the expected
   extension, it does not exist unless the user asked to replace it (``--force``), and it is none of
   the command's inputs (:func:`check_not_input`) — compared by resolved path and by device and
   inode, so ``./x`` vs ``x``, a symbolic link and a hard link are all caught, with or without
@@ -63,6 +64,31 @@ def _reserve() -> int:
 
 class OutputError(NecvizError):
     """An output could not be written (a full disk, an I/O error); the message says what is left."""
+
+
+# -- folders ---------------------------------------------------------------------------------------
+def make_folder(folder, flag: str, announce=None) -> Path:
+    """Create ``folder`` (and its parents) when it is missing, saying so in one line on ``announce``
+    (default standard output); returns it.
+
+    Raises
+    ------
+    ParameterError
+        A file (or something else) is in the way, or the folder cannot be created.
+    """
+    import sys
+
+    f = Path(folder)
+    if f.is_dir():
+        return f
+    if os.path.lexists(f):
+        raise ParameterError(f"{flag}: {str(f)!r} is a file, not a folder")
+    try:
+        f.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ParameterError(f"{flag}: cannot create folder {str(f)!r} ({e.strerror or e})") from None
+    print(f"  created folder {str(f)!r} for {flag}", file=announce or sys.stdout, flush=True)
+    return f
 
 
 # -- identity --------------------------------------------------------------------------------------
@@ -183,7 +209,7 @@ def check_output(
         raise ParameterError(f"{flag}: {str(p)!r} is a symbolic link to nothing; remove it or choose another name")
     parent = Path(os.path.realpath(p)).parent
     if not parent.is_dir():
-        raise ParameterError(f"{flag}: folder {str(p.parent if str(p.parent) else '.')!r} does not exist")
+        make_folder(p.parent, flag)
     if not os.access(parent, os.W_OK):
         raise ParameterError(f"{flag}: folder {str(parent)!r} is not writable")
     check_not_input({flag: p}, inputs)
@@ -242,10 +268,11 @@ def check_space(path, flag: str, need: int | None = None) -> None:
         )
 
 
-def low_space(paths, need: int | None = None) -> tuple[str, int] | None:
+def low_space(paths, need: int | None = None, extra: int = 0) -> tuple[str, int] | None:
     """The first of ``paths`` whose disk has fewer than ``need`` bytes free (default: half of
-    :data:`RECORDING_RESERVE`): ``(path, free)``, else None."""
-    need = _reserve() // 2 if need is None else need
+    :data:`RECORDING_RESERVE`) plus ``extra`` (what completing the files will still write, e.g. a
+    segmented ``--save`` joined into one file): ``(path, free)``, else None."""
+    need = (_reserve() // 2 if need is None else need) + int(extra)
     for p in paths:
         if p is None:
             continue
@@ -480,6 +507,7 @@ __all__ = [
     "failure_note",
     "free_bytes",
     "low_space",
+    "make_folder",
     "new_file_mode",
     "recording_target",
     "same_file",

@@ -64,3 +64,8 @@ class LiveLine:
             self._width = 0
         else:
             print(text, file=self.out, flush=True)
+
+
+def plural(n: int, word: str, words: str | None = None) -> str:
+    """``1 failure``, ``2 failures``, ``1,234 events`` (``words``: an irregular plural)."""
+    return f"{n:,} {word if n == 1 else (words or word + 's')}"

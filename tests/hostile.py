@@ -5,7 +5,7 @@
 files of gigabytes, cheap to make), named pipes and devices under recording names, a symbolic link
 loop, non-UTF-8 file names of valid recordings, a sensor larger than any camera, the AEDAT 4
 sample with one byte that makes the Rust decoder panic — and path cases, where an output names an
-input (directly, through a symbolic or hard link), a folder, a device or a missing folder.
+input (directly, through a symbolic or hard link), a folder, a device or a file where a folder should be.
 
 :func:`run_case` runs one case through the command line in this process, the way a user would
 (``necviz info`` / ``replay`` / ``compare`` …), with standard error (file descriptor 2, so Rust and
@@ -167,7 +167,7 @@ def build_cases(folder, seeds, sample: Path | None = None) -> list[Case]:
 
 
 def path_cases(folder, recording) -> list[Case]:
-    """Outputs that name an input (directly, through a link), a folder, a device, a missing folder;
+    """Outputs that name an input (directly, through a link), a folder, a device, a file in a folder's place;
     every input must come out byte-identical, and no output may appear."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -265,7 +265,7 @@ def path_cases(folder, recording) -> list[Case]:
     for label, target in (
         ("a folder", folder),
         ("/dev/null", Path("/dev/null")),
-        ("a missing folder", folder / "missing" / "x.json"),
+        ("a file in a folder's place", _plain_file(folder / "plain.txt") / "x.json"),  # (a missing one is made)
         ("a dangling link", _link(folder / "nowhere.json", folder / "dangling.json")),
     ):
         out.append(
@@ -277,6 +277,12 @@ def path_cases(folder, recording) -> list[Case]:
             )
         )
     return out
+
+
+def _plain_file(path: Path) -> Path:
+    if not path.exists():
+        path.write_text("a file, not a folder\n")
+    return path
 
 
 def _link(target: Path, link: Path) -> Path:

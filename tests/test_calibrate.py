@@ -213,9 +213,10 @@ def test_bad_output_paths(tmp_path):
     rec = tmp_path / "rec.aedat4"
     rec.write_bytes(b"x")
     (tmp_path / "d.json").mkdir()
+    (tmp_path / "f").write_text("a file where a folder would be")
     for out, match in (
         ("p.txt", "expects a .json"),
-        (str(tmp_path / "nodir" / "p.json"), "does not exist"),
+        (str(tmp_path / "f" / "p.json"), "Not a directory"),
         (str(tmp_path / "d.json"), "is a folder"),
     ):
         with pytest.raises(ParameterError, match=match):

@@ -236,12 +236,14 @@ def test_a_bad_flag_never_truncates_an_existing_recording(tmp_path, capsys):
     assert "Traceback" not in err and err.count("necviz: error:") == 5
 
 
-@pytest.mark.parametrize("flags", [["--connect", "notaurl"], ["--json", "/nonexistent/x.json"]])
+@pytest.mark.parametrize("flags", [["--connect", "notaurl"], ["--json", "{tmp}/a-file/x.json"]])
 def test_viewer_and_output_mistakes_are_one_line(tmp_path, capsys, flags):
     from test_pipeline import SENSOR, stream
 
     from necviz.drivers.recordings import Recorder
 
+    (tmp_path / "a-file").write_text("a file where the folder of --json would be")
+    flags = [f.format(tmp=tmp_path) for f in flags]
     with Recorder(tmp_path / "x.necrec", sensor=SENSOR, properties={}) as rec:
         for p in stream(n_frames=2):
             rec.write(p)

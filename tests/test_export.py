@@ -125,9 +125,9 @@ def test_start_and_end_cut_the_same_span_as_replay(seeds, suffix, tmp_path):
         export(ExportOptions(path, out, start_s=start_s, end_s=end_s, exposure_us=EXPOSURE_US), out=None)
         got = _read_output(out)
         _assert_same(got, want, suffix)
-        # an independent check of the cut: exactly the events inside [start, end] of the full stream
-        lo, hi = origin + int(round(start_s * 1e6)), origin + int(round(end_s * 1e6))
-        inside = full["events"][(t >= lo) & (t <= hi)]
+        # an independent check of the cut: exactly the events inside [start, end) of the full stream
+        lo, hi = origin + int(np.ceil(start_s * 1e6 - 1e-6)), origin + int(np.ceil(end_s * 1e6 - 1e-6))
+        inside = full["events"][(t >= lo) & (t < hi)]
         np.testing.assert_array_equal(got["events"], inside)
         for f in got["frames"]:
             assert lo <= f.exposure_start_us and f.exposure_end_us <= hi
@@ -223,7 +223,7 @@ def test_native_clip_keeps_commands_and_annotations(seeds, tmp_path):
     export(ExportOptions(path, out), out=None)
     back = open_recording(out)
     assert back.commands == commands and back.annotations == notes
-    assert back.properties["exported_from"] == str(path)
+    assert back.properties["exported_from"] == path.name  # the name, not the path as typed
     back.close()
 
 
@@ -287,3 +287,72 @@ def test_tonic_and_faery_layouts():
         to_faery(np.array([(-1, 0, 0, 1)], EVENT_DTYPE))
     with pytest.raises(ValueError, match="fields"):
         to_tonic(np.zeros(3))
+
+
+@pytest.mark.skipif(not SAMPLE_AEDAT4.is_file(), reason="the real DAVIS346 sample (../shared/data) is not here")
+def test_aedat4_keeps_the_camera_name_and_declares_only_its_streams(tmp_path):
+    """The sample's camera is DAVIS346_00000002 (its XML ``source``): the export keeps it; a cut that holds
+    some kinds of data only gives a file that declares those streams only."""
+    import re
+
+    import aedat
+
+    from necviz.drivers.recordings.aedat4 import Aedat4Recording
+
+    def sources(path):
+        return set(re.findall(r'key="source"[^>]*>([^<]*)<', Aedat4Recording(path).description))
+
+    assert sources(SAMPLE_AEDAT4) == {"DAVIS346_00000002"}
+    out = tmp_path / "sample.aedat4"
+    export(ExportOptions(SAMPLE_AEDAT4, out), out=None)
+    assert sources(out) == {"DAVIS346_00000002"}
+    again = tmp_path / "again.aedat4"
+    export(ExportOptions(tmp_path / "sample.aedat4", tmp_path / "via.necrec"), out=None)
+    export(ExportOptions(tmp_path / "via.necrec", again), out=None)  # through necviz's own format
+    assert sources(again) == {"DAVIS346_00000002"}
+    events_only = tmp_path / "events.aedat4"
+    export(ExportOptions(SAMPLE_AEDAT4, events_only, start_s=0.0, end_s=0.001), out=None)
+    kinds = sorted(s["type"] for s in aedat.Decoder(str(events_only)).id_to_stream().values())
+    got = _read_output(events_only)
+    assert kinds == sorted(
+        k
+        for k, n in (
+            ("events", len(got["events"])),
+            ("frame", len(got["frames"])),
+            ("imus", len(got["imu"])),
+            ("triggers", len(got["triggers"])),
+        )
+        if n
+    ), kinds
+    assert 0 < len(kinds) < 4  # the first millisecond does not hold all four kinds: fewer declared
+
+
+def test_compression_is_refused_where_the_format_has_its_own(seeds, tmp_path, capsys):
+    src = next(iter(seeds.values()))
+    for suffix in (".npz", ".h5"):
+        assert main(["export", str(src), str(tmp_path / f"x{suffix}"), "--compression", "zstd"]) == 2
+        assert "--compression applies to .aedat4 and .necrec" in capsys.readouterr().err
+        assert not (tmp_path / f"x{suffix}").exists()
+
+
+def test_export_reads_a_named_pipe_with_the_flag_it_suggests(seeds, tmp_path, capsys):
+    import os
+    import threading
+
+    src = seeds["necviz:seed.necrec"]
+    fifo = tmp_path / "in.fifo"
+    os.mkfifo(fifo)
+    assert main(["export", str(fifo), str(tmp_path / "a.npz")]) == 2
+    err = capsys.readouterr().err
+    assert "--pipe-timeout" in err and not (tmp_path / "a.npz").exists()
+
+    def feed():
+        with open(fifo, "wb") as f:
+            f.write(src.read_bytes())
+
+    t = threading.Thread(target=feed)
+    t.start()
+    assert main(["export", str(fifo), str(tmp_path / "b.npz"), "--pipe-timeout", "10"]) == 0
+    t.join(10)
+    want = _read_input(src)
+    np.testing.assert_array_equal(load_npz(tmp_path / "b.npz")["events"], want["events"])

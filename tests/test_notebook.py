@@ -41,3 +41,16 @@ def test_notebook_is_not_combined_with_other_viewers():
     with pytest.raises(ParameterError, match="notebook"):
         ViewerOptions(notebook=True, save="x.rrd")
     assert ViewerOptions(notebook=True).watched
+
+
+def test_notebook_outside_a_notebook_says_so_before_anything_runs(tmp_path, monkeypatch):
+    import necviz
+    from necviz.core.errors import ParameterError
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ParameterError, match="this is not a notebook"):
+        necviz.run_demo(
+            necviz.DemoOptions(necviz.SceneOptions("static_lab", duration_s=0.1), ("fixed",)),
+            necviz.ViewerOptions(notebook=True),
+        )
+    assert list(tmp_path.iterdir()) == []

@@ -130,8 +130,10 @@ def test_check_output_rules(tmp_path):
     assert check_output(existing, "--json", force=True) == existing
     with pytest.raises(ParameterError, match="is the input file"):
         check_output(tmp_path / "." / "a.json", "--json", inputs=[existing], force=True)
-    with pytest.raises(ParameterError, match="does not exist"):
-        check_output(tmp_path / "no" / "b.json", "--json")
+    assert check_output(tmp_path / "no" / "b.json", "--json") == tmp_path / "no" / "b.json"  # folder created
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(ParameterError, match="Not a directory"):  # a file where its folder should be
+        check_output(tmp_path / "file" / "b.json", "--json")
     with pytest.raises(ParameterError, match="is a folder"):
         check_output(tmp_path, "--json")
     with pytest.raises(ParameterError, match="expects a .rrd"):

@@ -83,7 +83,7 @@ def test_seek_by_time():
     t0 = int(full[1][1].exposure_start_us) - 100
     t1 = int(full[1][2].exposure_end_us) + 100
     ev, frames, _ = _split(list(open_recording(SAMPLE, start_us=t0, end_us=t1)))
-    want = full[0][(full[0]["t"] >= t0) & (full[0]["t"] <= t1)]
+    want = full[0][(full[0]["t"] >= t0) & (full[0]["t"] < t1)]  # [start, end): the end excluded
     assert np.array_equal(ev, want)
     assert [f.exposure_start_us for f in frames] == [full[1][1].exposure_start_us, full[1][2].exposure_start_us]
 

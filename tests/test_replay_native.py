@@ -119,7 +119,7 @@ def test_seek_by_time_keeps_whole_exposures_only(tmp_path):
     lo, hi = 150_000, 330_000
     out = list(open_recording(path, start_us=lo, end_us=hi))
     got = np.concatenate([p.events for p in out if isinstance(p, EventBatch)])
-    want = ev[(ev["t"] >= lo) & (ev["t"] <= hi)]
+    want = ev[(ev["t"] >= lo) & (ev["t"] < hi)]
     assert np.array_equal(got, want)
     frames = [p for p in out if isinstance(p, Frame)]
     assert [f.exposure_start_us for f in frames] == [

@@ -49,7 +49,7 @@ def test_rpg_text(tmp_path, events):
     imu = [q for q in packets if isinstance(q, ImuBatch)][0].samples
     assert imu["az"][0] == pytest.approx(1.0) and imu["gz"][0] == pytest.approx(180.0)
     ev, _ = _split(list(open_recording(folder, start_us=200_000, end_us=300_000)))
-    sel = (t >= 200_000) & (t <= 300_000)
+    sel = (t >= 200_000) & (t < 300_000)
     _check_events(ev, t[sel], x[sel], y[sel], p[sel])
 
 
@@ -76,7 +76,7 @@ def test_dsec_hdf5(tmp_path, events):
     _check_events(ev, t + 10**9, x, y, p)
     lo, hi = 10**9 + 250_000, 10**9 + 260_000
     ev, _ = _split(list(open_recording(path, start_us=lo, end_us=hi)))
-    sel = (t + 10**9 >= lo) & (t + 10**9 <= hi)
+    sel = (t + 10**9 >= lo) & (t + 10**9 < hi)
     _check_events(ev, t[sel] + 10**9, x[sel], y[sel], p[sel])
     info = describe(path)
     assert info.events == t.size and info.frames == 0 and info.exposure_source == "none (no frames)"

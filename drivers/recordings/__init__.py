@@ -12,6 +12,7 @@ import select
 import stat
 import tempfile
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 from necviz.core.errors import NecvizError
@@ -33,6 +34,7 @@ __all__ = [
     "describe",
     "detect_format",
     "open_recording",
+    "readable_copy",
     "spool_pipe",
 ]
 
@@ -143,6 +145,31 @@ def spool_pipe(path, timeout_s: float, folder=None) -> Path:
         os.close(fd)
 
 
+#: What a named pipe given without ``--pipe-timeout`` is told.
+PIPE_REFUSED = (
+    "a named pipe, not a regular file (reading one waits for a writer for ever); "
+    "pass --pipe-timeout S to copy what it delivers"
+)
+
+
+@contextmanager
+def readable_copy(path, pipe_timeout_s: float | None):
+    """``path`` itself, or — a named pipe with ``pipe_timeout_s`` — a temporary copy of what it
+    delivers (:func:`spool_pipe`), removed when the block ends; a pipe without a timeout is refused
+    (readers that open a file twice, as a cut does, cannot read a pipe)."""
+    p = Path(path)
+    if check_source(p) != "pipe":
+        yield p
+        return
+    if pipe_timeout_s is None:
+        raise RecordingError(f"{p}: {PIPE_REFUSED}")
+    copy = spool_pipe(p, pipe_timeout_s)
+    try:
+        yield copy
+    finally:
+        copy.unlink(missing_ok=True)
+
+
 def open_recording(
     path,
     *,
@@ -188,10 +215,7 @@ def open_recording(
     spooled = None
     if kind == "pipe":
         if pipe_timeout_s is None:
-            raise RecordingError(
-                f"{p}: a named pipe, not a regular file (reading one waits for a writer for ever); "
-                "pass --pipe-timeout S to copy what it delivers"
-            )
+            raise RecordingError(f"{p}: {PIPE_REFUSED}")
         spooled = spool_pipe(p, pipe_timeout_s)
         p = spooled
     try:

@@ -135,6 +135,7 @@ class Aedat2Recording(Recording):
             self.header_lines = lines
             chip = next((ln.partition(":")[2].strip() for ln in lines if ln.strip().startswith("AEChip")), "")
             self.properties = {"chip": chip} if chip else {}
+            self.camera_name = chip.rsplit(".", 1)[-1] or None if chip else None  # jAER's class: Davis346B
             if self.sensor is None and chip:
                 self.sensor = sensor_from_chip(chip.rsplit(".", 1)[-1])
             if self.sensor is None:

@@ -129,6 +129,7 @@ class Aedat3Recording(Recording):
             self.header_lines = lines
             chip = next((ln.partition(":")[2].strip() for ln in lines if ln.startswith("Source")), "")
             self.properties = {"source": chip} if chip else {}
+            self.camera_name = chip or None
             if self.sensor is None:
                 self.sensor = sensor_from_chip(chip) if chip else None
             if self.sensor is None:

@@ -25,7 +25,9 @@ yielded.
 
 from __future__ import annotations
 
+import html
 import os
+import re
 import struct
 import warnings
 from collections.abc import Iterator
@@ -146,6 +148,8 @@ class Aedat4Recording(Recording):
         has_frames = any(s.get("type") == "frame" for s in self._streams.values())
         self.exposure_source = "stored" if has_frames else "none (no frames)"
         self.properties = {}
+        source = re.search(r'key="source"[^>]*>([^<]*)<', desc or "")  # the camera DV recorded (with its serial)
+        self.camera_name = html.unescape(source.group(1)).strip() or None if source else None
 
     def close(self) -> None:
         self._trap.close()

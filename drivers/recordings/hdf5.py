@@ -318,7 +318,7 @@ class DsecRecording(_Hdf5Recording):
             s, e, gain, images = side["frames"]
             i = cursor.get("frames", 0)
             while i < s.size and (horizon is None or s[i] < horizon):
-                if self.in_range(int(s[i])) and self.in_range(int(e[i])) and e[i] > s[i]:
+                if self.exposure_in_range(int(s[i]), int(e[i])) and e[i] > s[i]:
                     img = to_gray8(np.asarray(self._read(images, i)))
                     g = float(gain[i]) if gain is not None and np.isfinite(gain[i]) and gain[i] >= 1 else 1.0
                     asm.push_frame(Frame(img, int(s[i]), int(e[i]), g, i))
@@ -376,7 +376,7 @@ class DsecRecording(_Hdf5Recording):
                     yield from asm.drain(int(ev["t"][-1]))
                     if self.past_end(int(ev["t"][0])):
                         break
-            self._push_side(asm, side, cursor, None if self.end_us is None else self.end_us + 1)
+            self._push_side(asm, side, cursor, None if self.end_us is None else self.end_us)
 
 
 class MvsecRecording(_Hdf5Recording):

@@ -289,11 +289,13 @@ def imu_from_si(t_us, accel_ms2, gyro_rad_s) -> np.ndarray:
 class Recording:
     """A recorded file replayed as a :class:`~necviz.drivers.source.Source`.
 
-    Iterating yields packets in stream order, restricted to ``[start_us, end_us]`` (events, IMU
-    samples and triggers in that range; frames whose whole exposure lies in it). Replay is open
+    Iterating yields packets in stream order, restricted to ``[start_us, end_us)`` (events, IMU
+    samples and triggers stamped in that half-open range; frames whose whole exposure lies in it:
+    exposure start >= ``start_us``, exposure end <= ``end_us``). Replay is open
     loop: :meth:`set_exposure` accepts commands and ignores them (the recorded exposures are what
     they are). Attributes: ``sensor``, ``format`` (short name), ``path``, ``properties`` (run
-    metadata; native files only), ``commands`` and ``annotations`` (stored in native files; empty for
+    metadata; native files only), ``camera_name`` (the camera the file names, e.g. AEDAT 4's
+    ``DAVIS346_00000104``, else None), ``commands`` and ``annotations`` (stored in native files; empty for
     foreign formats), ``exposure_source`` (``"stored"``, ``"user (--exposure-us)"``, ``"estimated from
     frame timing"``, ``"none (no frames)"`` or :data:`NO_EXPOSURE_FRAMES`) and ``warnings`` (one-line
     strings about things fixed up or skipped; complete once iteration has finished).
@@ -320,6 +322,7 @@ class Recording:
         if self.start_us is not None and self.end_us is not None and self.end_us < self.start_us:
             raise RecordingError(f"{self.path}: end time {self.end_us} µs precedes start time {self.start_us} µs")
         self.properties: dict = {}
+        self.camera_name: str | None = None  # the camera the file names (AEDAT: DAVIS346_00000104 ...)
         self.commands: list = []
         self.annotations: list = []
         self.exposure_source = "none (no frames)"
@@ -444,10 +447,16 @@ class Recording:
         yield from asm.drain(None)
 
     def in_range(self, t_us: int) -> bool:
-        return (self.start_us is None or t_us >= self.start_us) and (self.end_us is None or t_us <= self.end_us)
+        """Whether ``t_us`` lies in ``[start_us, end_us)``."""
+        return (self.start_us is None or t_us >= self.start_us) and (self.end_us is None or t_us < self.end_us)
+
+    def exposure_in_range(self, start_us: int, end_us: int) -> bool:
+        """Whether an exposure ``[start_us, end_us]`` lies wholly in the range."""
+        return (self.start_us is None or start_us >= self.start_us) and (self.end_us is None or end_us <= self.end_us)
 
     def past_end(self, t_us: int) -> bool:
-        return self.end_us is not None and t_us > self.end_us
+        """Whether ``t_us`` is at or after the (exclusive) end of the range."""
+        return self.end_us is not None and t_us >= self.end_us
 
     def frame_exposure_from_stamp(self, stamp_us: int, stored_exposure_us: float | None) -> tuple[int, int] | None:
         """Exposure ``[start, end]`` of a frame stamped at mid-exposure: ``start = stamp - exp/2``.
@@ -643,7 +652,7 @@ class StreamAssembler:
             return arr
         t = arr["t"]
         lo = 0 if self.start_us is None else int(np.searchsorted(t, self.start_us, side="left"))
-        hi = arr.size if self.end_us is None else int(np.searchsorted(t, self.end_us, side="right"))
+        hi = arr.size if self.end_us is None else int(np.searchsorted(t, self.end_us, side="left"))  # end excluded
         return arr[lo:hi]
 
     def drain(self, watermark: int | None) -> Iterator:

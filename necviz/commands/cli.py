@@ -110,6 +110,14 @@ def add_show_args(parser, tuning: bool = True) -> None:
         metavar="N",
         help="also log up to N raw events per window as points (default 0: images only)",
     )
+    g.add_argument(
+        "--image-rate",
+        type=number("--image-rate"),
+        default=None,
+        metavar="HZ",
+        help="log at most HZ frames per lane and HZ event images per second of sensor time (a lighter --save "
+        "for long runs: 2 keeps an hour of live in ~0.2 GB; default: every one)",
+    )
     g.add_argument("--profile", metavar="FILE.json", help="camera profile (CRF, TEDI thresholds and compensation)")
     g.add_argument("--force", action="store_true", help="replace existing output files")
     if tuning:
@@ -124,26 +132,37 @@ def add_clip_args(parser) -> None:
     g = parser.add_argument_group("flight recorder (a clip around every saturated frame and every 'mark')")
     g.add_argument("--clips", metavar="DIR", help="write a clip (.necrec + .rrd) around every failure into DIR")
     g.add_argument(
-        "--clip-before", type=number("--clip-before"), default=5.0, metavar="S", help="seconds kept before (default 5)"
+        "--clip-before", type=number("--clip-before"), default=None, metavar="S", help="seconds kept before (default 5)"
     )
     g.add_argument(
-        "--clip-after", type=number("--clip-after"), default=5.0, metavar="S", help="seconds recorded after (default 5)"
+        "--clip-after",
+        type=number("--clip-after"),
+        default=None,
+        metavar="S",
+        help="seconds recorded after (default 5)",
     )
     g.add_argument(
         "--clip-memory",
         type=number("--clip-memory"),
-        default=512.0,
+        default=None,
         metavar="MB",
-        help="buffer budget; oldest dropped beyond (512)",
+        help="memory budget of the recorder, its writer included; oldest data dropped beyond (512)",
     )
 
 
 def _clips(args):
+    bounds = {"--clip-before": "clip_before", "--clip-after": "clip_after", "--clip-memory": "clip_memory"}
+    given = {flag: getattr(args, k, None) for flag, k in bounds.items() if getattr(args, k, None) is not None}
     if not getattr(args, "clips", None):
+        if given:
+            from necviz.core.errors import ParameterError
+
+            raise ParameterError(f"{next(iter(given))} sets the flight recorder: it needs --clips DIR")
         return None
     from necviz.options import ClipOptions
 
-    return ClipOptions(args.clips, args.clip_before, args.clip_after, args.clip_memory)
+    kw = {"before_s": "--clip-before", "after_s": "--clip-after", "memory_mb": "--clip-memory"}
+    return ClipOptions(args.clips, **{k: given[f] for k, f in kw.items() if f in given})
 
 
 def add_video_args(parser) -> None:
@@ -174,7 +193,7 @@ def _video(args):
 def _show(args):
     from necviz.options import ShowOptions
 
-    return ShowOptions(args.speed, args.event_window_ms, args.event_points)
+    return ShowOptions(args.speed, args.event_window_ms, args.event_points, getattr(args, "image_rate", None))
 
 
 def _tune(args):

@@ -1,8 +1,8 @@
 """``necviz export IN OUT``: a recording in any format the readers accept, written as AEDAT 4, HDF5,
 NumPy or a native clip — the format chosen by OUT's suffix.
 
-``--start``/``--end`` cut the recording (seconds from its first timestamp, as in ``replay``): events,
-IMU samples and triggers inside the range, frames whose whole exposure lies inside it. The input is
+``--start``/``--end`` cut the recording (seconds from its first timestamp, as in ``replay``): what lies
+in ``[first + start, first + end)``, frames whose whole exposure lies inside it. The input is
 never modified and never overwritten (not even with ``--force``); the output appears only when it is
 complete. See docs/recordings.md for what each format holds.
 """
@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from necviz.names import FORMATS
-from necviz.progress import LiveLine, output
+from necviz.progress import LiveLine, output, plural
 
 if TYPE_CHECKING:
     from necviz.options import ExportOptions
@@ -42,19 +42,28 @@ def run(options: ExportOptions, out=...) -> dict:
     RecordingError
         For a missing, unreadable or damaged input (no output is left behind).
     """
-    from necviz.commands.replay import open_for_replay
     from necviz.core.errors import ParameterError
     from necviz.options import ExportOptions
     from necviz.outputs import check_output
-    from necviz.writers import SUFFIXES, export_recording, format_for
+    from necviz.writers import SUFFIXES, check_compression, format_for
 
     if not isinstance(options, ExportOptions):
         raise ParameterError(f"export takes ExportOptions, got {type(options).__name__}")
     out = output(out)
     file, out_path = options.file, options.out_path
-    format_for(out_path)
+    check_compression(format_for(out_path), options.compression)  # before anything is read
     check_output(out_path, "OUT", inputs=[file], force=options.force, suffixes=SUFFIXES)
-    recording, origin = open_for_replay(Path(file), options.exposure_us, options.start_s, options.end_s, options.format)
+    from necviz.drivers.recordings import readable_copy
+
+    with readable_copy(file, options.pipe_timeout_s) as source:  # a pipe is read once, into a copy
+        return _export(options, out, file, source, out_path)
+
+
+def _export(options, out, file, source: Path, out_path) -> dict:
+    from necviz.commands.replay import open_for_replay
+    from necviz.writers import export_recording
+
+    recording, origin = open_for_replay(source, options.exposure_us, options.start_s, options.end_s, options.format)
     line = LiveLine(out if hasattr(out, "isatty") and out.isatty() else None)
 
     def progress(events, frames, seconds):
@@ -65,7 +74,12 @@ def run(options: ExportOptions, out=...) -> dict:
             recording,
             out_path,
             compression=options.compression,
-            properties={"exported_from": str(file), "format": recording.format, **getattr(recording, "properties", {})},
+            # the input's name, not the path as typed (a relative path means nothing once the file moves)
+            properties={
+                "exported_from": Path(file).name,
+                "format": recording.format,
+                **getattr(recording, "properties", {}),
+            },
             progress=progress,
         )
     finally:
@@ -76,8 +90,8 @@ def run(options: ExportOptions, out=...) -> dict:
     c = stats["counts"]
     span = 0.0 if stats["first_us"] is None else (stats["last_us"] - stats["first_us"]) / 1e6
     print(
-        f"  wrote {out_path} ({stats['format']}): {c['events']:,} events, {c['frames']} frames, {c['imu']} IMU samples, "
-        f"{c['triggers']} triggers over {span:.3f} s",
+        f"  wrote {out_path} ({stats['format']}): {plural(c['events'], 'event')}, {plural(c['frames'], 'frame')}, "
+        f"{plural(c['imu'], 'IMU sample')}, {plural(c['triggers'], 'trigger')} over {span:.3f} s",
         file=out,
     )
     stats["origin_us"] = origin
@@ -107,7 +121,17 @@ def add_parser(sub) -> None:
     )
     p.add_argument("--format", default=None, choices=FORMATS, help="the input's format (skip detection)")
     p.add_argument(
-        "--compression", default="lz4", choices=("lz4", "zstd", "none"), help="AEDAT 4 packet compression (default lz4)"
+        "--pipe-timeout",
+        type=number("--pipe-timeout"),
+        default=None,
+        metavar="S",
+        help="accept a named pipe as IN: copy what it delivers, waiting at most S seconds for it",
+    )
+    p.add_argument(
+        "--compression",
+        default=None,
+        choices=("lz4", "zstd", "none"),
+        help="packet compression of .aedat4 (default lz4) and .necrec (default zstd)",
     )
     p.set_defaults(func=_cmd)
 
@@ -125,6 +149,7 @@ def _cmd(args) -> int:
             format=args.format,
             compression=args.compression,
             force=args.force,
+            pipe_timeout_s=args.pipe_timeout,
         )
     )
     return 0

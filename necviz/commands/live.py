@@ -55,6 +55,16 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     """
     out = output(out)
     options = options or LiveOptions()
+    if options.device == "emulated":  # the scene's --set values against the run's duration, before anything opens
+        from necviz.drivers.sim.scenes import make_scenario
+
+        spec = options.scene.spec()
+        make_scenario(
+            spec["name"],
+            duration_us=None if options.duration_s is None else int(round(options.duration_s * 1e6)),
+            seed=options.scene.resolved_seed,
+            **{**spec["params"], **options.scene.params},
+        )
     viewer, profile = preflight(
         "live",
         viewer,
@@ -65,6 +75,12 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     )  # before the camera is opened
     if options.clips is not None:
         options.clips.check()
+    if viewer.save is not None:  # a long session's file grows by GB an hour: say so before it fills a disk
+        from necviz.dashboard.rrd_file import size_warning
+
+        note = size_warning(viewer.save, options.duration_s, options.show.image_rate_hz)
+        if note is not None and out is not None:
+            print(note, file=out)
     from necviz.drivers.davis import CameraOptions, open_camera
 
     backend = None

@@ -6,6 +6,8 @@ writes on a clean close: the viewer still streams it, but tools that index the f
 in the file; repairing rewrites it through ``rerun rrd merge`` (the ``rerun`` program that ships
 with the SDK), which writes a new file with its footer. The input is never modified: the repaired
 copy goes to ``--out`` (default ``FILE.repaired.rrd``), refused if it exists unless ``--force``.
+A long session's ``--save`` file is written in segments (``FILE.rrd``, then ``FILE.rrd.parts/``) that
+are joined when the run ends; after a crash, repairing joins them too.
 (Native ``.necrec`` recordings need no repair: they are readable up to their last flush.)
 """
 
@@ -35,8 +37,11 @@ def repair(path, out=None, force: bool = False) -> Path:
             raise ParameterError(f"{src}: not a Rerun recording (.rrd)")
     dst = Path(out) if out is not None else src.with_name(src.stem + ".repaired.rrd")
     check_output(dst, "--out", inputs=[src], force=force, suffixes=(".rrd",))
+    from necviz.dashboard.rrd_file import segment_files
+
+    files = [str(p) for p in segment_files(src)]  # a segmented --save file cut short: its parts too
     with atomic_write(dst, "wb") as f:
-        proc = subprocess.run([*rerun_program(), "rrd", "merge", str(src)], stdout=f, stderr=subprocess.PIPE)
+        proc = subprocess.run([*rerun_program(), "rrd", "merge", *files], stdout=f, stderr=subprocess.PIPE)
         if proc.returncode != 0:
             lines = [ln for ln in proc.stderr.decode(errors="replace").splitlines() if ln.strip()]
             raise ParameterError(f"{src}: cannot be repaired ({lines[-1] if lines else 'rerun rrd merge failed'})")

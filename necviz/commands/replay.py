@@ -28,7 +28,6 @@ from pathlib import Path
 
 from necviz.core.control import CameraLimits, make_controller
 from necviz.core.errors import ParameterError
-from necviz.core.stream import packet_time_us
 from necviz.dashboard.session import Session, preflight, run_session
 from necviz.dashboard.video import video_observer
 from necviz.options import ReplayOptions, ViewerOptions
@@ -39,47 +38,16 @@ from necviz.progress import output
 LANE = "camera"
 
 
-def _first_time_us(path, open_kwargs) -> int | None:
-    """The first packet time of a recording (opens it briefly; streams are lazy)."""
-    from necviz.drivers.recordings import open_recording
-
-    rec = open_recording(path, **open_kwargs)
-    try:
-        for packet in rec:
-            t = packet_time_us(packet)
-            if t is not None:
-                return t
-        return None
-    finally:
-        rec.close()
-
-
 def open_for_replay(path, exposure_us=None, start_s=None, end_s=None, fmt=None):
-    """Open ``path`` restricted to ``[start_s, end_s]`` seconds from its first timestamp.
+    """Open ``path`` restricted to ``[first + start_s, first + end_s)`` seconds from its first
+    timestamp (:mod:`necviz.drivers.recordings.cut`). Returns ``(recording, origin_us)``."""
+    from necviz.drivers.recordings.cut import open_cut
 
-    Returns ``(recording, origin_us)``.
-    """
-    from necviz.drivers.recordings import open_recording
-
-    kw = {"exposure_us": exposure_us, "format": fmt}
-    origin = _first_time_us(path, kw)
+    recording, origin = open_cut(path, start_s, end_s, exposure_us=exposure_us, format=fmt)
     if origin is None:
+        recording.close()
         raise ParameterError(f"{path}: the recording holds no events or frames")
-    start_us = None if start_s is None else origin + int(round(start_s * 1e6))
-    end_us = None if end_s is None else origin + int(round(end_s * 1e6))
-    return open_recording(path, start_us=start_us, end_us=end_us, **kw), origin
-
-
-def clip_focus(properties: dict, origin_us: int) -> tuple[float, float, float] | None:
-    """A flight-recorder clip's failure as ``(start_s, end_s, failure_s)`` on the replay's time axis
-    (seconds from ``origin_us``), or None for any other recording."""
-    from necviz.flight_recorder import FOCUS_S
-
-    try:
-        t = (int(properties["clip_failure_us"]) - int(origin_us)) / 1e6
-    except (KeyError, TypeError, ValueError):
-        return None
-    return max(0.0, t - FOCUS_S), t + FOCUS_S, t
+    return recording, origin
 
 
 def summarise(stats: dict, lane: str = LANE) -> dict:
@@ -152,21 +120,10 @@ def run(options: ReplayOptions, viewer: ViewerOptions | None = None, out=...) ->
         inputs=[path],
         profile=options.profile,
     )  # before anything is opened
-    from necviz.drivers.recordings import RecordingError, check_source, spool_pipe
+    from necviz.drivers.recordings import readable_copy
 
-    source = path
-    if check_source(path) == "pipe":
-        if options.pipe_timeout_s is None:
-            raise RecordingError(
-                f"{path}: a named pipe, not a regular file (reading one waits for a writer for ever); "
-                "pass --pipe-timeout S to copy what it delivers"
-            )
-        source = spool_pipe(path, options.pipe_timeout_s)
-    try:
+    with readable_copy(path, options.pipe_timeout_s) as source:
         return _replay(options, viewer, out, path, source, profile)
-    finally:
-        if source != path:
-            source.unlink(missing_ok=True)
 
 
 def _replay(options: ReplayOptions, viewer, out, path: Path, source: Path, profile) -> dict:
@@ -198,8 +155,11 @@ def _replay(options: ReplayOptions, viewer, out, path: Path, source: Path, profi
         f"{recording.exposure_source}); {options.controller} in open loop",
         file=out,
     )
-    focus = clip_focus(getattr(recording, "properties", {}), origin)
+    from necviz.flight_recorder import clip_focus
+
+    focus = clip_focus(getattr(recording, "properties", {}))  # a clip: the session's time axis and window
     if focus is not None:
+        origin = focus[3]
         print(
             f"  clip: {recording.properties.get('clip_cause', 'failure')} at {focus[2]:.3f} s; the viewer loops over "
             f"{focus[0]:.3f}..{focus[1]:.3f} s",

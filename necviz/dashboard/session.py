@@ -26,7 +26,7 @@ from necviz.memory import bound_heap_retention
 from necviz.options import ShowOptions, TuneOptions, ViewerOptions
 from necviz.outputs import OutputError, low_space
 from necviz.pipeline import Lane, Pipeline, RecorderObserver
-from necviz.progress import LiveLine, output
+from necviz.progress import LiveLine, output, plural
 
 
 @dataclass
@@ -164,7 +164,7 @@ class _ViewerOutput:
         self.viewer.output.commit()
 
     def discard(self) -> str:
-        return self.viewer.output.discard()
+        return self.viewer.discard()
 
 
 def _run(ss: Session, out, stdin, outputs: list) -> dict:
@@ -198,9 +198,11 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
         origin_us=ss.origin_us,
         lossless=lossless,
         flush_period_s=flush,
+        image_period_us=0 if ss.show.image_rate_hz is None else int(round(1e6 / ss.show.image_rate_hz)),
     )
     sink = RerunSink(rec, names, sensor.height, sensor.width, sink_options)
-    sink.files = [viewer.output.target] if viewer.output is not None else []
+    sink.files = viewer.files
+    sink.rotate = viewer.rotate
     observers = [sink]
     if ss.recorder is not None:
         cam = ss.record_camera or ss.lanes[0].camera or ss.lanes[0].name
@@ -208,6 +210,7 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
         observers.append(RecorderObserver(ss.recorder, cam, driver))
     for make in ss.observers:
         observers.append(make(ss, layout, out))
+    files += [o.folder for o in observers if getattr(o, "folder", None) is not None]  # clips fill a disk too
     pipe = Pipeline(
         ss.source,
         ss.lanes,
@@ -245,8 +248,10 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
         try:
             while not pipe.wait(0.5):
                 line.show(status())
-                disk_full = low_space(files)
-                if disk_full is not None:  # stop while the files can still be completed
+                joining = viewer.segments.size() if viewer.segments is not None else 0  # the join copies the file
+                disk_full = low_space(files, extra=joining)
+                broken = _failed(observers)
+                if disk_full is not None or broken is not None:  # stop while the files can still be completed
                     pipe.stop()
                     break
         except KeyboardInterrupt:
@@ -268,8 +273,12 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
             try:
                 viewer.close()
             except BaseException:
-                if not failed:
-                    raise  # else the run's own error is the one reported
+                if not failed and disk_full is None:
+                    raise  # else the run's own error (or the disk guard's, below) is the one reported
+    broken = _failed(observers)
+    if broken is not None:  # an output that could not be written (a clip on a full disk)
+        at = (pipe.now_us or 0) / 1e6 - (pipe.first_us or 0) / 1e6
+        raise type(broken)(f"{broken}; the run was stopped at {at:.1f} s")
     if disk_full is not None:
         path, free = disk_full
         raise OutputError(
@@ -283,6 +292,11 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
     stats["rrd"] = str(viewer.save_path) if viewer.save_path is not None else None
     stats["telemetry"] = pipe.telemetry
     return stats, viewer
+
+
+def _failed(observers):
+    """The error of an observer whose output could not be written (its ``failure``), or None."""
+    return next((o.failure for o in observers if getattr(o, "failure", None) is not None), None)
 
 
 def _keep_serving(viewer, out) -> None:
@@ -333,7 +347,7 @@ def print_summary(out, stats: dict) -> None:
     fr = stats.get("flight_recorder")
     if fr:
         dropped = (
-            f"; the {fr['buffer_bytes'] / 2**20:.0f} MB buffer dropped {fr['dropped_events']:,} events "
+            f"; the {fr['buffer_bytes'] / 2**20:.0f} MB budget dropped {fr['dropped_events']:,} events "
             "(clips hold less than --clip-before)"
             if fr["dropped_events"]
             else ""
@@ -341,8 +355,8 @@ def print_summary(out, stats: dict) -> None:
         lost = f", {fr['clips_dropped']} dropped (writer behind)" if fr["clips_dropped"] else ""
         errors = f", {fr['write_errors']} failed to write" if fr["write_errors"] else ""
         print(
-            f"  clips: {fr['clips_written']} written ({fr['failures']} saturated frames, {fr['marks']} marks){lost}"
-            f"{errors}; peak buffer {fr['peak_bytes'] / 2**20:.1f} MB{dropped}",
+            f"  clips: {fr['clips_written']} written ({plural(fr['failures'], 'saturated frame')}, "
+            f"{plural(fr['marks'], 'mark')}){lost}{errors}; peak held {fr['peak_bytes'] / 2**20:.1f} MB{dropped}",
             file=out,
         )
     vd = stats.get("video")

@@ -241,6 +241,9 @@ class SinkOptions:
         ``None``: frames use :data:`FRAME_QTABLE`; else the JPEG standard's table at this quality (1..95).
     png_level : int, optional
         zlib level of the event images (0..9; ``None``: 6 lossless, 1 live: ~4x faster, ~11 % larger).
+    image_period_us : int
+        At least this much sensor time between two logged frames of a lane, and between two event
+        images (0: every one); the others are counted (``frames_thinned``, ``event_images_thinned``).
 
     Raises
     ------
@@ -263,6 +266,7 @@ class SinkOptions:
     image_chunk_bytes: int = 1 << 20
     jpeg_quality: int | None = None
     png_level: int | None = None
+    image_period_us: int = 0
 
     def __post_init__(self) -> None:
         flush = self.flush_period_s
@@ -287,6 +291,7 @@ class SinkOptions:
             ("image_chunk_bytes", _whole("image_chunk_bytes", self.image_chunk_bytes, 1)),
             ("jpeg_quality", _whole("jpeg_quality", self.jpeg_quality, 1, 95, optional=True)),
             ("png_level", _whole("png_level", self.png_level, 0, 9, optional=True)),
+            ("image_period_us", _whole("image_period_us", self.image_period_us, 0)),
         ):
             object.__setattr__(self, name, value)
 
@@ -342,6 +347,9 @@ class RerunSink(Observer):
         self._frame_rate: dict[str, RateLimit] = defaultdict(lambda: RateLimit(max_rate_hz))
         self._image_rate = RateLimit(max_rate_hz)
         self._frame_queue_size = options.frame_queue_size
+        self.image_period_us = options.image_period_us
+        self._last_frame_us: dict[str, int] = {}  # per lane: the last logged frame's exposure start
+        self._last_image_us: int | None = None  # the last event image's window end
         # written by the streaming thread: deques (append / popleft are atomic), drained by the worker
         self._scalar_q: deque = deque()
         self._text_q: deque = deque()
@@ -367,6 +375,8 @@ class RerunSink(Observer):
             "events_decimated": 0,
             "event_images": 0,
             "event_images_skipped": 0,
+            "event_images_thinned": 0,
+            "frames_thinned": 0,
             "scalars": 0,
         }
         self.dropped = {"frames": 0, "event_batches": 0, "events": 0}  # written by the streaming thread only
@@ -374,6 +384,7 @@ class RerunSink(Observer):
         self._error: BaseException | None = None
         self.files: list = []  # files the stream writes: its flush is bounded (see viewer.flush_stream)
         self.on_close = None  # called once the recording is flushed (a file sink completes its file)
+        self.rotate = None  # called by the worker between sends (a --save file's next segment)
         self._thread = threading.Thread(target=self._run, name="necviz-rerun-sink", daemon=True)
         self._thread.start()
 
@@ -457,6 +468,12 @@ class RerunSink(Observer):
                     "WARN",
                 )
             )
+        if self.image_period_us:  # a lighter recording: frames at most every image_period_us of sensor time
+            last = self._last_frame_us.get(lane)
+            if last is not None and t - last < self.image_period_us:
+                self.stats["frames_thinned"] += 1
+                return
+            self._last_frame_us[lane] = t
         q = self._frames
         if self.lossless:
             self._wait_for_room(q, self._frame_queue_size)
@@ -496,6 +513,8 @@ class RerunSink(Observer):
                 elif time.perf_counter() >= next_flush:
                     self._flush_series()
                     next_flush = time.perf_counter() + self.flush_period_s
+                if self.rotate is not None:
+                    self.rotate()
                 if stopping:
                     break
                 time.sleep(self.burst_s)
@@ -567,7 +586,14 @@ class RerunSink(Observer):
         if not self._drawing:  # behind the stream or faster than a viewer refreshes: count only
             self.stats["event_images_skipped"] += 1
             self.stats["events_decimated"] += seen
+        elif (
+            self.image_period_us
+            and self._last_image_us is not None
+            and end - self._last_image_us < self.image_period_us
+        ):
+            self.stats["event_images_thinned"] += 1
         elif seen or not final:
+            self._last_image_us = end
             stride = max(1, math.ceil(seen / self.max_events_per_window)) if self.max_events_per_window > 0 else 1
             drawn = sum(self._image.add(p, stride) for p in self._parts)  # no copy: the kernel strides
             self.stats["events_drawn"] += drawn

@@ -21,6 +21,7 @@ renamed when complete.
 from __future__ import annotations
 
 import math
+import os
 import queue
 import threading
 from collections import deque
@@ -147,7 +148,12 @@ class VideoWriter(Observer):
         self._thread.join()
         if self._error is not None:
             self._pending.abort()
-            raise self._error
+            err = self._error
+            if isinstance(err, OSError) and not isinstance(err, (FileNotFoundError, PermissionError)):
+                from necviz.outputs import write_failed  # a full disk: name the file asked for, not its temporary twin
+
+                raise write_failed(self.path, err, os.path.exists(self.path), "--video") from None
+            raise err
         self._pending.commit()
         duration = self.frames / float(self.fps)
         return {

@@ -24,7 +24,6 @@ growing and fails with one line instead.
 from __future__ import annotations
 
 import os
-import shutil
 import socket
 import subprocess
 import sys
@@ -35,7 +34,8 @@ from pathlib import Path
 
 import rerun as rr
 
-from necviz.core.errors import ParameterError
+from necviz.core.errors import NecvizError, ParameterError
+from necviz.dashboard.rrd_file import SegmentedFile, rerun_binary, rerun_program
 from necviz.dashboard.viewer_flags import (  # noqa: F401 - re-exported: the flags live in a module without Rerun
     DEFAULT_CONNECT,
     DEFAULT_GRPC_PORT,
@@ -59,10 +59,22 @@ def has_display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
+def in_notebook() -> bool:
+    """Whether this runs in a Jupyter kernel (where a widget can show), not a plain script or terminal."""
+    ipython = sys.modules.get("IPython")
+    shell = ipython.get_ipython() if ipython is not None and hasattr(ipython, "get_ipython") else None
+    return shell is not None and getattr(shell, "kernel", None) is not None
+
+
 def resolve(options: ViewerOptions, command: str, inputs=()) -> ViewerOptions:
     """Fill in the headless default (a file) and check the save path before anything starts."""
     from dataclasses import replace
 
+    if options.notebook and not in_notebook():
+        raise ParameterError(
+            "notebook=True shows the viewer in a Jupyter notebook's cell, and this is not a notebook (a plain "
+            "script or terminal); use save='run.rrd' or spawn=True instead"
+        )
     if not (options.spawn or options.serve or options.connect or options.save or options.notebook):
         if has_display():
             options = replace(options, spawn=True)
@@ -89,18 +101,53 @@ class Viewer:
     server: subprocess.Popen | None = None
     output: StreamedOutput | None = None
     notebook: object = None  # the rerun.notebook.Viewer shown in the cell (it keeps what was streamed)
+    #: the ``--save`` file written in segments (:mod:`necviz.dashboard.rrd_file`), and the other sinks
+    segments: SegmentedFile | None = None
+    other_sinks: list = field(default_factory=list)
 
     @property
     def target(self) -> Path | None:
         """Where the file is written until it is complete (see :mod:`necviz.outputs`)."""
         return self.output.target if self.output is not None else None
 
+    @property
+    def files(self) -> list:
+        """The file being written now (a live list: a new segment replaces it)."""
+        return self.segments.files if self.segments is not None else []
+
+    def rotate(self) -> None:
+        """Start the ``--save`` file's next segment when the current one is due (called by the thread
+        that logs, between its sends): the footer index Rerun keeps in memory covers one segment."""
+        if self.segments is not None and self.segments.due():
+            self.rec.set_sinks(*self.other_sinks, self.segments.next())
+
     def close(self) -> None:
-        """Flush what was logged (bounded: :func:`flush_stream`). A served recording stays available
-        until :meth:`stop_serving`; a notebook's viewer keeps everything it was sent."""
-        flush_stream(self.rec, [self.output.target] if self.output is not None else [], label=self.save_path)
-        if self.server is None and self.notebook is None:
+        """Flush what was logged (bounded: :func:`flush_stream`) and complete the ``--save`` file (its
+        segments joined into one). A served recording stays available until :meth:`stop_serving`; a
+        notebook's viewer keeps everything it was sent."""
+        flush_stream(self.rec, self.files, label=self.save_path)
+        keep_stream = self.server is not None or self.notebook is not None
+        if self.segments is not None:
+            if keep_stream:
+                self.rec.set_sinks(*self.other_sinks)  # the file sink is closed: its footer is written
+            else:
+                rr.disconnect(self.rec)
+                keep_stream = True  # already disconnected
+            self.segments.join()
+        if not keep_stream:
             rr.disconnect(self.rec)
+
+    def discard(self) -> str:
+        """The run failed: remove the ``--save`` file's later segments and discard the file
+        (:meth:`~necviz.outputs.StreamedOutput.discard`, which may keep a camera session's)."""
+        if self.segments is not None and self.output.keep_partial:
+            try:
+                self.segments.join()  # one readable file, if the disk allows
+            except NecvizError:
+                return f"{self.output.discard()} (and its later segments beside it: `necviz repair` joins them)"
+        elif self.segments is not None:
+            self.segments.discard()
+        return self.output.discard()
 
     def stop_serving(self) -> None:
         if self.server is not None:
@@ -199,29 +246,8 @@ def open_viewer(options: ViewerOptions, command: str, blueprint, name: str, *, k
         raise ParameterError(f"viewer: {e}") from None
 
 
-def _rerun_program() -> list[str]:
-    exe = Path(sys.executable).with_name("rerun")
-    if exe.exists():
-        return [str(exe)]
-    found = shutil.which("rerun")
-    return [found] if found else [sys.executable, "-m", "rerun"]
-
-
-def _rerun_binary() -> list[str]:
-    """The ``rerun`` executable itself (the SDK's ``rerun`` command is a Python script that runs it as a
-    child: a signal to the script would not reach the server), else :func:`_rerun_program`."""
-    override = os.environ.get("RERUN_CLI_PATH")
-    if override and os.access(override, os.X_OK):
-        return [override]
-    try:
-        import rerun_cli
-
-        exe = Path(rerun_cli.__file__).with_name("rerun.exe" if sys.platform.startswith("win") else "rerun")
-        if exe.is_file() and os.access(exe, os.X_OK):
-            return [str(exe)]
-    except ImportError:
-        pass
-    return _rerun_program()
+_rerun_program = rerun_program  # the rerun command and its binary: necviz.dashboard.rrd_file
+_rerun_binary = rerun_binary
 
 
 def _listener(host: str, port: int) -> str | None:
@@ -401,19 +427,29 @@ def _open(options: ViewerOptions, blueprint, name, messages, keep_partial: bool 
     if options.connect:
         sinks.append(rr.GrpcSink(options.connect))
         messages.append(f"streaming to {options.connect}")
-    output = None
+    output = segments = None
+    others = list(sinks)
     if options.save:
         output = StreamedOutput(options.save, keep_partial=keep_partial, flag="--save")
-        sinks.append(rr.FileSink(str(output.target)))
+        segments = SegmentedFile(output.target, blueprint, "necviz")  # the blueprint beside, joined in at the end
+        if others:  # the viewers get the blueprint; the file, never (rrd_file's docstring)
+            rec.set_sinks(*others, default_blueprint=blueprint)
+        sinks.append(segments.sink())
         if not any(m.startswith("saving to") for m in messages):
             messages.append(f"saving to {options.save} (open it with: rerun {options.save})")
     try:
-        rec.set_sinks(*sinks, default_blueprint=blueprint)
+        if segments is not None:
+            rec.set_sinks(*sinks)
+        else:
+            rec.set_sinks(*sinks, default_blueprint=blueprint)
         rec.send_recording_name(text(name))
     except BaseException:
         if output is not None:
+            segments.discard()
             output.discard()
         if server is not None:
             stop_process_group(server)
         raise
-    return Viewer(rec, messages, Path(options.save) if options.save else None, url, server, output)
+    return Viewer(
+        rec, messages, Path(options.save) if options.save else None, url, server, output, None, segments, others
+    )

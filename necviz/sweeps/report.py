@@ -348,7 +348,9 @@ def report(out, metrics=None, folder=None, force: bool = False, plot_metrics=Non
     if folder.exists() and not folder.is_dir():
         raise SweepDirError(f"--out: {folder} is a file, not a folder")
     if not folder.exists() and not folder.parent.is_dir():
-        raise SweepDirError(f"--out: folder {folder.parent} does not exist")
+        from necviz.outputs import make_folder
+
+        make_folder(folder.parent, "--out")
     existing = [folder / f for f in REPORT_FILES if (folder / f).exists()]
     if existing and not force:
         raise SweepDirError(f"{existing[0]} already exists; pass --force to replace the report")

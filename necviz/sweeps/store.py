@@ -258,9 +258,10 @@ def prepare_out(out, *, resume: bool, force: bool) -> Store:
         raise SweepDirError("--out needs a folder name")
     if root.exists() and not root.is_dir():
         raise SweepDirError(f"--out: {root} is a file, not a folder")
-    parent = root.resolve().parent
-    if not root.exists() and not parent.is_dir():
-        raise SweepDirError(f"--out: folder {parent} does not exist")
+    if not root.exists() and not root.parent.is_dir():
+        from necviz.outputs import make_folder
+
+        make_folder(root.parent, "--out")
     empty = not root.exists() or not any(root.iterdir())
     if resume:
         if empty or not store.is_sweep():

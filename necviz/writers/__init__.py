@@ -28,6 +28,7 @@ from necviz.core.errors import ParameterError
 from necviz.core.events import EventBatch
 from necviz.core.frames import Frame
 from necviz.core.imu import ImuBatch, TriggerBatch
+from necviz.outputs import write_failed
 from necviz.pipeline import packet_time_us
 
 #: Output suffix -> format name.
@@ -76,10 +77,11 @@ def written(path):
 class _NativeWriter:
     """The native recorder with the writers' interface (``counts``)."""
 
-    def __init__(self, path, sensor, *, properties: dict | None = None):
+    def __init__(self, path, sensor, *, properties: dict | None = None, compression: str = "zstd"):
         from necviz.drivers.recordings.native import Recorder
 
-        self.recorder = Recorder(path, sensor=sensor, properties={k: str(v) for k, v in (properties or {}).items()})
+        props = {k: str(v) for k, v in (properties or {}).items()}
+        self.recorder = Recorder(path, sensor=sensor, properties=props, compression=compression)
         self.counts = {"events": 0, "frames": 0, "imu": 0, "triggers": 0, "commands": 0, "annotations": 0}
 
     def write(self, packet) -> None:
@@ -106,19 +108,63 @@ class _NativeWriter:
         self.recorder.close()
 
 
-def open_writer(fmt: str, path, sensor, *, properties: dict | None = None, compression: str = "lz4"):
+#: Packet compression by format when none is asked for (the formats that take ``--compression``).
+DEFAULT_COMPRESSION = {"aedat4": "lz4", "necviz": "zstd"}
+
+
+def check_compression(fmt: str, compression: str | None) -> str | None:
+    """The compression a writer of ``fmt`` uses: ``compression``, or the format's default.
+
+    Raises
+    ------
+    ParameterError
+        ``compression`` given for a format that has its own (``.h5``: gzip; ``.npz``: deflate).
+    """
+    if fmt not in DEFAULT_COMPRESSION:
+        if compression is not None:
+            suffix = {"hdf5": ".h5", "npz": ".npz"}.get(fmt, fmt)
+            own = {"hdf5": "gzip with shuffle", "npz": "deflate"}.get(fmt, "its own")
+            raise ParameterError(
+                f"--compression applies to .aedat4 and .necrec; {suffix} is always compressed with {own}"
+            )
+        return None
+    return compression or DEFAULT_COMPRESSION[fmt]
+
+
+def write_failure(exc: BaseException) -> BaseException | None:
+    """The OS error behind a failed write (a full disk, a file too large, an I/O error), or None when
+    ``exc`` is something else: a writer's own OSError, or the native recorder's error for one."""
+    from necviz.drivers.recordings.native import WriteError
+
+    if isinstance(exc, WriteError):
+        return exc.cause or exc
+    if isinstance(exc, OSError) and not isinstance(exc, (FileNotFoundError, PermissionError)):
+        return exc
+    return None
+
+
+def open_writer(
+    fmt: str,
+    path,
+    sensor,
+    *,
+    properties: dict | None = None,
+    compression: str | None = None,
+    camera_name: str | None = None,
+):
     """A writer for format ``fmt`` (a :data:`WRITERS` value) creating ``path``: ``write(packet)``, ``close()``,
-    ``counts``.
+    ``counts``. ``camera_name``: the camera the input names (AEDAT 4's ``source``, kept in the output).
 
     Raises
     ------
     ParameterError
         For an unknown format or compression.
     """
+    compression = check_compression(fmt, compression)
     if fmt == "aedat4":
         from necviz.writers.aedat4_writer import Aedat4Writer
 
-        return Aedat4Writer(path, sensor, compression=compression)
+        return Aedat4Writer(path, sensor, compression=compression, source=camera_name)
     if fmt == "hdf5":
         from necviz.writers.hdf5_writer import Hdf5Writer
 
@@ -128,7 +174,7 @@ def open_writer(fmt: str, path, sensor, *, properties: dict | None = None, compr
 
         return NpzWriter(path, sensor, properties=properties)
     if fmt == "necviz":
-        return _NativeWriter(path, sensor, properties=properties)
+        return _NativeWriter(path, sensor, properties=properties, compression=compression)
     raise ParameterError(f"unknown export format {fmt!r}; choose one of {', '.join(sorted(set(WRITERS.values())))}")
 
 
@@ -149,7 +195,7 @@ def format_for(path) -> str:
 
 
 def export_recording(
-    recording, out, *, compression: str = "lz4", properties: dict | None = None, progress=None
+    recording, out, *, compression: str | None = None, properties: dict | None = None, progress=None
 ) -> dict:
     """Write every packet of ``recording`` to ``out`` in the format its suffix names.
 
@@ -157,7 +203,8 @@ def export_recording(
     ----------
     recording : an open :class:`~necviz.drivers.recordings.Recording` (restricted to the range to export).
     out : the output path (checked beforehand with :func:`necviz.outputs.check_output`).
-    compression : AEDAT 4 packet compression: ``"lz4"``, ``"zstd"`` or ``"none"``.
+    compression : packet compression of ``.aedat4`` (default ``"lz4"``) and ``.necrec`` (default
+        ``"zstd"``): ``"lz4"``, ``"zstd"`` or ``"none"``; refused for the other formats.
     properties : run metadata stored where the format has room (native header, HDF5 attributes).
     progress : ``progress(events, frames, seconds)`` called now and then.
 
@@ -177,8 +224,11 @@ def export_recording(
     fmt = format_for(out)
     wall0 = time.perf_counter()
     first = last = None
+    existed = os.path.lexists(out)
     with written(out) as tmp:
-        writer = open_writer(fmt, tmp, recording.sensor, properties=properties, compression=compression)
+        camera = getattr(recording, "camera_name", None)
+        props = {**(properties or {}), **({"camera_name": camera} if camera else {})}
+        writer = open_writer(fmt, tmp, recording.sensor, properties=props, compression=compression, camera_name=camera)
         try:
             next_report = 0.0
             for packet in recording:
@@ -198,8 +248,16 @@ def export_recording(
                 for t_us, data in getattr(recording, "annotations", None) or ():
                     if recording.in_range(int(t_us)):
                         writer.annotate(int(t_us), data)
-        finally:
             writer.close()
+        except BaseException as e:
+            try:
+                writer.close()  # whatever it raises now (the same full disk) is not the error to report
+            except BaseException:  # noqa: BLE001
+                pass
+            cause = write_failure(e)
+            if cause is not None:  # a full disk, a file too large: one line, and the partial file is removed
+                raise write_failed(out, cause, existed) from None
+            raise
         c = writer.counts
         if not (c["events"] or c["frames"] or c["imu"] or c["triggers"]):
             raise ParameterError(f"nothing to export from {recording.path.name} in the selected range")

@@ -92,11 +92,14 @@ def _compressor(name: str):
     return lambda b: zstd.compress(b)
 
 
-def info_node(width: int, height: int, source: str, compression: str) -> str:
-    """The IOHeader's XML stream description (the layout DV writes)."""
+def info_node(width: int, height: int, source: str, compression: str, streams=None) -> str:
+    """The IOHeader's XML stream description (the layout DV writes), for the stream ids ``streams``
+    (default: all four)."""
     root = "/mainloop/Recorder/outInfo/"
     lines = ['<dv version="2.0">', f'    <node name="outInfo" path="{root}">']
     for sid, name, ident, desc, sized in STREAMS:
+        if streams is not None and sid not in streams:
+            continue
         lines += [
             f'        <node name="{sid}" path="{root}{sid}/">',
             f'            <attr key="compression" type="string">{compression}</attr>',
@@ -210,7 +213,11 @@ class Aedat4Writer:
     path : the file to create (it is truncated).
     sensor : :class:`~necviz.core.sensor.SensorGeometry` (``sizeX``/``sizeY`` of the event and frame streams).
     compression : ``"lz4"`` (DV's default), ``"zstd"`` or ``"none"``.
-    source : the camera name DV shows (the XML ``source``).
+    source : the camera name DV shows (the XML ``source``, e.g. ``DAVIS346_00000104``: keep the input's);
+        default the sensor's name.
+
+    The header declares only the streams the file holds: it is written with all four at the start
+    and rewritten at :meth:`close` with those that received packets, padded to the same length.
 
     Raises
     ------
@@ -223,12 +230,12 @@ class Aedat4Writer:
             raise ParameterError(f"--compression must be one of {', '.join(COMPRESSIONS)}, got {compression!r}")
         self.sensor = sensor
         self._compress = _compressor(compression)
-        enum, xml_name = COMPRESSIONS[compression]
-        src = source or f"{(sensor.name or 'DAVIS').replace(' ', '_')}_necviz"
-        head, self._dtp_at = ioheader(enum, -1, info_node(sensor.width, sensor.height, src, xml_name))
-        self._f = open(path, "w+b")
+        self._enum, self._xml_name = COMPRESSIONS[compression]
+        self._source = source or (sensor.name or "DAVIS").replace(" ", "_")
+        head, _ = ioheader(self._enum, -1, info_node(sensor.width, sensor.height, self._source, self._xml_name))
+        self._head_len = len(head)
+        self._f = open(path, "w+b")  # noqa: SIM115 - closed by close()
         self._f.write(MAGIC + struct.pack("<I", len(head)) + head)
-        self._dtp_at += len(MAGIC) + 4
         self._rows: list[tuple[int, int, int, int, int, int]] = []
         self._events: list[np.ndarray] = []
         self._n_events = 0
@@ -287,10 +294,21 @@ class Aedat4Writer:
             self._flush_events()
             pos = self._f.tell()
             self._f.write(self._compress(data_table(self._rows)))
-            self._f.seek(self._dtp_at)
-            self._f.write(struct.pack("<q", pos))
+            self._f.seek(len(MAGIC) + 4)
+            self._f.write(self._final_header(pos))
         finally:
             self._f.close()
+
+    def _final_header(self, data_table_position: int) -> bytes:
+        """The IOHeader naming only the streams that received packets, as long as the one written first
+        (the XML padded with spaces after its end)."""
+        used = {row[1] for row in self._rows}
+        xml = info_node(self.sensor.width, self.sensor.height, self._source, self._xml_name, used)
+        for pad in range(0, 4096):
+            head, _ = ioheader(self._enum, data_table_position, xml + " " * pad)
+            if len(head) == self._head_len:
+                return head
+        raise AssertionError("the final AEDAT 4 header cannot be padded to the first one's length")
 
 
 __all__ = ["Aedat4Writer", "COMPRESSIONS", "MAGIC", "info_node"]

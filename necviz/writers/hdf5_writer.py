@@ -15,9 +15,16 @@ Root attributes ``width``, ``height`` (the sensor) and ``producer``. The event c
 datasets as in DSEC (https://dsec.ifi.uzh.ch/data-format/), chunked (2^16 events) and compressed
 with gzip + shuffle, which every HDF5 build reads (DSEC's own files use Blosc, which needs
 ``hdf5plugin``); frames are one chunk each. Datasets grow as packets arrive: memory stays bounded.
+
+The HDF5 library writes through :class:`DiskFile`, a Python file object: a write the OS refuses (a
+full disk) is kept and raised by the writer's next call, while the library itself is told it
+succeeded. The HDF5 library cannot recover from a failed write of its own (its close then crashes the
+process); the file is deleted by the caller anyway, so what it held after the failure does not matter.
 """
 
 from __future__ import annotations
+
+import os
 
 import numpy as np
 
@@ -27,6 +34,72 @@ from necviz.core.imu import ImuBatch, TriggerBatch
 
 EVENT_CHUNK = 1 << 16
 COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True}
+
+
+class DiskFile:
+    """A file h5py writes through (``h5py.File(DiskFile(path), "w")``) that never fails a write.
+
+    The first OS error (``ENOSPC``, ``EFBIG``, ``EIO``) is kept in :attr:`error`; from then on writes
+    are dropped and reported as done, reads return what the file holds (zeros past its end)."""
+
+    def __init__(self, path):
+        self._f = open(path, "w+b", buffering=0)  # noqa: SIM115 - closed by close()
+        self.error: OSError | None = None
+
+    def _failed(self, exc: OSError) -> None:
+        if self.error is None:
+            self.error = exc
+
+    def write(self, data) -> int:
+        n = len(memoryview(data).cast("B"))
+        if self.error is not None:
+            self._f.seek(n, os.SEEK_CUR)
+            return n
+        try:
+            with memoryview(data).cast("B") as view:
+                while view:
+                    view = view[self._f.write(view) :]
+        except OSError as exc:
+            self._failed(exc)
+        return n
+
+    def read(self, n: int = -1) -> bytes:
+        data = self._f.read(n)
+        return data + bytes(max(0, n - len(data))) if n is not None and n >= 0 else data
+
+    def readinto(self, buf) -> int:
+        data = self.read(len(memoryview(buf).cast("B")))
+        memoryview(buf).cast("B")[: len(data)] = data
+        return len(data)
+
+    def seek(self, offset: int, whence: int = os.SEEK_SET) -> int:
+        return self._f.seek(offset, whence)
+
+    def tell(self) -> int:
+        return self._f.tell()
+
+    def truncate(self, size: int | None = None) -> int:
+        if self.error is None:
+            try:
+                return self._f.truncate(size)
+            except OSError as exc:
+                self._failed(exc)
+        return self._f.tell() if size is None else size
+
+    def flush(self) -> None:
+        pass
+
+    def seekable(self) -> bool:
+        return True
+
+    def readable(self) -> bool:
+        return True
+
+    def writable(self) -> bool:
+        return True
+
+    def close(self) -> None:
+        self._f.close()
 
 
 class Hdf5Writer:
@@ -43,7 +116,12 @@ class Hdf5Writer:
         import h5py
 
         self.sensor = sensor
-        self._f = h5py.File(path, "w")
+        self._disk = DiskFile(path)
+        try:
+            self._f = h5py.File(self._disk, "w")
+        except BaseException:
+            self._disk.close()
+            raise
         self._f.attrs["width"] = sensor.width
         self._f.attrs["height"] = sensor.height
         self._f.attrs["producer"] = "necviz export"
@@ -86,7 +164,14 @@ class Hdf5Writer:
         return out
 
     def write(self, packet) -> None:
-        """Append one stream packet (events, frame, IMU or trigger batch; markers are implied by frames)."""
+        """Append one stream packet (events, frame, IMU or trigger batch; markers are implied by frames).
+
+        Raises the OS error of a write the disk refused (a full disk), at the first call after it."""
+        if self._disk.error is not None:
+            raise self._disk.error
+        self._write(packet)
+
+    def _write(self, packet) -> None:
         if isinstance(packet, EventBatch):
             packet = packet.events
         if isinstance(packet, np.ndarray):
@@ -151,7 +236,8 @@ class Hdf5Writer:
             self.counts["triggers"] += len(tr)
 
     def close(self) -> None:
-        """Write the seek table and the time offset; close the file."""
+        """Write the seek table and the time offset; close the file. Raises the OS error of a write
+        the disk refused (the file is then incomplete: the caller deletes it)."""
         if self._closed:
             return
         self._closed = True
@@ -161,6 +247,9 @@ class Hdf5Writer:
             self._f.create_dataset("t_offset", data=np.int64(self.t_offset or 0))
         finally:
             self._f.close()
+            self._disk.close()
+        if self._disk.error is not None:
+            raise self._disk.error
 
 
 __all__ = ["Hdf5Writer"]

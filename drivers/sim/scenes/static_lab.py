@@ -106,7 +106,7 @@ class StaticLab(PresetScene):
         for i, st in enumerate(steps):
             if not isinstance(st, (list, tuple)) or len(st) != 2:
                 raise ParameterError(f"static_lab: steps[{i}] must be a (time_s, level_db) pair, got {st!r}")
-            ts = check_number(f"steps[{i}] time", st[0], 0.0, self.duration_s, where=self.name)
+            ts = check_number(f"steps[{i}] time (s, in [0, duration])", st[0], 0.0, self.duration_s, where=self.name)
             lv = check_number(f"steps[{i}] level", st[1], -100.0, 100.0, where=self.name)
             clean.append((ts, lv))
         if any(b[0] <= a[0] for a, b in pairwise(clean)):
