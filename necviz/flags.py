@@ -69,6 +69,8 @@ NUMBER_FLAGS: dict[str, NumberRule] = {
     "--max-lag": NumberRule(1, 50, integer=True),
     "--max-event-rate": NumberRule(0.0, 1e4),
     "--slow-rate": NumberRule(0.0, 1e6, lo_open=True),
+    # devices --check
+    "devices --seconds": NumberRule(0.0, 60.0, lo_open=True),
     # sweeps
     "--workers": NumberRule(1, 1024, integer=True),
     "--retries": NumberRule(0, 100, integer=True),

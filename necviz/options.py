@@ -583,7 +583,8 @@ class LiveOptions:
     Parameters
     ----------
     device : str
-        ``usb`` (a DAVIS346/DAVIS240 on USB) or ``emulated`` (the driver on a virtual DAVIS346).
+        ``usb`` (a DAVIS346/DAVIS240 on USB, necviz's driver), ``dv`` (the same camera through iniVation's
+        dv-processing) or ``emulated`` (necviz's driver on a virtual DAVIS346).
     serial : str, optional
         The camera's serial number (default: the first found).
     reconnect : bool
@@ -631,8 +632,8 @@ class LiveOptions:
     clips: ClipOptions | None = None
 
     def __post_init__(self):
-        if self.device not in ("usb", "emulated"):
-            raise ParameterError(f"--device must be usb or emulated, got {self.device!r}")
+        if self.device not in ("usb", "dv", "emulated"):
+            raise ParameterError(f"--device must be usb, dv or emulated, got {self.device!r}")
         (self.controller,) = parse_controllers([self.controller])
         if self.duration_s is not None:
             self.duration_s = check_flag("--duration", self.duration_s, "live")

@@ -316,7 +316,9 @@ def test_backwards_timestamp_is_skipped_and_counted():
 # ---------------------------------------------------------------------------------------------
 # garbage
 # ---------------------------------------------------------------------------------------------
-#: words that encode nothing usable between frames/IMU blocks (each must be skipped and counted once)
+#: words that encode nothing usable between frames/IMU blocks (each must be skipped and counted once). ROI
+#: words (0x51xx, 0x52xx) are not among them: libcaer takes them anywhere, and a frame's own ROI words replace
+#: stray ones.
 GARBAGE = [
     0x0000,
     0x0006,
@@ -326,8 +328,6 @@ GARBAGE = [
     0x2FFF,
     0x3FFF,
     0x4123,
-    0x5105,
-    0x5207,
     0x5042,
     0x5311,
     0x5A00,
@@ -574,3 +574,241 @@ def test_one_flipped_bit_adds_at_most_one_event(seed, flips):
         bad[f % words.size] ^= np.uint16(1 << (f // words.size % 16))
         ev, _ = _decode_checked(bad, 17, 11)
         assert ev.size <= clean.size + 1
+
+
+# ---------------------------------------------------------------------------------------------
+# libcaer's acceptance rules (src/davis_common.h: apsInitFrame, apsROIUpdateSizes, apsEndFrame, the event
+# translator) on the layouts a real camera may send
+# ---------------------------------------------------------------------------------------------
+def frames_stream(layout=None, n=3, w=6, h=4, orientation=0, seed=0, gap_events=True):
+    """A clock reset then ``n`` frames (random images, exposure value 1000 + k cycles) with events between
+    them, laid out as ``layout`` says. Returns (words, [(image, es, ee, cycles)], events)."""
+    from necviz.drivers.davis import StreamLayout
+
+    rng = np.random.default_rng(seed)
+    enc = StreamEncoder(aps_orientation=orientation, layout=layout or StreamLayout())
+    parts, want, evs = [enc.timestamp_reset()], [], []
+    t = 100
+    for k in range(n):
+        z = rng.integers(0, 256, (h, w))
+        reset, signal = cds_pair(z)
+        timing = FrameTiming(t, t + 900, t + 900 + 300 * (k + 1), t + 3000)
+        parts.append(enc.frame(timing, reset, signal, exposure_cycles=1000 + k))
+        want.append((z.astype(np.uint8), timing.exposure_start_us, timing.exposure_end_us, 1000 + k))
+        t += 5000
+        if gap_events:
+            ev = random_events(rng, 20, t - 1500, t - 100, w, h)
+            parts.append(enc.events(ev))
+            evs.append(ev)
+    return np.concatenate(parts), want, (np.concatenate(evs) if evs else np.zeros(0, EVENT_DTYPE))
+
+
+def frames_of(packets):
+    return [p for p in packets if isinstance(p, Frame)]
+
+
+@pytest.mark.parametrize("orientation", [0, 5])
+def test_roi_and_exposure_value_before_the_frame_start_give_the_same_frames(orientation):
+    """libcaer keeps ROI values from wherever they arrive (misc8 words are not gated by the frame); the
+    exposure value sent before the start is kept for that frame (libcaer would reset it at apsInitFrame; the
+    driver needs it to match commands)."""
+    from necviz.drivers.davis import StreamLayout
+
+    words, want, ev = frames_stream(StreamLayout(header="before"), orientation=orientation)
+    start = np.flatnonzero(words == 0x0008)[0]
+    assert words[start - 1] >> 12 == 5 and words[start + 1] >> 12 != 5  # the ROI words precede the start
+    dec = DavisDecoder(DecoderOptions(6, 4, aps_orientation=orientation))
+    packets = dec.decode(words)
+    got = frames_of(packets)
+    assert len(got) == 3 and dec.stats["frames_dropped"] == 0 and dec.stats["skipped_words"] == 0
+    for f, (img, es, ee, cyc) in zip(got, want, strict=True):
+        assert np.array_equal(f.image, img) and (f.exposure_start_us, f.exposure_end_us) == (es, ee)
+        assert dec.frame_cycles[f.sequence] == cyc
+    summarise(packets)  # the stream-order contract
+
+
+def test_roi_words_once_serve_every_later_frame():
+    """The ROI stays until the next complete one (libcaer's roi state is reset only in its update counter)."""
+    words, want, _ = frames_stream()
+    roi = ((words >> 8) == 0x51) | ((words >> 8) == 0x52)
+    first_end = np.flatnonzero(words == 0x000A)[0]
+    keep = ~roi | (np.arange(words.size) < first_end)
+    dec = DavisDecoder(DecoderOptions(6, 4))
+    got = frames_of(dec.decode(words[keep]))
+    assert [f.image.tolist() for f in got] == [w[0].tolist() for w in want]
+
+
+def test_no_roi_words_at_all_gives_no_frame():
+    """Before any ROI the expected counts are unknown: libcaer's apsEndFrame sees wrong column counts."""
+    words, _, ev = frames_stream()
+    roi = ((words >> 8) == 0x51) | ((words >> 8) == 0x52)
+    dec = DavisDecoder(DecoderOptions(6, 4))
+    packets = dec.decode(words[~roi])
+    assert not frames_of(packets) and dec.stats["frames_dropped"] == 3
+    got_ev = np.concatenate([p for p in packets if isinstance(p, np.ndarray)])
+    assert np.array_equal(got_ev, ev)  # events are unaffected
+
+
+def test_a_missing_column_drops_the_frame_a_short_column_does_not():
+    """apsEndFrame checks the column counts only; a wrong row count is only logged by libcaer."""
+    words, want, _ = frames_stream(n=1)
+    ends = np.flatnonzero(words == 0x000D)
+    no_col = np.delete(words, ends[-1])
+    dec = DavisDecoder(DecoderOptions(6, 4))
+    assert not frames_of(dec.decode(no_col)) and dec.stats["frames_dropped"] == 1
+    short = np.delete(words, ends[-1] - 1)  # the last sample of the last signal column
+    got = frames_of(DavisDecoder(DecoderOptions(6, 4)).decode(short))
+    assert len(got) == 1
+    img = want[0][0].copy()
+    img[3, 5] = 0  # the pixel that was not read (necviz starts every frame from zeros)
+    assert np.array_equal(got[0].image, img)
+
+
+def test_no_exposure_specials_the_decoder_places_the_exposure_from_the_readout():
+    """libcaer accepts frames without specials 14/15; necviz needs markers in stream order. The first complete
+    frame without them cannot be announced any more (counted), then every frame is delivered with its exposure
+    from the readout: start when the reset read is done, end when the signal read starts."""
+    from necviz.drivers.davis import StreamLayout
+
+    words, want, ev = frames_stream(StreamLayout(exposure_specials=False), n=4)
+    assert not np.any((words == 0x000E) | (words == 0x000F))
+    dec = DavisDecoder(DecoderOptions(6, 4))
+    packets = dec.decode(words)
+    got = frames_of(packets)
+    assert dec.stats["frames_without_exposure"] == 1 and dec.stats["frames_dropped"] == 0
+    assert len(got) == 3
+    for f, (img, es, ee, cyc) in zip(got, want[1:], strict=True):
+        assert np.array_equal(f.image, img) and (f.exposure_start_us, f.exposure_end_us) == (es, ee)
+        assert dec.frame_cycles[f.sequence] == cyc
+    summarise(packets)
+    # the same frames with the specials give the same result from the first frame on
+    with_specials, _, _ = frames_stream(n=4)
+    ref = frames_of(DavisDecoder(DecoderOptions(6, 4)).decode(with_specials))
+    assert [(f.exposure_start_us, f.exposure_end_us) for f in ref[1:]] == [
+        (f.exposure_start_us, f.exposure_end_us) for f in got
+    ]
+
+
+def test_rolling_shutter_without_specials_starts_the_exposure_after_the_first_reset_column():
+    from necviz.drivers.davis import StreamLayout
+
+    enc = StreamEncoder(layout=StreamLayout(exposure_specials=False))
+    z = np.full((2, 3), 50)
+    reset, signal = cds_pair(z)
+    block = enc.readout(reset, False)
+    per_col = block.size // 3
+    parts = [enc.timestamp_reset()]
+    for k, t0 in enumerate((100, 5000)):
+        parts += [
+            enc.frame_start(t0, (0, 0, 2, 1), 7, global_shutter=False),
+            enc.time(t0 + 10),
+            block[:per_col],  # first reset column at t0 + 10
+            enc.time(t0 + 20),
+            block[per_col:],
+            enc.signal_start(t0 + 400 + k),
+            enc.readout(signal, True, first_started=True),
+            enc.special(t0 + 900, 10),
+        ]
+    got = frames_of(DavisDecoder(DecoderOptions(3, 2)).decode(np.concatenate(parts)))
+    assert [(f.exposure_start_us, f.exposure_end_us) for f in got] == [(5010, 5401)]
+
+
+def test_exposure_echo_is_read_before_or_after_the_frame_start_and_absent_is_minus_one():
+    from necviz.drivers.davis import StreamLayout
+
+    for layout in (StreamLayout(), StreamLayout(header="before")):
+        words, want, _ = frames_stream(layout, n=2)
+        dec = DavisDecoder(DecoderOptions(6, 4))
+        got = frames_of(dec.decode(words))
+        assert [dec.frame_cycles[f.sequence] for f in got] == [1000, 1001]
+    words, _, _ = frames_stream(n=1)
+    chunks = (words >> 12) == 6
+    dec = DavisDecoder(DecoderOptions(6, 4))
+    assert len(frames_of(dec.decode(words[~chunks]))) == 1 and dec.last_frame_exposure_cycles == -1
+
+
+def test_timestamp_reset_as_libcaer_drops_the_frame_in_progress_keeps_the_roi_and_comes_in_order():
+    """libcaer: time restarts at 0, the APS frame and IMU sample in progress are discarded and APS/IMU words are
+    ignored until their next start, the ROI is kept, and the reset is committed alone after everything before
+    it. necviz keeps output time increasing (offset by the time reached) and delivers the reset trigger between
+    the events before and after it."""
+    enc = StreamEncoder()
+    z = np.full((4, 6), 80)
+    reset, signal = cds_pair(z)
+    before = np.array([(50, 1, 1, 1), (60, 2, 2, -1)], EVENT_DTYPE)
+    after = np.array([(5, 3, 3, 1), (7, 4, 0, 1)], EVENT_DTYPE)
+    frame1 = enc.frame(FrameTiming(100, 200, 400, 600), reset, signal)
+    enc2 = StreamEncoder()
+    half = enc2.frame(FrameTiming(10, 12, 14, 16), reset, signal)
+    no_roi = half[~(((half >> 8) == 0x51) | ((half >> 8) == 0x52))]
+    words = np.concatenate(
+        [
+            enc.timestamp_reset(),
+            enc.events(before),
+            frame1,
+            enc.time(700),
+            np.array([0x0008], np.uint16),  # a frame starts ...
+            enc.readout(reset, False)[:10],  # ... and is cut by the reset
+            enc.imu(710, [1, 2, 3, 4, 5, 6, 7])[:5],  # so is an IMU sample
+            enc.timestamp_reset(),
+            enc.events(after),
+            enc.readout(reset, False)[:10],  # APS words before a frame start: ignored
+            no_roi,  # a whole frame without ROI words, device time 10..16
+        ]
+    )
+    dec = DavisDecoder(DecoderOptions(6, 4))
+    packets = dec.decode(words)
+    kinds = []
+    for p in packets:
+        if isinstance(p, np.ndarray):
+            kinds += [("event", int(t)) for t in p["t"]]
+        elif isinstance(p, TriggerBatch):
+            kinds += [("trigger", int(t)) for t in p.triggers["t"]]
+    resets = [i for i, k in enumerate(kinds) if k[0] == "trigger"]
+    assert [kinds[i][1] for i in resets] == [0, 710]
+    assert kinds[resets[1] - 1] == ("event", 60) and kinds[resets[1] + 1] == ("event", 715)
+    got = frames_of(packets)
+    assert len(got) == 2 and dec.stats["frames_dropped"] == 1 and dec.stats["imu_dropped"] == 1
+    assert dec.stats["skipped_words"] == 0  # the cut frame's remaining words are ignored, not garbage
+    assert np.array_equal(got[1].image, z) and got[1].exposure_start_us == 710 + 12
+
+
+# ---------------------------------------------------------------------------------------------
+# colour sensors: the Bayer mosaic demosaiced to grey as libcaer does
+# ---------------------------------------------------------------------------------------------
+#: libcaer's colorKeys (src/frame_utils.c): the channel of pixel (x, y) per filter, indexed (x & 1) << 1 | (y & 1)
+LIBCAER_COLOR_KEYS = {
+    1: "RGGB",  # RGBG: (0,0) R, (0,1) G2, (1,0) G1, (1,1) B
+    2: "GBRG",  # GRGB
+    3: "GRBG",  # GBGR
+    4: "BGGR",  # BGRG
+}
+
+
+@pytest.mark.parametrize("color_filter", [1, 2, 3, 4])
+@pytest.mark.parametrize("roi", [(0, 0, 11, 7), (3, 1, 10, 6)])
+def test_colour_mosaic_is_demosaiced_to_grey(color_filter, roi):
+    """A uniformly coloured scene seen through each Bayer layout (and through a ROI starting on an odd pixel,
+    which shifts the filter's phase as libcaer's caerFrameUtilsPixelColor does) decodes to the grey of that
+    colour, 0.299 R + 0.587 G + 0.114 B (the conversion OpenCV's Bayer-to-grey applies), not to a checkerboard
+    of the three channels."""
+    w, h = 12, 8
+    rgb = {"R": 800, "G": 400, "B": 120}  # 10-bit channel values of the scene
+    c0, r0, c1, r1 = roi
+    z10 = np.empty((r1 - r0 + 1, c1 - c0 + 1), np.int64)
+    for y in range(r0, r1 + 1):
+        for x in range(c0, c1 + 1):
+            z10[y - r0, x - c0] = rgb[LIBCAER_COLOR_KEYS[color_filter][(x & 1) << 1 | (y & 1)]]
+    reset = np.full(z10.shape, 1023)
+    enc = StreamEncoder()
+    words = np.concatenate([enc.timestamp_reset(), enc.frame(FrameTiming(0, 1, 2, 3), reset, reset - z10, roi)])
+    (f,) = frames_of(DavisDecoder(DecoderOptions(w, h, color_filter=color_filter)).decode(words))
+    grey8 = (0.299 * rgb["R"] + 0.587 * rgb["G"] + 0.114 * rgb["B"]) / 4
+    inside = f.image[r0 : r1 + 1, c0 : c1 + 1].astype(float)
+    assert np.all(np.abs(inside - grey8) <= 1.0), (inside.min(), inside.max(), grey8)
+    mask = np.ones((h, w), bool)
+    mask[r0 : r1 + 1, c0 : c1 + 1] = False
+    assert not f.image[mask].any()
+    # a grey sensor reading the same words keeps the mosaic
+    (g,) = frames_of(DavisDecoder(DecoderOptions(w, h)).decode(words))
+    assert np.array_equal(g.image[r0 : r1 + 1, c0 : c1 + 1], (z10 >> 2).astype(np.uint8))

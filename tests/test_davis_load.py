@@ -93,11 +93,11 @@ def test_a_long_session_keeps_the_command_lists_bounded(monkeypatch):
     """Commands waiting for a frame and the command history are bounded (as is the emulator's log of
     control transfers), and matching commands to frames still works at the bounds."""
     from necviz.core.frames import Frame
-    from necviz.drivers.davis import camera as camera_module
+    from necviz.drivers import command_log as commands_module
     from necviz.drivers.davis import emulator as emulator_module
 
-    monkeypatch.setattr(camera_module, "COMMAND_HISTORY", 50)
-    monkeypatch.setattr(camera_module, "PENDING_COMMANDS", 16)
+    monkeypatch.setattr(commands_module, "COMMAND_HISTORY", 50)
+    monkeypatch.setattr(commands_module, "PENDING_COMMANDS", 16)
     monkeypatch.setattr(emulator_module, "TRANSFER_LOG", 100)
     # real time: a device that may run ahead of the host (as fast as the simulator goes) has streamed
     # past the last commands before they arrive, and how far depends on the machine's load
@@ -109,7 +109,7 @@ def test_a_long_session_keeps_the_command_lists_bounded(monkeypatch):
             k += 1
             if k % 2 == 0:  # every other 1 ms batch: ~10 commands per 20 ms frame, each a distinct exposure
                 cam.set_exposure("camera", 1000 + (37 * k) % 14_000, 1.0)
-                peak_pending = max(peak_pending, len(cam._pending))
+                peak_pending = max(peak_pending, len(cam._commands._pending))
         elif isinstance(p, Frame):
             frames.append(p)
     history = cam.commands()

@@ -5,9 +5,10 @@
   :class:`CameraOptions` say.
 * :class:`DavisDecoder` (its stream format in :class:`DecoderOptions`) / :func:`decode_words`: the
   16-bit word stream → packets (Numba).
-* :class:`StreamEncoder` (frames timed by :class:`FrameTiming`): packets → words (tests, emulator, benchmark).
-* :class:`EmulatedDavis346` (set up by :class:`EmulatorOptions`) / :class:`Faults`: a pyusb backend
-  with a virtual DAVIS346.
+* :class:`StreamEncoder` (frames timed by :class:`FrameTiming`, laid out by :class:`StreamLayout`): packets →
+  words (tests, emulator, benchmark).
+* :class:`EmulatedDavis346` (set up by :class:`EmulatorOptions`, the camera it presents by
+  :class:`CameraVariant`) / :class:`Faults`: a pyusb backend with a virtual DAVIS346.
 * :class:`DavisDevice`, :func:`find_devices`, :func:`describe`: low-level device access.
 """
 
@@ -23,11 +24,12 @@ from necviz.drivers.davis.device import (
     usb_backend,
 )
 from necviz.drivers.davis.device_errors import DeviceDisconnectedError, DeviceError, DeviceNotFoundError
-from necviz.drivers.davis.emulator import ControlRecord, EmulatedDavis346, EmulatorOptions, Faults
-from necviz.drivers.davis.encoder import FrameTiming, StreamEncoder, cds_pair
+from necviz.drivers.davis.emulator import CameraVariant, ControlRecord, EmulatedDavis346, EmulatorOptions, Faults
+from necviz.drivers.davis.encoder import FrameTiming, StreamEncoder, StreamLayout, cds_pair
 
 __all__ = [
     "BulkReader",
+    "CameraVariant",
     "CameraOptions",
     "ControlRecord",
     "DIGITAL_GAIN_MAX",
@@ -44,6 +46,7 @@ __all__ = [
     "Faults",
     "FrameTiming",
     "StreamEncoder",
+    "StreamLayout",
     "cds_pair",
     "describe",
     "find_devices",

@@ -11,9 +11,9 @@ APS EXPOSURE = ``round(exposure_us x ADC clock MHz)`` (the device's actual clock
 analog gain, so ``gain`` is applied digitally: ``Frame.image = clip(round(Z8 x gain), 0, 255)`` with
 ``Z8 = CDS10 >> 2`` and ``Frame.gain = gain``. A command applies from the first frame that starts
 after it was issued and was exposed with its register value (each frame reports its exposure in
-ADC cycles); that frame's start is the command's ``applied_start_us``. Memory stays bounded over a
-long session: commands wait for their frame in a queue of at most :data:`PENDING_COMMANDS` and
-:meth:`DavisCamera.commands` keeps the last :data:`COMMAND_HISTORY`.
+ADC cycles, its *echo*; an echo within :data:`ECHO_TOLERANCE_CYCLES` of the register counts, see
+:mod:`necviz.drivers.command_log`); that frame's start is the command's ``applied_start_us``. Memory
+stays bounded over a long session (:class:`~necviz.drivers.command_log.CommandLog`).
 
 Loss: the reader thread buffers :attr:`CameraOptions.buffer_s` (2 s) of data at the peak rate, so a consumer that
 pauses (a GC pause, a slow viewer) loses nothing; past that it stops reading and the device drops
@@ -27,10 +27,8 @@ Unplugging: every packet already decoded is yielded, then iteration raises
 
 from __future__ import annotations
 
-import math
 import threading
 import time
-from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -42,11 +40,13 @@ from necviz.core.errors import NecvizError, ParameterError
 from necviz.core.events import EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import SensorGeometry, known_event_rate_max
+from necviz.drivers.command_log import CommandedCamera, CommandLog, check_command, with_gain
 from necviz.drivers.davis import protocol as P
+from necviz.drivers.davis.color import COLOR_FILTERS
 from necviz.drivers.davis.decoder import DavisDecoder, DecoderOptions
 from necviz.drivers.davis.device import BulkReader, DavisDevice, open_device, usb_backend
 from necviz.drivers.davis.device_errors import DeviceDisconnectedError, DeviceError, DeviceNotFoundError
-from necviz.drivers.source import CAMERA, CameraInfo, CommandRecord, route
+from necviz.drivers.source import CAMERA, CameraInfo, route
 
 if TYPE_CHECKING:
     from necviz.drivers.davis.emulator import EmulatorOptions, Faults
@@ -56,24 +56,11 @@ DIGITAL_GAIN_MAX = 8.0
 #: readout time kept free in each frame interval when limiting the exposure (µs)
 READOUT_ALLOWANCE_US = 1000
 RECONNECT_POLL_S = 0.5
-#: commands kept for :meth:`DavisCamera.commands` (the oldest are forgotten; ``commands_issued`` counts all)
-COMMAND_HISTORY = 4096
-#: commands still waiting for a frame exposed with them (a controller issues at most a few per frame;
-#: older ones are superseded anyway)
-PENDING_COMMANDS = 256
-
-
-class _Command:
-    """A command as issued; ``applied_start_us`` is filled in when a frame used it."""
-
-    __slots__ = ("issue_time_us", "exposure_us", "gain", "cycles", "applied_start_us")
-
-    def __init__(self, issue_time_us: int, exposure_us: float, gain: float, cycles: int):
-        self.issue_time_us, self.exposure_us, self.gain, self.cycles = issue_time_us, exposure_us, gain, cycles
-        self.applied_start_us: int | None = None
-
-    def record(self) -> CommandRecord:
-        return CommandRecord(self.issue_time_us, self.exposure_us, self.gain, self.applied_start_us)
+#: An exposure echo (the ADC cycles a frame reports) within this many cycles of a command's register value, or
+#: :data:`ECHO_TOLERANCE_REL` of it, counts as that command: the logic's report need not equal the register
+#: exactly, and libcaer never compares the two (its auto-exposure only reads the echo, ``autoexposure.c``).
+ECHO_TOLERANCE_CYCLES = 2
+ECHO_TOLERANCE_REL = 1e-3
 
 
 @dataclass(frozen=True)
@@ -131,7 +118,7 @@ class CameraOptions:
             object.__setattr__(self, name, value)
 
 
-class DavisCamera:
+class DavisCamera(CommandedCamera):
     """A DAVIS camera (real or emulated) as a closed-loop source. Build it with :func:`open_camera`.
 
     Attributes: ``sensor`` (from the device's DVS size registers), ``info`` (serial, firmware, logic
@@ -175,10 +162,7 @@ class DavisCamera:
         )
         self.state = "ready"
         self._lock = threading.RLock()
-        self._history: deque[_Command] = deque(maxlen=COMMAND_HISTORY)
-        self._pending: deque[_Command] = deque(maxlen=PENDING_COMMANDS)  # not yet applied, oldest first
-        self.commands_issued = 0
-        self._gain = 1.0
+        self._commands = CommandLog(ECHO_TOLERANCE_CYCLES, ECHO_TOLERANCE_REL)
         self._exposure_us = float(self.limits.clamp(options.exposure_us, 1.0)[0])
         self._last_t = 0
         self._reader: BulkReader | None = None
@@ -257,19 +241,7 @@ class DavisCamera:
         Writes APS EXPOSURE = round(exposure_us x ADC MHz) now; ``issue_time_us`` (default: the time of
         the last packet delivered) is the sensor time recorded with the command.
         """
-        if camera != CAMERA:
-            raise ParameterError(f"this source has one camera, {CAMERA!r}; got {camera!r}")
-        for label, v in (("exposure_us", exposure_us), ("gain", gain)):
-            if (
-                isinstance(v, bool)
-                or not isinstance(v, (int, float, np.integer, np.floating))
-                or not math.isfinite(v)
-                or v <= 0
-            ):
-                raise ParameterError(f"{label} must be a positive finite number, got {v!r}")
-        if gain < 1.0:
-            raise ParameterError(f"gain must be >= 1 (linear), got {gain}")
-        exp, g = self.limits.clamp(float(exposure_us), float(gain))
+        exp, g = self.limits.clamp(*check_command(camera, exposure_us, gain))
         with self._lock:
             t = self._last_t if issue_time_us is None else int(issue_time_us)
             if not self.device.closed and self.state != "waiting":
@@ -283,16 +255,7 @@ class DavisCamera:
             else:
                 cycles = self.device.us_to_cycles(exp)  # written when the device returns
             self._exposure_us = exp
-            c = _Command(t, exp, g, cycles)
-            self._history.append(c)
-            self._pending.append(c)
-            self.commands_issued += 1
-
-    def commands(self) -> list[CommandRecord]:
-        """The last :data:`COMMAND_HISTORY` commands received (all of a short run), each with the start of
-        the first exposure that used it (``commands_issued`` counts every command)."""
-        with self._lock:
-            return [c.record() for c in self._history]
+            self._commands.issue(t, exp, g, cycles)
 
     @property
     def camera_info(self) -> CameraInfo:
@@ -404,6 +367,7 @@ class DavisCamera:
             imu_orientation=d.imu_orientation,
             imu_model=d.imu_type,
             adc_shift=1 if d.kind == "DAVIS240" else 0,
+            color_filter=d.aps_color_filter if d.aps_color_filter in COLOR_FILTERS else 0,
         )
         self._decoder = DavisDecoder(fmt, time_offset_us=time_offset_us)
         self._reader = BulkReader(d, transfer_size=self.transfer_size, buffer_s=self.buffer_s)
@@ -481,23 +445,7 @@ class DavisCamera:
     def _apply_command(self, frame: Frame) -> Frame:
         """Mark the command this frame was exposed with as applied; apply its digital gain."""
         cyc = self._decoder.last_frame_exposure_cycles if self._decoder is not None else -1
-        with self._lock:
-            chosen = None
-            for c in reversed(self._pending):
-                if c.issue_time_us <= frame.exposure_start_us and (cyc < 0 or c.cycles == cyc):
-                    chosen = c
-                    break
-            if chosen is not None:
-                chosen.applied_start_us = int(frame.exposure_start_us)
-                self._gain = chosen.gain
-                # it and the older commands (superseded before they took effect) stop waiting
-                while self._pending and self._pending.popleft() is not chosen:
-                    pass
-            gain = self._gain
-        if gain == 1.0:
-            return frame
-        img = np.clip(np.rint(frame.image.astype(np.float32) * np.float32(gain)), 0, 255).astype(np.uint8)
-        return Frame(img, frame.exposure_start_us, frame.exposure_end_us, gain, frame.sequence)
+        return with_gain(frame, self._commands.frame(int(frame.exposure_start_us), None if cyc < 0 else cyc))
 
 
 def open_camera(

@@ -7,12 +7,16 @@ words once — its word-by-word rules (time, DVS, APS frames, IMU, triggers) are
 :class:`DavisDecoder` keeps its state between calls (so a stream split at any byte decodes exactly as
 the unsplit stream) and turns its output into packets in stream order (see :mod:`necviz.drivers.source`).
 
-Packets (:meth:`DavisDecoder.decode`): event batches are split only at exposure markers and frames
-(and at 65,536 events); IMU samples and triggers are gathered per call and delivered before the next
-marker/frame or after the call's events, so they never fragment event batches.
+Packets (:meth:`DavisDecoder.decode`): event batches are split only at exposure markers, frames and
+timestamp resets (and at 65,536 events); IMU samples and other triggers are gathered per call and
+delivered before the next marker/frame or after the call's events, so they never fragment event batches.
+
+Frames are accepted as libcaer's ``apsEndFrame`` (``src/davis_common.h``) accepts them: by their column
+counts alone; ROI and exposure-value words may come before or after the frame start.
 
 Exposure markers: special 14 (inside a frame) emits ``start``; special 15 emits ``end`` at its
-time. Markers and events together never go back in time, and an ``end`` is always after its
+time; a stream without these specials has its exposures placed by the decoder (see
+:mod:`.decoder_kernels`). Markers and events together never go back in time, and an ``end`` is always after its
 ``start``: when the end arrives within the µs its exposure started (a sub-µs exposure), its marker
 is due at start + 1 µs, which is later than the events that may still follow at the current µs, so
 it is held (the exposure is "pending") and emitted as soon as a timestamp or wrap word moves time
@@ -34,6 +38,7 @@ from necviz.core.errors import ParameterError
 from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, ImuBatch, TriggerBatch
+from necviz.drivers.davis.color import COLOR_FILTERS, demosaic_to_gray8, is_bayer
 from necviz.drivers.davis.decoder_kernels import (
     MK_EXPOSURE_END,
     MK_EXPOSURE_START,
@@ -51,13 +56,16 @@ from necviz.drivers.davis.decoder_kernels import (
     S_LAST_Y,
     S_NEV,
     S_NMK,
+    S_NO_EXPOSURE,
     S_NOW,
     S_OFFSET,
+    S_ROI,
     S_RTYPE,
     S_SIZE,
     S_SKIPPED,
     S_TIME_REG,
     S_WORDS,
+    TRIG_RESET,
     decode_words,
 )
 
@@ -87,11 +95,14 @@ class DecoderOptions:
         1 (MPU6050/6150) or 2 (MPU9250): selects the temperature formula.
     adc_shift : int
         Left shift of the ADC samples (1 on DAVIS240, as libcaer doubles them).
+    color_filter : int
+        APS ``COLOR_FILTER`` (0 mono; 1..4 the Bayer layouts, whose frames are demosaiced to grey as
+        libcaer does, :mod:`.color`; 5..8 RGBW, left as they are).
 
     Raises
     ------
     ParameterError
-        An array size that is not an integer in 1..4096.
+        An array size that is not an integer in 1..4096, or an unknown colour filter.
     """
 
     width: int = 346
@@ -103,8 +114,11 @@ class DecoderOptions:
     imu_orientation: int = 0
     imu_model: int = 1
     adc_shift: int = 0
+    color_filter: int = 0
 
     def __post_init__(self) -> None:
+        if self.color_filter not in COLOR_FILTERS:
+            raise ParameterError(f"unknown APS colour filter {self.color_filter!r}; known: {sorted(COLOR_FILTERS)}")
         aps_width = self.width if self.aps_width is None else self.aps_width
         aps_height = self.height if self.aps_height is None else self.aps_height
         sizes = {"width": self.width, "height": self.height, "aps_width": aps_width, "aps_height": aps_height}
@@ -156,8 +170,9 @@ class DavisDecoder:
 
     :meth:`decode` accepts any bytes-like object; an odd trailing byte is kept for the next call.
     Frames come out as ``Frame(Z8, exposure_start_us, exposure_end_us, gain=1.0, sequence)`` with
-    ``Z8 = CDS10 >> 2`` in image coordinates (top-left origin); ``last_frame_exposure_cycles`` is
-    the exposure the device reported for the last frame (ADC cycles, -1 if absent).
+    ``Z8 = CDS10 >> 2`` (a colour sensor's mosaic demosaiced to grey first) in image coordinates
+    (top-left origin); ``last_frame_exposure_cycles`` is the exposure the device reported for the
+    last frame (ADC cycles, -1 if absent).
     """
 
     def __init__(self, options: DecoderOptions | None = None, *, time_offset_us: int = 0):
@@ -173,7 +188,7 @@ class DavisDecoder:
         self.st[S_RTYPE] = -1
         self.st[S_OFFSET] = int(time_offset_us)
         self._reset_buf = np.zeros(self.aps_shape[0] * self.aps_shape[1], np.int64)
-        self._frame = np.zeros(self.aps_shape, np.uint8)
+        self._frame = np.zeros(self.aps_shape, np.uint16)  # the frame being assembled: 10-bit CDS values
         self._frame_flat = self._frame.reshape(-1)
         self._carry = b""
         #: events per kernel call (so no event batch is longer than this)
@@ -203,6 +218,7 @@ class DavisDecoder:
             "events": self.events,
             "frames": self.frames,
             "frames_dropped": int(st[S_FRAMES_DROPPED]),
+            "frames_without_exposure": int(st[S_NO_EXPOSURE]),
             "imu_samples": self.imu_samples,
             "imu_dropped": int(st[S_IMU_DROPPED]),
             "triggers": self.triggers,
@@ -260,13 +276,28 @@ class DavisDecoder:
             st[S_FRAMES_DROPPED] += 1
         return out
 
+    def _image(self) -> np.ndarray:
+        """The completed frame's 8-bit image: ``Z10 >> 2``, or a colour sensor's ROI demosaiced to grey
+        (:func:`~.color.demosaic_to_gray8`, the ROI's first pixel fixing the filter's phase)."""
+        z = self._frame
+        cf = self.options.color_filter
+        if not is_bayer(cf):
+            return (z >> 2).astype(np.uint8)
+        c0, r0, c1, r1 = (int(v) for v in self.st[S_ROI : S_ROI + 4])
+        img = np.zeros(self.aps_shape, np.uint8)
+        img[r0 : r1 + 1, c0 : c1 + 1] = demosaic_to_gray8(z[r0 : r1 + 1, c0 : c1 + 1], cf, c0, r0)
+        return img
+
     def _emit(self, out: list, ev: np.ndarray, mk: np.ndarray, imu_t, imu_v) -> None:
         """Packets of one kernel call in stream order.
 
-        Events are split only at exposure markers and frames. IMU samples and triggers do not split
-        event batches: they are gathered and delivered (each kind as one batch, in time order) right
-        before the next marker/frame, or after the call's last events — at most one transfer later
-        than the events around them. Consumers that ignore them see unfragmented event batches.
+        Events are split only at exposure markers, frames and timestamp resets. IMU samples and other
+        triggers do not split event batches: they are gathered and delivered (each kind as one batch, in
+        time order) right before the next marker/frame/reset, or after the call's last events — at most
+        one transfer later than the events around them. Consumers that ignore them see unfragmented event
+        batches. A timestamp reset is delivered alone, after everything decoded before it and before
+        anything after it: libcaer commits the packets before a reset and sends the reset in a container of
+        its own (``containerGenerationExecute``, ``src/container_generation.h``).
         """
         self.events += ev.size
         done = 0
@@ -295,14 +326,17 @@ class DavisDecoder:
                     imu_a = aux
                 imu_b = aux + 1
                 continue
-            if kind == MK_TRIGGER:
+            if kind == MK_TRIGGER and aux != TRIG_RESET:
                 trig.append((t, aux))
                 continue
             if at > done:
                 out.append(ev[done:at])
                 done = at
             flush_side()
-            if kind == MK_EXPOSURE_START:
+            if kind == MK_TRIGGER:  # a timestamp reset: alone, after everything before it (as libcaer commits it)
+                out.append(TriggerBatch(np.array([(t, aux)], TRIGGER_DTYPE)))
+                self.triggers += 1
+            elif kind == MK_EXPOSURE_START:
                 out.append(ExposureMarker(int(t), "start"))
             elif kind == MK_EXPOSURE_END:
                 out.append(ExposureMarker(int(t), "end"))
@@ -312,7 +346,7 @@ class DavisDecoder:
                 self.last_frame_exposure_cycles = cyc
                 self.frame_cycles[self.frames] = cyc
                 self.frame_cycles.pop(self.frames - 64, None)
-                out.append(Frame(self._frame.copy(), es, ee, 1.0, self.frames))
+                out.append(Frame(self._image(), es, ee, 1.0, self.frames))
                 self.frames += 1
         if done < ev.size:
             out.append(ev[done:])

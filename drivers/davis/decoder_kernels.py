@@ -21,17 +21,26 @@ completed frame):
   An out-of-range address, a reserved/unknown special code or an X word with no valid row is
   garbage: it is skipped, and the row is forgotten so no event is emitted until the next row word
   (resynchronisation). Every event therefore corresponds to exactly one X word of the input.
-* **APS** — idle → (special 8/9 frame start) → header (3 misc10 exposure chunks in any position,
-  8 misc8 ROI words: start col, start row, end col, end row, hi/lo bytes) → readout: special 11/12
-  starts a reset/signal column (separate counters per type), code 4 stores one sample at
-  ``(countX[type], countY[type]++)``, special 13 ends the column (``countX[type]++``); special 14/15
-  mark exposure start/end → special 10 frame end: the frame is complete when both readouts covered
-  every column; otherwise it is dropped (``frames_dropped``). Samples beyond the ROI, outside a frame
-  or before the ROI is known are skipped. Pixel placement: ``x = flipX ? W-1-countX : countX``,
-  ``y = flipY ? H-1-countY : countY``, swapped if ``invertXY`` (APS orientation bits 2..0); the
-  image origin is top-left. CDS at the signal sample: ``Z10 = 1023`` if ``reset < 384`` or
-  ``signal == 0`` (saturated), else ``clip(reset - signal, 0, 1023)``; the frame stores
-  ``Z8 = Z10 >> 2`` (uint8).
+* **APS** (libcaer's ``apsInitFrame``/``apsUpdateFrame``/``apsEndFrame``) — APS words are ignored until a
+  frame start (special 8/9; also after a timestamp reset). ROI words (misc8 sub 1 high byte, sub 2 low
+  byte: start col, start row, end col, end row, counted from the frame start) may come anywhere, before
+  or after the frame start; the fourth sets the expected column/row counts, which stay until the next
+  complete ROI. The exposure value (three misc10 chunks, LSB first, ADC cycles) may come after the frame
+  start or before it (since the previous frame's end). Readout: special 11/12 starts a reset/signal
+  column (separate counters per type), code 4 stores one sample at ``(countX[type], countY[type]++)``,
+  special 13 ends the column (``countX[type]++``) → special 10 frame end: the frame is complete when both
+  readouts covered every column; otherwise it is dropped (``frames_dropped``). Samples beyond the ROI,
+  outside a frame or before a valid ROI are skipped. Pixel placement: ``x = flipX ? W-1-countX : countX``,
+  ``y = flipY ? H-1-countY : countY``, swapped if ``invertXY`` (APS orientation bits 2..0); the image
+  origin is top-left. CDS at the signal sample: ``Z10 = 1023`` if ``reset < 384`` or ``signal == 0``
+  (saturated), else ``clip(reset - signal, 0, 1023)``; the frame buffer stores ``Z10`` (uint16; the
+  decoder makes the 8-bit image from it, demosaicing a colour sensor's).
+* **Exposure** — special 14/15 mark the exposure's start and end (markers). libcaer does not need them;
+  necviz does, to announce the exposure in stream order. A complete frame without a special 14 tells
+  the decoder that the logic sends none: it is counted (``frames_without_exposure``) and from then on
+  the decoder places the exposure itself, in stream order, where the readout shows it: it starts when
+  the reset read is done (global shutter: after the last reset column; rolling shutter: after the
+  first) and ends when the signal read starts. A special 14 switches this off again.
 * **IMU** — special 5 opens a sample, misc8 sub 3 gives scales and which sensors are present,
   misc8 sub 0 delivers the 14 big-endian bytes (AX AY AZ T GX GY GZ; absent sensors are skipped),
   special 7 closes it: a complete sample is emitted at the time of the end word, scaled to g, °/s
@@ -52,7 +61,7 @@ import numpy as np
 S_WRAP, S_NOW, S_OFFSET, S_LAST_Y = 0, 1, 2, 3
 S_NEV, S_NMK, S_NIMU, S_FRAME_READY = 4, 5, 6, 7  # outputs of the last call
 S_SKIPPED, S_TIME_REG, S_FRAMES_DROPPED, S_IMU_DROPPED, S_EXPO_ABORTED = 8, 9, 10, 11, 12
-S_IN_FRAME, S_FRAME_OK, S_ROI_IDX, S_GS = 13, 14, 15, 16
+S_IN_FRAME, S_ROI_OK, S_ROI_IDX, S_GS = 13, 14, 15, 16  # ROI_OK: the last complete ROI was valid
 S_ROI = 17  # 17..20: start col, start row, end col, end row
 S_EXPX, S_EXPY, S_SIZEX = 21, 22, 23
 S_RTYPE, S_CX0, S_CY0, S_CX1, S_CY1 = 24, 25, 26, 27, 28
@@ -64,7 +73,10 @@ S_IMU_B = 43  # 43..56: the 14 IMU bytes
 S_F_ES, S_F_EE, S_F_CYC, S_F_T_END = 57, 58, 59, 60  # the completed frame
 S_ROI_TMP = 61
 S_WORDS = 62
-S_SIZE = 64
+S_SYNTH = 63  # 1: the stream sends no exposure specials, the decoder places the exposure itself
+S_NO_EXPOSURE = 64  # complete frames dropped for want of an exposure (the first of a stream without specials)
+S_APS_CUT = 65  # 1: the rest of a frame cut by a timestamp reset is arriving (ignored, not counted as garbage)
+S_SIZE = 72
 
 # ---- configuration vector layout ----------------------------------------------------------------
 C_DVS_W, C_DVS_H, C_DVS_INVERT, C_APS_W, C_APS_H, C_APS_ORIENT, C_IMU_ORIENT, C_IMU_MODEL, C_ADC_SHIFT = range(9)
@@ -118,6 +130,39 @@ def _close_exposure(mk, st, t, nev):
     if st[S_EXPO_OPEN] == 1:
         _end_exposure(mk, st, t, nev, 1)
         st[S_EXPO_ABORTED] += 1
+
+
+@nb.njit(cache=True)
+def _start_exposure(mk, st, t, nev):
+    """The frame's exposure starts at ``t`` (special 14, or placed by the decoder): emit its ``start`` marker."""
+    st[S_HAS_ES] = 1
+    st[S_T_ES] = t
+    st[S_EXPO_OPEN] = 1
+    st[S_EXPO_OPEN_T] = t
+    _marker(mk, st, MK_EXPOSURE_START, t, nev, 0)
+
+
+@nb.njit(cache=True)
+def _roi_sizes(st, cfg):
+    """The fourth ROI value arrived: the expected column and row counts (libcaer's apsROIUpdateSizes), or an
+    invalid ROI (outside the array, end before start): no frame until a valid one."""
+    c0 = st[S_ROI]
+    r0 = st[S_ROI + 1]
+    c1 = st[S_ROI + 2]
+    r1 = st[S_ROI + 3]
+    if c1 < c0 or r1 < r0 or c1 >= cfg[C_APS_W] or r1 >= cfg[C_APS_H]:
+        st[S_ROI_OK] = 0
+        return
+    sx = c1 + 1 - c0
+    sy = r1 + 1 - r0
+    st[S_ROI_OK] = 1
+    st[S_SIZEX] = sx
+    if cfg[C_APS_ORIENT] & 4:
+        st[S_EXPX] = sy
+        st[S_EXPY] = sx
+    else:
+        st[S_EXPX] = sx
+        st[S_EXPY] = sy
 
 
 @nb.njit(cache=True)
@@ -198,10 +243,12 @@ def _aps_run(words, i, st, cfg, reset_buf, frame):
     n = words.shape[0]
     typ = st[S_RTYPE]
     skipped = 0
-    if st[S_IN_FRAME] == 0 or st[S_FRAME_OK] == 0 or st[S_ROI_IDX] < 8 or typ < 0:
+    if st[S_IN_FRAME] == 0 or st[S_ROI_OK] == 0 or typ < 0:
+        cut = st[S_IN_FRAME] == 0 and st[S_APS_CUT] == 1  # the rest of a frame cut by a reset: ignored
         while i < n and (words[i] >> 12) == 4:
             i += 1
-            skipped += 1
+            if not cut:
+                skipped += 1
         return i, skipped
     cx = st[S_CX0] if typ == 0 else st[S_CX1]
     cy = st[S_CY0] if typ == 0 else st[S_CY1]
@@ -246,7 +293,7 @@ def _aps_run(words, i, st, cfg, reset_buf, frame):
                     z = 0
                 elif z > 1023:
                     z = 1023
-            frame[fb + fs * cy] = z >> 2
+            frame[fb + fs * cy] = z
         cy += 1
     if typ == 0:
         st[S_CY0] = cy
@@ -261,7 +308,7 @@ def decode_words(words, start, st, cfg, ev, mk, imu_t, imu_v, reset_buf, frame):
 
     ``st`` (int64[S_SIZE]) is the persistent state, ``cfg`` (int64[C_SIZE]) the device geometry and
     orientation. Outputs: ``ev`` (EVENT_DTYPE), ``mk`` (int64[m, 4]: kind, t µs, number of events
-    before it, aux; m >= 2), ``imu_t``/``imu_v`` (IMU samples), ``frame`` (uint8 H x W: the frame
+    before it, aux; m >= 2), ``imu_t``/``imu_v`` (IMU samples), ``frame`` (uint16 H x W, the 10-bit CDS values: the frame
     being assembled, flat H*W). Counts of this call are in ``st[S_NEV]``, ``st[S_NMK]``, ``st[S_NIMU]``.
     Decoding stops early when an output array is full, or right after a completed frame
     (``st[S_FRAME_READY] = 1``; its times in ``st[S_F_ES]``/``st[S_F_EE]``) so the caller can copy
@@ -357,51 +404,29 @@ def decode_words(words, start, st, cfg, ev, mk, imu_t, imu_v, reset_buf, frame):
                     else:
                         skipped += 1
                         st[S_IMU_ACTIVE] = 2  # overfull: the sample is dropped at its end word
-                else:
+                elif st[S_IMU_ACTIVE] != 3:  # 3: the rest of a sample cut by a reset, ignored
                     skipped += 1
-            elif sub == 1 or sub == 2:  # ROI high / low byte
-                r = st[S_ROI_IDX]
-                if st[S_IN_FRAME] == 1 and st[S_FRAME_OK] == 1 and r < 8 and (r & 1) == sub - 1:
-                    if sub == 1:
-                        st[S_ROI_TMP] = v << 8
-                    else:
-                        st[S_ROI + (r >> 1)] = st[S_ROI_TMP] | v
-                    r += 1
-                    st[S_ROI_IDX] = r
-                    if r == 8:
-                        c0 = st[S_ROI]
-                        r0 = st[S_ROI + 1]
-                        c1 = st[S_ROI + 2]
-                        r1 = st[S_ROI + 3]
-                        if c1 < c0 or r1 < r0 or c1 >= cfg[C_APS_W] or r1 >= cfg[C_APS_H]:
-                            st[S_FRAME_OK] = 0
-                        else:
-                            sx = c1 + 1 - c0
-                            sy = r1 + 1 - r0
-                            st[S_SIZEX] = sx
-                            if cfg[C_APS_ORIENT] & 4:
-                                st[S_EXPX] = sy
-                                st[S_EXPY] = sx
-                            else:
-                                st[S_EXPX] = sx
-                                st[S_EXPY] = sy
-                else:
-                    skipped += 1
-                    if st[S_IN_FRAME] == 1:
-                        st[S_FRAME_OK] = 0
+            elif sub == 1:  # ROI value, high byte (kept for the low byte, libcaer's roi.tmpData)
+                st[S_ROI_TMP] = v << 8
+            elif sub == 2:  # ROI value, low byte: start col, start row, end col, end row in turn
+                r = st[S_ROI_IDX] & 3
+                st[S_ROI + r] = st[S_ROI_TMP] | v
+                st[S_ROI_IDX] = r + 1
+                if r == 3:
+                    _roi_sizes(st, cfg)
             elif sub == 3:  # IMU configuration
                 if st[S_IMU_ACTIVE] == 1 and st[S_IMU_COUNT] == 0:
                     st[S_IMU_ASCALE] = (v >> 2) & 3
                     st[S_IMU_GSCALE] = v & 3
                     st[S_IMU_TYPE] = (v >> 5) & 7
-                else:
+                elif st[S_IMU_ACTIVE] != 3:
                     skipped += 1
             else:
                 skipped += 1
             continue
-        if code == 6:
+        if code == 6:  # exposure value chunks: before or after the frame start (see the frame-start case)
             sub = (data >> 10) & 3
-            if sub == 0 and st[S_IN_FRAME] == 1 and st[S_EXP_IDX] < 3:
+            if sub == 0 and st[S_EXP_IDX] < 3:
                 st[S_EXP_CYC] |= (data & 0x3FF) << (10 * st[S_EXP_IDX])
                 st[S_EXP_IDX] += 1
             else:
@@ -415,82 +440,98 @@ def decode_words(words, start, st, cfg, ev, mk, imu_t, imu_v, reset_buf, frame):
             if st[S_IN_FRAME] == 1 and st[S_RTYPE] >= 0:
                 if st[S_RTYPE] == 0:
                     st[S_CX0] += 1
+                    # no exposure specials in this stream: the exposure starts when the reset read is done
+                    # (global shutter: all columns; rolling shutter: the first column)
+                    if (
+                        st[S_SYNTH] == 1
+                        and st[S_HAS_ES] == 0
+                        and st[S_EXPO_OPEN] == 0
+                        and (st[S_CX0] == st[S_EXPX] or st[S_GS] == 0)
+                    ):
+                        _start_exposure(mk, st, tcur, nev)
                 else:
                     st[S_CX1] += 1
-            else:
+            elif st[S_APS_CUT] == 0:
                 skipped += 1
         elif data == 11 or data == 12:  # reset / signal column start
-            if st[S_IN_FRAME] == 1 and st[S_FRAME_OK] == 1 and st[S_ROI_IDX] == 8:
+            if st[S_IN_FRAME] == 1:
                 if data == 11:
                     st[S_RTYPE] = 0
                     st[S_CY0] = 0
                 else:
                     st[S_RTYPE] = 1
                     st[S_CY1] = 0
-            else:
+                    # no exposure specials: the exposure ends when the signal read starts
+                    if st[S_SYNTH] == 1 and st[S_EXPO_OPEN] == 1 and st[S_HAS_EE] == 0:
+                        st[S_T_EE] = _end_exposure(mk, st, tcur, nev, 0)
+                        st[S_HAS_EE] = 1
+            elif st[S_APS_CUT] == 0:
                 skipped += 1
-        elif data == 8 or data == 9:  # frame start
+        elif data == 8 or data == 9:  # frame start (libcaer's apsInitFrame; the ROI is kept)
             _close_exposure(mk, st, tcur, nev)
             if st[S_IN_FRAME] == 1:
                 st[S_FRAMES_DROPPED] += 1
             st[S_IN_FRAME] = 1
-            st[S_FRAME_OK] = 1
+            st[S_APS_CUT] = 0
             st[S_GS] = 1 if data == 8 else 0
             st[S_ROI_IDX] = 0
+            st[S_ROI_TMP] = 0
             st[S_RTYPE] = -1
             st[S_CX0] = 0
             st[S_CY0] = 0
             st[S_CX1] = 0
             st[S_CY1] = 0
-            st[S_EXP_IDX] = 0
-            st[S_EXP_CYC] = 0
+            if st[S_EXP_IDX] != 3:  # a complete value sent before this start (since the last frame) is this frame's
+                st[S_EXP_IDX] = 0
+                st[S_EXP_CYC] = 0
             st[S_T_FS] = tcur
             st[S_HAS_ES] = 0
             st[S_HAS_EE] = 0
             frame[:] = 0
         elif data == 14:  # exposure start
+            st[S_SYNTH] = 0  # this stream sends exposure specials
             if st[S_IN_FRAME] == 1 and st[S_HAS_ES] == 0 and st[S_EXPO_OPEN] == 0:
-                st[S_HAS_ES] = 1
-                st[S_T_ES] = tcur
-                st[S_EXPO_OPEN] = 1
-                st[S_EXPO_OPEN_T] = tcur
-                _marker(mk, st, MK_EXPOSURE_START, tcur, nev, 0)
-            else:
+                _start_exposure(mk, st, tcur, nev)
+            elif st[S_APS_CUT] == 0:
                 skipped += 1
         elif data == 15:  # exposure end
             if st[S_EXPO_OPEN] == 1:
                 st[S_T_EE] = _end_exposure(mk, st, tcur, nev, 0)
                 st[S_HAS_EE] = 1
-            else:
+            elif st[S_APS_CUT] == 0:
                 skipped += 1
-        elif data == 10:  # frame end
+        elif data == 10:  # frame end: complete when both readouts covered every column (libcaer's apsEndFrame)
             if st[S_IN_FRAME] == 1:
                 ex = st[S_EXPX]
-                # a frame whose end marker is still pending (read out within the µs its exposure
-                # started: garbage) cannot be delivered after it: dropped
-                ok = (
-                    st[S_FRAME_OK] == 1
-                    and st[S_ROI_IDX] == 8
-                    and st[S_CX0] == ex
-                    and st[S_CX1] == ex
-                    and st[S_HAS_ES] == 1
-                    and st[S_HAS_EE] == 1
-                    and st[S_EXPO_OPEN] == 0
-                )
+                complete = st[S_ROI_OK] == 1 and st[S_CX0] == ex and st[S_CX1] == ex
+                # a complete frame also needs its exposure announced in stream order: a start and an end
+                # marker already delivered (not still pending: an end in the µs its exposure started)
+                announced = st[S_HAS_ES] == 1 and st[S_HAS_EE] == 1 and st[S_EXPO_OPEN] == 0
                 st[S_IN_FRAME] = 0
-                if ok:
+                cyc = st[S_EXP_CYC] if st[S_EXP_IDX] == 3 else -1
+                st[S_EXP_IDX] = 0  # the next frame's value may come before its start
+                st[S_EXP_CYC] = 0
+                if complete and announced:
                     st[S_F_ES] = st[S_T_ES]
                     st[S_F_EE] = st[S_T_EE]
-                    st[S_F_CYC] = st[S_EXP_CYC] if st[S_EXP_IDX] == 3 else -1
+                    st[S_F_CYC] = cyc
                     st[S_F_T_END] = tcur
                     _marker(mk, st, MK_FRAME, tcur, nev, 0)
                     st[S_FRAME_READY] = 1
                     break
-                st[S_FRAMES_DROPPED] += 1
+                if complete and st[S_HAS_ES] == 0:
+                    # no exposure start special in a complete frame: the logic sends none, so from the next
+                    # frame on the decoder places the exposure itself (this one cannot be announced any more)
+                    st[S_SYNTH] = 1
+                    st[S_NO_EXPOSURE] += 1
+                else:
+                    st[S_FRAMES_DROPPED] += 1
+            elif st[S_APS_CUT] == 1:  # the end of a frame cut by a reset: it was counted as dropped then
+                st[S_APS_CUT] = 0
             else:
                 skipped += 1
         elif data == 5:  # IMU sample start
-            if st[S_IMU_ACTIVE] != 0:
+            if st[S_IMU_ACTIVE] == 1 or st[S_IMU_ACTIVE] == 2:
                 st[S_IMU_DROPPED] += 1
             st[S_IMU_ACTIVE] = 1
             st[S_IMU_COUNT] = 0
@@ -507,7 +548,7 @@ def decode_words(words, start, st, cfg, ev, mk, imu_t, imu_v, reset_buf, frame):
                     st[S_IMU_DROPPED] += 1
             elif st[S_IMU_ACTIVE] == 2:
                 st[S_IMU_DROPPED] += 1
-            else:
+            elif st[S_IMU_ACTIVE] != 3:
                 skipped += 1
             st[S_IMU_ACTIVE] = 0
         elif data == 1:  # timestamp reset
@@ -516,12 +557,19 @@ def decode_words(words, start, st, cfg, ev, mk, imu_t, imu_v, reset_buf, frame):
             wrap = 0
             now = 0
             _marker(mk, st, MK_TRIGGER, tcur, nev, TRIG_RESET)
+            # the frame and the IMU sample in progress are dropped; their remaining words are ignored until the
+            # next start (libcaer's ignoreEvents), without counting them as garbage
             if st[S_IN_FRAME] == 1:
                 st[S_FRAMES_DROPPED] += 1
+                st[S_APS_CUT] = 1
             st[S_IN_FRAME] = 0
-            if st[S_IMU_ACTIVE] != 0:
+            st[S_EXP_IDX] = 0
+            st[S_EXP_CYC] = 0
+            if st[S_IMU_ACTIVE] == 1 or st[S_IMU_ACTIVE] == 2:
                 st[S_IMU_DROPPED] += 1
-            st[S_IMU_ACTIVE] = 0
+                st[S_IMU_ACTIVE] = 3
+            else:
+                st[S_IMU_ACTIVE] = 0
         elif data == 2:
             _marker(mk, st, MK_TRIGGER, tcur, nev, TRIG_FALLING)
         elif data == 3:

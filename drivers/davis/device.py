@@ -1,9 +1,9 @@
 """Open, configure, start and read a DAVIS camera over pyusb (real hardware or the emulator backend).
 
 :func:`find_devices` lists DAVIS FX3 (0x152A:0x841A) and FX2 (0x152A:0x841B) devices;
-:class:`DavisDevice` opens one, checks firmware (``bcdDevice & 0xFF``) and logic (SYSINFO 0 == 18,
-patch >= 1), reads sizes, clocks and capabilities, writes configuration (vendor requests 0xBF/0xC2)
-and runs the documented start/stop sequences (:mod:`.protocol`). :class:`BulkReader` reads the bulk
+:class:`DavisDevice` opens one, checks firmware (``bcdDevice & 0xFF``: older than required is refused,
+newer accepted with a note) and logic (SYSINFO 0 == 18, patch >= 1), reads sizes, clocks and
+capabilities, writes configuration (vendor requests 0xBF/0xC2) and runs the documented start/stop sequences (:mod:`.protocol`). :class:`BulkReader` reads the bulk
 endpoint 0x82 on a dedicated thread.
 
 Reading at full rate: the DAVIS346 peaks at about 12 Mev/s (~70 MB/s of words with frames). The
@@ -74,7 +74,9 @@ def find_devices(backend) -> list:
 
 @dataclass(frozen=True)
 class DeviceInfo:
-    """What ``necviz devices`` shows about one camera (``error`` set when it could not be opened)."""
+    """What ``necviz devices`` shows about one camera: ``error`` set when it could not be opened, ``notes``
+    for what the user should know about a usable one; ``backend`` is ``"usb"`` (necviz's driver), ``"dv"``
+    (dv-processing) or ``"emulated"``."""
 
     kind: str
     serial: str
@@ -84,10 +86,16 @@ class DeviceInfo:
     address: int | None
     emulated: bool = False
     error: str = ""
+    backend: str = "usb"
+    notes: tuple[str, ...] = ()
 
     @property
     def where(self) -> str:
-        return "emulated" if self.emulated else f"bus {self.bus} addr {self.address}"
+        return "virtual" if self.emulated else f"bus {self.bus} addr {self.address}"
+
+    @property
+    def usable(self) -> bool:
+        return not self.error
 
 
 # -- one device -------------------------------------------------------------------------------------
@@ -97,8 +105,10 @@ class DavisDevice:
     Attributes after opening: ``serial``, ``product`` ("DAVIS FX3"/"DAVIS FX2"), ``kind``
     (DAVIS346/DAVIS240/chip name), ``firmware``, ``logic_version``, ``logic_patch``, ``chip_id``,
     ``is_master``, ``clocks`` (:class:`~.protocol.Clocks`, actual MHz), ``dvs_size``/``aps_size``
-    ((width, height) pixels), ``dvs_orientation``, ``aps_orientation``, ``aps_color_filter``,
-    ``has_global_shutter``, ``imu_type``, ``imu_orientation``, ``capabilities`` (dict of flags).
+    ((width, height) pixels in output coordinates: swapped when X/Y are inverted), ``dvs_orientation``,
+    ``aps_orientation``, ``aps_color_filter``, ``has_global_shutter``, ``imu_type``, ``imu_orientation``,
+    ``capabilities`` (dict of flags), ``notes`` (one-line remarks for the user, e.g. a firmware newer than
+    required).
     """
 
     def __init__(self, dev, backend, emulated: bool = False):
@@ -112,6 +122,8 @@ class DavisDevice:
         self.kind = "DAVIS346" if dev.idProduct == P.PID_FX3 else "DAVIS240"
         self.closed = False
         self.running = False
+        #: one-line remarks about this camera worth showing the user (e.g. a firmware newer than required)
+        self.notes: list[str] = []
         try:
             try:
                 self._configure_usb()  # opens the device first: EACCES surfaces here
@@ -158,10 +170,14 @@ class DavisDevice:
 
     def _check_versions(self) -> None:
         need = P.REQUIRED_FIRMWARE.get(self.dev.idProduct)
-        if need is not None and self.firmware != need:
+        if need is not None and self.firmware < need:  # older only: see P.REQUIRED_FIRMWARE
             raise DeviceError(
-                f"{self.product} {self.serial} has firmware version {self.firmware}, this driver needs "
-                f"{need}: {P.FIRMWARE_REMEDY}"
+                f"{self.product} {self.serial} has firmware version {self.firmware}, older than the {need} "
+                f"this driver needs: {P.FIRMWARE_REMEDY}"
+            )
+        if need is not None and self.firmware > need:
+            self.notes.append(
+                f"firmware {self.firmware} is newer than the {need} libcaer requires; not yet tried with this driver"
             )
         self.logic_version = self.get(P.SYSINFO.MODULE, P.SYSINFO.LOGIC_VERSION)
         if self.logic_version != P.REQUIRED_LOGIC:
@@ -198,18 +214,25 @@ class DavisDevice:
         }
         self.aps_color_filter = g(A.MODULE, A.COLOR_FILTER)
         self.has_global_shutter = bool(g(A.MODULE, A.HAS_GLOBAL_SHUTTER))
-        self.dvs_size = (g(D.MODULE, D.SIZE_COLUMNS), g(D.MODULE, D.SIZE_ROWS))
+        # Sizes in output coordinates: with X/Y inverted (orientation bit 2) the row count is the width, as
+        # libcaer's populateDeviceInfo (src/davis.c) swaps dvsSizeX/Y and apsSizeX/Y; the decoder, the ROI and
+        # the pixel-filter registers then all speak output coordinates, as libcaer's do.
         self.dvs_orientation = g(D.MODULE, D.ORIENTATION_INFO)
-        self.aps_size = (g(A.MODULE, A.SIZE_COLUMNS), g(A.MODULE, A.SIZE_ROWS))
+        cols, rows = g(D.MODULE, D.SIZE_COLUMNS), g(D.MODULE, D.SIZE_ROWS)
+        self.dvs_size = (rows, cols) if self.dvs_orientation & 4 else (cols, rows)
         self.aps_orientation = g(A.MODULE, A.ORIENTATION_INFO)
+        cols, rows = g(A.MODULE, A.SIZE_COLUMNS), g(A.MODULE, A.SIZE_ROWS)
+        self.aps_size = (rows, cols) if self.aps_orientation & 4 else (cols, rows)
         self.imu_type = g(I.MODULE, I.TYPE)
         self.imu_orientation = g(I.MODULE, I.ORIENTATION_INFO)
-        self.clocks = P.Clocks.from_registers(
+        #: SYSINFO logic, ADC and USB clocks (nominal MHz) and the deviation (x1000), as read
+        self.clock_registers = (
             g(S.MODULE, S.LOGIC_CLOCK),
             g(S.MODULE, S.ADC_CLOCK),
             g(S.MODULE, S.USB_CLOCK),
             g(S.MODULE, S.CLOCK_DEVIATION),
         )
+        self.clocks = P.Clocks.from_registers(*self.clock_registers)
         if min(self.dvs_size) <= 0 or min(self.aps_size) <= 0 or self.clocks.adc_mhz <= 0:
             raise DeviceError(
                 f"{self._name()} reports an invalid size {self.dvs_size} or ADC clock {self.clocks.adc_mhz} MHz"
@@ -231,11 +254,17 @@ class DavisDevice:
             "bus": self.bus,
             "address": self.address,
             "emulated": self.emulated,
+            "notes": list(self.notes),
             "dvs_size": self.dvs_size,
             "aps_size": self.aps_size,
+            "dvs_orientation": self.dvs_orientation,
+            "aps_orientation": self.aps_orientation,
+            "imu_orientation": self.imu_orientation,
             "global_shutter": self.has_global_shutter,
+            "color_filter": self.aps_color_filter,
             "imu_type": self.imu_type,
             "clocks_mhz": {"logic": c.logic_mhz, "adc": c.adc_mhz, "usb": c.usb_mhz},
+            "clock_registers": dict(zip(("logic", "adc", "usb", "deviation"), self.clock_registers, strict=True)),
             "capabilities": dict(self.capabilities),
         }
 
@@ -512,10 +541,32 @@ def describe(backend, emulated: bool = False) -> list[DeviceInfo]:
         except DeviceError as e:
             serial = _serial_of(d) or "?"
             out.append(
-                DeviceInfo(kind, serial, d.bcdDevice & 0xFF, None, d.bus, d.address, emulated, str(e).splitlines()[0])
+                DeviceInfo(
+                    kind,
+                    serial,
+                    d.bcdDevice & 0xFF,
+                    None,
+                    d.bus,
+                    d.address,
+                    emulated,
+                    str(e).splitlines()[0],
+                    backend="emulated" if emulated else "usb",
+                )
             )
             continue
-        out.append(DeviceInfo(dev.kind, dev.serial, dev.firmware, dev.logic_version, dev.bus, dev.address, emulated))
+        out.append(
+            DeviceInfo(
+                dev.kind,
+                dev.serial,
+                dev.firmware,
+                dev.logic_version,
+                dev.bus,
+                dev.address,
+                emulated,
+                backend="emulated" if emulated else "usb",
+                notes=tuple(dev.notes),
+            )
+        )
         dev.close()
     return out
 

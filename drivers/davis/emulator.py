@@ -59,6 +59,7 @@ from necviz.core.sensor import DAVIS346, SensorGeometry
 from necviz.drivers.davis import protocol as P
 from necviz.drivers.davis.emulator_stream import EARLY_PACKET_US, FIFO_BYTES, DataPathMixin
 from necviz.drivers.davis.emulator_usb import ControlRecord, UsbInterfaceMixin, _usb_error
+from necviz.drivers.davis.encoder import StreamLayout
 
 #: clocks the emulated DAVIS346 reports: logic, ADC, USB (MHz) and the deviation (x1000)
 EMULATED_CLOCKS = (104, 30, 80, 1008)
@@ -79,6 +80,49 @@ class Faults:
     logic: int = 18
     logic_patch: int = 1
     permission_denied: bool = False
+
+
+@dataclass(frozen=True)
+class CameraVariant:
+    """What differs between real DAVIS cameras and their logic, for the emulator to present (the driver reads
+    every one of these from the device's registers or its word stream, as libcaer does).
+
+    Parameters
+    ----------
+    chip_id : int
+        SYSINFO CHIP_IDENTIFIER (:data:`~.protocol.CHIP_NAMES`; default 5, DAVIS346B). A DAVIS240 id makes the
+        driver write the DAVIS240 bias table.
+    dvs_orientation : int
+        DVS ORIENTATION_INFO (bit 2: X/Y inverted, the row words carry x; the size registers then report the
+        sensor's width as its row count). The APS orientation is :attr:`EmulatorOptions.aps_orientation`.
+    layout : StreamLayout
+        Where the frame header words go (after or before the frame start) and whether the exposure specials
+        are sent.
+    echo_offset_cycles : int
+        Added to the exposure each frame reports (an echo that differs from the register by a cycle or two).
+    color_filter : int
+        APS COLOR_FILTER (0 mono; 1..4 Bayer RGBG, GRGB, GBGR, BGRG; 5..8 RGBW variants). The emulated scene is
+        neutral grey, so the mosaic it sends is the grey image itself; the driver demosaics it as libcaer does.
+
+    Raises
+    ------
+    ParameterError
+        An unknown chip identifier.
+    """
+
+    chip_id: int = 5
+    dvs_orientation: int = 0
+    layout: StreamLayout = StreamLayout()
+    echo_offset_cycles: int = 0
+    color_filter: int = 0
+
+    def __post_init__(self) -> None:
+        if self.chip_id not in P.CHIP_NAMES:
+            raise ParameterError(f"unknown DAVIS chip identifier {self.chip_id!r}; known: {sorted(P.CHIP_NAMES)}")
+        object.__setattr__(self, "dvs_orientation", int(self.dvs_orientation) & 4)
+        object.__setattr__(self, "echo_offset_cycles", int(self.echo_offset_cycles))
+        if self.color_filter not in range(9):
+            raise ParameterError(f"APS colour filter must be 0..8, got {self.color_filter!r}")
 
 
 @dataclass(frozen=True)
@@ -111,6 +155,9 @@ class EmulatorOptions:
         Serial-number string (at most 8 characters).
     aps_orientation : int
         Value of the APS ORIENTATION_INFO register (readout order of frames; the low 3 bits).
+    variant : CameraVariant
+        The chip and the stream layout the camera presents (default: a DAVIS346B as the FPGA source
+        describes it).
     bus, address : int
         Where pyusb reports the device.
 
@@ -133,6 +180,7 @@ class EmulatorOptions:
     sensor: SensorGeometry = DAVIS346
     serial: str = EMULATED_SERIAL
     aps_orientation: int = 0
+    variant: CameraVariant = CameraVariant()
     bus: int = 0
     address: int = 1
 
@@ -200,6 +248,7 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         self.sensor = o.sensor
         self.serial = o.serial
         self.aps_orientation = o.aps_orientation
+        self.variant = o.variant
         self.bus, self.address = o.bus, o.address
         self.lock = threading.RLock()  # registers, FIFO and faults (control and data paths)
         self._data_lock = threading.Lock()  # the simulator (non-realtime data path): not held by control transfers
@@ -226,20 +275,21 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         f = self.faults
         self.regs: dict[tuple[int, int], int] = {
             (P.SYSINFO.MODULE, P.SYSINFO.LOGIC_VERSION): f.logic,
-            (P.SYSINFO.MODULE, P.SYSINFO.CHIP_IDENTIFIER): 5,  # DAVIS346B
+            (P.SYSINFO.MODULE, P.SYSINFO.CHIP_IDENTIFIER): self.variant.chip_id,
             (P.SYSINFO.MODULE, P.SYSINFO.DEVICE_IS_MASTER): 1,
             (P.SYSINFO.MODULE, P.SYSINFO.LOGIC_CLOCK): logic,
             (P.SYSINFO.MODULE, P.SYSINFO.ADC_CLOCK): adc,
             (P.SYSINFO.MODULE, P.SYSINFO.USB_CLOCK): usb_clk,
             (P.SYSINFO.MODULE, P.SYSINFO.CLOCK_DEVIATION): dev,
             (P.SYSINFO.MODULE, P.SYSINFO.LOGIC_PATCH): f.logic_patch,
-            (P.DVS.MODULE, P.DVS.SIZE_COLUMNS): w,
-            (P.DVS.MODULE, P.DVS.SIZE_ROWS): h,
-            (P.DVS.MODULE, P.DVS.ORIENTATION_INFO): 0,
-            (P.APS.MODULE, P.APS.SIZE_COLUMNS): w,
-            (P.APS.MODULE, P.APS.SIZE_ROWS): h,
+            # size registers count the chip's columns and rows: swapped from the output size when X/Y are inverted
+            (P.DVS.MODULE, P.DVS.SIZE_COLUMNS): h if self.variant.dvs_orientation & 4 else w,
+            (P.DVS.MODULE, P.DVS.SIZE_ROWS): w if self.variant.dvs_orientation & 4 else h,
+            (P.DVS.MODULE, P.DVS.ORIENTATION_INFO): self.variant.dvs_orientation,
+            (P.APS.MODULE, P.APS.SIZE_COLUMNS): h if self.aps_orientation & 4 else w,
+            (P.APS.MODULE, P.APS.SIZE_ROWS): w if self.aps_orientation & 4 else h,
             (P.APS.MODULE, P.APS.ORIENTATION_INFO): self.aps_orientation,
-            (P.APS.MODULE, P.APS.COLOR_FILTER): 0,
+            (P.APS.MODULE, P.APS.COLOR_FILTER): self.variant.color_filter,
             (P.APS.MODULE, P.APS.HAS_GLOBAL_SHUTTER): 1,
             (P.APS.MODULE, P.APS.GLOBAL_SHUTTER): 1,
             (P.APS.MODULE, P.APS.START_COLUMN_0): 0,
@@ -275,6 +325,11 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         self._next_imu_us = 0
         self._wall_start = None
         self._halted = False
+
+    @property
+    def _adc_shift(self) -> int:
+        """The decoder doubles a DAVIS240's samples (libcaer's ``davisCommonEventTranslator``): encode half."""
+        return 1 if self.variant.chip_id in P.DAVIS240_CHIPS else 0
 
     @property
     def adc_mhz(self) -> float:
@@ -353,6 +408,7 @@ def find_emulated(backend: EmulatedDavis346):
 
 
 __all__ = [
+    "CameraVariant",
     "EmulatedDavis346",
     "EmulatorOptions",
     "Faults",

@@ -42,7 +42,7 @@ from necviz.core.events import EVENT_DTYPE, EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.drivers.davis import protocol as P
 from necviz.drivers.davis.emulator_usb import _usb_error
-from necviz.drivers.davis.encoder import EXPOSURE_END, EXPOSURE_START, FRAME_END, StreamEncoder, cds_pair
+from necviz.drivers.davis.encoder import FRAME_END, StreamEncoder, cds_pair
 
 #: device-side buffering assumed for the DAVIS346 FX3 (bytes; see the module docstring)
 FIFO_BYTES = 128 * 1024
@@ -82,7 +82,10 @@ class DataPathMixin:
             self._rig = SimRig(scene, {"camera": (exp_us, 1.0)}, aps=aps, seed=self.seed)
             self._gen = self._rig.packets()
         if self._encoder is None:  # streaming (re)starts: device time restarts at 0
-            self._encoder = StreamEncoder(self.aps_orientation)
+            v = self.variant
+            self._encoder = StreamEncoder(
+                self.aps_orientation, dvs_invert_xy=bool(v.dvs_orientation & 4), layout=v.layout
+            )
             self._base_us = self._rig.now_us
             self._pending += self._encoder.timestamp_reset().tobytes()
             self._frame_open = False
@@ -203,19 +206,21 @@ class DataPathMixin:
                         self.frames_skipped += 1
                     if self._frame_open:
                         cycles = int(round(self._rig.cams["camera"].exposure_us * self.adc_mhz))
+                        cycles += self.variant.echo_offset_cycles
                         roi = self._roi()
                         self._frame_roi = roi
                         h, w = roi[3] - roi[1] + 1, roi[2] - roi[0] + 1
                         gs = bool(r(P.APS.MODULE, P.APS.GLOBAL_SHUTTER))
                         self._put(enc.frame_start(t, roi, cycles, gs))
                         self._put(enc.readout(np.full((h, w), 1023, np.int64), False))
-                        self._put(enc.special(t, EXPOSURE_START))
-                elif self._frame_open:
-                    self._put(enc.special(t, EXPOSURE_END))
+                        self._put(enc.exposure_special(t, True))
+                elif self._frame_open:  # the exposure ends and the signal read starts
+                    self._put(enc.exposure_special(t, False))
+                    self._put(enc.signal_start(t))
             elif isinstance(pk, Frame) and self._frame_open:
                 c0, r0, c1, r1 = self._frame_roi
-                _, signal = cds_pair(pk.image[r0 : r1 + 1, c0 : c1 + 1])
-                self._put(enc.readout(signal, True))
+                _, signal = cds_pair(pk.image[r0 : r1 + 1, c0 : c1 + 1], adc_shift=self._adc_shift)
+                self._put(enc.readout(signal, True, first_started=True))
                 self._put(enc.special(self._dev_t(self._rig.now_us), FRAME_END))
                 self._frame_open = False
         if not self._unbounded:

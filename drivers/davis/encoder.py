@@ -97,6 +97,38 @@ def _u16(seq) -> np.ndarray:
     return np.asarray(seq, dtype=np.uint16)
 
 
+#: :attr:`StreamLayout.header` values
+HEADER_LAYOUTS = ("after", "before")
+
+
+@dataclass(frozen=True)
+class StreamLayout:
+    """Where a camera's logic puts the frame words libcaer does not need in a fixed place.
+
+    Parameters
+    ----------
+    header : str
+        ``"after"``: frame start (special 8/9), then the exposure value (three misc10 chunks) and the ROI
+        (eight misc8 words), the order of the FPGA source; ``"before"``: the exposure value and the ROI
+        first, then the frame start, as an older port of the APS state machine sends them.
+    exposure_specials : bool
+        Send the APS exposure start/end specials (14, 15). libcaer accepts frames without them.
+
+    Raises
+    ------
+    ParameterError
+        An unknown ``header``.
+    """
+
+    header: str = "after"
+    exposure_specials: bool = True
+
+    def __post_init__(self) -> None:
+        if self.header not in HEADER_LAYOUTS:
+            raise ParameterError(f"stream header layout must be one of {HEADER_LAYOUTS}, got {self.header!r}")
+        object.__setattr__(self, "exposure_specials", bool(self.exposure_specials))
+
+
 @dataclass(frozen=True)
 class FrameTiming:
     """The four times of one encoded frame (device µs): frame start, exposure start and end, frame end.
@@ -132,11 +164,23 @@ class StreamEncoder:
     ``aps_orientation`` (bit2 invertXY, bit1 flipX, bit0 flipY) sets the readout order of frame
     samples so that a decoder applying the same bits puts every pixel back where it was.
     ``always_y``: repeat the row word before every X word (a valid, less compact stream).
+    ``dvs_invert_xy``: DVS orientation bit 2 (the row word carries x and the column word y, libcaer's
+    ``dvs.invertXY``). ``layout``: where the frame header words go and whether exposure specials are sent
+    (:class:`StreamLayout`).
     """
 
-    def __init__(self, aps_orientation: int = 0, always_y: bool = False):
+    def __init__(
+        self,
+        aps_orientation: int = 0,
+        always_y: bool = False,
+        *,
+        dvs_invert_xy: bool = False,
+        layout: StreamLayout | None = None,
+    ):
         self.aps_orientation = int(aps_orientation) & 7
         self.always_y = bool(always_y)
+        self.dvs_invert_xy = bool(dvs_invert_xy)
+        self.layout = StreamLayout() if layout is None else layout
         self.state = np.array([0, 0, -1], np.int64)  # wrap base, current time, last row
 
     @property
@@ -179,6 +223,8 @@ class StreamEncoder:
         if int(t[0]) < self.now_us or (t.size > 1 and np.any(t[1:] < t[:-1])):
             raise ParameterError("events to encode must be time-sorted and not earlier than the encoder's time")
         x, y, p = (np.ascontiguousarray(ev[f]) for f in ("x", "y", "p"))
+        if self.dvs_invert_xy:  # the row word carries x
+            x, y = y, x
         if int(x.max()) > 0xFFF or int(y.max()) > 0xFFF:
             raise ParameterError("event addresses must fit in 12 bits")
         n = _encode_events(t, x, y, p, self.state.copy(), None, self.always_y)
@@ -190,14 +236,28 @@ class StreamEncoder:
     def frame_start(
         self, t_us: int, roi: tuple[int, int, int, int], exposure_cycles: int | None = None, global_shutter: bool = True
     ) -> np.ndarray:
-        """Frame start (special 8 GS / 9 RS), optional exposure chunks, 8 ROI words (c0, r0, c1, r1)."""
-        words = [FRAME_START_GS if global_shutter else FRAME_START_RS]
+        """Frame start (special 8 GS / 9 RS), optional exposure chunks, 8 ROI words (c0, r0, c1, r1); the
+        chunks and the ROI words follow the start, or precede it (``layout.header == "before"``)."""
+        header = []
         if exposure_cycles is not None:
             c = int(exposure_cycles)
-            words += [0x6000 | (c >> (10 * j)) & 0x3FF for j in range(3)]
+            header += [0x6000 | (c >> (10 * j)) & 0x3FF for j in range(3)]
         for v in roi:
-            words += [0x5100 | (int(v) >> 8) & 0xFF, 0x5200 | int(v) & 0xFF]
+            header += [0x5100 | (int(v) >> 8) & 0xFF, 0x5200 | int(v) & 0xFF]
+        start = [FRAME_START_GS if global_shutter else FRAME_START_RS]
+        words = header + start if self.layout.header == "before" else start + header
         return np.concatenate([self.time(t_us), _u16(words)])
+
+    def exposure_special(self, t_us: int, start: bool) -> np.ndarray:
+        """Exposure start (special 14) or end (15) at ``t_us``; nothing if the layout sends no exposure specials."""
+        if not self.layout.exposure_specials:
+            return np.zeros(0, np.uint16)
+        return self.special(t_us, EXPOSURE_START if start else EXPOSURE_END)
+
+    def signal_start(self, t_us: int) -> np.ndarray:
+        """The first signal-read column starts at ``t_us`` (when the exposure ends); the rest of the signal read
+        follows with :meth:`readout` ``(..., signal=True, first_started=True)``."""
+        return self.special(t_us, SIGNAL_COL_START)
 
     def readout_order(self, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
         """(rows, cols) of the ROI image in readout order: ``[countX, countY]`` → pixel."""
@@ -210,8 +270,9 @@ class StreamEncoder:
             x, y = y, x
         return y, x  # shapes (ex, ey)
 
-    def readout(self, values: np.ndarray, signal: bool) -> np.ndarray:
-        """All columns of one readout (reset or signal) of a ROI image of 10-bit values (h x w)."""
+    def readout(self, values: np.ndarray, signal: bool, first_started: bool = False) -> np.ndarray:
+        """All columns of one readout (reset or signal) of a ROI image of 10-bit values (h x w);
+        ``first_started``: the first column's start word was already sent (:meth:`signal_start`)."""
         v = np.asarray(values)
         if v.ndim != 2 or (v.size and (v.min() < 0 or v.max() > 0xFFF)):
             raise ParameterError("readout values must be a 2-D array of 12-bit ADC samples")
@@ -221,7 +282,7 @@ class StreamEncoder:
         block[:, 0] = SIGNAL_COL_START if signal else RESET_COL_START
         block[:, 1:-1] = 0x4000 | v[rows, cols].astype(np.uint16)
         block[:, -1] = COL_END
-        return block.ravel()
+        return block.ravel()[1:] if first_started else block.ravel()
 
     def frame(
         self,
@@ -232,7 +293,8 @@ class StreamEncoder:
         exposure_cycles: int | None = None,
         global_shutter: bool = True,
     ) -> np.ndarray:
-        """A whole frame with no events inside (GS order: start, reset read, exposure, signal read, end).
+        """A whole frame with no events inside (GS order: start, reset read, exposure, signal read, end; the
+        header and the exposure specials as ``layout`` says).
 
         Parameters
         ----------
@@ -259,10 +321,12 @@ class StreamEncoder:
         return np.concatenate(
             [
                 self.frame_start(timing.start_us, roi, exposure_cycles, global_shutter),
+                self.time(timing.exposure_start_us),  # the reset read ends as the exposure starts
                 self.readout(reset, False),
-                self.special(timing.exposure_start_us, EXPOSURE_START),
-                self.special(timing.exposure_end_us, EXPOSURE_END),
-                self.readout(signal, True),
+                self.exposure_special(timing.exposure_start_us, True),
+                self.exposure_special(timing.exposure_end_us, False),
+                self.signal_start(timing.exposure_end_us),  # and the signal read starts as it ends
+                self.readout(signal, True, first_started=True),
                 self.special(timing.end_us, FRAME_END),
             ]
         )
@@ -282,11 +346,13 @@ class StreamEncoder:
         return np.concatenate([self.time(t_us), _u16(words)])
 
 
-def cds_pair(z8: np.ndarray, reset_level: int = 1023) -> tuple[np.ndarray, np.ndarray]:
-    """Reset and signal samples whose CDS decodes to ``z8``: ``reset - signal = 4 Z8 + 1``.
+def cds_pair(z8: np.ndarray, reset_level: int = 1023, adc_shift: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Reset and signal samples whose CDS decodes to ``z8``: ``reset - signal = (4 Z8 + 1) >> adc_shift``.
 
-    With ``reset_level`` >= 1021 every Z8 in 0..255 gives a signal >= 1, so no sample reads as saturated.
+    ``adc_shift`` is the decoder's left shift of the samples (1 on a DAVIS240, whose samples libcaer
+    doubles), so the decoded 10-bit value is ``4 Z8 + 1`` or ``4 Z8`` and ``>> 2`` gives ``Z8`` back. With
+    ``reset_level`` >= 1021 every Z8 in 0..255 gives a signal >= 1, so no sample reads as saturated.
     """
     z = np.asarray(z8, np.int64)
     reset = np.full(z.shape, int(reset_level), np.int64)
-    return reset, reset - (4 * z + 1)
+    return reset, reset - ((4 * z + 1) >> int(adc_shift))

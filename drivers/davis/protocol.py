@@ -20,7 +20,13 @@ VID = 0x152A
 PID_FX3 = 0x841A  #: DAVIS FX3 boards (DAVIS346)
 PID_FX2 = 0x841B  #: DAVIS FX2 boards (DAVIS240)
 PRODUCTS = {PID_FX3: "DAVIS FX3", PID_FX2: "DAVIS FX2"}
-#: required firmware version (``bcdDevice & 0xFF``) per product id
+#: Oldest firmware version (``bcdDevice & 0xFF``) per product id: libcaer's ``DAVIS_FX3_REQUIRED_FIRMWARE_VERSION``
+#: and ``DAVIS_FX2_REQUIRED_FIRMWARE_VERSION`` (``src/davis.h``). Older firmware is refused, newer is opened with a
+#: note. libcaer's ``usbDeviceOpen`` (``src/usb_utils.c``) refused only older firmware (``firmwareVersion <
+#: required``) until its commit e1c6065 (2018-09, "check for exact required firmware/logic versions"), and refuses
+#: any other version since (so does the libcaer inside dv-processing 2.0). necviz keeps the older rule for the
+#: firmware only: the FX3/FX2 firmware carries the two vendor requests and the bulk endpoint, while the register
+#: map and the word stream belong to the FPGA logic, which is still checked exactly (:data:`REQUIRED_LOGIC`).
 REQUIRED_FIRMWARE = {PID_FX3: 6, PID_FX2: 4}
 REQUIRED_LOGIC = 18  #: SYSINFO LOGIC_VERSION must equal this
 REQUIRED_LOGIC_PATCH = 1  #: SYSINFO LOGIC_PATCH must be at least this
@@ -299,15 +305,21 @@ DAVIS346_CHIP_CONFIG = {
     144: 0,
 }
 
-#: DAVIS240 biases (old 22-branch generator). No DAVIS240 defaults were taken from libcaer: these reuse the
-#: DAVIS346 settings of the same-named branches; APSCASEPC, DIFFCASBNC and APSOVERFLOWLEVELBN are
-#: mid-range guesses [inferred, unverified: check on hardware before relying on them].
+
+def _n_cas(c, f):
+    return coarse_fine(c, f, sex_n=True, type_normal=False)
+
+
+#: DAVIS240 biases (old 22-branch generator), parameter -> word: libcaer's defaults
+#: (``src/davis_common.h``, ``davisCommonSendDefaultChipConfig``, the ``IS_DAVIS240`` branch). Unlike the
+#: DAVIS346 table, OFFBN is (4, 0), PADFOLLBN is enabled, and APSCASEPC and DIFFCASBNC are cascode N-type
+#: (``typeNormal`` off).
 DAVIS240_BIASES = {
     0: _n(4, 39),  # DIFFBN
     1: _n(5, 255),  # ONBN
-    2: _n(4, 1),  # OFFBN
-    3: _n(5, 185),  # APSCASEPC (guess)
-    4: _n(5, 115),  # DIFFCASBNC (guess)
+    2: _n(4, 0),  # OFFBN
+    3: _n_cas(5, 185),  # APSCASEPC
+    4: _n_cas(5, 115),  # DIFFCASBNC
     5: _n(6, 219),  # APSROSFBN
     6: _n(5, 164),  # LOCALBUFBN
     7: _n(6, 144),  # PIXINVBN
@@ -320,12 +332,15 @@ DAVIS240_BIASES = {
     14: _p(7, 152),  # AEPUYBP
     15: _n(5, 255),  # IFTHRBN
     16: _n(5, 255),  # IFREFRBN
-    17: coarse_fine(7, 215, enabled=False),  # PADFOLLBN
-    18: _n(6, 253),  # APSOVERFLOWLEVELBN (guess)
+    17: _n(7, 215),  # PADFOLLBN
+    18: _n(6, 253),  # APSOVERFLOWLEVELBN
     19: _n(5, 254),  # BIASBUFFER
     20: shifted_source(1, 33),  # SSP
     21: shifted_source(1, 33),  # SSN
 }
+#: DAVIS240 chip configuration. libcaer's ``davisCommonSendDefaultChipConfig`` also writes
+#: SPECIALPIXELCONTROL (139) = 0, which its ``davisCommonConfigSet`` passes on for DAVIS240 A/B only
+#: (see :func:`default_chip_config`); SELECTGRAYCOUNTER (143) and TESTADC (144) do not exist on the DAVIS240.
 DAVIS240_CHIP_CONFIG = {
     128: 0,
     129: 0,
@@ -341,6 +356,8 @@ DAVIS240_CHIP_CONFIG = {
     140: 0,
     141: 0,
 }
+#: DAVIS240 A and B (chip ids 0, 1) have the special-pixel control bit.
+DAVIS240_SPECIAL_PIXEL_CHIPS = (0, 1)
 
 
 def default_biases(chip_id: int) -> dict[int, int]:
@@ -350,6 +367,8 @@ def default_biases(chip_id: int) -> dict[int, int]:
 
 def default_chip_config(chip_id: int) -> dict[int, int]:
     """Default chip-configuration words (module 5, params >= 128) for a chip identifier."""
+    if chip_id in DAVIS240_SPECIAL_PIXEL_CHIPS:
+        return {**DAVIS240_CHIP_CONFIG, 139: 0}  # SPECIALPIXELCONTROL off
     return dict(DAVIS240_CHIP_CONFIG if chip_id in DAVIS240_CHIPS else DAVIS346_CHIP_CONFIG)
 
 

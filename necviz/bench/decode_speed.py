@@ -107,7 +107,7 @@ def _kernel_only(chunks, width, height):
     imu_t = np.empty(1024, np.int64)
     imu_v = np.empty((1024, 7), np.float32)
     reset_buf = np.zeros(width * height, np.int64)
-    frame = np.zeros(height * width, np.uint8)
+    frame = np.zeros(height * width, np.uint16)
     events = 0
     for words in chunks:
         pos = 0

@@ -346,8 +346,14 @@ def _cmd_compare(args) -> int:
 
 
 def _cmd_devices(args) -> int:
-    from necviz.commands.devices import run
+    from necviz.commands.devices import check, run
 
+    if args.check:
+        return check(args.device, args.serial, args.capture, args.seconds)
+    if args.capture is not None or args.seconds is not None:
+        from necviz.core.errors import ParameterError
+
+        raise ParameterError("--capture and --seconds go with --check")
     return run(include_emulated=not args.no_emulated)
 
 
@@ -547,13 +553,15 @@ def build_parser() -> argparse.ArgumentParser:
         "live",
         help="a DAVIS camera (USB or emulated) with NEC closing the loop",
         description="Runs a controller (NEC by default) in closed loop on a DAVIS346/DAVIS240 over "
-        "USB, or on a virtual DAVIS346 (--device emulated), in the live layout.",
+        "USB (necviz's driver, or iniVation's dv-processing with --device dv), or on a virtual DAVIS346 "
+        "(--device emulated), in the live layout.",
     )
     live.add_argument(
         "--device",
-        choices=("usb", "emulated"),
+        choices=("usb", "dv", "emulated"),
         default="usb",
-        help="usb (a real camera) or emulated (the same driver on a virtual DAVIS346)",
+        help="usb (a real camera, necviz's driver), dv (the same camera through iniVation's dv-processing: "
+        "pip install 'necviz[dv]') or emulated (necviz's driver on a virtual DAVIS346)",
     )
     live.add_argument("--serial", default=None, help="which camera when several are attached")
     live.add_argument("--reconnect", action="store_true", help="if the camera is unplugged, wait for it to return")
@@ -582,8 +590,32 @@ def build_parser() -> argparse.ArgumentParser:
     add_clip_args(live)
     live.set_defaults(func=_cmd_live)
 
-    dev = sub.add_parser("devices", help="attached (and emulated) DAVIS cameras: serial, firmware, logic version")
+    dev = sub.add_parser(
+        "devices",
+        help="attached (and emulated) DAVIS cameras: serial, firmware, logic version; --check: what one sends",
+        description="Lists the DAVIS cameras found through necviz's driver and through dv-processing, and the "
+        "emulated one. --check records a camera's raw stream for a few seconds and says what it held "
+        "(events, frames, exposure echoes, the first frame's words, transfer timing) with a verdict.",
+    )
     dev.add_argument("--no-emulated", action="store_true", help="list real cameras only")
+    dev.add_argument("--check", action="store_true", help="record and judge one camera's stream")
+    dev.add_argument(
+        "--device",
+        choices=("usb", "emulated"),
+        default="usb",
+        help="with --check: usb (default, a real camera) or emulated",
+    )
+    dev.add_argument("--serial", default=None, help="with --check: which camera when several are attached")
+    dev.add_argument(
+        "--capture", metavar="FILE", default=None, help="with --check: keep the raw stream in FILE (a new file)"
+    )
+    dev.add_argument(
+        "--seconds",
+        type=number("--seconds", "devices"),
+        default=None,
+        metavar="S",
+        help="with --check: how long to record (default 2)",
+    )
     dev.set_defaults(func=_cmd_devices)
 
     _add_bench(sub)

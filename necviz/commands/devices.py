@@ -1,24 +1,32 @@
-"""``necviz devices``: the DAVIS cameras attached (and the emulated one), with serial and versions."""
+"""``necviz devices``: the DAVIS cameras attached (through necviz's driver and through dv-processing) and
+the emulated one; ``--check``: what one camera actually sends (:mod:`necviz.drivers.davis.check`)."""
 
 from __future__ import annotations
 
-from necviz.core.errors import NecvizError
+from necviz.core.errors import NecvizError, ParameterError
 from necviz.drivers.davis import protocol as P
 from necviz.drivers.davis.device import DeviceInfo, describe, usb_backend
 from necviz.progress import output
 
+#: the commands a listed camera is used with, by backend
+_USE = {"usb": "--device usb", "dv": "--device dv", "emulated": "--device emulated"}
+
 
 def list_devices(include_emulated: bool = True) -> list[DeviceInfo]:
-    """Attached DAVIS FX3/FX2 cameras (through libusb), then the emulated DAVIS346 if asked.
+    """Attached DAVIS FX3/FX2 cameras through libusb (necviz's driver), the DAVIS cameras dv-processing finds
+    (if it is installed), then the emulated DAVIS346 if asked.
 
-    Cameras that cannot be opened (permission denied, wrong firmware) are listed with ``error`` set.
-    If libusb itself is missing, only the emulated camera is listed.
+    Cameras that cannot be opened (permission denied, old firmware) are listed with ``error`` set.
+    If libusb itself is missing, no camera is listed through it.
     """
+    from necviz.drivers.dv_camera import find_dv_cameras
+
     out: list[DeviceInfo] = []
     try:
         out += describe(usb_backend())
     except NecvizError:
         pass
+    out += find_dv_cameras()
     if include_emulated:
         from necviz.drivers.davis.emulator import EmulatedDavis346
 
@@ -27,26 +35,116 @@ def list_devices(include_emulated: bool = True) -> list[DeviceInfo]:
 
 
 def run(include_emulated: bool = True, out=...) -> int:
-    """Print the table; return 0 if a real camera is usable, 1 if none is (the hint is printed)."""
+    """Print the cameras found and what to do with them; 0 if a usable camera was listed, else 1."""
     out = output(out)
     try:
         usb_backend()
         libusb_error = ""
     except NecvizError as e:
-        libusb_error = str(e)
+        libusb_error = str(e).splitlines()[0]
+    try:
+        import dv_processing  # noqa: F401
+
+        dv_missing = False
+    except ImportError:
+        dv_missing = True
     devices = list_devices(include_emulated)
-    print(f"{'kind':10s} {'serial':10s} {'firmware':>8s} {'logic':>6s}  where / status", file=out)
+    if devices:
+        print(f"{'backend':9s} {'kind':10s} {'serial':10s} {'firmware':>8s} {'logic':>6s}  where / status", file=out)
     for d in devices:
         logic = "-" if d.logic is None else str(d.logic)
-        status = d.where + (f"  ({d.error})" if d.error else "")
-        print(f"{d.kind:10s} {d.serial:10s} {d.firmware:8d} {logic:>6s}  {status}", file=out)
-    usable = [d for d in devices if not d.emulated and not d.error]
-    if not usable:
-        if libusb_error:
-            print(f"no DAVIS camera can be found: {libusb_error}", file=out)
-        elif not [d for d in devices if not d.emulated]:
-            print("no DAVIS camera found (USB 152a:841a / 152a:841b)", file=out)
-        print(P.UDEV_HINT, file=out)
-        print("`necviz live --device emulated` runs the same driver on a virtual DAVIS346", file=out)
-        return 1
-    return 0
+        status = d.where + (f"  (cannot be used: {d.error})" if d.error else "")
+        print(f"{d.backend:9s} {d.kind:10s} {d.serial:10s} {d.firmware:8d} {logic:>6s}  {status}", file=out)
+        for note in d.notes:
+            print(f"{'':9s} note: {note}", file=out)
+    real = [d for d in devices if d.backend != "emulated"]
+    usable = [d for d in devices if d.usable]
+    emulated = any(d.backend == "emulated" for d in usable)
+    cameras = sorted({d.serial for d in real if d.usable})
+    found = []
+    if cameras:
+        uses = {s: " or ".join(_USE[d.backend] for d in real if d.serial == s and d.usable) for s in cameras}
+        found.append(
+            f"{len(cameras)} DAVIS camera{'s' if len(cameras) > 1 else ''}: "
+            + ", ".join(f"{s} (necviz live {uses[s]})" for s in cameras)
+        )
+    if emulated:
+        found.append("the emulated DAVIS346 (necviz live --device emulated), necviz's driver on a virtual camera")
+    print("found " + " and ".join(found) if found else "found no usable camera", file=out)
+    if not cameras:
+        why = f" ({libusb_error})" if libusb_error else ""
+        if [d for d in real if not d.usable]:
+            print("a DAVIS camera is attached but cannot be used: see its status above", file=out)
+        else:
+            print(f"no DAVIS camera is attached (USB 152a:841a / 152a:841b){why}", file=out)
+        print("if one is plugged in, " + P.UDEV_HINT, file=out)
+    if dv_missing:
+        print("the dv backend (--device dv) needs iniVation's dv-processing: pip install 'necviz[dv]'", file=out)
+    return 0 if usable else 1
+
+
+def check(
+    device: str = "usb",
+    serial: str | None = None,
+    capture_path=None,
+    seconds: float | None = None,
+    *,
+    backend=None,
+    out=...,
+) -> int:
+    """``necviz devices --check``: open the camera, record ``seconds`` of its raw stream (to ``capture_path`` if
+    given) and print what it held with a verdict; 0 unless the verdict is FAIL.
+
+    Parameters
+    ----------
+    device : str
+        ``usb`` (a real camera through necviz's driver) or ``emulated`` (the virtual DAVIS346, paced in real
+        time as a camera is).
+    serial : str, optional
+        Which camera when several are attached.
+    capture_path : path, optional
+        Write every transfer to this new file (:mod:`necviz.drivers.davis.capture`); it must not exist.
+    seconds : float, optional
+        How long to record (default :data:`~necviz.drivers.davis.check.CHECK_SECONDS`).
+    backend : optional
+        A pyusb backend to find the camera on (the tests pass a small emulated one).
+
+    Raises
+    ------
+    ParameterError
+        An unknown device, a bad duration, or a capture file that exists already.
+    DeviceError
+        No camera, old firmware, permission denied, unplugged during the check.
+    """
+    from pathlib import Path
+
+    from necviz.drivers.davis.check import CHECK_SECONDS, analyse, capture, report_lines
+    from necviz.drivers.davis.device import open_device
+
+    out = output(out)
+    if device not in ("usb", "emulated"):
+        raise ParameterError(f"--check runs on --device usb or emulated, got {device!r}")
+    seconds = CHECK_SECONDS if seconds is None else float(seconds)
+    if not 0 < seconds <= 60:
+        raise ParameterError(f"--seconds must be in (0, 60], got {seconds:g}")
+    if capture_path is not None and Path(capture_path).exists():
+        raise ParameterError(f"--capture {capture_path} exists already: a capture never replaces a file")
+    if backend is None:
+        if device == "emulated":
+            from necviz.drivers.davis.emulator import EmulatedDavis346, EmulatorOptions
+
+            backend = EmulatedDavis346(EmulatorOptions(realtime=True))
+        else:
+            backend = usb_backend()
+    dev = open_device(backend, serial, emulated=device == "emulated")
+    if hasattr(backend, "warm_up"):  # the emulator's simulator compiles before it can keep real time
+        backend.warm_up()
+    try:
+        print(f"  checking {dev.kind} {dev.serial}: recording {seconds:g} s of its stream ...", file=out)
+        cap = capture(dev, seconds, capture_path)
+    finally:
+        dev.close()
+    report = analyse(cap)
+    for line in report_lines(report, capture_path):
+        print(line, file=out)
+    return 1 if report.level == "FAIL" else 0

@@ -1,7 +1,8 @@
 """``necviz live``: a DAVIS camera with a controller closing the loop, in the ``live`` layout.
 
-``device="usb"`` opens a real DAVIS346/DAVIS240 (pyusb); ``device="emulated"`` runs the same
-driver against a virtual DAVIS346 fed by the simulator (no hardware). The controller drives the
+``device="usb"`` opens a real DAVIS346/DAVIS240 (pyusb); ``device="dv"`` opens it through iniVation's
+dv-processing instead (:mod:`necviz.drivers.dv_camera`); ``device="emulated"`` runs the pyusb driver
+against a virtual DAVIS346 fed by the simulator (no hardware). The controller drives the
 camera: every command goes to the APS exposure register between frames. While it runs, the
 terminal prompt (or a tuning file) changes parameters and ``drive NAME`` switches controller.
 
@@ -14,6 +15,7 @@ If the camera is unplugged, everything recorded so far is flushed (the ``.rrd`` 
 from __future__ import annotations
 
 from necviz.core.control import make_controller
+from necviz.core.errors import ParameterError
 from necviz.dashboard.recorders import open_recorder
 from necviz.dashboard.session import Session, preflight, run_session, scene_inputs
 from necviz.flight_recorder import clip_observer
@@ -94,9 +96,17 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
             scenario_params={**spec["params"], **options.scene.params},
         )
         backend = EmulatedDavis346(emulated, faults)
-    camera = open_camera(
-        options.device, options.serial, options=CameraOptions(reconnect=options.reconnect), backend=backend
-    )
+    if options.device == "dv":
+        from necviz.drivers.dv_camera import open_dv_camera
+
+        if options.reconnect:
+            raise ParameterError("--reconnect works with necviz's driver (--device usb), not with --device dv")
+
+        camera = open_dv_camera(options.serial, options=CameraOptions())
+    else:
+        camera = open_camera(
+            options.device, options.serial, options=CameraOptions(reconnect=options.reconnect), backend=backend
+        )
     info, limits, sensor = camera.info, camera.limits, camera.sensor
     kw = {} if profile is None else {"tedi": profile.tedi, "crf": profile.crf}
     rate = camera.camera_info.event_rate_max  # the device's event bus ceiling (NEC's escape rule)
