@@ -1,9 +1,9 @@
 """Speed work must not change behaviour: the concurrent simulator, the fused frame kernel and the
 closed loop give exactly what the serial reference (and the code before the speed work) gave.
 
-* The simulator's packets (event bytes, frame bytes, markers, ground truth) hash to a digest that
-  the code *before* the speed work produced (:data:`SIM_DIGEST`, see its comment), with worker
-  threads and without.
+* The simulator's packets (events, frames, markers, ground truth) are those the code *before* the
+  speed work produced (:data:`REFERENCE`, see its comment), with worker threads and without, and
+  byte for byte the same with threads and without.
 * A short closed loop (``tunnel_exit``, 0.4 s, every controller incl. ``nec`` and ``nec-raw``) run
   with worker threads and on one thread gives identical frames (image bytes), commands, per-frame
   records and metrics.
@@ -17,7 +17,9 @@ closed loop give exactly what the serial reference (and the code before the spee
 from __future__ import annotations
 
 import hashlib
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -29,29 +31,35 @@ from necviz.drivers.sim.rig import RigOptions, SimRig
 from necviz.options import SceneOptions
 from necviz.pipeline import Observer
 
-# sha256 of :func:`sim_digest` (tunnel_exit, seed 0, 0.3 s, six cameras at geomspace(20, 15000) µs), produced
-# by this same function run against the tree as it was before the speed work (SimRig with only its DVS worker,
-# frames formed by the NumPy expression of _expose_numpy below), i.e. with that tree's package installed:
-#     cd tests && python -c "from test_speed_invariance import sim_digest; print(sim_digest())"
-# A deliberate change of the simulator's model (scene, events, frames, ground truth) changes it; then
-# regenerate it the same way and say why in the change. The scene is pinned to what that tree drew: its
-# nominal exit time (change_jitter_ms = 0, the default since issue 20 is a seeded phase) and no markers.
+# The simulator's packets as the code *before* the speed work gave them. This was first pinned as a sha256 of
+# every byte, which holds only for one OpenCV build on one CPU: the scenes' cv2.remap/warpAffine round their last
+# bit differently across OpenCV releases (measured on one machine, tunnel_exit 0.3 s: 4.10, 4.11/4.12, 4.14 and
+# 5.1 give four different digests, 1,036,071 against 1,035,968 events, frame means within 0.009 DN). The
+# reference is therefore a summary, tests/data/sim_reference.json, written by this file's sim_summary() on the
+# tree whose digest matched the pre-speed-work one (regenerate: `cd tests && python test_speed_invariance.py`),
+# compared with tolerances ten times that spread; the byte-exact check that remains is threads against serial in
+# one run. A deliberate change of the simulator's model (scene, events, frames, ground truth) moves the summary
+# well outside them: regenerate it then and say why in the change. The scene is pinned to its nominal exit time
+# (change_jitter_ms = 0, the default since issue 20 is a seeded phase) and no markers.
 NOMINAL = {"change_jitter_ms": 0, "markers": False}
-SIM_DIGEST = "86f21e969778fff9b77db5a8a20567faf1ce7b4d1b73932cfc73caa034d186d0"
+REFERENCE = Path(__file__).parent / "data" / "sim_reference.json"
 
 
-def sim_digest(threads=None, duration_s: float = 0.3) -> str:
-    """Hash every packet of a six-camera rig, in order: events, markers, frames and their ground truth."""
+def _rig(threads, duration_s: float = 0.3) -> SimRig:
     scene = SceneOptions("tunnel_exit", 0, duration_s, dict(NOMINAL)).build()
     exposures = np.geomspace(20, 15_000, 6)
-    rig = SimRig(
+    return SimRig(
         scene,
         {f"cam{i}": (float(e), 1.0) for i, e in enumerate(exposures)},
         seed=0,
         options=RigOptions(threads=threads),
     )
+
+
+def sim_digest(threads=None, duration_s: float = 0.3) -> str:
+    """Hash every packet of a six-camera rig, in order: events, markers, frames and their ground truth."""
     h = hashlib.sha256()
-    for name, p in rig.packets():
+    for name, p in _rig(threads, duration_s).packets():
         h.update(str(name).encode())
         if name is None:
             h.update(np.ascontiguousarray(p.events).tobytes())
@@ -67,9 +75,50 @@ def sim_digest(threads=None, duration_s: float = 0.3) -> str:
     return h.hexdigest()
 
 
+def sim_summary(threads=None) -> dict:
+    """What the rig delivered, in order, in numbers that survive an OpenCV release: the packet sequence, each
+    event packet's count and ON fraction, each frame's timing, mean level and mean true irradiance."""
+    kinds, counts, on, frames = [], [], [], []
+    for name, p in _rig(threads).packets():
+        if name is None:
+            kinds.append("events")
+            counts.append(int(len(p.events)))
+            on.append(float(np.mean(p.events["p"] > 0)) if len(p.events) else 0.0)
+        elif isinstance(p, Frame):
+            kinds.append(str(name))
+            frames.append(
+                {
+                    "timing": [int(p.exposure_start_us), int(p.exposure_end_us), float(p.gain), int(p.sequence)],
+                    "mean_dn": float(p.image.mean()),
+                    "mean_irradiance": float(np.mean(p.truth.mean_irradiance)),
+                    "light_log": float(np.mean(p.truth.light_log)),
+                }
+            )
+        else:
+            kinds.append(f"marker:{p.kind}")
+    return {"kinds": kinds, "counts": counts, "on_fraction": on, "frames": frames}
+
+
 @pytest.mark.parametrize("threads", [True, False])
 def test_simulator_packets_are_those_of_the_code_before_the_speed_work(threads):
-    assert sim_digest(threads) == SIM_DIGEST
+    ref = json.loads(REFERENCE.read_text())
+    got = sim_summary(threads)
+    assert got["kinds"] == ref["kinds"]  # the same packets in the same order
+    counts, ref_counts = np.array(got["counts"]), np.array(ref["counts"])
+    assert abs(counts.sum() / ref_counts.sum() - 1) < 1e-3  # spread across OpenCV releases: 1e-4
+    # the running count (when events arrive) within 0.5 % of the packets so far plus a few hundred events
+    assert np.all(np.abs(np.cumsum(counts) - np.cumsum(ref_counts)) <= 0.005 * np.cumsum(ref_counts) + 300)
+    on, ref_on = np.cumsum(counts * np.array(got["on_fraction"])), np.cumsum(ref_counts * np.array(ref["on_fraction"]))
+    assert np.all(np.abs(on - ref_on) <= 0.005 * ref_on + 300)  # the same for the ON events alone
+    for f, r in zip(got["frames"], ref["frames"], strict=True):
+        assert f["timing"] == r["timing"]
+        assert abs(f["mean_dn"] - r["mean_dn"]) < 0.1  # spread: 0.009 DN
+        assert f["mean_irradiance"] == pytest.approx(r["mean_irradiance"], rel=1e-3)  # spread: 4e-5
+        assert f["light_log"] == pytest.approx(r["light_log"], abs=1e-3)  # spread: 5e-5 ln
+
+
+def test_simulator_packets_are_identical_with_worker_threads_and_without():
+    assert sim_digest(True) == sim_digest(False)
 
 
 class _Record(Observer):
@@ -251,3 +300,9 @@ def test_comp_between_kernel_equals_the_bincount_expression():
     got = np.empty((2, k))
     comp_between(pc, snap, zf, u, a_on, b_on, a_off, b_off, got)
     assert np.array_equal(got, want) and (want > 0).all()
+
+
+if __name__ == "__main__":  # regenerate tests/data/sim_reference.json (see REFERENCE's comment)
+    REFERENCE.parent.mkdir(exist_ok=True)
+    REFERENCE.write_text(json.dumps(sim_summary(False)) + "\n")
+    print(f"wrote {REFERENCE}")
