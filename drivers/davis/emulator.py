@@ -335,6 +335,39 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
     def adc_mhz(self) -> float:
         return EMULATED_CLOCKS[1] * EMULATED_CLOCKS[3] / 1000.0
 
+    # -- DVS biases: the emulated pixel follows them ---------------------------------------------------
+    @property
+    def dvs_family(self) -> str:
+        return "DAVIS240" if self.variant.chip_id in P.DAVIS240_CHIPS else "DAVIS346"
+
+    @property
+    def _dvs_bias_params(self) -> tuple[int, ...]:
+        from necviz.core.biases import BIAS_ADDRESSES, DVS_BIAS_NAMES
+
+        return tuple(BIAS_ADDRESSES[self.dvs_family][n] for n in DVS_BIAS_NAMES)
+
+    def _dvs_params(self):
+        """The simulator's pixel at the bias words in the registers (the simulated DAVIS346 at libcaer's defaults,
+        scaled by the bias model: :func:`~necviz.drivers.sim.dvs.params_for_biases`)."""
+        from necviz.core.biases import DvsBiases
+        from necviz.drivers.sim.dvs import DvsParams, params_for_biases
+
+        words = {p: v for (m, p), v in self.regs.items() if m == P.BIAS.MODULE}
+        fam = self.dvs_family
+        return params_for_biases(DvsParams(), DvsBiases.from_words(words, fam), fam)
+
+    def _ensure_rig(self) -> None:
+        new = self._rig is None
+        super()._ensure_rig()
+        if new and self._rig is not None:  # before its first packet: the run's pixel
+            self._rig.set_dvs_params(self._dvs_params())
+
+    def dvs_applied_us(self) -> int | None:
+        """Device time from which the last bias change holds in the emitted events (``None``: none while streaming)."""
+        rig = self._rig
+        t = None if rig is None else rig.dvs_applied_us()
+        return None if t is None else max(0, int(t) - int(self._base_us))
+
     def reg(self, module: int, param: int) -> int:
         """Current value of a register (0 if never written)."""
         return self.regs.get((module, param), 0)
@@ -397,6 +430,8 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         if key == (P.APS.MODULE, P.APS.EXPOSURE) and self._rig is not None:
             us = max(value / self.adc_mhz, 1.0)
             self._rig.set_exposure("camera", us, 1.0)
+        elif module == P.BIAS.MODULE and param in self._dvs_bias_params and self._rig is not None:
+            self._rig.set_dvs_params(self._dvs_params())  # the pixel follows its biases (issue 29)
         elif key == (P.MUX.MODULE, P.MUX.TIMESTAMP_RESET) and value and self._encoder is not None:
             self._pending += self._encoder.timestamp_reset().tobytes()
             self._base_us = self._rig.now_us if self._rig is not None else 0

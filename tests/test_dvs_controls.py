@@ -1,0 +1,104 @@
+"""DVS biases change the emulated stream: each control's effect on the events the driver decodes (issue 29)."""
+
+import numpy as np
+import pytest
+
+from necviz.core.biases import BiasModel, DvsSettings, DvsState
+from necviz.core.errors import ParameterError
+from necviz.core.events import EventBatch
+from necviz.core.sensor import SensorGeometry
+from necviz.drivers.davis import EmulatedDavis346, EmulatorOptions, open_camera
+from necviz.drivers.davis import protocol as P
+from necviz.drivers.sim.dvs import DvsParams, EventSimulator, params_for_biases
+
+SMALL = SensorGeometry(64, 48)
+REF = DvsSettings(0.26, 0.24, 100.0, 300.0)  # the simulated DAVIS346 at libcaer's default biases
+
+
+def emulated(controls=(), duration_s=0.3, **scene):
+    """Events (t, p) the driver decodes from an emulated camera whose DVS was set with ``controls`` before streaming."""
+    be = EmulatedDavis346(
+        EmulatorOptions(scenario="static_lab", duration_s=duration_s, sensor=SMALL, scenario_params=scene)
+    )
+    cam = open_camera("emulated", backend=be)
+    st = DvsState(BiasModel(cam.dvs_family, REF))
+    for k, v in controls:
+        ch = st.request(k, v)
+        cam.set_dvs_biases(ch.words())
+        st.apply(ch)
+    ev = np.concatenate([p.events for p in cam if isinstance(p, EventBatch)])
+    return ev, be
+
+
+# one slow light ramp (+10 dB over 100 ms at 0.1 s): no refractory or bus limit, so events count crossings
+SLOW = {"steps": [(0.1, 10.0)], "ramp_ms": 100.0, "change_jitter_ms": 0.0}
+# one instantaneous +40 dB step: a pixel crosses many thresholds at once (refractory, bandwidth show)
+FAST = {"steps": [(0.1, 40.0)], "ramp_ms": 0.0, "change_jitter_ms": 0.0}
+
+
+def test_the_driver_writes_the_words_and_the_emulated_pixel_follows():
+    ev, be = emulated([("c_on", 0.15), ("c_off", 0.15), ("refractory_us", 50.0), ("bandwidth_hz", 600.0)])
+    st = DvsState(BiasModel("DAVIS346", REF))
+    on = st.request("c_on", 0.15).words()
+    assert all(be.reg(P.BIAS.MODULE, a) == w for a, w in on.items())  # the 0xC2 request reached the registers
+    p = be._rig.dvs_params
+    assert p.c_on == pytest.approx(0.15, rel=0.01) and p.c_off == pytest.approx(0.15, rel=0.01)
+    assert p.refractory_us == pytest.approx(50.0, rel=0.01) and p.cutoff_hz == pytest.approx(600.0, rel=0.02)
+
+
+def test_lower_thresholds_give_proportionally_more_events():
+    base, _ = emulated(**SLOW)
+    low, _ = emulated([("c_on", 0.13), ("c_off", 0.12)], **SLOW)
+    ratio = len(low) / len(base)
+    assert 1.7 < ratio < 2.3  # crossings scale with 1/c: 0.26/0.13 = 2
+    hi, _ = emulated([("c_on", 0.4)], **SLOW)  # a brightening ramp: ON events, fewer with a higher ON threshold
+    assert (hi["p"] > 0).sum() < 0.8 * (base["p"] > 0).sum()
+
+
+def test_refractory_period_drops_events_of_a_fast_step():
+    base, _ = emulated(**FAST)
+    long, _ = emulated([("refractory_us", 2000.0)], **FAST)
+    short, _ = emulated([("refractory_us", 5.0)], **FAST)
+    assert len(long) < 0.7 * len(base) < 0.7 * len(short)
+
+
+def test_bandwidth_spreads_a_step_over_time():
+    def spread(ev):
+        t = ev["t"][ev["t"] > 95_000]
+        return np.percentile(t, 90) - np.percentile(t, 10)
+
+    base, _ = emulated([("refractory_us", 5.0)], **FAST)
+    slow, _ = emulated([("refractory_us", 5.0), ("bandwidth_hz", 30.0)], **FAST)
+    assert spread(slow) > 3 * spread(base)
+
+
+def test_leak_noise_rises_as_the_threshold_falls():
+    # no light change: only the leak (background activity) and shot noise
+    base, _ = emulated(duration_s=1.0, steps=[], change_jitter_ms=0.0)
+    low, _ = emulated([("c_on", 0.13)], duration_s=1.0, steps=[], change_jitter_ms=0.0)
+    assert len(low) > 1.5 * len(base) > 0
+
+
+def test_retune_mid_run_is_timed_and_refused_from_the_cache():
+    sim = EventSimulator(SMALL, DvsParams(), seed=1)
+    img = np.full(SMALL.shape, 5.0, np.float32)
+    sim.reset(img, 0)
+    sim.step(img + 1.0, 1000)
+    n_before = sim.crossings
+    sim.retune(DvsParams().replace(c_on=0.13))
+    assert sim.retuned_us is None  # not before the next step
+    sim.step(img + 2.0, 2000)
+    assert sim.retuned_us == 1000
+    assert sim.crossings - n_before > 1.6 * n_before  # the same +1 ln now crosses twice as many thresholds
+    with pytest.raises(ParameterError):
+        sim.retune(DvsParams().replace(sigma_threshold=0.05))
+
+
+def test_params_for_biases_is_identity_at_defaults_and_keeps_leak_drift():
+    from necviz.core.biases import DvsBiases
+
+    base = DvsParams()
+    assert params_for_biases(base, DvsBiases.defaults()).as_dict() == pytest.approx(base.as_dict())
+    b = DvsState(BiasModel("DAVIS346", REF)).request("c_on", 0.13).biases
+    p = params_for_biases(base, b)
+    assert p.leak_hz * p.c_on == pytest.approx(base.leak_hz * base.c_on)  # drift (ln per s) unchanged
