@@ -343,14 +343,16 @@ class BiasModel:
             return ref.bandwidth_hz * lo, ref.bandwidth_hz * hi
         raise ParameterError(f"unknown DVS control {key!r}; controls: {', '.join(CONTROLS)}")
 
-    def solve(self, key: str, value: float, b: DvsBiases) -> DvsBiases:
+    def solve(self, key: str, value: float, b: DvsBiases, reach: bool = True) -> DvsBiases:
         """The biases that give ``key = value`` from ``b`` (one or two biases move; the rest are kept).
 
         Raises :class:`ParameterError` (one line) for a value that is not a positive number, or one the
-        biases cannot reach, naming the nearest reachable value.
+        biases cannot reach, naming the nearest reachable value (``reach=False``: the nearest is taken instead).
         """
         v = _positive(f"dvs.{key}", value)
         lo, hi = self.reachable(key, b)
+        if not reach:
+            v = min(max(v, lo), hi)
         if not lo <= v <= hi:
             near = lo if v < lo else hi
             raise ParameterError(
@@ -450,9 +452,11 @@ class DvsState:
     def settings(self) -> DvsSettings:
         return self.model.settings(self.biases)
 
-    def request(self, key: str, value) -> DvsChange:
+    def request(self, key: str, value, reach: bool = True) -> DvsChange:
         """The change that sets ``key`` (``c_on``, ``c_off``, ``refractory_us``, ``bandwidth_hz``,
-        ``ba_filter_us``, ``refractory_filter_us`` or ``bias.NAME``) to ``value`` (a number, or ``"C/F"``)."""
+        ``ba_filter_us``, ``refractory_filter_us`` or ``bias.NAME``) to ``value`` (a number, or ``"C/F"``).
+        ``reach=False`` checks everything but whether the biases reach the value (a check before the camera's
+        reference is known)."""
         key = str(key)
         if key.startswith("dvs."):
             key = key[4:]
@@ -479,7 +483,7 @@ class DvsState:
             self,
             key,
             format_number(float(value)) if _isnum(value) else value,
-            biases=self.model.solve(key, value, self.biases),
+            biases=self.model.solve(key, value, self.biases, reach),
         )
 
     def apply(self, change: DvsChange) -> None:

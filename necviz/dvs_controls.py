@@ -1,0 +1,162 @@
+"""The DVS controls of a running pipeline: biases written to its camera, P-TEDI following them (issue 29).
+
+``dvs.KEY = VALUE`` (tuning prompt, tune file) and ``--dvs KEY=VALUE`` (``live``, ``demo``) go to
+:meth:`DvsControls.set`. Keys: :data:`~necviz.core.biases.CONTROLS` (``c_on``, ``c_off``, ``refractory_us``,
+``bandwidth_hz``, the FPGA's ``ba_filter_us`` and ``refractory_filter_us``) and ``bias.NAME`` (a raw
+``COARSE/FINE``). The bias model (:mod:`necviz.core.biases`) turns a request into bias words; the source writes
+them (``set_dvs_biases``: the live driver through the request that wrote libcaer's defaults, the emulated camera
+and the simulator into their event model). A request is checked whole before anything is written: refused, it
+changes nothing.
+
+P-TEDI follows: each lane's estimator gets ``c = c_profile * model ratio`` (``c_profile``: its thresholds
+before the first change, i.e. the camera profile's, calibrated at libcaer's default biases) through
+``PeripheralEstimator.set_contrast_thresholds``, at the event batch where the change took effect in the stream
+(the source's ``dvs_applied_us``: exact for the simulator and the emulated camera; for a real camera the time
+of the last packet delivered when the biases were written). A request is interpreted against the first lane's
+profile: ``dvs.c_on = 0.15`` asks the camera for 0.15 as that profile measures it.
+"""
+
+from __future__ import annotations
+
+from necviz.core.biases import (
+    BANDWIDTH_ANCHOR_HZ,
+    FILTER_STEP_US,
+    REFRACTORY_ANCHOR_US,
+    BiasModel,
+    DvsSettings,
+    DvsState,
+)
+from necviz.core.errors import ParameterError
+
+#: the prefixes that mark a DVS control at the tuning prompt (``dvs.c_on``, ``bias.DiffBn``)
+PREFIXES = ("dvs", "bias")
+
+
+def parse_assignment(text: str, where: str = "--dvs") -> tuple[str, str]:
+    """``"c_on=0.15"`` (or ``"dvs.c_on=0.15"``, ``"bias.DiffBn=4/39"``) -> ``("c_on", "0.15")``; one-line error."""
+    key, sep, value = str(text).partition("=")
+    key, value = key.strip(), value.strip()
+    if not sep or not key or not value:
+        raise ParameterError(f"{where} takes KEY=VALUE (e.g. c_on=0.2, bias.DiffBn=4/39), got {text!r}")
+    if key.startswith("dvs."):
+        key = key[4:]
+    return key, value
+
+
+def check_assignments(items) -> tuple[tuple[str, str], ...]:
+    """Every ``--dvs`` item parsed and checked against the model (before anything opens); refused in one line."""
+    out = []
+    state = DvsState()
+    for item in items or ():
+        key, value = parse_assignment(item)
+        state.request(key, value, reach=False)  # nonsense is refused here, reachability when applied
+        out.append((key, value))
+    return tuple(out)
+
+
+class DvsControls:
+    """The DVS settings of one pipeline's source and the lanes' P-TEDI thresholds that follow them."""
+
+    def __init__(self, source, lanes: dict):
+        self.source = source
+        self.lanes = lanes
+        self.state: DvsState | None = None
+        self._base: dict[str, tuple[float, float]] = {}  # lane -> P-TEDI (c_on, c_off) at libcaer's default biases
+        self._pending: dict[str, tuple[float, float]] | None = None  # thresholds waiting for the change to show
+        self.followed: dict[str, tuple[float, float]] = {}  # lane -> the thresholds P-TEDI uses since a change
+        self.history: list[dict] = []  # every change: time, key, value, settings
+
+    @property
+    def available(self) -> bool:
+        return callable(getattr(self.source, "set_dvs_biases", None))
+
+    def _ensure_state(self) -> DvsState:
+        if self.state is None:
+            if not self.available:
+                raise ParameterError("this source has no DVS biases to set (a recording is replayed as it was)")
+            from necviz.pipeline import _estimator
+
+            first = _estimator(next(iter(self.lanes.values()))).params
+            base = getattr(self.source, "dvs_base", None)  # the simulator's pixel at the default biases, if known
+            ref = DvsSettings(
+                first.c_on,
+                first.c_off,
+                getattr(base, "refractory_us", REFRACTORY_ANCHOR_US),
+                getattr(base, "cutoff_hz", None) or BANDWIDTH_ANCHOR_HZ,
+            )
+            self.state = DvsState(BiasModel(getattr(self.source, "dvs_family", "DAVIS346"), ref))
+            self._base = {n: (_estimator(ln).params.c_on, _estimator(ln).params.c_off) for n, ln in self.lanes.items()}
+        return self.state
+
+    def set(self, key: str, value, t_us: int | None, started: bool) -> tuple[str, dict]:
+        """Carry out one control: ``(message, data)`` for the tuning log and the recordings.
+
+        ``started``: the stream has delivered packets (else P-TEDI takes the new thresholds at once)."""
+        state = self._ensure_state()
+        change = state.request(key, value)
+        if change.filters:
+            steps = {
+                "ba_filter_us": state.ba_filter_steps,
+                "refractory_filter_us": state.refractory_filter_steps,
+                **change.filters,
+            }
+            ba, refr = (steps[k] * FILTER_STEP_US or None for k in ("ba_filter_us", "refractory_filter_us"))
+            self.source.set_dvs_filters(ba, refr)
+        words = change.words()
+        msg = change.describe()  # before it applies: which words move
+        if words:
+            self.source.set_dvs_biases(words)
+        state.apply(change)
+        s = state.settings()
+        follow = {}
+        if change.biases is not None:
+            r = state.model.ratios(state.biases)
+            follow = {n: (b_on * r.c_on, b_off * r.c_off) for n, (b_on, b_off) in self._base.items()}
+            if not started:
+                self._follow(follow)
+            else:
+                self._pending = follow
+            msg += "; P-TEDI follows" + ("" if not started else " where the change shows in the stream")
+        data = {
+            "dvs": {
+                "key": change.key,
+                "value": str(change.value),
+                "words": {str(a): int(w) for a, w in words.items()},
+                **s.as_dict(),
+                "ba_filter_us": state.ba_filter_steps * FILTER_STEP_US,
+                "refractory_filter_us": state.refractory_filter_steps * FILTER_STEP_US,
+                "ptedi": {n: {"c_on": c[0], "c_off": c[1]} for n, c in follow.items()},
+            }
+        }
+        self.history.append({"t_us": t_us, **data["dvs"]})
+        return msg, data
+
+    @property
+    def pending(self) -> bool:
+        return self._pending is not None
+
+    def follow_if_applied(self, last_event_us: int) -> int | None:
+        """Before a batch ending at ``last_event_us``: if the change shows in it, P-TEDI takes the thresholds
+        (returns the time the change took effect; ``None``: not yet)."""
+        t = self.source.dvs_applied_us() if callable(getattr(self.source, "dvs_applied_us", None)) else None
+        if t is None or last_event_us < t:
+            return None
+        self._follow(self._pending)
+        return t
+
+    def _follow(self, follow: dict) -> None:
+        from necviz.pipeline import _estimator
+
+        self._pending = None
+        for name, (c_on, c_off) in follow.items():
+            _estimator(self.lanes[name]).set_contrast_thresholds(c_on, c_off)
+            self.followed[name] = (c_on, c_off)
+
+    def summary(self) -> dict:
+        """Per lane, the thresholds P-TEDI used at the end (``ptedi: {c_on, c_off}``)."""
+        from necviz.pipeline import _estimator
+
+        return {
+            n: {"c_on": float(_estimator(ln).params.c_on), "c_off": float(_estimator(ln).params.c_off)}
+            for n, ln in self.lanes.items()
+        }
