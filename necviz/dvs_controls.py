@@ -64,6 +64,7 @@ class DvsControls:
         self._base: dict[str, tuple[float, float]] = {}  # lane -> P-TEDI (c_on, c_off) at libcaer's default biases
         self._pending: dict[str, tuple[float, float]] | None = None  # thresholds waiting for the change to show
         self.followed: dict[str, tuple[float, float]] = {}  # lane -> the thresholds P-TEDI uses since a change
+        self.followed_from_us: int | None = None  # stream time the last change took effect
         self.history: list[dict] = []  # every change: time, key, value, settings
 
     @property
@@ -142,6 +143,7 @@ class DvsControls:
         if t is None or last_event_us < t:
             return None
         self._follow(self._pending)
+        self.followed_from_us = int(t)
         return t
 
     def _follow(self, follow: dict) -> None:

@@ -102,3 +102,78 @@ def test_params_for_biases_is_identity_at_defaults_and_keeps_leak_drift():
     b = DvsState(BiasModel("DAVIS346", REF)).request("c_on", 0.13).biases
     p = params_for_biases(base, b)
     assert p.leak_hz * p.c_on == pytest.approx(base.leak_hz * base.c_on)  # drift (ln per s) unchanged
+
+
+# -- the pipeline: tuning lines, P-TEDI following at the packet where the change shows, the summary ----------
+
+
+def sim_pipeline(duration_us=300_000, **scene):
+    from necviz.drivers.sim.rig import RigOptions, SimRig
+    from necviz.drivers.sim.scenes import make_scenario
+    from necviz.pipeline import Lane, Pipeline
+    from necviz.runs import make_controller
+
+    sc = make_scenario("static_lab", sensor=SMALL, duration_us=duration_us, seed=0, **scene)
+    rig = SimRig(sc, ["camera"], seed=0, options=RigOptions(threads=True))
+    lane = Lane("camera", make_controller("nec", sensor=SMALL, limits=rig.camera_info.limits))
+    return rig, Pipeline(rig, [lane], warm_up=False)
+
+
+def test_tuning_lines_for_the_dvs():
+    from necviz.dashboard.tuning import parse
+
+    c = parse("dvs.c_on = 0.2")
+    assert (c.kind, c.key, c.value) == ("dvs", "c_on", "0.2")
+    c = parse("set bias.DiffBn 4/39")
+    assert (c.kind, c.key, c.value) == ("dvs", "bias.DiffBn", "4/39")
+    assert parse("nec.c_on = 0.2").kind == "set"  # a lane's P-TEDI threshold is still its own key
+
+
+def test_ptedi_follows_at_the_batch_where_the_change_shows():
+    from necviz.pipeline import Observer, _estimator
+
+    rig, pipe = sim_pipeline(**SLOW)
+    est = _estimator(pipe.lanes["camera"])
+    c0 = est.params.c_on
+    seen, futs = [], []
+
+    class Watch(Observer):  # called after the lanes took each batch
+        def events(self, batch):
+            seen.append((int(batch["t"][-1]), est.params.c_on))
+            if len(seen) == 20:  # mid-run: queued, applied between two packets
+                futs.append(pipe.tune_dvs("c_on", 0.13))
+
+    pipe.observers.append(Watch())
+    pipe.run()
+    stats = pipe.finish()
+    assert "c_on = 0.13" in futs[0].result(0)
+    # the request is read against the lane's profile: P-TEDI now uses 0.13 (quantised), the simulator 0.13 x 0.26/c0
+    assert est.params.c_on == pytest.approx(0.13, rel=0.01)
+    assert rig.dvs_params.c_on == pytest.approx(0.13 * 0.26 / c0, rel=0.01)
+    t = pipe.dvs.followed_from_us
+    assert t is not None and t > seen[19][0]  # the DVS worker applied it at a later step
+    old = [last for last, c in seen if c == c0]
+    new = [last for last, c in seen if c != c0]
+    assert old and new and max(old) < t <= min(new)  # exactly the first batch holding events after the change
+    assert stats["lanes"]["camera"]["ptedi"] == {"c_on": est.params.c_on, "c_off": est.params.c_off}
+    assert stats["dvs"]["changes"][0]["key"] == "c_on"
+
+
+def test_a_refused_change_changes_nothing():
+    from necviz.dashboard.tuning import parse
+    from necviz.pipeline import _estimator
+
+    rig, pipe = sim_pipeline()
+    est = _estimator(pipe.lanes["camera"])
+    before = (est.params, rig.dvs_params)
+    for line, text in (
+        ("dvs.c_on = -3", "positive number"),
+        ("dvs.c_on = 9", "nearest reachable"),
+        ("bias.X = 1/2", "no coarse/fine"),
+    ):
+        fut = pipe.tune_dvs(parse(line).key, parse(line).value)
+        pipe._apply_changes()
+        with pytest.raises(ParameterError, match=text):
+            fut.result(0)
+    assert (est.params, rig.dvs_params) == before
+    assert pipe.dvs.state is not None and pipe.dvs.state.biases == pipe.dvs.state.model.defaults
