@@ -126,9 +126,11 @@ class DvsControls:
                 **s.as_dict(),
                 "ba_filter_us": state.ba_filter_steps * FILTER_STEP_US,
                 "refractory_filter_us": state.refractory_filter_steps * FILTER_STEP_US,
-                "ptedi": {n: {"c_on": c[0], "c_off": c[1]} for n, c in follow.items()},
+                "ptedi": {n: {"c_on": c[0], "c_off": c[1]} for n, c in follow.items()},  # what P-TEDI takes
             }
         }
+        if follow and not started:  # taken at once (else noted when the change shows in the stream)
+            data["ptedi"] = data["dvs"]["ptedi"]
         self.history.append({"t_us": t_us, **data["dvs"]})
         return msg, data
 

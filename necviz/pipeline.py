@@ -276,7 +276,8 @@ class Pipeline:
 
     def tune_dvs(self, key: str, value) -> Future:
         """Set a DVS control of the source's camera (``c_on``, ``bias.DiffBn``, ...: :mod:`necviz.dvs_controls`)."""
-        return self.submit(lambda p: p.dvs.set(key, value, p.telemetry.now_us, p.telemetry.first_us is not None))
+        # applied between packets, the source already streaming: P-TEDI follows where the change shows
+        return self.submit(lambda p: p.dvs.set(key, value, p.telemetry.now_us, started=True))
 
     def drive(self, controller: str, lane: str | None = None) -> Future:
         """Let controller ``controller`` (a registered name) take over the lane's camera."""

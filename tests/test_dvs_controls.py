@@ -177,3 +177,37 @@ def test_a_refused_change_changes_nothing():
             fut.result(0)
     assert (est.params, rig.dvs_params) == before
     assert pipe.dvs.state is not None and pipe.dvs.state.biases == pipe.dvs.state.model.defaults
+
+
+def test_a_bias_change_is_in_the_rrd_timeline_and_the_native_recording(tmp_path):
+    import sys
+    from pathlib import Path
+
+    import rerun as rr
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from rrd_read import Rrd
+
+    from necviz.dashboard import schema as S
+    from necviz.dashboard.sink import RerunSink, SinkOptions
+    from necviz.drivers.recordings import Recorder, open_recording
+    from necviz.pipeline import RecorderObserver
+
+    rig, pipe = sim_pipeline(duration_us=100_000)
+    rec = rr.RecordingStream("necviz-test")
+    rec.save(str(tmp_path / "t.rrd"))
+    sink = RerunSink(rec, ["camera"], SMALL.height, SMALL.width, SinkOptions(lossless=True))
+    recorder = Recorder(tmp_path / "t.necrec", sensor=SMALL, properties={})
+    pipe.observers += [sink, RecorderObserver(recorder, "camera")]
+    fut = pipe.tune_dvs("c_off", 0.12)  # before the first packet: written at once, noted at the first packet
+    pipe.run().finish()
+    rr.disconnect(rec)
+    assert "c_off = 0.12" in fut.result(0)
+    r = Rrd(tmp_path / "t.rrd")
+    t, v = r.series(f"{S.DVS}/c_off")
+    assert v[-1] == pytest.approx(0.12, rel=0.01)
+    _, v = r.series(S.path("camera", S.PTEDI_C_OFF))
+    assert v[-1] == pytest.approx(0.12, rel=0.01)
+    notes = [n["dvs"] for _, n in open_recording(tmp_path / "t.necrec").annotations if "dvs" in n]
+    assert notes[0]["key"] == "c_off" and notes[0]["c_off"] == pytest.approx(0.12, rel=0.01)
+    assert notes[0]["words"] == {"12": DvsState(BiasModel("DAVIS346", REF)).request("c_off", 0.12).words()[12]}
