@@ -384,7 +384,41 @@ def r_events_heldout(d: dict) -> str:
     return out
 
 
+def r_dvs_biases(d: dict) -> str:
+    rows = []
+    for r in d.get("rows", []):
+        sd, sl = r["sim_default"], r["sim_low"]
+        rows.append(
+            [
+                r["scene"],
+                num(r["live_default"]["events"], 0),
+                num(r["live_low"]["events"], 0),
+                num(r["events_ratio"], 2),
+                num(r["crossings_ratio"], 2),
+                f"{num(sd['lost_bus_ceiling'], 0)} / {num(sl['lost_bus_ceiling'], 0)}",
+                f"{num(sd['lost_refractory'], 0)} / {num(sl['lost_refractory'], 0)}",
+                f"{num(r['live_low']['ptedi']['c_on'], 4)} / {num(r['live_low']['ptedi']['c_off'], 4)}",
+                ", ".join(f"{c['key']}={c['value']}" for c in r["live_low"]["recorded_changes"]),
+            ]
+        )
+    return table(
+        [
+            "scene",
+            "events, default biases",
+            "events, c_on = c_off = 0.15",
+            "ratio",
+            "threshold crossings ratio (simulator)",
+            "lost to the 12 Mev/s bus, default / 0.15",
+            "lost to the refractory period, default / 0.15",
+            "P-TEDI c_on / c_off",
+            "changes in the .necrec",
+        ],
+        rows,
+    )
+
+
 RENDERERS: dict[str, tuple[str, Callable[[dict], str]]] = {
+    "dvs_biases": ("DVS biases on the emulated DAVIS346: events at lower thresholds", r_dvs_biases),
     "events": ("What events add (held-out scenes, test seeds)", r_events_heldout),
     "estimators": ("Estimator throughput (the paper's Table 1)", r_estimators),
     "sim": ("Simulator speed", r_sim),
