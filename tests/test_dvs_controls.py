@@ -211,3 +211,35 @@ def test_a_bias_change_is_in_the_rrd_timeline_and_the_native_recording(tmp_path)
     notes = [n["dvs"] for _, n in open_recording(tmp_path / "t.necrec").annotations if "dvs" in n]
     assert notes[0]["key"] == "c_off" and notes[0]["c_off"] == pytest.approx(0.12, rel=0.01)
     assert notes[0]["words"] == {"12": DvsState(BiasModel("DAVIS346", REF)).request("c_off", 0.12).words()[12]}
+
+
+def test_emulated_camera_mid_run_ptedi_follows_where_the_stream_changes():
+    """The whole live path: the driver writes the words mid-run, the emulated pixel changes at some later device
+    time (the reader reads ahead), and P-TEDI follows at exactly the first batch from that time on."""
+    from necviz.pipeline import Lane, Observer, Pipeline, _estimator
+    from necviz.runs import make_controller
+
+    be = EmulatedDavis346(EmulatorOptions(scenario="static_lab", duration_s=0.4, sensor=SMALL, scenario_params=SLOW))
+    cam = open_camera("emulated", backend=be)
+    lane = Lane("camera", make_controller("nec", sensor=cam.sensor, limits=cam.limits))
+    pipe = Pipeline(cam, [lane], warm_up=False)
+    est = _estimator(lane)
+    c0 = est.params.c_on
+    seen, futs = [], []
+
+    class Watch(Observer):
+        def events(self, batch):
+            seen.append((int(batch["t"][0]), int(batch["t"][-1]), est.params.c_on))
+            if len(seen) == 30:
+                futs.append(pipe.tune_dvs("c_on", 0.13))
+
+    pipe.observers.append(Watch())
+    pipe.run()
+    pipe.finish()
+    assert "c_on = 0.13" in futs[0].result(0)
+    assert be.reg(P.BIAS.MODULE, 11) == DvsState(BiasModel("DAVIS346", REF)).request("c_on", 0.13).words()[11]
+    t = pipe.dvs.followed_from_us
+    old = [last for _, last, c in seen if c == c0]
+    new = [last for _, last, c in seen if c != c0]
+    assert t is not None and old and new and max(old) < t <= min(new)
+    assert est.params.c_on == pytest.approx(0.13, rel=0.01)
