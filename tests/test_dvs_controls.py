@@ -5,7 +5,7 @@ import pytest
 
 from necviz.core.biases import BiasModel, DvsSettings, DvsState
 from necviz.core.errors import ParameterError
-from necviz.core.events import EventBatch
+from necviz.core.events import EVENT_DTYPE, EventBatch
 from necviz.core.sensor import SensorGeometry
 from necviz.drivers.davis import EmulatedDavis346, EmulatorOptions, open_camera
 from necviz.drivers.davis import protocol as P
@@ -243,3 +243,53 @@ def test_emulated_camera_mid_run_ptedi_follows_where_the_stream_changes():
     new = [last for _, last, c in seen if c != c0]
     assert t is not None and old and new and max(old) < t <= min(new)
     assert est.params.c_on == pytest.approx(0.13, rel=0.01)
+
+
+def filtered(controls, load=0.0, **scene):
+    be = EmulatedDavis346(
+        EmulatorOptions(
+            scenario="static_lab",
+            duration_s=0.3,
+            sensor=SMALL,
+            scenario_params=scene,
+            fpga_filters=True,
+            extra_event_rate=load,
+        )
+    )
+    cam = open_camera("emulated", backend=be)
+    st = DvsState(BiasModel(cam.dvs_family, REF))
+    for k, v in controls:
+        ch = st.request(k, v)
+        st.apply(ch)
+        ba, refr = (s * 250 or None for s in (st.ba_filter_steps, st.refractory_filter_steps))
+        cam.set_dvs_filters(ba, refr)
+    ev = np.concatenate([p.events for p in cam if isinstance(p, EventBatch)] or [np.zeros(0, EVENT_DTYPE)])
+    return ev, be
+
+
+def test_fpga_filters_on_the_emulated_stream():
+    # uncorrelated noise only (no light change; the emulator's uniform load, 20 kev/s over 64 x 48 pixels): the
+    # background-activity filter lets through only the ~10 % that a neighbour supports within 2 ms
+    quiet = {"steps": [], "change_jitter_ms": 0.0}
+    off, _ = filtered([("ba_filter_us", 0)], load=20_000.0, **quiet)
+    on, be = filtered([("ba_filter_us", 2000)], load=20_000.0, **quiet)
+    assert len(off) > 4000 and len(on) < 0.2 * len(off)
+    assert be._read(P.DVS.MODULE, P.DVS.STAT_FILTERED_BA + 1) == len(off) - len(on)  # its counter (LSB word)
+    # a fast step: the refractory filter (5 ms) leaves at most one event per pixel and 5 ms
+    ev, _ = filtered([("ba_filter_us", 0), ("refractory_filter_us", 5000)], **FAST)
+    pix = ev["y"].astype(np.int64) * SMALL.width + ev["x"]
+    order = np.lexsort((ev["t"], pix))
+    same = np.diff(pix[order]) == 0
+    assert same.any() and np.diff(ev["t"][order])[same].min() >= 5000
+    base, _ = filtered([("ba_filter_us", 0)], **FAST)
+    assert len(ev) < 0.5 * len(base)
+
+
+def test_filters_on_an_emulated_camera_without_them_are_refused():
+    be = EmulatedDavis346(EmulatorOptions(scenario="static_lab", duration_s=0.1, sensor=SMALL))
+    cam = open_camera("emulated", backend=be)
+    before = be.reg(P.DVS.MODULE, P.DVS.FILTER_BACKGROUND_ACTIVITY_TIME)
+    with pytest.raises(ParameterError, match="fpga_filters"):
+        cam.set_dvs_filters(1000, None)
+    assert be.reg(P.DVS.MODULE, P.DVS.FILTER_BACKGROUND_ACTIVITY_TIME) == before
+    cam.close()

@@ -281,6 +281,12 @@ class DavisCamera(CommandedCamera):
         with self._lock:
             if not self.device.capabilities.get("dvs_background_activity_filter"):
                 raise ParameterError(f"this {self.device.kind}'s logic has no background-activity/refractory filters")
+            backend = getattr(self.device, "backend", None)
+            if self.device.emulated and not getattr(getattr(backend, "options", None), "fpga_filters", True):
+                raise ParameterError(
+                    "the emulated camera does not emulate the FPGA's filters unless asked "
+                    "(EmulatorOptions(fpga_filters=True)); nothing was written"
+                )
             if not self.device.closed and self.state != "waiting":
                 self.device.set_dvs_filters(background_activity_us, refractory_us)
             self._dvs_filters = (background_activity_us, refractory_us)

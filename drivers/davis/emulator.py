@@ -158,6 +158,9 @@ class EmulatorOptions:
     variant : CameraVariant
         The chip and the stream layout the camera presents (default: a DAVIS346B as the FPGA source
         describes it).
+    fpga_filters : bool
+        Emulate the FPGA's background-activity and refractory filters as their registers say
+        (:mod:`.emulator_filters`); off by default, so the stream stays the simulator's events.
     bus, address : int
         Where pyusb reports the device.
 
@@ -181,6 +184,7 @@ class EmulatorOptions:
     serial: str = EMULATED_SERIAL
     aps_orientation: int = 0
     variant: CameraVariant = CameraVariant()
+    fpga_filters: bool = False
     bus: int = 0
     address: int = 1
 
@@ -265,6 +269,11 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         self._rig = None
         self._gen = None
         self._scene_done = False
+        self._filters = None
+        if o.fpga_filters:
+            from necviz.drivers.davis.emulator_filters import FpgaFilters
+
+            self._filters = FpgaFilters(self.sensor.width, self.sensor.height)
         self._power_on()
 
     # -- device state -------------------------------------------------------------------------------
@@ -358,9 +367,23 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
 
     def _ensure_rig(self) -> None:
         new = self._rig is None
+        if self._encoder is None and self._filters is not None:  # streaming (re)starts: the filters' memory too
+            self._filters.reset()
         super()._ensure_rig()
         if new and self._rig is not None:  # before its first packet: the run's pixel
             self._rig.set_dvs_params(self._dvs_params())
+
+    def _put_events(self, ev: np.ndarray) -> None:
+        if self._filters is not None and ev.size:
+            D = P.DVS
+            ba = self.reg(D.MODULE, D.FILTER_BACKGROUND_ACTIVITY) * self.reg(
+                D.MODULE, D.FILTER_BACKGROUND_ACTIVITY_TIME
+            )
+            refr = self.reg(D.MODULE, D.FILTER_REFRACTORY_PERIOD) * self.reg(D.MODULE, D.FILTER_REFRACTORY_PERIOD_TIME)
+            ev = self._filters.apply(ev, 250 * ba, 250 * refr)
+            if ev.size == 0:
+                return
+        super()._put_events(ev)
 
     def dvs_applied_us(self) -> int | None:
         """Device time from which the last bias change holds in the emitted events (``None``: none while streaming)."""
@@ -412,6 +435,9 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         if module == P.MUX.MODULE and param in (P.MUX.STAT_DVS_DROPPED, P.MUX.STAT_DVS_DROPPED + 1):
             v = self.dvs_dropped  # 64-bit counter: MSB word, then LSB word
             return (v >> 32) & 0xFFFFFFFF if param == P.MUX.STAT_DVS_DROPPED else v & 0xFFFFFFFF
+        if module == P.DVS.MODULE and param in (89, 90, 91, 92) and self._filters is not None:
+            v = int(self._filters.counts[0 if param < 91 else 1])  # FILTERED_BA, FILTERED_REFRACTORY (64-bit)
+            return (v >> 32) & 0xFFFFFFFF if param in (89, 91) else v & 0xFFFFFFFF
         if module in (P.MUX.MODULE, P.DVS.MODULE) and 81 <= param <= 92:
             return 0  # the other statistics counters: nothing dropped or filtered
         return self.reg(module, param)
