@@ -74,7 +74,10 @@ class DvsControls:
     def _ensure_state(self) -> DvsState:
         if self.state is None:
             if not self.available:
-                raise ParameterError("this source has no DVS biases to set (a recording is replayed as it was)")
+                raise ParameterError(
+                    f"{type(self.source).__name__} takes no DVS bias changes (the simulator, the emulated camera and "
+                    "necviz's USB driver do; a recording is replayed as it was)"
+                )
             from necviz.pipeline import _estimator
 
             first = _estimator(next(iter(self.lanes.values()))).params
