@@ -293,3 +293,19 @@ def test_filters_on_an_emulated_camera_without_them_are_refused():
         cam.set_dvs_filters(1000, None)
     assert be.reg(P.DVS.MODULE, P.DVS.FILTER_BACKGROUND_ACTIVITY_TIME) == before
     cam.close()
+
+
+def test_davis240_biases_on_the_emulated_davis240():
+    from necviz.drivers.davis.emulator import CameraVariant
+
+    be = EmulatedDavis346(
+        EmulatorOptions(scenario="static_lab", duration_s=0.1, sensor=SMALL, variant=CameraVariant(chip_id=2))
+    )
+    cam = open_camera("emulated", backend=be)
+    assert cam.dvs_family == "DAVIS240"
+    st = DvsState(BiasModel(cam.dvs_family, REF))
+    ch = st.request("c_on", 0.2)
+    assert set(ch.words()) == {1}  # DAVIS240_CONFIG_BIAS_ONBN
+    cam.set_dvs_biases(ch.words())
+    list(cam)
+    assert be._rig.dvs_params.c_on == pytest.approx(0.2, rel=0.01)
