@@ -414,6 +414,13 @@ def r_dvs_biases(d: dict) -> str:
             "changes in the .necrec",
         ],
         rows,
+    ) + (
+        "\n\nIssue 29 asked for at least 1.5x the events on `static_lab` at c = 0.15: **not met** on the default "
+        "scene. Its events come from four light steps with 1 ms ramps; their threshold crossings (x1.7 at the lower "
+        "thresholds, as 0.26/0.15 predicts) far exceed what the 100 µs refractory period and the 12 Mev/s event bus "
+        "let through, so most of the added crossings are lost there (columns 6-7). With slower light changes "
+        "(`--set ramp_ms=300`) the added events arrive until the bus binds again. P-TEDI's thresholds and the "
+        "recorded change are read back from the same runs."
     )
 
 
