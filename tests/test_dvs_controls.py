@@ -309,3 +309,36 @@ def test_davis240_biases_on_the_emulated_davis240():
     cam.set_dvs_biases(ch.words())
     list(cam)
     assert be._rig.dvs_params.c_on == pytest.approx(0.2, rel=0.01)
+
+
+def test_scene_cache_and_a_mid_run_change(tmp_path):
+    """A stream whose DVS changed mid-run is not cached; one replayed from the cache refuses a mid-run change."""
+    from necviz.drivers.sim.rig import SimRig
+    from necviz.drivers.sim.scene_cache import SceneCache
+    from necviz.drivers.sim.scenes import make_scenario
+
+    cache = SceneCache(tmp_path)
+
+    def rig():
+        sc = make_scenario("static_lab", sensor=SMALL, duration_us=150_000, seed=0, **SLOW)
+        return SimRig(sc, ["camera"], seed=0, cache=cache)
+
+    r = rig()
+    for i, _ in enumerate(r.packets()):
+        if i == 10:
+            r.set_dvs_params(DvsParams().replace(c_on=0.13))
+    assert not r.cache_written  # the stream is not the one its key describes
+    r = rig()
+    list(r.packets())
+    assert r.cache_written
+    r = rig()
+    gen = r.packets()
+    next(gen)
+    assert r.samples_cached > 0
+    with pytest.raises(ParameterError, match="scene cache"):
+        r.set_dvs_params(DvsParams().replace(c_on=0.13))
+    gen.close()
+    r2 = rig()
+    r2.set_dvs_params(DvsParams().replace(c_on=0.13))  # before the run: another stream, simulated
+    list(r2.packets())
+    assert r2.samples_cached == 0 and r2.dvs_params.c_on == 0.13

@@ -204,6 +204,7 @@ class SimRig:
         self._dvs_words: dict[int, int] = {}
         self._dvs_sim: EventSimulator | None = None  # the running event model (None: not started, or cached)
         self._dvs_live = False  # set: the DVS changed while running, so this stream is not the cache's
+        self._dvs_from_cache = False  # set while the events are read from the scene cache
         self.aps = aps or ApsParams()
         self.crf = crf or default_davis346()
         self.seed = int(seed)
@@ -291,7 +292,7 @@ class SimRig:
         the run's; while running they apply from the next DVS step (:meth:`dvs_applied_us` says when).
 
         Raises :class:`ParameterError` while the events come from the scene cache (they are not simulated)."""
-        if self._dvs_sim is None and self.now_us > 0:
+        if self._dvs_from_cache:
             raise ParameterError(
                 "this run replays its events from the scene cache, so the DVS cannot change mid-run; "
                 "set it at the start (--dvs KEY=VALUE)"
@@ -476,6 +477,7 @@ class SimRig:
         self._lost.clear()
         self._lost.append((0, 0, 0))
         dvs = None
+        self._dvs_from_cache = reader is not None
         if reader is not None:  # the scene and its events from the cache: nothing to render or simulate
             lin0, trace0 = reader.first()
             self.samples_cached += 1
@@ -633,6 +635,7 @@ class SimRig:
             for pool in pools:  # the render worker first: it feeds the DVS worker
                 pool.shutdown(wait=True, cancel_futures=True)
             self._dvs_sim = None
+            self._dvs_from_cache = False
 
     def warm_up(self) -> None:
         """Compile or load the simulator's kernels (events, frame formation) before the run: a throwaway rig
