@@ -305,6 +305,12 @@ class BiasModel:
     def defaults(self) -> DvsBiases:
         return DEFAULT_DVS_BIASES[self.family]
 
+    @property
+    def ref(self) -> DvsSettings:
+        """The settings at libcaer's default biases (``reference``, filled in by the constructor)."""
+        assert self.reference is not None
+        return self.reference
+
     def ratios(self, b: DvsBiases) -> DvsSettings:
         """Each setting at ``b`` over its value at libcaer's defaults (1 at the defaults)."""
         d = self.defaults
@@ -317,7 +323,7 @@ class BiasModel:
 
     def settings(self, b: DvsBiases) -> DvsSettings:
         """What the biases ``b`` give (reference x the model's ratio)."""
-        r, ref = self.ratios(b), self.reference
+        r, ref = self.ratios(b), self.ref
         return DvsSettings(
             ref.c_on * r.c_on,
             ref.c_off * r.c_off,
@@ -327,7 +333,7 @@ class BiasModel:
 
     def reachable(self, key: str, b: DvsBiases) -> tuple[float, float]:
         """The range of ``key`` the biases reach from ``b`` (the other biases kept)."""
-        ref, d = self.reference, self.defaults
+        ref, d = self.ref, self.defaults
         on0, off0 = threshold_logs(d)
         i_d = _current_or_step(b.diff)
         if key == "c_on":
@@ -359,7 +365,7 @@ class BiasModel:
                 f"dvs.{key} = {format_number(v)} is beyond what the {self.family}'s biases reach "
                 f"({_fmt(lo)}..{_fmt(hi)}); nearest reachable: {_fmt(near)}"
             )
-        ref, d = self.reference, self.defaults
+        ref, d = self.ref, self.defaults
         on0, off0 = threshold_logs(d)
         i_d = _current_or_step(b.diff)
         if key == "c_on":
@@ -446,11 +452,17 @@ class DvsState:
             self.biases = self.model.defaults
 
     @property
+    def current(self) -> DvsBiases:
+        """The biases now (``biases``, never ``None`` after construction)."""
+        assert self.biases is not None
+        return self.biases
+
+    @property
     def family(self) -> str:
         return self.model.family
 
     def settings(self) -> DvsSettings:
-        return self.model.settings(self.biases)
+        return self.model.settings(self.current)
 
     def request(self, key: str, value, reach: bool = True) -> DvsChange:
         """The change that sets ``key`` (``c_on``, ``c_off``, ``refractory_us``, ``bandwidth_hz``,
@@ -471,7 +483,7 @@ class DvsState:
             c, f = parse_coarse_fine(key[5:], value)
             if name in DVS_BIAS_NAMES:
                 fld = _FIELDS[DVS_BIAS_NAMES.index(name)]
-                b = replace(self.biases, **{fld: replace(getattr(self.biases, fld), coarse=c, fine=f)})
+                b = replace(self.current, **{fld: replace(getattr(self.current, fld), coarse=c, fine=f)})
                 return DvsChange(self, f"bias.{name}", f"{c}/{f}", biases=b)
             return DvsChange(self, f"bias.{name}", f"{c}/{f}", raw={addr: (c, f)})
         if key in ("ba_filter_us", "refractory_filter_us"):
@@ -483,7 +495,7 @@ class DvsState:
             self,
             key,
             format_number(float(value)) if _isnum(value) else value,
-            biases=self.model.solve(key, value, self.biases, reach),
+            biases=self.model.solve(key, value, self.current, reach),
         )
 
     def apply(self, change: DvsChange) -> None:
@@ -517,7 +529,7 @@ class DvsChange:
         fam = self.state.family
         out = {}
         if self.biases is not None:
-            old = self.state.biases.words(fam)
+            old = self.state.current.words(fam)
             out.update({a: w for a, w in self.biases.words(fam).items() if old[a] != w})
         for addr, (c, f) in self.raw.items():
             name = next(n for n, a in BIAS_ADDRESSES[fam].items() if a == addr)
@@ -526,7 +538,7 @@ class DvsChange:
 
     def settings(self) -> DvsSettings:
         """The settings after the change (the model's estimate)."""
-        return self.state.model.settings(self.biases if self.biases is not None else self.state.biases)
+        return self.state.model.settings(self.biases if self.biases is not None else self.state.current)
 
     def describe(self) -> str:
         """One line: what was asked, what the biases give, which words moved."""

@@ -560,7 +560,7 @@ class Pipeline:
         stats = {**self.telemetry.summary(), "wall_s": self.wall_s, **extra}
         for name, th in self.dvs.summary().items():  # the thresholds P-TEDI used at the end, beside its events
             stats["lanes"][name]["ptedi"] = th
-        if self.dvs.history:
+        if self.dvs.history and self.dvs.state is not None:
             stats["dvs"] = {"changes": self.dvs.history, **self.dvs.state.settings().as_dict()}
         if err is not None:
             raise err
