@@ -129,6 +129,36 @@ def test_tuning_lines_for_the_dvs():
     assert parse("nec.c_on = 0.2").kind == "set"  # a lane's P-TEDI threshold is still its own key
 
 
+def test_help_lists_the_dvs_controls_only_where_the_source_has_them():
+    from necviz.dashboard.tuning import help_text, keys
+    from necviz.pipeline import Lane, Pipeline
+
+    _, pipe = sim_pipeline()
+    assert {"dvs.c_on", "dvs.refractory_us", "dvs.ba_filter_us", "bias.NAME"} <= set(keys(pipe))
+    assert "dvs.bandwidth_hz" in help_text(pipe)
+
+    class Replay:  # a recording: no DVS to set
+        from necviz.drivers.source import CameraInfo
+
+        cameras = ("camera",)
+        sensor = SMALL
+        camera_info = CameraInfo()
+
+        def packets(self):
+            return iter(())
+
+        def set_exposure(self, *a, **k):
+            pass
+
+    lane = pipe.lanes["camera"]
+    rec = Pipeline(Replay(), [Lane("camera", lane.controller)], warm_up=False)
+    assert not any(k.startswith("dvs.") for k in keys(rec))
+    fut = rec.tune_dvs("c_on", 0.2)
+    rec._apply_changes()
+    with pytest.raises(ParameterError, match="takes no DVS bias changes"):
+        fut.result(0)
+
+
 def test_ptedi_follows_at_the_batch_where_the_change_shows():
     from necviz.pipeline import Observer, _estimator
 
