@@ -54,6 +54,13 @@ def check_assignments(items) -> tuple[tuple[str, str], ...]:
     return tuple(out)
 
 
+def _estimator(lane):
+    """A pipeline lane's P-TEDI estimator (``Lane.estimator``: a pipeline gives every lane one)."""
+    est = lane.estimator
+    assert est is not None
+    return est
+
+
 class DvsControls:
     """The DVS settings of one pipeline's source and the lanes' P-TEDI thresholds that follow them."""
 
@@ -78,8 +85,6 @@ class DvsControls:
                     f"{type(self.source).__name__} takes no DVS bias changes (the simulator, the emulated camera and "
                     "necviz's USB driver do; a recording is replayed as it was)"
                 )
-            from necviz.pipeline import _estimator
-
             first = _estimator(next(iter(self.lanes.values()))).params
             base = getattr(self.source, "dvs_base", None)  # the simulator's pixel at the default biases, if known
             ref = DvsSettings(
@@ -152,8 +157,6 @@ class DvsControls:
         return t
 
     def _follow(self, follow: dict) -> None:
-        from necviz.pipeline import _estimator
-
         self._pending = None
         for name, (c_on, c_off) in follow.items():
             _estimator(self.lanes[name]).set_contrast_thresholds(c_on, c_off)
@@ -161,8 +164,6 @@ class DvsControls:
 
     def summary(self) -> dict:
         """Per lane, the thresholds P-TEDI used at the end (``ptedi: {c_on, c_off}``)."""
-        from necviz.pipeline import _estimator
-
         return {
             n: {"c_on": float(_estimator(ln).params.c_on), "c_off": float(_estimator(ln).params.c_off)}
             for n, ln in self.lanes.items()
