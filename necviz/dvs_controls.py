@@ -46,10 +46,15 @@ def parse_assignment(text: str, where: str = "--dvs") -> tuple[str, str]:
 def check_assignments(items) -> tuple[tuple[str, str], ...]:
     """Every ``--dvs`` item parsed and checked against the model (before anything opens); refused in one line."""
     out = []
-    state = DvsState()
+    states = (DvsState(), DvsState(BiasModel("DAVIS240")))  # the camera is not known yet: either chip's names
     for item in items or ():
         key, value = parse_assignment(item)
-        state.request(key, value, reach=False)  # nonsense is refused here, reachability when applied
+        try:
+            states[0].request(key, value, reach=False)  # nonsense is refused here, reachability when applied
+        except ParameterError:
+            if not key.startswith("bias."):
+                raise
+            states[1].request(key, value, reach=False)
         out.append((key, value))
     return tuple(out)
 
