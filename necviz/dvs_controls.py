@@ -51,10 +51,13 @@ def check_assignments(items) -> tuple[tuple[str, str], ...]:
         key, value = parse_assignment(item)
         try:
             states[0].request(key, value, reach=False)  # nonsense is refused here, reachability when applied
-        except ParameterError:
+        except ParameterError as first:
             if not key.startswith("bias."):
                 raise
-            states[1].request(key, value, reach=False)
+            try:
+                states[1].request(key, value, reach=False)
+            except ParameterError:
+                raise first from None
         out.append((key, value))
     return tuple(out)
 
