@@ -47,6 +47,7 @@ from necviz.core.ptedi import PeripheralEstimator
 from necviz.core.stream import packet_time_us
 from necviz.dashboard import schema as S
 from necviz.dashboard.telemetry import FrameRecord, Telemetry
+from necviz.dvs_controls import DvsControls
 
 #: Thresholds of the lane's P-TEDI estimator, tunable like the controller's own parameters.
 THRESHOLD_KEYS = ("c_on", "c_off", "c")
@@ -208,8 +209,6 @@ class Pipeline:
         self._pending: list = []  # (function, future): changes applied between packets
         self._finished = False
         self._thread: threading.Thread | None = None
-        from necviz.dvs_controls import DvsControls
-
         self.dvs = DvsControls(source, self.lanes)  # the camera's DVS biases, P-TEDI following them (issue 29)
 
     # -- what the run has seen so far (read from any thread) ------------------------------------
