@@ -19,27 +19,29 @@ Two halves, both pure (no device, no I/O):
 **Model** (an estimate; a per-camera calibration refines it — ``necviz calibrate`` at the new setting):
 
 * Contrast thresholds (Nozaki & Delbruck, "Temperature and Parasitic Photocurrent Effects in Dynamic
-  Vision Sensors", IEEE TED 64(8), 2017, Eq. 2-3; the same relation drives jAER's
-  ``DavisConfig``/``DVSTweaks`` threshold sliders)::
+  Vision Sensors", IEEE TED 64(8), 2017, Eq. 2-3; jAER's ``DavisConfig.getOnThresholdLogE`` and
+  ``getOffThresholdLogE`` compute the same with ``kappa_n = kappa_p = 0.7`` and ``C1/C2 = 20``)::
 
       theta_on  = (kappa_n / kappa_p^2) * (C2 / C1) * ln(I_on  / I_diff)
       theta_off = (kappa_n / kappa_p^2) * (C2 / C1) * ln(I_diff / I_off)
 
-  with ``I_diff, I_on, I_off`` the DiffBn, OnBn and OffBn currents. The prefactor (~0.07 for
-  ``kappa ~ 0.7`` and ``C1/C2 ~ 20``) varies per chip and with temperature, so necviz uses only the
-  model's *ratios*: a camera whose calibrated thresholds at libcaer's default biases are
-  ``c_on0, c_off0`` (its profile) has ``c_on = c_on0 * ln(I_on/I_diff) / ln(I_on0/I_diff0)`` at other
-  biases (and likewise OFF). Requests move OnBn (ON) or OffBn (OFF) and keep DiffBn, so each threshold
-  changes alone.
-* Refractory period: RefrBp's current recharges the pixel's reset switch after an event, so the dead
-  time is ``T = C * dV / I_refr`` (Lichtsteiner, Posch & Delbruck, IEEE JSSC 43(2), 2008, Sec. III):
-  ``T = T0 * I_refr0 / I_refr``.
-* Bandwidth: the photoreceptor (PrBp) and its source follower (PrSFBp) are two poles in series, each
-  with a cut-off proportional to its bias current in bright light (ibid.; Delbruck & Mead 1994), taken
-  as ``1/f = (1/f0) * (I_pr0/I_pr + I_sf0/I_sf) / 2``; a request scales both currents by ``f/f0``.
-  In dim light the photocurrent, not the bias, limits the bandwidth (the simulator models that).
-* ``T0`` and ``f0`` (the refractory period and bandwidth at libcaer's defaults) are anchors, not
-  measurements: by default those of necviz's simulated DAVIS346 (100 µs, 300 Hz).
+  with ``I_diff, I_on, I_off`` the DiffBn, OnBn and OffBn currents. The prefactor (~0.07) varies per chip
+  and with temperature, so necviz uses only the model's *ratios*: a camera whose calibrated thresholds at
+  libcaer's default biases are ``c_on0, c_off0`` (its profile) has
+  ``c_on = c_on0 * ln(I_on/I_diff) / ln(I_on0/I_diff0)`` at other biases (and likewise OFF). Requests move
+  OnBn (ON) or OffBn (OFF) and keep DiffBn, so each threshold changes alone.
+* Refractory period: RefrBp's current recharges the pixel's reset node after an event, so the dead time is
+  ``T = C * dV / I_refr`` (Lichtsteiner, Posch & Delbruck, IEEE JSSC 43(2), 2008; jAER's
+  ``DavisConfig.getRefractoryPeriodS`` with C = 20 fF, dV = 0.8 V): ``T = T0 * I_refr0 / I_refr``.
+* Bandwidth: the photoreceptor's source follower (PrSFBp) sets the cut-off in bright light,
+  ``f = I_sf / (2 pi U_T C1)`` (jAER's ``DavisConfig.getPhotoreceptorSourceFollowerBandwidthHz``, C1 = 131 fF,
+  U_T = 25 mV), valid while ``I_sf < I_pr / 2``; beyond that the photoreceptor (PrBp) limits it, taken here as
+  ``f ∝ min(I_sf, I_pr / 2)``: ``f = f0 * min(I_sf, I_pr/2) / min(I_sf0, I_pr0/2)``. A request scales both
+  currents by ``f/f0``. In dim light the photocurrent, not the bias, limits the bandwidth (the simulator
+  models that).
+* ``T0`` and ``f0`` (the refractory period and bandwidth at libcaer's defaults) come from the reference: a
+  camera's are jAER's estimates (3.4 µs, 287 Hz: :func:`physical_settings`); the simulated DAVIS346's are its
+  own parameters (100 µs, 300 Hz), which the emulated camera and the simulator scale.
 
 Limits: a request the bias currents cannot reach (e.g. an ON threshold needing more than 24.8 µA of OnBn)
 is refused with the nearest reachable value; quantisation to 255 fine steps moves a threshold by well under
@@ -246,11 +248,13 @@ class DvsSettings:
         return {k: float(getattr(self, k)) for k in ("c_on", "c_off", "refractory_us", "bandwidth_hz")}
 
 
-#: the model's physical prefactor (kappa_n / kappa_p^2) * (C2 / C1) for kappa = 0.7, C1/C2 = 20 (an estimate)
+#: the model's physical prefactor (kappa_n / kappa_p^2) * (C2 / C1) for kappa = 0.7, C1/C2 = 20 (jAER's estimate)
 THRESHOLD_PREFACTOR = 0.7 / 0.7**2 / 20.0
-#: anchors at libcaer's default biases when nothing better is known (necviz's simulated DAVIS346)
-REFRACTORY_ANCHOR_US = 100.0
-BANDWIDTH_ANCHOR_HZ = 300.0
+#: refractory charge C * dV (C): 20 fF x 0.8 V (jAER ``DavisConfig``, "guesstimated")
+REFRACTORY_CHARGE_C = 20e-15 * 0.8
+#: photoreceptor load capacitance C1 (F) and the thermal voltage U_T (V) (jAER ``DavisConfig``)
+PHOTORECEPTOR_C1_F = 131.167e-15
+THERMAL_VOLTAGE_V = 25e-3
 
 
 def _current_or_step(cf: CoarseFine) -> float:
@@ -265,9 +269,23 @@ def threshold_logs(b: DvsBiases) -> tuple[float, float]:
     return math.log(i_on / i_d), math.log(i_d / i_off)
 
 
-def physical_settings(b: DvsBiases, family: str = "DAVIS346") -> DvsSettings:
-    """The model's absolute estimate at ``b`` (thresholds from :data:`THRESHOLD_PREFACTOR`, anchored refractory/bandwidth)."""
-    return BiasModel(family, reference=None).settings(b)
+def _bandwidth_current(b: DvsBiases) -> float:
+    """The current that sets the cut-off: the source follower's, or half the photoreceptor's when that is less."""
+    return min(_current_or_step(b.prsf), 0.5 * _current_or_step(b.pr))
+
+
+def physical_settings(b: DvsBiases) -> DvsSettings:
+    """The model's absolute estimate at ``b`` with jAER's constants (``DavisConfig``: thresholds from
+    :data:`THRESHOLD_PREFACTOR`, ``T = C dV / I_refr``, ``f = I / (2 pi U_T C1)``)."""
+    on, off = threshold_logs(b)
+    i_refr = _current_or_step(b.refr) * 1e-12
+    i_bw = _bandwidth_current(b) * 1e-12
+    return DvsSettings(
+        THRESHOLD_PREFACTOR * on,
+        THRESHOLD_PREFACTOR * off,
+        REFRACTORY_CHARGE_C / i_refr * 1e6,
+        i_bw / (2 * math.pi * THERMAL_VOLTAGE_V * PHOTORECEPTOR_C1_F),
+    )
 
 
 #: keys of the named controls (``dvs.KEY``), with unit and meaning
@@ -295,11 +313,7 @@ class BiasModel:
     def __post_init__(self) -> None:
         object.__setattr__(self, "family", family_of(self.family))
         if self.reference is None:
-            on, off = threshold_logs(DEFAULT_DVS_BIASES[self.family])
-            ref = DvsSettings(
-                THRESHOLD_PREFACTOR * on, THRESHOLD_PREFACTOR * off, REFRACTORY_ANCHOR_US, BANDWIDTH_ANCHOR_HZ
-            )
-            object.__setattr__(self, "reference", ref)
+            object.__setattr__(self, "reference", physical_settings(DEFAULT_DVS_BIASES[self.family]))
 
     @property
     def defaults(self) -> DvsBiases:
@@ -316,10 +330,8 @@ class BiasModel:
         d = self.defaults
         on0, off0 = threshold_logs(d)
         on, off = threshold_logs(b)
-        cur = _current_or_step
-        refr = cur(d.refr) / cur(b.refr)
-        inv = 0.5 * (cur(d.pr) / cur(b.pr) + cur(d.prsf) / cur(b.prsf))
-        return DvsSettings(on / on0, off / off0, refr, 1.0 / inv)
+        refr = _current_or_step(d.refr) / _current_or_step(b.refr)
+        return DvsSettings(on / on0, off / off0, refr, _bandwidth_current(b) / _bandwidth_current(d))
 
     def settings(self, b: DvsBiases) -> DvsSettings:
         """What the biases ``b`` give (reference x the model's ratio)."""

@@ -18,14 +18,7 @@ profile: ``dvs.c_on = 0.15`` asks the camera for 0.15 as that profile measures i
 
 from __future__ import annotations
 
-from necviz.core.biases import (
-    BANDWIDTH_ANCHOR_HZ,
-    FILTER_STEP_US,
-    REFRACTORY_ANCHOR_US,
-    BiasModel,
-    DvsSettings,
-    DvsState,
-)
+from necviz.core.biases import FILTER_STEP_US, BiasModel, DvsBiases, DvsSettings, DvsState, physical_settings
 from necviz.core.errors import ParameterError
 
 #: the prefixes that mark a DVS control at the tuning prompt (``dvs.c_on``, ``bias.DiffBn``)
@@ -94,14 +87,18 @@ class DvsControls:
                     "necviz's USB driver do; a recording is replayed as it was)"
                 )
             first = _estimator(next(iter(self.lanes.values()))).params
-            base = getattr(self.source, "dvs_base", None)  # the simulator's pixel at the default biases, if known
+            family = getattr(self.source, "dvs_family", "DAVIS346")
+            # refractory period and bandwidth at the default biases: the simulator's own pixel where there is one
+            # (the simulator, the emulated camera), else the model's estimate (jAER's constants)
+            base = getattr(self.source, "dvs_base", None) or getattr(self.source, "dvs_pixel", None)
+            phys = physical_settings(DvsBiases.defaults(family))
             ref = DvsSettings(
                 first.c_on,
                 first.c_off,
-                getattr(base, "refractory_us", REFRACTORY_ANCHOR_US),
-                getattr(base, "cutoff_hz", None) or BANDWIDTH_ANCHOR_HZ,
+                getattr(base, "refractory_us", phys.refractory_us),
+                getattr(base, "cutoff_hz", None) or phys.bandwidth_hz,
             )
-            self.state = DvsState(BiasModel(getattr(self.source, "dvs_family", "DAVIS346"), ref))
+            self.state = DvsState(BiasModel(family, ref))
             self._base = {n: (_estimator(ln).params.c_on, _estimator(ln).params.c_off) for n, ln in self.lanes.items()}
         return self.state
 

@@ -64,6 +64,15 @@ def test_model_at_defaults_and_physical_estimate():
     phys = physical_settings(m.defaults)
     # Nozaki & Delbruck's prefactor with kappa 0.7, C1/C2 = 20 puts libcaer's defaults near the nominal DAVIS346
     assert 0.2 < phys.c_on < 0.35 and 0.2 < phys.c_off < 0.35
+    # jAER DavisConfig's estimates at libcaer's defaults: T = 20 fF x 0.8 V / I(RefrBp 4/25),
+    # f = I(PrSFBp 1/16) / (2 pi 25 mV 131.167 fF)
+    assert phys.refractory_us == pytest.approx(20e-15 * 0.8 / (48437 * 25 / 255 * 1e-12) * 1e6)
+    assert phys.bandwidth_hz == pytest.approx(94 * 16 / 255 * 1e-12 / (2 * math.pi * 25e-3 * 131.167e-15))
+    assert 3 < phys.refractory_us < 4 and 250 < phys.bandwidth_hz < 320
+    # PrBp only matters once the follower's current exceeds half the photoreceptor's
+    st = DvsState(BiasModel(reference=REF))
+    assert st.request("bias.PrBp", "2/20").settings().bandwidth_hz == pytest.approx(300.0)
+    assert st.request("bias.PrBp", "0/200").settings().bandwidth_hz < 300.0
     on, off = threshold_logs(m.defaults)
     assert on == pytest.approx(math.log(387500 / (48437 * 39 / 255)))
     assert off == pytest.approx(math.log(39.0))

@@ -273,6 +273,9 @@ def test_emulated_camera_mid_run_ptedi_follows_where_the_stream_changes():
     new = [last for _, last, c in seen if c != c0]
     assert t is not None and old and new and max(old) < t <= min(new)
     assert est.params.c_on == pytest.approx(0.13, rel=0.01)
+    # the emulated camera's pixel at the default biases is its simulator's, which the request is read against
+    ref = pipe.dvs.state.model.ref
+    assert (ref.refractory_us, ref.bandwidth_hz) == (DvsParams().refractory_us, DvsParams().cutoff_hz)
 
 
 def filtered(controls, load=0.0, **scene):

@@ -266,6 +266,13 @@ class DavisCamera(CommandedCamera):
         """The bias table the chip uses: ``"DAVIS240"`` or ``"DAVIS346"``."""
         return "DAVIS240" if self.device.kind == "DAVIS240" else "DAVIS346"
 
+    @property
+    def dvs_pixel(self):
+        """The pixel at libcaer's default biases where it is known: an emulated camera's (its simulator's
+        ``DvsParams``); ``None`` for a camera (the bias model then estimates it)."""
+        backend = getattr(self.device, "backend", None)
+        return getattr(backend, "dvs_base", None) if self.device.emulated else None
+
     def set_dvs_biases(self, words: dict[int, int]) -> None:
         """Write DVS bias words (module-5 parameter -> word, :mod:`necviz.core.biases`) through the path that
         wrote the defaults (:meth:`~.device.DavisDevice.set_biases`, one 0xC2 request)."""

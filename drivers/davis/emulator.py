@@ -355,15 +355,22 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
 
         return tuple(BIAS_ADDRESSES[self.dvs_family][n] for n in DVS_BIAS_NAMES)
 
+    @property
+    def dvs_base(self):
+        """The emulated pixel at libcaer's default biases: the simulated DAVIS346 (``DvsParams()``)."""
+        from necviz.drivers.sim.dvs import DvsParams
+
+        return DvsParams()
+
     def _dvs_params(self):
         """The simulator's pixel at the bias words in the registers (the simulated DAVIS346 at libcaer's defaults,
         scaled by the bias model: :func:`~necviz.drivers.sim.dvs.params_for_biases`)."""
         from necviz.core.biases import DvsBiases
-        from necviz.drivers.sim.dvs import DvsParams, params_for_biases
+        from necviz.drivers.sim.dvs import params_for_biases
 
         words = {p: v for (m, p), v in self.regs.items() if m == P.BIAS.MODULE}
         fam = self.dvs_family
-        return params_for_biases(DvsParams(), DvsBiases.from_words(words, fam), fam)
+        return params_for_biases(self.dvs_base, DvsBiases.from_words(words, fam), fam)
 
     def _ensure_rig(self) -> None:
         new = self._rig is None
