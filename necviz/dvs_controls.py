@@ -18,6 +18,8 @@ profile: ``dvs.c_on = 0.15`` asks the camera for 0.15 as that profile measures i
 
 from __future__ import annotations
 
+from collections import deque
+
 from necviz.core.biases import FILTER_STEP_US, BiasModel, DvsBiases, DvsSettings, DvsState, physical_settings
 from necviz.core.errors import ParameterError
 
@@ -73,6 +75,9 @@ class DvsControls:
         self._pending: dict[str, tuple[float, float]] | None = None  # thresholds waiting for the change to show
         self.followed: dict[str, tuple[float, float]] = {}  # lane -> the thresholds P-TEDI uses since a change
         self.followed_from_us: int | None = None  # stream time the last change took effect
+        self.ratio: dict | None = None  # the model's threshold ratios (to the default biases) of the last change
+        self._schedule: deque = deque()  # a replayed recording's changes: (from_us, ratio, recorded dvs settings)
+        self.replayed_dvs: dict | None = None  # the recorded settings of the change last followed in a replay
         self.history: list[dict] = []  # every change: time, key, value, settings
 
     @property
@@ -99,8 +104,12 @@ class DvsControls:
                 getattr(base, "cutoff_hz", None) or phys.bandwidth_hz,
             )
             self.state = DvsState(BiasModel(family, ref))
-            self._base = {n: (_estimator(ln).params.c_on, _estimator(ln).params.c_off) for n, ln in self.lanes.items()}
+            self._capture_base()
         return self.state
+
+    def _capture_base(self) -> None:
+        if not self._base:
+            self._base = {n: (_estimator(ln).params.c_on, _estimator(ln).params.c_off) for n, ln in self.lanes.items()}
 
     def set(self, key: str, value, t_us: int | None, started: bool) -> tuple[str, dict]:
         """Carry out one control: ``(message, data)`` for the tuning log and the recordings.
@@ -124,8 +133,9 @@ class DvsControls:
         s = state.settings()
         follow = {}
         if change.biases is not None:
-            r = state.model.ratios(state.biases)
+            r = state.model.ratios(state.current)
             follow = {n: (b_on * r.c_on, b_off * r.c_off) for n, (b_on, b_off) in self._base.items()}
+            self.ratio = {"c_on": r.c_on, "c_off": r.c_off}
             if not started:
                 self._follow(follow)
             else:
@@ -140,6 +150,7 @@ class DvsControls:
                 "ba_filter_us": state.ba_filter_steps * FILTER_STEP_US,
                 "refractory_filter_us": state.refractory_filter_steps * FILTER_STEP_US,
                 "ptedi": {n: {"c_on": c[0], "c_off": c[1]} for n, c in follow.items()},  # what P-TEDI takes
+                **({"ratio": self.ratio} if follow else {}),  # c / c at the default biases (a replay scales by it)
             }
         }
         if follow and not started:  # taken at once (else noted when the change shows in the stream)
@@ -149,11 +160,41 @@ class DvsControls:
 
     @property
     def pending(self) -> bool:
-        return self._pending is not None
+        return self._pending is not None or bool(self._schedule)
+
+    def follow_recording(self, annotations) -> int:
+        """A replayed native recording: P-TEDI takes each recorded bias change at the time it took effect in the
+        recorded stream, its thresholds scaled from this run's by the recorded model ratio (so a replay with
+        another profile follows as the camera did). Returns how many changes are scheduled."""
+        sched, ratio, dvs = [], None, None
+        for t, note in sorted(annotations or (), key=lambda a: a[0]):
+            if not isinstance(note, dict):
+                continue
+            if isinstance(note.get("dvs"), dict):
+                dvs = note["dvs"]
+                ratio = dvs.get("ratio", ratio)
+            ptedi = note.get("ptedi")
+            r = note.get("ratio", ratio)
+            if isinstance(ptedi, dict) and isinstance(r, dict):
+                starts = [v["from_us"] for v in ptedi.values() if isinstance(v, dict) and "from_us" in v]
+                sched.append((int(starts[0] if starts else t), float(r["c_on"]), float(r["c_off"]), dvs))
+        self._schedule = deque(sched)
+        if sched:
+            self._capture_base()
+        return len(sched)
 
     def follow_if_applied(self, last_event_us: int) -> int | None:
         """Before a batch ending at ``last_event_us``: if the change shows in it, P-TEDI takes the thresholds
         (returns the time the change took effect; ``None``: not yet)."""
+        if self._schedule:  # a replay: the recorded changes, in time order
+            if last_event_us < self._schedule[0][0]:
+                return None
+            while self._schedule and self._schedule[0][0] <= last_event_us:
+                t, r_on, r_off, self.replayed_dvs = self._schedule.popleft()
+            self.ratio = {"c_on": r_on, "c_off": r_off}
+            self._follow({n: (b_on * r_on, b_off * r_off) for n, (b_on, b_off) in self._base.items()})
+            self.followed_from_us = int(t)
+            return t
         t = self.source.dvs_applied_us() if callable(getattr(self.source, "dvs_applied_us", None)) else None
         if t is None or last_event_us < t:
             return None

@@ -496,7 +496,11 @@ class Pipeline:
                 S.TUNING,
                 f"P-TEDI thresholds follow the DVS biases from {t} µs ({now})",
                 "INFO",
-                {"ptedi": {n: {"c_on": c[0], "c_off": c[1], "from_us": t} for n, c in self.dvs.followed.items()}},
+                {
+                    "ptedi": {n: {"c_on": c[0], "c_off": c[1], "from_us": t} for n, c in self.dvs.followed.items()},
+                    "ratio": self.dvs.ratio,
+                    **({"dvs": self.dvs.replayed_dvs} if self.dvs.replayed_dvs else {}),  # a replay: the recorded DVS
+                },
             )
 
     def _sample(self, lanes: list[Lane], t: int) -> None:

@@ -375,3 +375,46 @@ def test_scene_cache_and_a_mid_run_change(tmp_path):
     r2.set_dvs_params(DvsParams().replace(c_on=0.13))  # before the run: another stream, simulated
     list(r2.packets())
     assert r2.samples_cached == 0 and r2.dvs_params.c_on == 0.13
+
+
+def test_a_replay_follows_the_recorded_bias_changes(tmp_path):
+    """Record a run whose ON threshold changes mid-run; replaying the .necrec, P-TEDI takes the same change at the
+    time it took effect in the recorded stream (scaled from the replay's own thresholds)."""
+    from necviz.drivers.recordings import Recorder, open_recording
+    from necviz.pipeline import Lane, Observer, Pipeline, RecorderObserver, _estimator
+    from necviz.runs import make_controller
+
+    rig, pipe = sim_pipeline(**SLOW)
+    recorder = Recorder(tmp_path / "t.necrec", sensor=SMALL, properties={})
+    n = [0]
+
+    class Change(Observer):
+        def events(self, batch):
+            n[0] += 1
+            if n[0] == 20:
+                pipe.tune_dvs("c_on", 0.13)
+
+    pipe.observers += [RecorderObserver(recorder, "camera"), Change()]
+    pipe.run().finish()
+    t_live = pipe.dvs.followed_from_us
+    assert t_live is not None
+
+    rec = open_recording(tmp_path / "t.necrec")
+    lane = Lane("camera", make_controller("nec", sensor=SMALL, limits=rig.camera_info.limits), drives=False)
+    replay = Pipeline(rec, [lane], warm_up=False)
+    est = _estimator(lane)
+    c0 = est.params.c_on
+    assert replay.dvs.follow_recording(rec.annotations) == 1
+    seen = []
+
+    class Watch(Observer):
+        def events(self, batch):
+            seen.append((int(batch["t"][-1]), est.params.c_on))
+
+    replay.observers.append(Watch())
+    replay.run().finish()
+    assert replay.dvs.followed_from_us == t_live
+    old = [last for last, c in seen if c == c0]
+    new = [last for last, c in seen if c != c0]
+    assert max(old) < t_live <= min(new)
+    assert est.params.c_on == pytest.approx(0.13, rel=0.01)  # the recorded model ratio x this lane's own c_on

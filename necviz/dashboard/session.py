@@ -224,6 +224,9 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
         if out is not None:
             print(f"  {msg}", file=out)
         pipe.submit(lambda p, m=msg, d=data: (m, d))  # noted in the recordings at the first packet
+    notes = getattr(ss.source, "annotations", None)  # a native recording: P-TEDI follows its recorded bias changes
+    if isinstance(notes, list) and pipe.dvs.follow_recording(notes) and out is not None:
+        print(f"  P-TEDI follows the {len(pipe.dvs._schedule)} DVS bias change(s) recorded in the file", file=out)
     tune_file = console = None
     t0 = time.perf_counter()
     disk_full = None  # (file, bytes free) when the run was stopped to keep its files whole
