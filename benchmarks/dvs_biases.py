@@ -5,7 +5,9 @@ the emulated pixel following them, P-TEDI following the model) on ``static_lab``
 ``--dvs c_on=0.15 --dvs c_off=0.15``, and reads from each run its summary (events, P-TEDI's thresholds) and its
 ``.necrec`` (the bias change recorded). Part B simulates the same scene with the same thresholds and splits the
 count: threshold crossings, lost to the refractory period, lost to the 12 Mev/s event bus, noise.
-Both are repeated with slow light changes (``ramp_ms``), where neither limit binds.
+Both are repeated with slow light changes (``ramp_ms``), where neither limit binds. Part C replays each
+lower-threshold recording with P-TEDI following the recorded change and without (the profile's thresholds):
+P-TEDI's prediction error against the frames (ln), the ablation of "P-TEDI follows".
 
     python benchmarks/dvs_biases.py --json benchmarks/results/dvs_biases.json
 """
@@ -45,11 +47,33 @@ def live_run(scene_params: dict, dvs, duration_s: float, folder: Path, tag: str)
     notes = [d["dvs"] for _, d in NativeRecording(str(rec)).annotations if "dvs" in d]
     return {
         "command": " ".join(["necviz", *cmd[3:]]),
+        "replay": replay_errors(rec) if dvs else None,
         "events": events,
         "ptedi": {"c_on": float(m.group(1)), "c_off": float(m.group(2))} if m else None,
         "recorded_changes": [{"key": n["key"], "value": n["value"], "words": n["words"]} for n in notes],
         "wall_s": round(wall, 1),
     }
+
+
+def replay_errors(rec: Path) -> dict:
+    """P-TEDI's prediction error (RMSE, ln, against the frames) replaying ``rec`` with and without following its
+    recorded bias changes (NEC in open loop, as ``necviz replay``)."""
+    from necviz.core.control import CameraLimits
+    from necviz.drivers.recordings import open_recording
+    from necviz.pipeline import Lane, Pipeline
+    from necviz.runs import make_controller
+
+    out = {}
+    for follow in (True, False):
+        recording = open_recording(rec)
+        lane = Lane("camera", make_controller("nec", sensor=recording.sensor, limits=CameraLimits()), drives=False)
+        pipe = Pipeline(recording, [lane], warm_up=False)
+        if follow:
+            pipe.dvs.follow_recording(recording.annotations)
+        s = pipe.run().finish()["lanes"]["camera"]
+        key = "following" if follow else "not_following"
+        out[key] = {"rmse_ln": s["prediction_error_rmse"], "frames": s["prediction_error_frames"], **s["ptedi"]}
+    return out
 
 
 def sim_breakdown(scene_params: dict, c: float | None, duration_s: float) -> dict:

@@ -384,6 +384,13 @@ def r_events_heldout(d: dict) -> str:
     return out
 
 
+def _follow_cell(rep: dict | None) -> str:
+    if not rep:
+        return "—"
+    f, n = rep["following"], rep["not_following"]
+    return f"{num(f['rmse_ln'], 3)} / {num(n['rmse_ln'], 3)} ({f['frames']} frames)"
+
+
 def r_dvs_biases(d: dict) -> str:
     rows = []
     for r in d.get("rows", []):
@@ -399,6 +406,7 @@ def r_dvs_biases(d: dict) -> str:
                 f"{num(sd['lost_refractory'], 0)} / {num(sl['lost_refractory'], 0)}",
                 f"{num(r['live_low']['ptedi']['c_on'], 4)} / {num(r['live_low']['ptedi']['c_off'], 4)}",
                 ", ".join(f"{c['key']}={c['value']}" for c in r["live_low"]["recorded_changes"]),
+                _follow_cell(r["live_low"].get("replay")),
             ]
         )
     return table(
@@ -412,6 +420,7 @@ def r_dvs_biases(d: dict) -> str:
             "lost to the refractory period, default / 0.15",
             "P-TEDI c_on / c_off",
             "changes in the .necrec",
+            "P-TEDI RMSE (ln) replayed: following / not",
         ],
         rows,
     ) + (
@@ -420,7 +429,10 @@ def r_dvs_biases(d: dict) -> str:
         "thresholds, as 0.26/0.15 predicts) far exceed what the 100 µs refractory period and the 12 Mev/s event bus "
         "let through, so most of the added crossings are lost there (columns 6-7). With slower light changes "
         "(`--set ramp_ms=300`) the added events arrive until the bus binds again. P-TEDI's thresholds and the "
-        "recorded change are read back from the same runs."
+        "recorded change are read back from the same runs. The last column replays each lower-threshold recording "
+        "with P-TEDI following the recorded change and with the profile's thresholds: where events are not lost, "
+        "following lowers the prediction error; where the bus and refractory period drop most of the added "
+        "events, it does not help (the estimator cannot integrate events it never sees)."
     )
 
 
