@@ -241,6 +241,12 @@ class TuningConsole:
         words = ["help", "status", "set", "drive", "mark", *sorted(CONTROLLERS), *keys(self.pipeline)]
         words += [f"{lane}.{k}" for lane, ln in self.pipeline.lanes.items() for k in ln.tunables()]
         words += list(self.pipeline.lanes)
+        dvs = getattr(self.pipeline, "dvs", None)
+        if dvs is not None and dvs.available:  # the camera's bias names (bias.DIFFBN = 4/39)
+            from necviz.core.biases import BIAS_ADDRESSES, family_of
+
+            family = family_of(getattr(self.pipeline.source, "dvs_family", "DAVIS346"))
+            words += [f"bias.{n}" for n in BIAS_ADDRESSES[family]]
         return WordCompleter(sorted(set(words), key=words.index), WORD=True)
 
     def _run_prompt(self) -> None:
