@@ -250,6 +250,9 @@ class DvsSettings:
 
 #: the model's physical prefactor (kappa_n / kappa_p^2) * (C2 / C1) for kappa = 0.7, C1/C2 = 20 (jAER's estimate)
 THRESHOLD_PREFACTOR = 0.7 / 0.7**2 / 20.0
+#: the smallest threshold necviz sets (ln): below it a pixel fires on its own noise (the simulator's and v2e's
+#: per-pixel clamp is the same 0.01)
+THRESHOLD_FLOOR = 0.01
 #: refractory charge C * dV (C): 20 fF x 0.8 V (jAER ``DavisConfig``, "guesstimated")
 REFRACTORY_CHARGE_C = 20e-15 * 0.8
 #: photoreceptor load capacitance C1 (F) and the thermal voltage U_T (V) (jAER ``DavisConfig``)
@@ -349,9 +352,12 @@ class BiasModel:
         on0, off0 = threshold_logs(d)
         i_d = _current_or_step(b.diff)
         if key == "c_on":
-            return _step_above(i_d, ref.c_on / on0), ref.c_on * math.log(CURRENT_MAX_PA / i_d) / on0
+            return max(THRESHOLD_FLOOR, _step_above(i_d, ref.c_on / on0)), ref.c_on * math.log(
+                CURRENT_MAX_PA / i_d
+            ) / on0
         if key == "c_off":
-            return _step_above(i_d, ref.c_off / off0, below=True), ref.c_off * math.log(i_d / CURRENT_MIN_PA) / off0
+            lo = max(THRESHOLD_FLOOR, _step_above(i_d, ref.c_off / off0, below=True))
+            return lo, ref.c_off * math.log(i_d / CURRENT_MIN_PA) / off0
         if key == "refractory_us":
             q = ref.refractory_us * d.refr.current_pa
             return q / CURRENT_MAX_PA, q / CURRENT_MIN_PA
@@ -496,6 +502,13 @@ class DvsState:
             if name in DVS_BIAS_NAMES:
                 fld = _FIELDS[DVS_BIAS_NAMES.index(name)]
                 b = replace(self.current, **{fld: replace(getattr(self.current, fld), coarse=c, fine=f)})
+                got = self.model.settings(b)
+                if min(got.c_on, got.c_off) < THRESHOLD_FLOOR:
+                    raise ParameterError(
+                        f"bias.{name} = {c}/{f} leaves a contrast threshold at {min(got.c_on, got.c_off):.3g} "
+                        f"(OnBn must stay above DiffBn and OffBn below it; the smallest threshold set is "
+                        f"{THRESHOLD_FLOOR:g})"
+                    )
                 return DvsChange(self, f"bias.{name}", f"{c}/{f}", biases=b)
             return DvsChange(self, f"bias.{name}", f"{c}/{f}", raw={addr: (c, f)})
         if key in ("ba_filter_us", "refractory_filter_us"):

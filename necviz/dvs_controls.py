@@ -23,6 +23,8 @@ from collections import deque
 from necviz.core.biases import FILTER_STEP_US, BiasModel, DvsBiases, DvsSettings, DvsState, physical_settings
 from necviz.core.errors import ParameterError
 
+#: the thresholds P-TEDI accepts (``TediParams``, ln)
+PTEDI_MIN, PTEDI_MAX = 0.005, 5.0
 #: the prefixes that mark a DVS control at the tuning prompt (``dvs.c_on``, ``bias.DiffBn``)
 PREFIXES = ("dvs", "bias")
 
@@ -127,6 +129,14 @@ class DvsControls:
             self.source.set_dvs_filters(ba, refr)
         words = change.words()
         msg = change.describe()  # before it applies: which words move
+        if change.biases is not None:  # every lane's P-TEDI must be able to take its new thresholds: else nothing moves
+            r = state.model.ratios(change.biases)
+            for name, (b_on, b_off) in self._base.items():
+                if not (PTEDI_MIN <= b_on * r.c_on <= PTEDI_MAX and PTEDI_MIN <= b_off * r.c_off <= PTEDI_MAX):
+                    raise ParameterError(
+                        f"{msg}: lane {name}'s P-TEDI would take c_on={b_on * r.c_on:.3g}, c_off={b_off * r.c_off:.3g}, "
+                        f"outside {PTEDI_MIN:g}..{PTEDI_MAX:g} ln; nothing was written"
+                    )
         if words:
             self.source.set_dvs_biases(words)
         state.apply(change)

@@ -116,6 +116,8 @@ def test_lower_threshold_means_on_current_closer_to_diff():
         ("bias.NoSuch", "1/2", "no coarse/fine bias"),
         ("bias.DiffBn", "8/3", "COARSE is 0..7"),
         ("bias.DiffBn", "4", "COARSE/FINE"),
+        ("bias.OnBn", "4/30", "OnBn must stay above DiffBn"),
+        ("c_on", 0.005, "nearest reachable: 0.01"),
         ("ba_filter_us", 5e6, "nearest reachable: 1023750"),
         ("ba_filter_us", -1, "0 = off"),
         ("gain", 2, "unknown DVS control"),
