@@ -139,11 +139,13 @@ class DvsControls:
                     )
         if words:
             self.source.set_dvs_biases(words)
-        state.apply(change)
-        s = state.settings()
+        s = change.settings()
         follow = {}
-        if change.biases is not None:
-            r = state.model.ratios(state.current)
+        before = state.model.ratios(state.current)
+        state.apply(change)
+        after = state.model.ratios(state.current)
+        if (after.c_on, after.c_off) != (before.c_on, before.c_off):  # the thresholds moved: P-TEDI follows
+            r = after
             follow = {n: (b_on * r.c_on, b_off * r.c_off) for n, (b_on, b_off) in self._base.items()}
             self.ratio = {"c_on": r.c_on, "c_off": r.c_off}
             if not started:
