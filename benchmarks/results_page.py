@@ -384,7 +384,60 @@ def r_events_heldout(d: dict) -> str:
     return out
 
 
+def _follow_cell(rep: dict | None) -> str:
+    if not rep:
+        return "—"
+    f, n = rep["following"], rep["not_following"]
+    return f"{num(f['rmse_ln'], 3)} / {num(n['rmse_ln'], 3)} ({f['frames']} frames)"
+
+
+def r_dvs_biases(d: dict) -> str:
+    rows = []
+    for r in d.get("rows", []):
+        sd, sl = r["sim_default"], r["sim_low"]
+        rows.append(
+            [
+                r["scene"],
+                num(r["live_default"]["events"], 0),
+                num(r["live_low"]["events"], 0),
+                num(r["events_ratio"], 2),
+                num(r["crossings_ratio"], 2),
+                f"{num(sd['lost_bus_ceiling'], 0)} / {num(sl['lost_bus_ceiling'], 0)}",
+                f"{num(sd['lost_refractory'], 0)} / {num(sl['lost_refractory'], 0)}",
+                f"{num(r['live_low']['ptedi']['c_on'], 4)} / {num(r['live_low']['ptedi']['c_off'], 4)}",
+                ", ".join(f"{c['key']}={c['value']}" for c in r["live_low"]["recorded_changes"]),
+                _follow_cell(r["live_low"].get("replay")),
+            ]
+        )
+    return table(
+        [
+            "scene",
+            "events, default biases",
+            "events, c_on = c_off = 0.15",
+            "ratio",
+            "threshold crossings ratio (simulator)",
+            "lost to the 12 Mev/s bus, default / 0.15",
+            "lost to the refractory period, default / 0.15",
+            "P-TEDI c_on / c_off",
+            "changes in the .necrec",
+            "P-TEDI RMSE (ln) replayed: following / not",
+        ],
+        rows,
+    ) + (
+        "\n\nIssue 29 asked for at least 1.5x the events on `static_lab` at c = 0.15: **not met** on the default "
+        "scene. Its events come from four light steps with 1 ms ramps; their threshold crossings (x1.7 at the lower "
+        "thresholds, as 0.26/0.15 predicts) far exceed what the 100 µs refractory period and the 12 Mev/s event bus "
+        "let through, so most of the added crossings are lost there (columns 6-7). With slower light changes "
+        "(`--set ramp_ms=300`) the added events arrive until the bus binds again. P-TEDI's thresholds and the "
+        "recorded change are read back from the same runs. The last column replays each lower-threshold recording "
+        "with P-TEDI following the recorded change and with the profile's thresholds: where events are not lost, "
+        "following lowers the prediction error; where the bus and refractory period drop most of the added "
+        "events, it does not help (the estimator cannot integrate events it never sees)."
+    )
+
+
 RENDERERS: dict[str, tuple[str, Callable[[dict], str]]] = {
+    "dvs_biases": ("DVS biases on the emulated DAVIS346: events at lower thresholds", r_dvs_biases),
     "events": ("What events add (held-out scenes, test seeds)", r_events_heldout),
     "estimators": ("Estimator throughput (the paper's Table 1)", r_estimators),
     "sim": ("Simulator speed", r_sim),

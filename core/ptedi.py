@@ -363,6 +363,13 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
                 * self._inv_n
             )
 
+    def set_contrast_thresholds(self, c_on: float, c_off: float) -> None:
+        """New contrast thresholds (ln), e.g. after the camera's DVS biases changed; from the next event on
+        (as :meth:`set_params`, everything else kept)."""
+        from dataclasses import replace  # (local: keeps this addition to one place)
+
+        self.set_params(replace(self.params, c_on=float(c_on), c_off=float(c_off)))
+
     def share_events(self, side) -> None:
         """Keep the compensation's per-pixel bookkeeping in ``side`` (a :class:`~necviz.core.ptedi_shared.EventSide`
         shared with the other estimators of one source's lanes; see :func:`~necviz.core.ptedi_shared.share_event_side`).

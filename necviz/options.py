@@ -327,10 +327,13 @@ class TuneOptions:
         Read tuning commands at a ``tune>`` prompt when the terminal is interactive.
     file : path, optional
         Watch this file: every changed ``key = value`` line is applied when it is saved.
+    dvs : tuple of (key, value)
+        DVS controls set before the first packet (``--dvs KEY=VALUE``; :mod:`necviz.dvs_controls`).
     """
 
     prompt: bool = True
     file: str | os.PathLike | None = None
+    dvs: tuple = ()
 
 
 @dataclass

@@ -47,6 +47,7 @@ from necviz.core.ptedi import PeripheralEstimator
 from necviz.core.stream import packet_time_us
 from necviz.dashboard import schema as S
 from necviz.dashboard.telemetry import FrameRecord, Telemetry
+from necviz.dvs_controls import DvsControls
 
 #: Thresholds of the lane's P-TEDI estimator, tunable like the controller's own parameters.
 THRESHOLD_KEYS = ("c_on", "c_off", "c")
@@ -208,6 +209,7 @@ class Pipeline:
         self._pending: list = []  # (function, future): changes applied between packets
         self._finished = False
         self._thread: threading.Thread | None = None
+        self.dvs = DvsControls(source, self.lanes)  # the camera's DVS biases, P-TEDI following them (issue 29)
 
     # -- what the run has seen so far (read from any thread) ------------------------------------
     @property
@@ -270,6 +272,11 @@ class Pipeline:
     def tune(self, key: str, value: float, lane: str | None = None) -> Future:
         """Set a tunable parameter (``key``) on one lane or on every lane that has it."""
         return self.submit(lambda p: p._tune(key, value, lane))
+
+    def tune_dvs(self, key: str, value) -> Future:
+        """Set a DVS control of the source's camera (``c_on``, ``bias.DiffBn``, ...: :mod:`necviz.dvs_controls`)."""
+        # applied between packets, the source already streaming: P-TEDI follows where the change shows
+        return self.submit(lambda p: p.dvs.set(key, value, p.telemetry.now_us, started=True))
 
     def drive(self, controller: str, lane: str | None = None) -> Future:
         """Let controller ``controller`` (a registered name) take over the lane's camera."""
@@ -340,6 +347,15 @@ class Pipeline:
                 f"{ln.name}: {c.name}{'' if ln.drives else ' (open loop)'}, c_on={p.c_on:g} c_off={p.c_off:g}, "
                 f"exposure {lim.exposure_min_us:g}..{lim.exposure_max_us:g} µs, gain_max={lim.gain_max:g}"
                 + (f", {own}" if own else "")
+            )
+        st = self.dvs.state
+        if st is not None:  # the camera's DVS, once a control was set
+            d = st.settings()
+            lines.append(
+                f"dvs: c_on={d.c_on:.4g} c_off={d.c_off:.4g} refractory={d.refractory_us:.4g} µs "
+                f"bandwidth={d.bandwidth_hz:.4g} Hz, BA filter {st.ba_filter_steps * 250 or 'off'}"
+                f"{' µs' if st.ba_filter_steps else ''}, refractory filter {st.refractory_filter_steps * 250 or 'off'}"
+                f"{' µs' if st.refractory_filter_steps else ''}"
             )
         return "\n".join(lines)
 
@@ -423,6 +439,8 @@ class Pipeline:
                         continue
                     assert t is not None  # a batch with events has a time
                     tel.events += len(batch)
+                    if self.dvs.pending:  # P-TEDI takes new thresholds where the bias change shows
+                        self._dvs_follow(int(batch["t"][-1]))
                     for ln in lanes:  # control first: a lossless observer may make the thread wait
                         if ln.passive is not None:
                             ln.passive.update(batch)
@@ -469,6 +487,21 @@ class Pipeline:
                         f"the source yielded a {type(packet).__name__}, which is not a stream packet "
                         "(events travel as EventBatch; see necviz.core.stream.Packet)"
                     )
+
+    def _dvs_follow(self, last_event_us: int) -> None:
+        t = self.dvs.follow_if_applied(last_event_us)
+        if t is not None:
+            now = ", ".join(f"{n}: c_on={c[0]:.4g} c_off={c[1]:.4g}" for n, c in self.dvs.followed.items())
+            self._note(
+                S.TUNING,
+                f"P-TEDI thresholds follow the DVS biases from {t} µs ({now})",
+                "INFO",
+                {
+                    "ptedi": {n: {"c_on": c[0], "c_off": c[1], "from_us": t} for n, c in self.dvs.followed.items()},
+                    "ratio": self.dvs.ratio,
+                    **({"dvs": self.dvs.replayed_dvs} if self.dvs.replayed_dvs else {}),  # a replay: the recorded DVS
+                },
+            )
 
     def _sample(self, lanes: list[Lane], t: int) -> None:
         """Every lane's P-TEDI prediction ln P(t), for the observers."""
@@ -528,6 +561,10 @@ class Pipeline:
         err = self.error or (errors[0] if errors else None)
         self.error = None
         stats = {**self.telemetry.summary(), "wall_s": self.wall_s, **extra}
+        for name, th in self.dvs.summary().items():  # the thresholds P-TEDI used at the end, beside its events
+            stats["lanes"][name]["ptedi"] = th
+        if self.dvs.history and self.dvs.state is not None:
+            stats["dvs"] = {"changes": self.dvs.history, **self.dvs.state.settings().as_dict()}
         if err is not None:
             raise err
         return stats

@@ -183,6 +183,9 @@ class DavisCamera(CommandedCamera):
         self.reconnects = 0
         self.info = device.info
         device.send_default_config(self._exposure_us, self.frame_interval_us)
+        self._dvs_words: dict[int, int] = {}  # bias words written since (kept for a reconnect)
+        self._dvs_filters: tuple | None = None
+        self._dvs_applied = None
 
     # -- source interface -------------------------------------------------------------------------
     cameras = (CAMERA,)
@@ -256,6 +259,60 @@ class DavisCamera(CommandedCamera):
                 cycles = self.device.us_to_cycles(exp)  # written when the device returns
             self._exposure_us = exp
             self._commands.issue(t, exp, g, cycles)
+
+    # -- DVS biases and filters (issue 29) -----------------------------------------------------------
+    @property
+    def dvs_family(self) -> str:
+        """The bias table the chip uses: ``"DAVIS240"`` or ``"DAVIS346"``."""
+        return "DAVIS240" if self.device.kind == "DAVIS240" else "DAVIS346"
+
+    @property
+    def dvs_pixel(self):
+        """The pixel at libcaer's default biases where it is known: an emulated camera's (its simulator's
+        ``DvsParams``); ``None`` for a camera (the bias model then estimates it)."""
+        backend = getattr(self.device, "backend", None)
+        return getattr(backend, "dvs_base", None) if self.device.emulated else None
+
+    def set_dvs_biases(self, words: dict[int, int]) -> None:
+        """Write DVS bias words (module-5 parameter -> word, :mod:`necviz.core.biases`) through the path that
+        wrote the defaults (:meth:`~.device.DavisDevice.set_biases`, one 0xC2 request)."""
+        with self._lock:
+            words = {int(k): int(v) for k, v in words.items()}
+            if not self.device.closed and self.state != "waiting":
+                self.device.set_biases(words)
+            self._dvs_words.update(words)  # written when the device returns, as an exposure
+            self._dvs_applied = self._last_t
+
+    def set_dvs_filters(self, background_activity_us: float | None, refractory_us: float | None) -> None:
+        """The FPGA's background-activity and refractory filters (µs; ``None`` = off)."""
+        with self._lock:
+            if not self.device.capabilities.get("dvs_background_activity_filter"):
+                raise ParameterError(f"this {self.device.kind}'s logic has no background-activity/refractory filters")
+            backend = getattr(self.device, "backend", None)
+            if self.device.emulated and not getattr(getattr(backend, "options", None), "fpga_filters", True):
+                raise ParameterError(
+                    "the emulated camera does not emulate the FPGA's filters unless asked "
+                    "(EmulatorOptions(fpga_filters=True)); nothing was written"
+                )
+            if not self.device.closed and self.state != "waiting":
+                self.device.set_dvs_filters(background_activity_us, refractory_us)
+            self._dvs_filters = (background_activity_us, refractory_us)
+
+    def dvs_applied_us(self) -> int | None:
+        """Stream time from which the last DVS change holds: an emulated device says exactly; for a camera it is
+        the time of the last packet delivered when the biases were written (a lower bound: the data already in
+        flight, a few ms, was produced before)."""
+        backend = getattr(self.device, "backend", None)
+        if self.device.emulated and hasattr(backend, "dvs_applied_us"):
+            t = backend.dvs_applied_us()
+            return None if t is None or self._decoder is None else t + self._stream_offset_us
+        return self._dvs_applied
+
+    def _rewrite_dvs(self) -> None:
+        if self._dvs_words:
+            self.device.set_biases(self._dvs_words)
+        if self._dvs_filters is not None:
+            self.device.set_dvs_filters(*self._dvs_filters)
 
     @property
     def camera_info(self) -> CameraInfo:
@@ -370,6 +427,7 @@ class DavisCamera(CommandedCamera):
             color_filter=d.aps_color_filter if d.aps_color_filter in COLOR_FILTERS else 0,
         )
         self._decoder = DavisDecoder(fmt, time_offset_us=time_offset_us)
+        self._stream_offset_us = time_offset_us
         self._reader = BulkReader(d, transfer_size=self.transfer_size, buffer_s=self.buffer_s)
         d.start()
         self._reader.start()
@@ -412,6 +470,7 @@ class DavisCamera(CommandedCamera):
             with self._lock:
                 self.device = dev
                 dev.send_default_config(self._exposure_us, self.frame_interval_us)
+                self._rewrite_dvs()  # the biases and filters set during the run, again
                 self.reconnects += 1
             return True
         return False

@@ -158,6 +158,9 @@ class EmulatorOptions:
     variant : CameraVariant
         The chip and the stream layout the camera presents (default: a DAVIS346B as the FPGA source
         describes it).
+    fpga_filters : bool
+        Emulate the FPGA's background-activity and refractory filters as their registers say
+        (:mod:`.emulator_filters`); off by default, so the stream stays the simulator's events.
     bus, address : int
         Where pyusb reports the device.
 
@@ -181,6 +184,7 @@ class EmulatorOptions:
     serial: str = EMULATED_SERIAL
     aps_orientation: int = 0
     variant: CameraVariant = CameraVariant()
+    fpga_filters: bool = False
     bus: int = 0
     address: int = 1
 
@@ -265,6 +269,11 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         self._rig = None
         self._gen = None
         self._scene_done = False
+        self._filters = None
+        if o.fpga_filters:
+            from necviz.drivers.davis.emulator_filters import FpgaFilters
+
+            self._filters = FpgaFilters(self.sensor.width, self.sensor.height)
         self._power_on()
 
     # -- device state -------------------------------------------------------------------------------
@@ -335,6 +344,60 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
     def adc_mhz(self) -> float:
         return EMULATED_CLOCKS[1] * EMULATED_CLOCKS[3] / 1000.0
 
+    # -- DVS biases: the emulated pixel follows them ---------------------------------------------------
+    @property
+    def dvs_family(self) -> str:
+        return "DAVIS240" if self.variant.chip_id in P.DAVIS240_CHIPS else "DAVIS346"
+
+    @property
+    def _dvs_bias_params(self) -> tuple[int, ...]:
+        from necviz.core.biases import BIAS_ADDRESSES, DVS_BIAS_NAMES
+
+        return tuple(BIAS_ADDRESSES[self.dvs_family][n] for n in DVS_BIAS_NAMES)
+
+    @property
+    def dvs_base(self):
+        """The emulated pixel at libcaer's default biases: the simulated DAVIS346 (``DvsParams()``)."""
+        from necviz.drivers.sim.dvs import DvsParams
+
+        return DvsParams()
+
+    def _dvs_params(self):
+        """The simulator's pixel at the bias words in the registers (the simulated DAVIS346 at libcaer's defaults,
+        scaled by the bias model: :func:`~necviz.drivers.sim.dvs.params_for_biases`)."""
+        from necviz.core.biases import DvsBiases
+        from necviz.drivers.sim.dvs import params_for_biases
+
+        words = {p: v for (m, p), v in self.regs.items() if m == P.BIAS.MODULE}
+        fam = self.dvs_family
+        return params_for_biases(self.dvs_base, DvsBiases.from_words(words, fam), fam)
+
+    def _ensure_rig(self) -> None:
+        new = self._rig is None
+        if self._encoder is None and self._filters is not None:  # streaming (re)starts: the filters' memory too
+            self._filters.reset()
+        super()._ensure_rig()
+        if new and self._rig is not None:  # before its first packet: the run's pixel
+            self._rig.set_dvs_params(self._dvs_params())
+
+    def _put_events(self, ev: np.ndarray) -> None:
+        if self._filters is not None and ev.size:
+            D = P.DVS
+            ba = self.reg(D.MODULE, D.FILTER_BACKGROUND_ACTIVITY) * self.reg(
+                D.MODULE, D.FILTER_BACKGROUND_ACTIVITY_TIME
+            )
+            refr = self.reg(D.MODULE, D.FILTER_REFRACTORY_PERIOD) * self.reg(D.MODULE, D.FILTER_REFRACTORY_PERIOD_TIME)
+            ev = self._filters.apply(ev, 250 * ba, 250 * refr)
+            if ev.size == 0:
+                return
+        super()._put_events(ev)
+
+    def dvs_applied_us(self) -> int | None:
+        """Device time from which the last bias change holds in the emitted events (``None``: none while streaming)."""
+        rig = self._rig
+        t = None if rig is None else rig.dvs_applied_us()
+        return None if t is None else max(0, int(t) - int(self._base_us))
+
     def reg(self, module: int, param: int) -> int:
         """Current value of a register (0 if never written)."""
         return self.regs.get((module, param), 0)
@@ -379,6 +442,9 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         if module == P.MUX.MODULE and param in (P.MUX.STAT_DVS_DROPPED, P.MUX.STAT_DVS_DROPPED + 1):
             v = self.dvs_dropped  # 64-bit counter: MSB word, then LSB word
             return (v >> 32) & 0xFFFFFFFF if param == P.MUX.STAT_DVS_DROPPED else v & 0xFFFFFFFF
+        if module == P.DVS.MODULE and param in (89, 90, 91, 92) and self._filters is not None:
+            v = int(self._filters.counts[0 if param < 91 else 1])  # FILTERED_BA, FILTERED_REFRACTORY (64-bit)
+            return (v >> 32) & 0xFFFFFFFF if param in (89, 91) else v & 0xFFFFFFFF
         if module in (P.MUX.MODULE, P.DVS.MODULE) and 81 <= param <= 92:
             return 0  # the other statistics counters: nothing dropped or filtered
         return self.reg(module, param)
@@ -397,6 +463,8 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         if key == (P.APS.MODULE, P.APS.EXPOSURE) and self._rig is not None:
             us = max(value / self.adc_mhz, 1.0)
             self._rig.set_exposure("camera", us, 1.0)
+        elif module == P.BIAS.MODULE and param in self._dvs_bias_params and self._rig is not None:
+            self._rig.set_dvs_params(self._dvs_params())  # the pixel follows its biases (issue 29)
         elif key == (P.MUX.MODULE, P.MUX.TIMESTAMP_RESET) and value and self._encoder is not None:
             self._pending += self._encoder.timestamp_reset().tobytes()
             self._base_us = self._rig.now_us if self._rig is not None else 0

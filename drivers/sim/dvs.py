@@ -158,6 +158,24 @@ class DvsParams:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
+def params_for_biases(base: DvsParams, biases, family: str = "DAVIS346") -> DvsParams:
+    """The simulated pixel at DVS biases ``biases`` (:class:`~necviz.core.biases.DvsBiases`): ``base`` is the
+    pixel at libcaer's default biases, scaled by the bias model's ratios (:class:`~necviz.core.biases.BiasModel`)
+    — thresholds, refractory period and bandwidth; the same mapping P-TEDI follows. The leak's drift is the
+    junction's, not the biases': ``leak_hz`` scales with ``1/c_on`` (as :meth:`EventSimulator.retune` keeps it)."""
+    from necviz.core.biases import BiasModel
+
+    r = BiasModel(family).ratios(biases)
+    c_on = max(THRESHOLD_MIN, base.c_on * r.c_on)
+    return base.replace(
+        c_on=c_on,
+        leak_hz=base.leak_hz * base.c_on / c_on,
+        c_off=max(THRESHOLD_MIN, base.c_off * r.c_off),
+        refractory_us=base.refractory_us * r.refractory_us,
+        cutoff_hz=None if not base.cutoff_hz else base.cutoff_hz * r.bandwidth_hz,
+    )
+
+
 # --------------------------------------------------------------------------------------------
 # Kernels
 # --------------------------------------------------------------------------------------------
@@ -447,6 +465,9 @@ class EventSimulator:
         p = params
         self._th_on = np.maximum(THRESHOLD_MIN, p.c_on + p.sigma_threshold * z[0])
         self._th_off = np.maximum(THRESHOLD_MIN, p.c_off + p.sigma_threshold * z[1])
+        self._z_th = z[:2]  # each pixel's threshold deviation, kept for retune()
+        self._retune: DvsParams | None = None
+        self.retuned_us: int | None = None
         self._leak_factor = 10.0 ** (p.leak_cov_decades * z[2])
         self._leak_k = p.leak_hz * self._leak_factor * self._th_on / 1e6  # ln units per µs
         self._omega = 0.0 if not p.cutoff_hz else 2.0 * math.pi * float(p.cutoff_hz) / 1e6  # per µs
@@ -549,6 +570,36 @@ class EventSimulator:
             new[: old.shape[0]] = old
             setattr(self, name, new)
 
+    def retune(self, params: DvsParams) -> None:
+        """Change thresholds, refractory period and bandwidth while running (e.g. new DVS biases); from the
+        next :meth:`step` on, whose start becomes :attr:`retuned_us`. Thread-safe against a step on another thread.
+
+        Each pixel keeps its mismatch: ``theta_i = max(0.01, c + sigma N_i)`` with the same ``N_i``. The leak's
+        drift (ln units per µs) is the junction's and stays, so the leak event rate scales with ``1/theta``
+        (``leak_hz`` may differ only as :func:`params_for_biases` scales it; it is not applied otherwise).
+        With a leak, pixels whose signal is past a lowered threshold fire at the next step. Nothing else may differ
+        from the current parameters.
+        """
+        if not isinstance(params, DvsParams):
+            raise ParameterError(f"retune takes DvsParams, got {type(params).__name__}")
+        keep = ("c_on", "c_off", "refractory_us", "cutoff_hz", "leak_hz")
+        other = {k: v for k, v in params.as_dict().items() if k not in keep}
+        if other != {k: v for k, v in self.params.as_dict().items() if k not in keep}:
+            raise ParameterError("retune changes only c_on, c_off, refractory_us, cutoff_hz (and leak_hz)")
+        self._retune = params
+
+    def _apply_retune(self, t0: int) -> None:
+        p, self._retune = self._retune, None
+        self._th_on = np.maximum(THRESHOLD_MIN, p.c_on + p.sigma_threshold * self._z_th[0])
+        self._th_off = np.maximum(THRESHOLD_MIN, p.c_off + p.sigma_threshold * self._z_th[1])
+        self._omega = 0.0 if not p.cutoff_hz else 2.0 * math.pi * float(p.cutoff_hz) / 1e6
+        self._tab_dt = -1  # the low-pass table is rebuilt for the new bandwidth
+        self._refractory = float(p.refractory_us)
+        if p.leak_hz > 0:  # every pixel is looked at once (a lowered threshold may already be crossed)
+            self._wake[:] = -np.inf  # (without a leak a pixel is looked at when its input next changes)
+        self.params = p
+        self.retuned_us = int(t0)
+
     def step(self, log_image, t_us) -> np.ndarray:
         """Advance to ``t_us`` (after the previous sample) with ``ln L = log_image``; return its events."""
         if self.t_us is None:
@@ -558,6 +609,8 @@ class EventSimulator:
         if t1 <= t0:
             raise ParameterError(f"step time {t1} µs must be after the previous sample at {t0} µs")
         img = self._check_image(log_image, f"step at {t1} µs")
+        if self._retune is not None:
+            self._apply_retune(t0)
         p = self.params
         e0 = float(t0 - self.t_reset_us)
         e1 = float(t1 - self.t_reset_us)

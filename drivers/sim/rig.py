@@ -199,6 +199,12 @@ class SimRig:
         self.scene = scene
         self.sensor = scene.sensor
         self.dvs_params = dvs or DvsParams()
+        self.dvs_base = self.dvs_params  # the pixel at libcaer's default biases (set_dvs_biases scales it)
+        self.dvs_family = "DAVIS346"
+        self._dvs_words: dict[int, int] = {}
+        self._dvs_sim: EventSimulator | None = None  # the running event model (None: not started, or cached)
+        self._dvs_live = False  # set: the DVS changed while running, so this stream is not the cache's
+        self._dvs_from_cache = False  # set while the events are read from the scene cache
         self.aps = aps or ApsParams()
         self.crf = crf or default_davis346()
         self.seed = int(seed)
@@ -268,6 +274,43 @@ class SimRig:
         self._check_setting(name, exposure_us, gain)
         t = self.now_us if issue_time_us is None else int(issue_time_us)
         self.cams[name].pending.append(CommandRecord(t, float(exposure_us), float(gain)))
+
+    # -- DVS biases (issue 29) ----------------------------------------------------------------------
+    def set_dvs_biases(self, words: dict[int, int]) -> None:
+        """Write DVS bias words (module-5 parameter -> word, as to a DAVIS346): the event model takes the
+        thresholds, refractory period and bandwidth they give (:func:`~necviz.drivers.sim.dvs.params_for_biases`)."""
+        from necviz.core.biases import DvsBiases
+        from necviz.drivers.sim.dvs import params_for_biases
+
+        merged = {**self._dvs_words, **{int(k): int(v) for k, v in words.items()}}
+        params = params_for_biases(self.dvs_base, DvsBiases.from_words(merged, self.dvs_family), self.dvs_family)
+        self.set_dvs_params(params)
+        self._dvs_words = merged
+
+    def set_dvs_params(self, params: DvsParams) -> None:
+        """New event-model parameters (thresholds, refractory period, bandwidth): before :meth:`packets` they are
+        the run's; while running they apply from the next DVS step (:meth:`dvs_applied_us` says when).
+
+        Raises :class:`ParameterError` while the events come from the scene cache (they are not simulated)."""
+        if self._dvs_from_cache:
+            raise ParameterError(
+                "this run replays its events from the scene cache, so the DVS cannot change mid-run; "
+                "set it at the start (--dvs KEY=VALUE)"
+            )
+        if self._dvs_sim is None:
+            self.dvs_params = params
+            return
+        self._dvs_sim.retune(params)
+        self._dvs_live = True  # this stream is no longer the cache's
+        self.dvs_params = params
+
+    def dvs_applied_us(self) -> int | None:
+        """Scene time from which the last DVS change holds (``None``: none yet applied while running)."""
+        sim = self._dvs_sim
+        return None if sim is None or sim._retune is not None else sim.retuned_us
+
+    def set_dvs_filters(self, background_activity_us: float | None, refractory_us: float | None) -> None:
+        raise ParameterError("the simulator has no FPGA event filters (a DAVIS camera has: necviz live)")
 
     def commands(self, name: str) -> list[CommandRecord]:
         """The camera's commands, oldest first: the last :data:`COMMAND_HISTORY` applied or
@@ -434,6 +477,7 @@ class SimRig:
         self._lost.clear()
         self._lost.append((0, 0, 0))
         dvs = None
+        self._dvs_from_cache = reader is not None
         if reader is not None:  # the scene and its events from the cache: nothing to render or simulate
             lin0, trace0 = reader.first()
             self.samples_cached += 1
@@ -441,6 +485,7 @@ class SimRig:
             l_prev = None
         else:
             dvs = EventSimulator(self.sensor, self.dvs_params, seed=self.seed)
+            self._dvs_sim = dvs
             l_prev = self.scene.log_irradiance(0)
             self.samples_rendered += 1
             dvs.reset(l_prev, 0)
@@ -579,7 +624,9 @@ class SimRig:
             complete = True
         finally:
             if writer is not None:
-                if complete:  # the samples rendered ahead of the end: their events too (a replay reads them)
+                # the samples rendered ahead of the end: their events too (a replay reads them); a stream whose DVS
+                # changed mid-run is not the one the cache's key describes
+                if complete and not self._dvs_live:
                     for _, ev in pending:
                         writer.events(*(ev[0].result()[ev[1]] if pools else ev))
                     self.cache_written = writer.commit(self.sample_us)
@@ -587,6 +634,8 @@ class SimRig:
                     writer.abort()
             for pool in pools:  # the render worker first: it feeds the DVS worker
                 pool.shutdown(wait=True, cancel_futures=True)
+            self._dvs_sim = None
+            self._dvs_from_cache = False
 
     def warm_up(self) -> None:
         """Compile or load the simulator's kernels (events, frame formation) before the run: a throwaway rig

@@ -123,6 +123,14 @@ def add_show_args(parser, tuning: bool = True) -> None:
     if tuning:
         g.add_argument("--tune-file", metavar="FILE", help="watch FILE for 'key = value' changes while running")
         g.add_argument("--no-prompt", action="store_true", help="do not read tuning commands from the terminal")
+        g.add_argument(
+            "--dvs",
+            action="append",
+            default=[],
+            metavar="KEY=VALUE",
+            help="set a DVS control at start (repeatable): c_on, c_off (ln), refractory_us, bandwidth_hz, "
+            "ba_filter_us, refractory_filter_us, or bias.NAME=COARSE/FINE; P-TEDI's thresholds follow",
+        )
 
 
 def add_clip_args(parser) -> None:
@@ -204,7 +212,9 @@ def _tune(args):
 
     if args.tune_file and not Path(args.tune_file).is_file():
         raise ParameterError(f"--tune-file: {args.tune_file!r} is not a file")
-    return TuneOptions(prompt=not args.no_prompt, file=args.tune_file)
+    from necviz.dvs_controls import check_assignments
+
+    return TuneOptions(prompt=not args.no_prompt, file=args.tune_file, dvs=check_assignments(args.dvs))
 
 
 # -- commands -----------------------------------------------------------------------------------

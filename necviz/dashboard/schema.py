@@ -58,6 +58,10 @@ EVENTS = "events"
 EVENT_POINTS = "events/points"
 EVENT_RATE = "event_rate"
 TUNING = "tuning"
+#: the camera's DVS settings after each bias change (``dvs/c_on``, ``dvs/c_off``, ``dvs/refractory_us``,
+#: ``dvs/bandwidth_hz``; the bias model's values, :mod:`necviz.dvs_controls`)
+DVS = "dvs"
+DVS_SERIES = ("c_on", "c_off", "refractory_us", "bandwidth_hz")
 
 # per lane (under NAME/)
 FRAME_IMAGE = "frame"
@@ -75,6 +79,9 @@ PREDICTION_ERROR = "prediction_error"
 PERSISTENCE_ERROR = "prediction_error/persistence"
 PREDICTION_SKILL = "prediction_skill"
 LOG = "log"
+#: the thresholds P-TEDI uses, from the packet where a DVS bias change took effect (``LANE/ptedi/c_on``, ...)
+PTEDI_C_ON = "ptedi/c_on"
+PTEDI_C_OFF = "ptedi/c_off"
 # ground truth of simulated frames (see necviz.core.metrics); absent for cameras and recordings
 TRUE_VALID = "truth/valid_fraction"
 RANK_CORRELATION = "truth/rank_correlation"

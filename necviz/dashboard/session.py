@@ -219,6 +219,14 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
         speed=speed,
         stop_after_s=ss.stop_after_s,
     )
+    for key, value in ss.tune.dvs if ss.tune is not None else ():  # --dvs: on the camera before its first packet
+        msg, data = pipe.dvs.set(key, value, None, started=False)
+        if out is not None:
+            print(f"  {msg}", file=out)
+        pipe.submit(lambda p, m=msg, d=data: (m, d))  # noted in the recordings at the first packet
+    notes = getattr(ss.source, "annotations", None)  # a native recording: P-TEDI follows its recorded bias changes
+    if isinstance(notes, list) and pipe.dvs.follow_recording(notes) and out is not None:
+        print(f"  P-TEDI follows the {len(pipe.dvs._schedule)} DVS bias change(s) recorded in the file", file=out)
     tune_file = console = None
     t0 = time.perf_counter()
     disk_full = None  # (file, bytes free) when the run was stopped to keep its files whole
@@ -331,7 +339,8 @@ def print_summary(out, stats: dict) -> None:
     for name, s in stats["lanes"].items():
         print(
             f"  {name:8s} {s['frames']:4d} frames, {s['saturated_frames_50']:3d} saturated, {s['commands']:5d} "
-            f"commands, latency p50 {_us(s['latency_p50_us'])} p99 {_us(s['latency_p99_us'])}",
+            f"commands, latency p50 {_us(s['latency_p50_us'])} p99 {_us(s['latency_p99_us'])}"
+            + (f", P-TEDI c_on {s['ptedi']['c_on']:.4g} c_off {s['ptedi']['c_off']:.4g}" if "ptedi" in s else ""),
             file=out,
         )
     src = stats.get("source")

@@ -489,6 +489,18 @@ class RerunSink(Observer):
     def note(self, entity: str, t_us: int, message: str, level: str = "INFO", data=None) -> None:
         lane = entity.split("/", 1)[0]
         self._text_q.append((entity, t_us, self._seq.get(lane, self._seq.get(self._first_lane, 0)), message, level))
+        if isinstance(data, dict):  # a DVS bias change and P-TEDI following it: timeline series (issue 29)
+            seq = self._seq.get(self._first_lane, 0)
+            dvs = data.get("dvs")
+            if isinstance(dvs, dict):
+                for k in S.DVS_SERIES:
+                    if isinstance(dvs.get(k), (int, float)):
+                        self._scalar_q.append((f"{S.DVS}/{k}", t_us, seq, float(dvs[k])))
+            ptedi = data.get("ptedi")
+            if isinstance(ptedi, dict):
+                for lane_name, th in ptedi.items():
+                    self._scalar(lane_name, S.PTEDI_C_ON, t_us, float(th["c_on"]))
+                    self._scalar(lane_name, S.PTEDI_C_OFF, t_us, float(th["c_off"]))
 
     # -- worker ---------------------------------------------------------------------------------
     def _run(self) -> None:

@@ -11,6 +11,8 @@ Two ways in, same language:
 Language (``help`` prints it with every key's unit and meaning)::
 
     [LANE.]KEY = VALUE      e.g.  goal = 100      nec.dead_band = 0.05
+    dvs.KEY = VALUE         the camera's DVS biases, e.g. dvs.c_on = 0.2, dvs.refractory_us = 50
+    bias.NAME = C/F         a raw coarse/fine bias, e.g. bias.DiffBn = 4/39
     set [LANE.]KEY VALUE
     drive NAME [LANE]       switch the controller that drives the lane's camera
     mark [TEXT]             keep a clip around this moment (with --clips; always noted in the recording)
@@ -24,6 +26,8 @@ and the P-TEDI thresholds ``c_on``, ``c_off`` and ``c`` (both). Without ``LANE.`
 every lane that has it. Changes run on the streaming thread between two packets
 (:meth:`~necviz.pipeline.Pipeline.tune`, :meth:`~necviz.pipeline.Pipeline.drive`), are logged to
 the recording (``tuning``) and to the native recording, and bad values are refused with a reason.
+``dvs.KEY`` and ``bias.NAME`` set the camera's DVS biases, P-TEDI's thresholds following
+(:mod:`necviz.dvs_controls`, :meth:`~necviz.pipeline.Pipeline.tune_dvs`).
 """
 
 from __future__ import annotations
@@ -37,9 +41,10 @@ from pathlib import Path
 
 from necviz.core.control import CONTROLLERS
 from necviz.core.errors import NecvizError, ParameterError
+from necviz.dvs_controls import PREFIXES as DVS_PREFIXES
 from necviz.pipeline import THRESHOLD_KEYS
 
-SYNTAX = "[LANE.]KEY = VALUE | set [LANE.]KEY VALUE | drive NAME [LANE] | mark [TEXT] | status | help"
+SYNTAX = "[LANE.]KEY = VALUE | dvs.KEY = VALUE | bias.NAME = C/F | set [LANE.]KEY VALUE | drive NAME [LANE] | mark [TEXT] | status | help"
 
 _ASSIGN = re.compile(r"^(?:set\s+)?(?:(?P<lane>[A-Za-z_][\w-]*)\.)?(?P<key>[A-Za-z_]\w*)\s*(?:=|\s)\s*(?P<value>\S+)$")
 _DRIVE = re.compile(r"^drive\s+(?P<name>[\w-]+)(?:\s+(?P<lane>[\w-]+))?$")
@@ -47,7 +52,7 @@ _DRIVE = re.compile(r"^drive\s+(?P<name>[\w-]+)(?:\s+(?P<lane>[\w-]+))?$")
 
 @dataclass(frozen=True)
 class Command:
-    """One parsed line: ``kind`` is ``set``, ``drive``, ``status`` or ``help``."""
+    """One parsed line: ``kind`` is ``set``, ``dvs``, ``drive``, ``mark``, ``status`` or ``help``."""
 
     kind: str
     key: str | None = None
@@ -78,6 +83,9 @@ def parse(line: str) -> Command | None:
     m = _ASSIGN.match(text)
     if not m:
         raise ParameterError(f"cannot read {text!r}; commands: {SYNTAX}")
+    if m.group("lane") in DVS_PREFIXES:  # the camera's DVS: dvs.c_on = 0.2, bias.DiffBn = 4/39 (necviz.dvs_controls)
+        key = m.group("key") if m.group("lane") == "dvs" else f"bias.{m.group('key')}"
+        return Command("dvs", key, m.group("value"), None, text)
     from necviz.core.checks import parse_number
 
     return Command("set", m.group("key"), parse_number(m.group("key"), m.group("value")), m.group("lane"), text)
@@ -89,6 +97,12 @@ def keys(pipeline) -> dict[str, str]:
     for lane in pipeline.lanes.values():
         for name, t in lane.controller.tunables().items():
             out.setdefault(name, f"{t.unit}: {t.doc}")
+    dvs = getattr(pipeline, "dvs", None)
+    if dvs is not None and dvs.available:  # the camera's DVS biases
+        from necviz.core.biases import CONTROLS
+
+        out.update({f"dvs.{k}": v for k, v in CONTROLS.items()})
+        out["bias.NAME"] = "COARSE/FINE: a raw coarse/fine bias (e.g. bias.DiffBn = 4/39)"
     return out
 
 
@@ -115,6 +129,12 @@ def execute(pipeline, command: Command, timeout: float | None = 5.0) -> str:
             return fut.result(timeout)
         except TimeoutError:
             return "mark: queued (applies at the next packet)"
+    if command.kind == "dvs":
+        fut = pipeline.tune_dvs(command.key, command.value)
+        try:
+            return fut.result(timeout)
+        except TimeoutError:
+            return f"{command.text}: queued (applies at the next packet)"
     if command.kind == "set":
         lanes = pipeline.lanes if command.lane is None else {command.lane: pipeline.lanes.get(command.lane)}
         if command.lane is not None and lanes[command.lane] is None:
@@ -221,6 +241,12 @@ class TuningConsole:
         words = ["help", "status", "set", "drive", "mark", *sorted(CONTROLLERS), *keys(self.pipeline)]
         words += [f"{lane}.{k}" for lane, ln in self.pipeline.lanes.items() for k in ln.tunables()]
         words += list(self.pipeline.lanes)
+        dvs = getattr(self.pipeline, "dvs", None)
+        if dvs is not None and dvs.available:  # the camera's bias names (bias.DIFFBN = 4/39)
+            from necviz.core.biases import BIAS_ADDRESSES, family_of
+
+            family = family_of(getattr(self.pipeline.source, "dvs_family", "DAVIS346"))
+            words += [f"bias.{n}" for n in BIAS_ADDRESSES[family]]
         return WordCompleter(sorted(set(words), key=words.index), WORD=True)
 
     def _run_prompt(self) -> None:
@@ -304,10 +330,12 @@ class TuningFile:
             if command is None:
                 continue
             n += 1
-            if command.kind in ("set", "drive"):
+            if command.kind in ("set", "drive", "dvs"):
                 fut = (
                     self.pipeline.tune(command.key, command.value, command.lane)
                     if command.kind == "set"
+                    else self.pipeline.tune_dvs(command.key, command.value)
+                    if command.kind == "dvs"
                     else self.pipeline.drive(command.key, command.lane)
                 )
                 fut.add_done_callback(self._report)
