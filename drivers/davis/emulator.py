@@ -250,8 +250,10 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         self.aps_orientation = o.aps_orientation
         self.variant = o.variant
         self.bus, self.address = o.bus, o.address
-        self.lock = threading.RLock()  # registers, FIFO and faults (control and data paths)
-        self._data_lock = threading.Lock()  # the simulator (non-realtime data path): not held by control transfers
+        self.lock = threading.RLock()  # registers and faults (the control path; the data path takes it only to check)
+        # the data path (simulator, encoder, FIFO): never held by an exposure write, so a control transfer does not
+        # wait for the simulation (taken after ``lock`` when both are needed, never the other way round)
+        self._data_lock = threading.Lock()
         #: the last TRANSFER_LOG control transfers, in order (``transfers_total`` counts them all)
         self.transfers: deque[ControlRecord] = deque(maxlen=TRANSFER_LOG)
         self.transfers_total = 0
@@ -398,8 +400,9 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
             us = max(value / self.adc_mhz, 1.0)
             self._rig.set_exposure("camera", us, 1.0)
         elif key == (P.MUX.MODULE, P.MUX.TIMESTAMP_RESET) and value and self._encoder is not None:
-            self._pending += self._encoder.timestamp_reset().tobytes()
-            self._base_us = self._rig.now_us if self._rig is not None else 0
+            with self._data_lock:  # the FIFO and device time belong to the data path (lock order: lock, data lock)
+                self._pending += self._encoder.timestamp_reset().tobytes()
+                self._base_us = self._rig.now_us if self._rig is not None else 0
 
 
 def find_emulated(backend: EmulatedDavis346):

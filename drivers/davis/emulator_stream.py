@@ -255,7 +255,8 @@ class DataPathMixin:
             raise _usb_error(errno.EPIPE, "Pipe error")
         running = self._running()
         if running:
-            self._ensure_rig()
+            with self._data_lock:  # the FIFO and the encoder belong to the data path
+                self._ensure_rig()
         elif self._encoder is not None and not self.reg(P.USB.MODULE, P.USB.RUN):
             self._encoder = None  # stopped: the next start restarts device time
         return running
@@ -279,7 +280,7 @@ class DataPathMixin:
         if produce:  # simulate without the control lock: a control transfer (an exposure command) does not
             with self._data_lock:  # wait for the simulator, as a real device's does not wait for its sensor
                 self._produce()
-        with self.lock:
+        with self._data_lock:
             n = self._take(memoryview(buff).cast("B"), 0)
             if n:
                 self.bulk_reads += 1
@@ -310,8 +311,11 @@ class DataPathMixin:
         got = 0
         first = True
         while True:
-            with self.lock:
+            with self.lock:  # registers and faults: held only for the checks, never while simulating
                 running = self._faults_and_state(ep)
+            # the sensor is simulated under the data lock alone: a control transfer (an exposure command) is
+            # served meanwhile, as a real device's control endpoint does not wait for its sensor
+            with self._data_lock:
                 if running and not self._scene_done and self._wall_start is None:
                     # the simulator's first packet takes a while (start-up): device time 0 is when it is ready
                     self._produce(1)
