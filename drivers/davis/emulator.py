@@ -318,6 +318,7 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         self.events_generated = 0  # DVS events the sensor produced (delivered + dropped)
         self.frames_skipped = 0  # frames not exposed because the FIFO was full at their start
         self.fifo_peak = 0
+        self.clock_slip_us = 0  # realtime: device time lost because the simulation fell behind the wall clock
         self._load_us = 0  # device time up to which load events were generated
         self._read_end_us: float | None = None  # device time the last transfer ended (realtime)
         self._unbounded = False

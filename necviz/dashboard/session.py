@@ -331,9 +331,12 @@ def print_summary(out, stats: dict) -> None:
     for name, s in stats["lanes"].items():
         print(
             f"  {name:8s} {s['frames']:4d} frames, {s['saturated_frames_50']:3d} saturated, {s['commands']:5d} "
-            f"commands, latency p50 {_us(s['latency_p50_us'])} p99 {_us(s['latency_p99_us'])}",
+            f"commands, processing p50 {_us(s['latency_p50_us'])} p99 {_us(s['latency_p99_us'])}",
             file=out,
         )
+        line = reaction_line(s.get("reaction"))
+        if line:
+            print(f"  {'':8s} {line}", file=out)
     src = stats.get("source")
     if src:
         lost = src.get("dropped_events", 0)
@@ -344,6 +347,18 @@ def print_summary(out, stats: dict) -> None:
             f"words skipped; {src.get('reconnects', 0)} reconnects",
             file=out,
         )
+        if "lag_peak_us" in src:
+            held = src.get("backpressure_events", 0)
+            print(
+                f"  reader: backlog peak {src['lag_peak_us'] / 1000:.1f} ms of sensor time; "
+                + (
+                    f"held back {held} times for {src.get('backpressure_s', 0.0):.2f} s (the host fell behind: "
+                    "the device dropped meanwhile)"
+                    if held
+                    else "never held back"
+                ),
+                file=out,
+            )
     fr = stats.get("flight_recorder")
     if fr:
         dropped = (
@@ -374,6 +389,24 @@ def print_summary(out, stats: dict) -> None:
             f"{sk['events_decimated']:,} of {sk['events_seen']:,} events not drawn (decimation)",
             file=out,
         )
+
+
+def reaction_line(r: dict | None) -> str:
+    """The reaction in sensor time, one line (:mod:`necviz.reaction`); '' when nothing was measured."""
+    if not r or not r.get("changes"):
+        return ""
+    late, lag = r["frames_late"], r["command_to_exposure_us"]
+    if not r["applied"]:
+        return f"reaction: none of {r['changes']} exposure changes reached a frame (open loop, or the run was too short)"
+
+    def ms(v):
+        return "—" if v is None else f"{v / 1000:.1f} ms"
+
+    return (
+        f"reaction (sensor time): {r['applied']} of {r['changes']} changes reached a frame "
+        f"({r['superseded']} superseded); frames late p50 {late['p50']:.0f} p99 {late['p99']:.0f} max {late['max']}; "
+        f"cause to exposure p50 {ms(lag['p50'])} p99 {ms(lag['p99'])}"
+    )
 
 
 def _us(v: float) -> str:
