@@ -20,8 +20,8 @@ from necviz.dashboard.recorders import open_recorder
 from necviz.dashboard.session import Session, preflight, run_session, scene_inputs
 from necviz.flight_recorder import clip_observer
 from necviz.options import LiveOptions, ViewerOptions
-from necviz.pipeline import Lane
 from necviz.outputs import write_json
+from necviz.pipeline import Lane
 from necviz.progress import output
 
 LANE = "camera"

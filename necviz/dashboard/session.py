@@ -27,6 +27,7 @@ from necviz.options import ShowOptions, TuneOptions, ViewerOptions
 from necviz.outputs import OutputError, low_space
 from necviz.pipeline import Lane, Pipeline, RecorderObserver
 from necviz.progress import LiveLine, output, plural
+from necviz.reaction import reaction_line
 
 
 @dataclass
@@ -389,24 +390,6 @@ def print_summary(out, stats: dict) -> None:
             f"{sk['events_decimated']:,} of {sk['events_seen']:,} events not drawn (decimation)",
             file=out,
         )
-
-
-def reaction_line(r: dict | None) -> str:
-    """The reaction in sensor time, one line (:mod:`necviz.reaction`); '' when nothing was measured."""
-    if not r or not r.get("changes"):
-        return ""
-    late, lag = r["frames_late"], r["command_to_exposure_us"]
-    if not r["applied"]:
-        return f"reaction: none of {r['changes']} exposure changes reached a frame (open loop, or the run was too short)"
-
-    def ms(v):
-        return "—" if v is None else f"{v / 1000:.1f} ms"
-
-    return (
-        f"reaction (sensor time): {r['applied']} of {r['changes']} changes reached a frame "
-        f"({r['superseded']} superseded); frames late p50 {late['p50']:.0f} p99 {late['p99']:.0f} max {late['max']}; "
-        f"cause to exposure p50 {ms(lag['p50'])} p99 {ms(lag['p99'])}"
-    )
 
 
 def _us(v: float) -> str:
