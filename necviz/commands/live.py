@@ -151,7 +151,7 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
 
     def write_summary(stats):  # before the recordings are committed: a file that cannot be written fails the run
         if options.json is not None:
-            write_json(options.json, live_summary(stats, props), indent=1, flag="--json")
+            write_json(options.json, live_summary(stats, props, backend), indent=1, flag="--json")
 
     stats = run_session(
         Session(
@@ -177,16 +177,25 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
         out,
         stdin,
     )
+    slip = getattr(backend, "clock_slip_us", 0)
+    if slip and out is not None:  # the emulated sensor could not keep up with the wall clock: say how far it slipped
+        print(
+            f"  emulated sensor: its simulation fell {slip / 1e6:.2f} s behind the wall clock; the sensor's clock "
+            "slipped by as much (it never sends stale time in bulk)",
+            file=out,
+        )
     if options.json is not None and out is not None:
         print(f"  wrote {options.json}", file=out)
     return stats
 
 
-def live_summary(stats: dict, properties: dict | None = None) -> dict:
+def live_summary(stats: dict, properties: dict | None = None, backend=None) -> dict:
     """The JSON of ``live --json``: the run, then per lane its frames, saturated frames (> 50 % clipped),
     events, commands, the processing latency (packet out of the source -> command handed back, wall µs) and
     the reaction in sensor time (:mod:`necviz.reaction`): ``frames_late`` p50/p99/max and
-    ``command_to_exposure_us`` p50/p99 over the exposure changes that reached a frame."""
+    ``command_to_exposure_us`` p50/p99 over the exposure changes that reached a frame; the reader's deepest
+    backlog and how often it held back; for the emulated camera, how far its clock slipped behind the wall
+    clock and the frames its full FIFO kept from being exposed."""
 
     def num(v):
         return None if v is None or (isinstance(v, float) and v != v) else v
@@ -222,4 +231,9 @@ def live_summary(stats: dict, properties: dict | None = None) -> dict:
             if k in src
         },
         "lanes": lanes,
+        **(
+            {"emulator": {"clock_slip_s": backend.clock_slip_us / 1e6, "frames_skipped": backend.frames_skipped}}
+            if hasattr(backend, "clock_slip_us")
+            else {}
+        ),
     }
