@@ -355,8 +355,12 @@ class DataPathMixin:
                                 self._unbounded = False
                             self._late = len(self._pending)
                         self._produce(int(target))
-                    else:  # inside the transfer: 1 ms at a time, each straight on to the host
-                        while self._sensor_us() < target and got < len(view) and self._produce():
+                    else:  # inside the transfer: up to 1 ms at a time, never past the wall clock, each straight on
+                        while (  # to the host
+                            self._sensor_us() < target
+                            and got < len(view)
+                            and self._produce(min(self._sensor_us() + 1000, int(target) + 1))
+                        ):
                             got = self._take(view, got)
                 got = self._take(view, got)
                 finished = running and self._scene_done and not self._pending
