@@ -497,8 +497,8 @@ class Pipeline:
     def _command(self, ln: Lane, cmd, t_in: int, cause_us: int | None = None) -> None:
         if ln.drives:
             self.source.set_exposure(ln.camera, cmd.exposure_us, cmd.gain)
-            if cause_us is not None:
-                self.reactions[ln.name].command(cause_us, cmd.exposure_us, cmd.gain)
+        if cause_us is not None:  # an open-loop lane's commands are counted, never matched to frames
+            self.reactions[ln.name].command(cause_us, cmd.exposure_us, cmd.gain, applies=ln.drives)
         latency_us = (time.perf_counter_ns() - t_in) / 1e3
         self.telemetry[ln.name].command(latency_us, cmd)
         for o in self.observers:

@@ -18,8 +18,8 @@ lane issues, :class:`ReactionMeter` keeps
 A command that repeats the setting of the previous one changes nothing for the camera and is not a new
 change to wait for: it is counted (``commands``) but not tracked (``changes`` counts the others). The match
 is made on what the frames report (their exposure and gain), so it needs nothing from the source and holds
-for the simulator, a DAVIS and a recording alike; in an open-loop replay the recorded frames do not follow
-the commands, and few or none are applied.
+for the simulator and a DAVIS alike. An open-loop lane (a replay: the recorded frames do not follow the
+commands) has its commands counted and is reported as open loop, never matched to frames.
 
 Memory is bounded: at most :data:`PENDING` changes wait for a frame (older ones count as superseded),
 the last :data:`STARTS` exposure starts are kept, ``frames_late`` is counted per value and
@@ -60,6 +60,7 @@ class ReactionMeter:
         self._pending: deque[list] = deque(maxlen=PENDING)  # [cause_us, exposure_us, gain, starts seen]
         self._last: tuple[float, float] | None = None
         self.commands = 0
+        self.open_loop = False
         self.changes = 0
         self.applied = 0
         self.superseded = 0
@@ -75,9 +76,13 @@ class ReactionMeter:
         self._starts.append(t)
         self._n_starts += 1
 
-    def command(self, cause_us: int, exposure_us: float, gain: float) -> None:
-        """The lane issued a command caused by the packet of sensor time ``cause_us``."""
+    def command(self, cause_us: int, exposure_us: float, gain: float, applies: bool = True) -> None:
+        """The lane issued a command caused by the packet of sensor time ``cause_us``; ``applies=False``: an
+        open-loop lane (a replay), whose commands never reach the camera — counted, not waited for."""
         self.commands += 1
+        if not applies:
+            self.open_loop = True
+            return
         exp, g = float(exposure_us), float(gain)
         if self.limits is not None:
             exp, g = self.limits.clamp(exp, g)
@@ -149,6 +154,7 @@ class ReactionMeter:
         h = self.to_exposure
         return {
             "commands": self.commands,
+            "open_loop": self.open_loop,
             "changes": self.changes,
             "applied": self.applied,
             "superseded": self.superseded,
@@ -168,6 +174,11 @@ class ReactionMeter:
 
 def reaction_line(r: dict | None) -> str:
     """The reaction in sensor time, one line (:mod:`necviz.reaction`); '' when nothing was measured."""
+    if r and r.get("open_loop") and not r.get("changes"):
+        return (
+            f"reaction: open loop ({r['commands']} commands computed; the recorded frames do not follow them, "
+            "so no reaction is measured)"
+        )
     if not r or not r.get("changes"):
         return ""
     late, lag = r["frames_late"], r["command_to_exposure_us"]

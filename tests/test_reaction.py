@@ -40,3 +40,14 @@ def test_an_open_loop_frame_that_never_follows_leaves_the_change_pending():
         m.frame(20_000 * (k + 1), 5000, 1.0)
     r = m.summary()
     assert r["applied"] == 0 and r["pending"] == 1 and r["frames_late"]["p99"] is None
+
+
+def test_an_open_loop_lane_counts_its_commands_and_says_so():
+    from necviz.reaction import reaction_line
+
+    m = ReactionMeter()
+    m.command(0, 1234.0, 1.0, applies=False)
+    m.frame(20_000, 1234, 1.0)  # a recorded frame that happens to match: not a reaction
+    r = m.summary()
+    assert r["open_loop"] and r["commands"] == 1 and r["applied"] == 0
+    assert "open loop" in reaction_line(r)
