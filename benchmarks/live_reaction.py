@@ -2,7 +2,7 @@
 """The live loop's reaction in sensor time at every speed: ``necviz live --device emulated`` (issue 27 item 1).
 
 Runs ``necviz live --device emulated --scenario static_lab --duration 6 --speed S --json ...`` for each
-speed (default ``1`` and ``max``), each in a fresh process, and reads its ``--json`` summary: saturated
+speed (default ``1``, ``4`` and ``max``), each in a fresh process, and reads its ``--json`` summary: saturated
 frames, the exposure changes and how many reached a frame, ``frames_late`` (exposures that started between
 the packet that caused a change and the first exposure that used it) p50/p99/max, the cause-to-exposure
 time p50/p99 in sensor time, the processing latency, the reader's deepest backlog (sensor time), events the
@@ -10,7 +10,7 @@ device dropped and how far the emulated sensor's clock slipped behind the wall c
 than real time on a loaded machine). Target: at ``--speed 1`` within 2 saturated frames of ``--speed max``,
 and ``frames_late`` p99 ≤ 1 at every speed.
 
-usage: python benchmarks/live_reaction.py [--speeds 1,max] [--repeats 1] [--json benchmarks/results/live_reaction.json]
+usage: python benchmarks/live_reaction.py [--speeds 1,4,max] [--repeats 1] [--json benchmarks/results/live_reaction.json]
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ def run_one(speed: str, tmp: str) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--speeds", default="1,max")
+    ap.add_argument("--speeds", default="1,4,max")
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)

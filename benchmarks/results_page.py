@@ -177,8 +177,11 @@ def r_live_reaction(d: dict) -> str:
         "caused an exposure change and the first exposure that used it (0: the very next one); *cause → "
         "exposure*: the same interval in sensor time (a 20 ms frame period bounds it at frames late 0). Target "
         "(issue 27): at `--speed 1` within 2 saturated frames of `--speed max`, frames late p99 ≤ 1 at every "
-        "speed. The emulated sensor runs on the wall clock at `--speed 1` and slips its clock when the "
-        "simulation cannot keep up on a loaded machine (*sensor clock slip*); the events it dropped are its "
+        "speed. The emulated sensor runs on the wall clock scaled by the speed and slips its clock when the "
+        "simulation cannot keep up on a loaded machine (*sensor clock slip*: at `--speed 4` it mostly ran at the "
+        "simulation's own pace); the reader's queue holds at most one frame interval (20 ms) of sensor time beyond "
+        "what the loop took (with 0.1 s the backlog reached 52 ms at `--speed 4` and frames late p99 was 2); the "
+        "events it dropped are its "
         "128 KiB FIFO overflowing while the reader thread waited for the interpreter (a frame's words alone "
         "exceed the FIFO), counted by the device and reported by the summary, not lost silently."
     )

@@ -25,6 +25,11 @@ from necviz.pipeline import Lane
 from necviz.progress import output
 
 LANE = "camera"
+#: the reader's queue holds at most this much sensor time beyond what the loop has taken: one frame interval (20 ms),
+#: so a command is never computed from data older than the frame being exposed (beyond it the device drops, counts
+#: and the summary reports; measured in benchmarks/live_reaction.py: with 0.1 s the backlog reached 50 ms at
+#: --speed 4 and commands landed 2 frames late)
+LIVE_LAG_S = 0.02
 #: at --speed max the emulated sensor runs as fast as it is read; its reader stays within this much sensor time
 #: of what the pipeline has taken (a few ms: well within one frame), so it never runs ahead of the loop
 MAX_SPEED_LAG_S = 0.005
@@ -91,7 +96,7 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     if speed == "auto":  # as the session resolves it: real time when a viewer watches
         speed = 1.0 if viewer.watched else None
     backend = None
-    camera_options = CameraOptions(reconnect=options.reconnect)
+    camera_options = CameraOptions(reconnect=options.reconnect, buffer_s=LIVE_LAG_S)
     if options.device == "emulated":
         from necviz.drivers.davis.emulator import EmulatedDavis346, EmulatorOptions, Faults
 
