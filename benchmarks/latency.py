@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from necviz.bench.timing import machine, spread, write_result  # noqa: E402
 
 SAMPLE = Path(__file__).resolve().parents[2] / "shared" / "data" / "davis346_sample.aedat4"
-LINE = re.compile(r"(\d+) commands, latency p50 ([\d.]+) µs p99 ([\d.]+) µs")
+LINE = re.compile(r"(\d+) commands, processing p50 ([\d.]+) µs p99 ([\d.]+) µs")
 
 
 def commands(out_dir: str) -> dict:

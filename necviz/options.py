@@ -612,6 +612,9 @@ class LiveOptions:
         Pacing and drawing; live tuning.
     clips : ClipOptions, optional
         The flight recorder.
+    json : path, optional
+        Write the run's summary per lane (frames, saturated frames, events, commands, processing latency,
+        the reaction in sensor time) as JSON; an existing file is replaced only with ``force``.
 
     Raises
     ------
@@ -633,6 +636,7 @@ class LiveOptions:
     show: ShowOptions = field(default_factory=ShowOptions)
     tune: TuneOptions = field(default_factory=TuneOptions)
     clips: ClipOptions | None = None
+    json: str | os.PathLike | None = None
 
     def __post_init__(self):
         if self.device not in ("usb", "dv", "emulated"):

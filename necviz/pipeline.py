@@ -14,7 +14,9 @@ through methods that only append to memory, so control never waits for them.
 
 Measured per command: the processing latency from the moment the packet that caused it left the
 source to the moment the command was handed back (the source's batch period, ≤ 1 ms, comes on
-top in sensor time). Start-up is not in it: before the first packet, every kernel the lanes and
+top in sensor time), and the reaction in sensor time — from the packet that caused it to the start of
+the first exposure that used it, and the frames that started in between (:mod:`necviz.reaction`,
+``stats["lanes"][lane]["reaction"]``). Start-up is not in it: before the first packet, every kernel the lanes and
 observers use is compiled or loaded from Numba's cache (:mod:`necviz.warmup`, on copies of the
 lanes; ``warm_up=False`` skips it).
 
@@ -48,6 +50,7 @@ from necviz.core.stream import packet_time_us
 from necviz.dashboard import schema as S
 from necviz.dashboard.telemetry import FrameRecord, Telemetry
 from necviz.dvs_controls import DvsControls
+from necviz.reaction import ReactionMeter
 
 #: Thresholds of the lane's P-TEDI estimator, tunable like the controller's own parameters.
 THRESHOLD_KEYS = ("c_on", "c_off", "c")
@@ -197,6 +200,9 @@ class Pipeline:
         if missing:
             raise ParameterError(f"the telemetry has no lane {missing[0]!r}")
         self.telemetry.attach(lanes, source)  # what the diagnosis of saturated frames needs to know
+        limits = getattr(getattr(source, "camera_info", None), "limits", None)
+        #: each lane's reaction in sensor time (cause -> first exposure that used the command; :mod:`necviz.reaction`)
+        self.reactions = {name: ReactionMeter(limits) for name in names}
         self.observers = list(observers)
         self.speed = speed
         self.sample_period_us = int(sample_period_us)
@@ -446,7 +452,7 @@ class Pipeline:
                             ln.passive.update(batch)
                         cmd = ln.controller.feed(packet)
                         if cmd is not None:
-                            self._command(ln, cmd, t_in)
+                            self._command(ln, cmd, t_in, t)
                     for o in observers:
                         o.events(batch)
                     if observers and t >= next_sample:
@@ -459,10 +465,11 @@ class Pipeline:
                     if watchers:
                         tel.frames += 1
                     for ln in watchers or ():
+                        self.reactions[ln.name].frame(packet.exposure_start_us, packet.exposure_us, packet.gain)
                         est = ln.passive.add_frame(packet) if ln.passive is not None else None
                         cmd = ln.controller.feed(packet)
                         if cmd is not None:
-                            self._command(ln, cmd, t_in)
+                            self._command(ln, cmd, t_in, t)
                         if est is None:
                             est = ln.controller.last_frame_estimate
                         rec = lane_tel[ln.name].frame(packet, est, _estimator(ln).min_valid_fraction)
@@ -474,11 +481,12 @@ class Pipeline:
                     for ln in self._watchers.get(cam, ()):
                         if packet.kind == "start":
                             lane_tel[ln.name].exposure_start(packet.t_us, ln.estimator)
+                            self.reactions[ln.name].start(packet.t_us)
                         if ln.passive is not None:
                             ln.passive.feed(packet)
                         cmd = ln.controller.feed(packet)
                         if cmd is not None:
-                            self._command(ln, cmd, t_in)
+                            self._command(ln, cmd, t_in, t)
                 case ImuBatch() | TriggerBatch():  # for observers only; no controller uses them
                     for o in observers:
                         o.packet(cam, packet)
@@ -519,9 +527,11 @@ class Pipeline:
                 for o in self.observers:
                     o.prediction(ln.name, t, lp)
 
-    def _command(self, ln: Lane, cmd, t_in: int) -> None:
+    def _command(self, ln: Lane, cmd, t_in: int, cause_us: int | None = None) -> None:
         if ln.drives:
             self.source.set_exposure(ln.camera, cmd.exposure_us, cmd.gain)
+        if cause_us is not None:  # an open-loop lane's commands are counted, never matched to frames
+            self.reactions[ln.name].command(cause_us, cmd.exposure_us, cmd.gain, applies=ln.drives)
         latency_us = (time.perf_counter_ns() - t_in) / 1e3
         self.telemetry[ln.name].command(latency_us, cmd)
         for o in self.observers:
@@ -565,6 +575,9 @@ class Pipeline:
             stats["lanes"][name]["ptedi"] = th
         if self.dvs.history and self.dvs.state is not None:
             stats["dvs"] = {"changes": self.dvs.history, **self.dvs.state.settings().as_dict()}
+        for name, lane in stats.get("lanes", {}).items():
+            if name in self.reactions:
+                lane["reaction"] = self.reactions[name].summary()
         if err is not None:
             raise err
         return stats

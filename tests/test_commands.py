@@ -273,3 +273,29 @@ def test_tuned_limits_must_fit_the_camera():
     with pytest.raises(Exception, match="outside what the camera accepts"):
         refused.result(0)
     assert ok.result(0) and pipe.lanes["camera"].controller.limits.exposure_max_us == 12000
+
+
+def test_live_at_real_time_pace_reacts_within_a_frame(tmp_path, capsys):
+    """``live --speed 1`` on the emulated camera (issue 27 item 1): the emulated sensor is paced on the wall
+    clock, never ahead of the loop, so NEC's exposure changes reach the next exposure or the one after
+    (frames_late ≤ 1 in sensor time), and ``--json`` writes the summary per lane — once: an existing file is
+    replaced only with --force."""
+    out_json = tmp_path / "live.json"
+    args = ["live", "--device", "emulated", "--scenario", "static_lab", "--duration", "1.5", "--speed", "1"]
+    args += ["--save", str(tmp_path / "l.rrd"), "--json", str(out_json), "--no-prompt"]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "reaction (sensor time)" in out and "processing p50" in out
+    summary = json.loads(out_json.read_text())
+    assert summary["run"]["speed"] == 1.0
+    lane = summary["lanes"]["camera"]
+    assert lane["frames"] >= 60 and lane["events"] > 0 and lane["commands"] > 0
+    assert lane["changes_applied"] >= 3  # the static_lab's light steps were reacted to
+    assert lane["frames_late"]["p99"] <= 1
+    assert 0 < lane["command_to_exposure_us"]["p50"] <= 2 * 20_000  # within two 20 ms frame intervals
+    assert summary["reader"]["lag_peak_us"] <= 100_000  # the reader's queue is bounded in sensor time
+    before = out_json.read_text()
+    (tmp_path / "l.rrd").unlink()
+    assert main(args) == 2  # the --json file exists: refused, in one line, nothing overwritten
+    err = capsys.readouterr().err
+    assert "--json" in err and len(err.strip().splitlines()) == 1 and out_json.read_text() == before

@@ -206,3 +206,44 @@ def test_roi_frames_keep_sensor_coordinates():
         mask = np.ones(SMALL.shape, bool)
         mask[5:31, 10:41] = False
         assert not a.image[mask].any()
+
+
+def test_a_control_transfer_does_not_wait_for_the_simulation():
+    """While the emulated sensor is being simulated (held here inside the realtime data path), an exposure
+    write is served at once: a real device's control endpoint does not wait for its sensor (issue 27)."""
+    import threading
+
+    from necviz.drivers.davis.device import DavisDevice, find_devices
+
+    be = EmulatedDavis346(EmulatorOptions(duration_s=0.3, sensor=SensorGeometry(64, 48), realtime=True))
+    dev = DavisDevice(find_devices(be)[0], be, emulated=True)
+    dev.send_default_config()
+    dev.start(settle_s=(0, 0, 0))
+    import array
+
+    buf = array.array("B", bytes(64 * 1024))
+    dev.read(buf, 500)  # streaming
+    inside, release = threading.Event(), threading.Event()
+    produce = be._produce
+
+    def slow_produce(until=None):
+        inside.set()
+        release.wait(5.0)
+        return produce(until)
+
+    be._produce = slow_produce
+    reader = threading.Thread(target=lambda: dev.read(buf, 500), daemon=True)
+    reader.start()
+    assert inside.wait(5.0)  # the data path is simulating now
+    done = threading.Event()
+    writer = threading.Thread(target=lambda: (dev.set_exposure_us(1234), done.set()), daemon=True)
+    writer.start()
+    served = done.wait(2.0)
+    release.set()
+    reader.join(5.0)
+    be._produce = produce
+    assert served  # the write did not wait for the simulation to finish
+    from necviz.drivers.davis import protocol as P
+
+    assert be.reg(P.APS.MODULE, P.APS.EXPOSURE) == dev.us_to_cycles(1234)
+    dev.close()

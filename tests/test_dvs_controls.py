@@ -418,3 +418,20 @@ def test_a_replay_follows_the_recorded_bias_changes(tmp_path):
     new = [last for last, c in seen if c != c0]
     assert max(old) < t_live <= min(new)
     assert est.params.c_on == pytest.approx(0.13, rel=0.01)  # the recorded model ratio x this lane's own c_on
+
+
+def test_live_json_states_the_thresholds_ptedi_used(tmp_path):
+    """``live --dvs c_on=0.15 --dvs c_off=0.15 --json``: each lane's summary says P-TEDI ran at 0.15 (the
+    nearest setting the biases reach), beside its events, and the run's DVS settings are in it."""
+    import json
+
+    from necviz.commands.cli import main
+
+    out = tmp_path / "live.json"
+    args = ["live", "--device", "emulated", "--scenario", "static_lab", "--duration", "0.5", "--speed", "max"]
+    args += ["--dvs", "c_on=0.15", "--dvs", "c_off=0.15", "--json", str(out), "--no-prompt"]
+    assert main(args) == 0
+    lane = json.loads(out.read_text())["lanes"]["camera"]
+    assert lane["events"] > 0
+    assert lane["ptedi"]["c_on"] == pytest.approx(0.15, rel=0.01)
+    assert lane["ptedi"]["c_off"] == pytest.approx(0.15, rel=0.01)

@@ -15,9 +15,12 @@ ADC cycles, its *echo*; an echo within :data:`ECHO_TOLERANCE_CYCLES` of the regi
 :mod:`necviz.drivers.command_log`); that frame's start is the command's ``applied_start_us``. Memory
 stays bounded over a long session (:class:`~necviz.drivers.command_log.CommandLog`).
 
-Loss: the reader thread buffers :attr:`CameraOptions.buffer_s` (2 s) of data at the peak rate, so a consumer that
-pauses (a GC pause, a slow viewer) loses nothing; past that it stops reading and the device drops
-whole DVS events and counts them — ``stats["dropped_events"]`` (see :class:`~.device.BulkReader`).
+Loss and lag: the reader thread decodes each transfer and queues at most :attr:`CameraOptions.buffer_s` (0.1 s) of
+sensor time beyond what the consumer has taken, so a consumer that pauses briefly (a GC pause, a slow viewer) loses
+nothing, and one that falls behind never works on data seconds old: past the bound the reader stops reading and the
+device drops whole DVS events and counts them — ``stats["dropped_events"]``; ``stats["backpressure_s"]`` and
+``backpressure_events`` say how long and how often the reader held back, ``lag_peak_us`` the deepest backlog in
+sensor time (see :class:`~.device.BulkReader`).
 
 Unplugging: every packet already decoded is yielded, then iteration raises
 :class:`~.errors.DeviceDisconnectedError` — unless ``CameraOptions(reconnect=True)``: then ``state`` becomes
@@ -53,6 +56,8 @@ if TYPE_CHECKING:
 
 #: digital gain limit of the live camera (linear)
 DIGITAL_GAIN_MAX = 8.0
+#: reader counters that are peaks (kept as the maximum over connections, not summed)
+_PEAKS = ("queue_peak_bytes", "lag_peak_us")
 #: readout time kept free in each frame interval when limiting the exposure (µs)
 READOUT_ALLOWANCE_US = 1000
 RECONNECT_POLL_S = 0.5
@@ -82,8 +87,9 @@ class CameraOptions:
     transfer_size : int
         Bytes per USB bulk transfer.
     buffer_s : float
-        How far (seconds at the peak data rate, 0..60) the consumer may fall behind before the reader
-        stops reading and the device drops (and counts) events.
+        How far (seconds of sensor time, 0..60; default 0.1, five frames at 50 fps) the consumer may fall
+        behind before the reader stops reading and the device drops (and counts) events: a consumer that
+        falls behind works on data at most this old, never seconds old.
 
     Raises
     ------
@@ -96,7 +102,7 @@ class CameraOptions:
     frame_interval_us: float = 20_000.0
     batch_us: int = 1000
     transfer_size: int = 256 * 1024
-    buffer_s: float = 2.0
+    buffer_s: float = 0.1
 
     def __post_init__(self) -> None:
         fi = self.frame_interval_us
@@ -106,7 +112,7 @@ class CameraOptions:
             )
         b = self.buffer_s
         if isinstance(b, bool) or not isinstance(b, (int, float)) or not 0 < b <= 60:
-            raise ParameterError(f"buffer_s must be 0..60 seconds of data at the peak rate, got {b!r}")
+            raise ParameterError(f"buffer_s must be 0..60 seconds of sensor time, got {b!r}")
         for name, value in (
             ("reconnect", bool(self.reconnect)),
             ("exposure_us", check_number("exposure_us", self.exposure_us, 0.0, lo_open=True)),
@@ -175,7 +181,9 @@ class DavisCamera(CommandedCamera):
             "stalls": 0,
             "timeouts": 0,
             "backpressure_s": 0.0,
+            "backpressure_events": 0,
             "queue_peak_bytes": 0,
+            "lag_peak_us": 0,
         }
         self._decoded = {}
         self._device_stats: dict = {}  # the device's counters, as last read on this connection
@@ -206,10 +214,11 @@ class DavisCamera(CommandedCamera):
                     if self._closed:
                         return
                     continue
-                kind, payload = item
-                if kind == "data":
-                    for pk in self._decoder.decode(payload):
-                        yield from self._deliver(pk)
+                kind, payload = item[0], item[1]
+                if kind == "packets":  # decoded on the reader thread
+                    cycles = item[4]
+                    for pk in payload:
+                        yield from self._deliver(pk, cycles)
                 elif kind == "finished":
                     for pk in self._decoder.finish():
                         yield from self._deliver(pk)
@@ -380,7 +389,7 @@ class DavisCamera(CommandedCamera):
         out = dict(self._totals)
         if self._reader is not None:
             for k, v in self._reader.stats.items():
-                out[k] = max(out[k], v) if k == "queue_peak_bytes" else out[k] + v
+                out[k] = max(out[k], v) if k in _PEAKS else out[k] + v
         dec = dict(self._decoded)
         if self._decoder is not None:
             for k, v in self._decoder.stats.items():
@@ -428,7 +437,7 @@ class DavisCamera(CommandedCamera):
         )
         self._decoder = DavisDecoder(fmt, time_offset_us=time_offset_us)
         self._stream_offset_us = time_offset_us
-        self._reader = BulkReader(d, transfer_size=self.transfer_size, buffer_s=self.buffer_s)
+        self._reader = BulkReader(d, transfer_size=self.transfer_size, buffer_s=self.buffer_s, decode=self._decode)
         d.start()
         self._reader.start()
         self.state = "streaming"
@@ -443,7 +452,7 @@ class DavisCamera(CommandedCamera):
                     pass
             self._reader.stop()
             for k, v in self._reader.stats.items():
-                self._totals[k] = max(self._totals[k], v) if k == "queue_peak_bytes" else self._totals[k] + v
+                self._totals[k] = max(self._totals[k], v) if k in _PEAKS else self._totals[k] + v
             self._reader = None
             self._read_device_stats()  # the last counts of this connection (a replugged device restarts them)
             for k, v in self._device_stats.items():
@@ -475,8 +484,16 @@ class DavisCamera(CommandedCamera):
             return True
         return False
 
+    def _decode(self, data) -> tuple:
+        """One transfer decoded (on the reader thread): its packets, the sensor time reached and the exposure
+        cycles each of its frames reported (by frame sequence number)."""
+        dec = self._decoder
+        packets = dec.decode(data)
+        cycles = {pk.sequence: dec.frame_cycles.get(pk.sequence, -1) for pk in packets if isinstance(pk, Frame)}
+        return packets, dec.time_us, cycles
+
     # -- packets --------------------------------------------------------------------------------------
-    def _deliver(self, pk):
+    def _deliver(self, pk, cycles=None):
         if isinstance(pk, np.ndarray):
             if pk.size == 0:
                 return
@@ -495,15 +512,15 @@ class DavisCamera(CommandedCamera):
                     prev = c
             return
         if isinstance(pk, Frame):
-            pk = self._apply_command(pk)
+            pk = self._apply_command(pk, -1 if cycles is None else cycles.get(pk.sequence, -1))
             self._last_t = max(self._last_t, int(pk.exposure_end_us))
         elif isinstance(pk, ExposureMarker):
             self._last_t = max(self._last_t, int(pk.t_us))
         yield pk
 
-    def _apply_command(self, frame: Frame) -> Frame:
-        """Mark the command this frame was exposed with as applied; apply its digital gain."""
-        cyc = self._decoder.last_frame_exposure_cycles if self._decoder is not None else -1
+    def _apply_command(self, frame: Frame, cyc: int) -> Frame:
+        """Mark the command this frame was exposed with (it reported ``cyc`` ADC cycles, -1: none) as applied;
+        apply its digital gain."""
         return with_gain(frame, self._commands.frame(int(frame.exposure_start_us), None if cyc < 0 else cyc))
 
 

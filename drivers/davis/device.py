@@ -582,23 +582,32 @@ PEAK_BYTES_PER_S = 70_000_000
 class BulkReader:
     """Reads endpoint 0x82 on a daemon thread into a queue of ``(kind, payload)`` items.
 
-    Kinds: ``"data"`` (bytes of one transfer), ``"disconnected"`` (the device vanished: ENODEV),
-    ``"finished"`` (the backend says its stream is over: the emulator's ``stream_finished``),
-    ``"error"`` (another USBError, payload = the exception). A stalled endpoint (EPIPE) is cleared
-    and reading continues (counted in ``stalls``).
+    Kinds: ``"data"`` (bytes of one transfer; with ``decode``, ``"packets"``: ``(kind, packets, t_last_us,
+    bytes, extra)``, what the transfer decoded to, see below), ``"disconnected"`` (the device vanished: ENODEV), ``"finished"`` (the backend says
+    its stream is over: the emulator's ``stream_finished``), ``"error"`` (another USBError, payload =
+    the exception). A stalled endpoint (EPIPE) is cleared and reading continues (counted in ``stalls``).
 
     Riding out a consumer that stops reading (a slow viewer, a long computation, a pause): pyusb has
     no asynchronous transfers, so this thread keeps one transfer in flight at all times and parks
-    completed transfers in a queue of up to ``max_queued`` bytes — by default ``buffer_s`` = 2 s at
-    the peak rate (:data:`PEAK_BYTES_PER_S`, 140 MB), i.e. 40 pauses of 50 ms back to back. When the
-    queue is full the thread stops reading (``backpressure_s`` counts the time) instead of
-    discarding transfers: a discarded transfer would cut the word stream anywhere (losing a wrap
-    word shifts every later timestamp), whereas a device that is not read drops whole DVS events
-    itself and counts them (MUX ``STAT_DVS_DROPPED``, with ``DROP_DVS_ON_TRANSFER_STALL`` on), which
-    :meth:`DavisDevice.statistics` reads. Loss is therefore never silent. Not covered: a stall of
-    the whole process (the GIL held for tens of ms) stops this thread too; the transfer in flight
-    and the device's own buffers then hold only a few ms at the peak rate, and what the device
-    drops is reported the same way. ``queue_peak_bytes`` is the deepest the queue has been.
+    completed transfers in a queue. When the queue is full the thread stops reading
+    (``backpressure_s`` counts the time, ``backpressure_events`` the times) instead of discarding
+    transfers: a discarded transfer would cut the word stream anywhere (losing a wrap word shifts
+    every later timestamp), whereas a device that is not read drops whole DVS events itself and counts
+    them (MUX ``STAT_DVS_DROPPED``, with ``DROP_DVS_ON_TRANSFER_STALL`` on), which
+    :meth:`DavisDevice.statistics` reads. Loss is therefore never silent.
+
+    How full is full: with ``decode`` (a callable ``bytes -> (packets, t_last_us, extra)``, run here, on the
+    reader thread: the kernels release the GIL), the queue is bounded in **sensor time** — it never
+    holds packets more than ``buffer_s`` seconds of sensor time newer than the last packet the
+    consumer took (``lag_peak_us`` is the deepest it has been), so a consumer that falls behind works
+    on data at most ``buffer_s`` old and the rest is dropped (and counted) by the device, never held
+    silently for seconds. A real sensor cannot run ahead of its clock, so the bound also keeps an
+    emulated sensor paced by its reader (``necviz live --speed max``) within ``buffer_s`` of the
+    consumer. Without ``decode``, the bound is ``max_queued`` bytes (default ``buffer_s`` at the peak
+    rate, :data:`PEAK_BYTES_PER_S`). Not covered: a stall of the whole process (the GIL held for tens
+    of ms) stops this thread too; the transfer in flight and the device's own buffers then hold only a
+    few ms at the peak rate, and what the device drops is reported the same way.
+    ``queue_peak_bytes`` is the deepest the queue has been in bytes.
     """
 
     def __init__(
@@ -608,11 +617,15 @@ class BulkReader:
         timeout_ms: int = 100,
         buffer_s: float = 2.0,
         max_queued: int | None = None,
+        decode=None,
     ):
         self.device = device
         self.transfer_size = int(transfer_size)
         self.timeout_ms = int(timeout_ms)
         self.max_queued = int(max_queued if max_queued is not None else buffer_s * PEAK_BYTES_PER_S)
+        self.decode = decode
+        self.max_lag_us = int(round(buffer_s * 1e6))
+        self.consumed_us: int | None = None  # sensor time of the last packets the consumer took
         self.queue: queue.Queue = queue.Queue()
         self.queued_bytes = 0
         self._room = threading.Condition()
@@ -623,7 +636,9 @@ class BulkReader:
             "stalls": 0,
             "timeouts": 0,
             "backpressure_s": 0.0,
+            "backpressure_events": 0,
             "queue_peak_bytes": 0,
+            "lag_peak_us": 0,
         }
         self.thread = threading.Thread(target=self._run, name=f"necviz-davis-{device.serial}", daemon=True)
 
@@ -643,25 +658,40 @@ class BulkReader:
             item = self.queue.get(timeout=timeout)
         except queue.Empty:
             return None
-        if item[0] == "data":
+        if item[0] in ("data", "packets"):
             with self._room:
-                self.queued_bytes -= len(item[1])
+                if item[0] == "data":
+                    self.queued_bytes -= len(item[1])
+                else:
+                    self.queued_bytes -= item[3]
+                    self.consumed_us = item[2]
                 self._room.notify()
         return item
 
-    def _wait_for_room(self, n: int) -> bool:
-        """Block until ``n`` more bytes fit in the queue (the device holds, then drops, meanwhile);
-        False if stopped. A transfer always fits into an empty queue."""
+    def _full(self, n: int, t_us: int | None) -> bool:
+        """Whether ``n`` more bytes reaching sensor time ``t_us`` (None: not decoded) overflow the queue."""
+        if self.queued_bytes <= 0:
+            return False  # a transfer always fits into an empty queue
+        if t_us is not None and self.consumed_us is not None:
+            return t_us - self.consumed_us > self.max_lag_us
+        return self.queued_bytes + n > self.max_queued
+
+    def _wait_for_room(self, n: int, t_us: int | None = None) -> bool:
+        """Block until ``n`` more bytes (up to sensor time ``t_us``) fit in the queue (the device holds, then
+        drops, meanwhile); False if stopped."""
         with self._room:
-            if self.queued_bytes + n > self.max_queued and self.queued_bytes > 0:
+            if self._full(n, t_us):
                 t0 = time.monotonic()
-                while self.queued_bytes + n > self.max_queued and self.queued_bytes > 0 and not self._stop.is_set():
+                self.stats["backpressure_events"] += 1
+                while self._full(n, t_us) and not self._stop.is_set():
                     self._room.wait(0.05)
                 self.stats["backpressure_s"] += time.monotonic() - t0
             if self._stop.is_set():
                 return False
             self.queued_bytes += n
             self.stats["queue_peak_bytes"] = max(self.stats["queue_peak_bytes"], self.queued_bytes)
+            if t_us is not None and self.consumed_us is not None:
+                self.stats["lag_peak_us"] = max(self.stats["lag_peak_us"], int(t_us - self.consumed_us))
             return True
 
     def _run(self) -> None:
@@ -702,7 +732,15 @@ class BulkReader:
                 continue
             self.stats["transfers"] += 1
             self.stats["bytes"] += n
-            data = bytes(view[:n])
-            if not self._wait_for_room(n):
+            if self.decode is None:
+                data = bytes(view[:n])
+                if not self._wait_for_room(n):
+                    return
+                self.queue.put(("data", data))
+                continue
+            packets, t_last, extra = self.decode(view[:n])
+            if self.consumed_us is None:
+                self.consumed_us = t_last  # the stream's first sensor time: the consumer starts there
+            if not self._wait_for_room(n, t_last):
                 return
-            self.queue.put(("data", data))
+            self.queue.put(("packets", packets, t_last, n, extra))

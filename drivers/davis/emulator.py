@@ -254,8 +254,10 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         self.aps_orientation = o.aps_orientation
         self.variant = o.variant
         self.bus, self.address = o.bus, o.address
-        self.lock = threading.RLock()  # registers, FIFO and faults (control and data paths)
-        self._data_lock = threading.Lock()  # the simulator (non-realtime data path): not held by control transfers
+        self.lock = threading.RLock()  # registers and faults (the control path; the data path takes it only to check)
+        # the data path (simulator, encoder, FIFO): never held by an exposure write, so a control transfer does not
+        # wait for the simulation (taken after ``lock`` when both are needed, never the other way round)
+        self._data_lock = threading.Lock()
         #: the last TRANSFER_LOG control transfers, in order (``transfers_total`` counts them all)
         self.transfers: deque[ControlRecord] = deque(maxlen=TRANSFER_LOG)
         self.transfers_total = 0
@@ -325,6 +327,7 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         self.events_generated = 0  # DVS events the sensor produced (delivered + dropped)
         self.frames_skipped = 0  # frames not exposed because the FIFO was full at their start
         self.fifo_peak = 0
+        self.clock_slip_us = 0  # realtime: device time lost because the simulation fell behind the wall clock
         self._load_us = 0  # device time up to which load events were generated
         self._read_end_us: float | None = None  # device time the last transfer ended (realtime)
         self._unbounded = False
@@ -466,8 +469,9 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         elif module == P.BIAS.MODULE and param in self._dvs_bias_params and self._rig is not None:
             self._rig.set_dvs_params(self._dvs_params())  # the pixel follows its biases (issue 29)
         elif key == (P.MUX.MODULE, P.MUX.TIMESTAMP_RESET) and value and self._encoder is not None:
-            self._pending += self._encoder.timestamp_reset().tobytes()
-            self._base_us = self._rig.now_us if self._rig is not None else 0
+            with self._data_lock:  # the FIFO and device time belong to the data path (lock order: lock, data lock)
+                self._pending += self._encoder.timestamp_reset().tobytes()
+                self._base_us = self._rig.now_us if self._rig is not None else 0
 
 
 def find_emulated(backend: EmulatedDavis346):

@@ -9,7 +9,9 @@ stall faults on every read. It uses the device model's registers, lock, faults a
 Pacing: ``realtime=False`` produces data as fast as it is read (nothing can be lost: the device
 waits for the host). ``realtime=True`` runs the sensor on the wall clock (device time = wall time
 since streaming started x ``time_scale``; a scale below 1 slows the device so tests can emulate full
-rate on a small machine) and models the device's buffering:
+rate on a small machine; a simulation that cannot keep up slips the clock, counted in ``clock_slip_us``,
+rather than sending stale time in bulk — a sensor never runs ahead of, or catches up on, its clock) and
+models the device's buffering:
 
 * **Transfers in flight.** While the host is inside a bulk read, data flows into its buffer; the
   transfer ends when the buffer is full or, holding data, 1 ms of device time after it started
@@ -48,6 +50,9 @@ from necviz.drivers.davis.encoder import FRAME_END, StreamEncoder, cds_pair
 FIFO_BYTES = 128 * 1024
 #: the early-packet timer: a transfer holding data ends this long after it started (device µs)
 EARLY_PACKET_US = 1000
+#: how far (device µs) the simulation may fall behind the end of the last transfer before the device's clock
+#: slips (see ``DataPathMixin._slip``)
+SLIP_ALLOWANCE_US = 1000
 
 
 class DataPathMixin:
@@ -255,7 +260,8 @@ class DataPathMixin:
             raise _usb_error(errno.EPIPE, "Pipe error")
         running = self._running()
         if running:
-            self._ensure_rig()
+            with self._data_lock:  # the FIFO and the encoder belong to the data path
+                self._ensure_rig()
         elif self._encoder is not None and not self.reg(P.USB.MODULE, P.USB.RUN):
             self._encoder = None  # stopped: the next start restarts device time
         return running
@@ -279,7 +285,7 @@ class DataPathMixin:
         if produce:  # simulate without the control lock: a control transfer (an exposure command) does not
             with self._data_lock:  # wait for the simulator, as a real device's does not wait for its sensor
                 self._produce()
-        with self.lock:
+        with self._data_lock:
             n = self._take(memoryview(buff).cast("B"), 0)
             if n:
                 self.bulk_reads += 1
@@ -295,14 +301,30 @@ class DataPathMixin:
         transfer ended waited in the FIFO (bounded: DVS events dropped when full); from now on data
         flows into this transfer until it is full or the early-packet timer ends it.
 
-        The emulator may itself fall behind the wall clock (a loaded machine); what it produces late
-        for a time when the host was reading is not limited by the FIFO: only the time between two
-        transfers is."""
+        The emulator may itself fall behind the wall clock (a loaded machine); it then slips its clock
+        (:meth:`_slip`), and what it produces late (at most :data:`SLIP_ALLOWANCE_US`) for a time when the
+        host was reading is not limited by the FIFO: only the time between two transfers is."""
         try:
             return self._transfer(ep, buff, timeout_s)
         finally:
             if self._wall_start is not None:
                 self._read_end_us = self._wall_us()
+
+    def _slip(self) -> None:
+        """A simulation slower than the wall clock slips the device's clock instead of catching up in bulk.
+
+        The data of the last transfer's time should have flowed into it as it was sensed; if the simulator had
+        not produced it by the time the transfer ended (a loaded machine, a costly light step), a real sensor
+        would not have it later either — it senses now. Device time 0 moves later by the shortfall beyond
+        :data:`SLIP_ALLOWANCE_US` (counted in ``clock_slip_us``), so the sensor never produces a burst of
+        stale time that a command written meanwhile could not affect; the time the host spends between
+        transfers is not touched (it still fills, then overflows, the FIFO)."""
+        late = self._read_end_us
+        behind = None if late is None else late - SLIP_ALLOWANCE_US - self._sensor_us()
+        if behind is not None and behind > 0:
+            self._wall_start += behind / 1e6 / self.time_scale
+            self._read_end_us = late - behind
+            self.clock_slip_us += int(behind)
 
     def _transfer(self, ep, buff, timeout_s: float) -> int:
         view = memoryview(buff).cast("B")
@@ -310,13 +332,18 @@ class DataPathMixin:
         got = 0
         first = True
         while True:
-            with self.lock:
+            with self.lock:  # registers and faults: held only for the checks, never while simulating
                 running = self._faults_and_state(ep)
+            # the sensor is simulated under the data lock alone: a control transfer (an exposure command) is
+            # served meanwhile, as a real device's control endpoint does not wait for its sensor
+            with self._data_lock:
                 if running and not self._scene_done and self._wall_start is None:
                     # the simulator's first packet takes a while (start-up): device time 0 is when it is ready
                     self._produce(1)
                     self._wall_start = time.monotonic()
                 if running and not self._scene_done:
+                    if first:
+                        self._slip()
                     target = self._wall_us()
                     if first:  # the gap since the last transfer: everything goes through the FIFO
                         late = self._read_end_us
@@ -328,8 +355,12 @@ class DataPathMixin:
                                 self._unbounded = False
                             self._late = len(self._pending)
                         self._produce(int(target))
-                    else:  # inside the transfer: 1 ms at a time, each straight on to the host
-                        while self._sensor_us() < target and got < len(view) and self._produce():
+                    else:  # inside the transfer: up to 1 ms at a time, never past the wall clock, each straight on
+                        while (  # to the host
+                            self._sensor_us() < target
+                            and got < len(view)
+                            and self._produce(min(self._sensor_us() + 1000, int(target) + 1))
+                        ):
                             got = self._take(view, got)
                 got = self._take(view, got)
                 finished = running and self._scene_done and not self._pending

@@ -326,6 +326,7 @@ def _cmd_live(args) -> int:
             show=_show(args),
             tune=_tune(args),
             clips=_clips(args),
+            json=args.json,
         ),
         viewer_options(args),
     )
@@ -594,6 +595,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     live.add_argument(
         "--record", metavar="FILE.necrec", help="record events, frames and commands to a crash-safe native file"
+    )
+    live.add_argument(
+        "--json",
+        metavar="FILE",
+        help="write the summary per lane as JSON (frames, saturated frames, events, commands, processing latency, "
+        "frames late and command-to-exposure time in sensor time)",
     )
     add_scene_args(live, emulated=True)
     add_show_args(live)

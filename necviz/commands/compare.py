@@ -29,6 +29,7 @@ from necviz.options import CompareOptions
 from necviz.outputs import check_distinct, check_output, check_space, failure_note, write_json
 from necviz.pipeline import Pipeline
 from necviz.progress import output
+from necviz.reaction import reaction_line
 from necviz.runs import RunOptions, run_once
 
 METRICS = (
@@ -140,6 +141,12 @@ def run(options: CompareOptions | None = None, out=...) -> dict:
 
 def _run(options: CompareOptions, names, sc, seed0, profile, file_sink, out) -> dict:
     runs = []
+    reactions = []  # per run: each lane's reaction in sensor time (necviz.reaction)
+
+    def run_and_measure(pipe, label, s):
+        run_pipeline(pipe, label, s, out)
+        reactions.append({n: r.summary() for n, r in pipe.reactions.items()})
+
     for k in range(options.seeds):
         observers = ()
         if k == 0 and options.save:
@@ -156,7 +163,7 @@ def _run(options: CompareOptions, names, sc, seed0, profile, file_sink, out) -> 
                     sim=options.sim,
                 ),
                 observers,
-                progress=lambda pipe, label, s: run_pipeline(pipe, label, s, out),
+                progress=run_and_measure,
             )
         )
     table = {}
@@ -180,6 +187,9 @@ def _run(options: CompareOptions, names, sc, seed0, profile, file_sink, out) -> 
         }
         if options.seeds > 1:
             row["saturation_causes_per_seed"] = causes
+        row["reaction"] = reactions[0].get(n) if options.seeds == 1 else None
+        if options.seeds > 1:
+            row["reaction_per_seed"] = [r.get(n) for r in reactions]
         if options.seeds == 1:
             for key in (
                 "recovery_ms_per_step",
@@ -265,6 +275,13 @@ def print_table(result: dict, out) -> None:
                 f"corner error {_fmt(r.get('marker_corner_error_px'), c('marker_corner_error_px'), 2)} px",
                 file=out,
             )
+    reacted = {n: r.get("reaction") or ((r.get("reaction_per_seed") or [None])[0]) for n, r in table.items()}
+    lines = {n: reaction_line(v) for n, v in reacted.items()}
+    if any(lines.values()):
+        print("reaction in sensor time" + (" (first seed)" if seeds > 1 else "") + ":", file=out)
+        for n, line in lines.items():
+            if line:
+                print(f"  {n:{w}s} {line.removeprefix('reaction (sensor time): ')}", file=out)
     print("saturated frames by diagnosed cause" + (" (mean per run)" if seeds > 1 else "") + ":", file=out)
     for n, r in table.items():
         causes = r.get("saturation_causes") or {}

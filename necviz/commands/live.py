@@ -20,10 +20,19 @@ from necviz.dashboard.recorders import open_recorder
 from necviz.dashboard.session import Session, preflight, run_session, scene_inputs
 from necviz.flight_recorder import clip_observer
 from necviz.options import LiveOptions, ViewerOptions
+from necviz.outputs import write_json
 from necviz.pipeline import Lane
 from necviz.progress import output
 
 LANE = "camera"
+#: the reader's queue holds at most this much sensor time beyond what the loop has taken: one frame interval (20 ms),
+#: so a command is never computed from data older than the frame being exposed (beyond it the device drops, counts
+#: and the summary reports; measured in benchmarks/live_reaction.py: with 0.1 s the backlog reached 50 ms at
+#: --speed 4 and commands landed 2 frames late)
+LIVE_LAG_S = 0.02
+#: at --speed max the emulated sensor runs as fast as it is read; its reader stays within this much sensor time
+#: of what the pipeline has taken (a few ms: well within one frame), so it never runs ahead of the loop
+MAX_SPEED_LAG_S = 0.005
 
 
 def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None, out=..., stdin=None) -> dict:
@@ -68,34 +77,44 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     viewer, profile = preflight(
         "live",
         viewer,
-        {"--record": options.record},
+        {"--record": options.record, "--json": options.json},
         options.force,
         inputs=scene_inputs(options.scene, options.tune),
         profile=options.profile,
     )  # before the camera is opened
     if options.clips is not None:
         options.clips.check()
+    from necviz.drivers.davis import CameraOptions, open_camera
+
     if viewer.save is not None:  # a long session's file grows by GB an hour: say so before it fills a disk
         from necviz.dashboard.rrd_file import size_warning
 
         note = size_warning(viewer.save, options.duration_s, options.show.image_rate_hz)
         if note is not None and out is not None:
             print(note, file=out)
-    from necviz.drivers.davis import CameraOptions, open_camera
-
+    speed = options.show.speed
+    if speed == "auto":  # as the session resolves it: real time when a viewer watches
+        speed = 1.0 if viewer.watched else None
     backend = None
+    camera_options = CameraOptions(reconnect=options.reconnect, buffer_s=LIVE_LAG_S)
     if options.device == "emulated":
         from necviz.drivers.davis.emulator import EmulatedDavis346, EmulatorOptions, Faults
 
         spec = options.scene.spec()
         faults = Faults(unplug_after_s=options.emulate_unplug_s) if options.emulate_unplug_s is not None else None
+        # the emulated sensor is paced as a sensor at every speed: on the wall clock scaled by --speed, or, at
+        # --speed max, by its reader, which stays within MAX_SPEED_LAG_S of sensor time of the pipeline
         emulated = EmulatorOptions(
             scenario=spec["name"],
             seed=options.scene.resolved_seed,
             duration_s=options.duration_s,
             scenario_params={**spec["params"], **options.scene.params},
+            realtime=speed is not None,
+            time_scale=1.0 if speed is None else float(speed),
         )
         backend = EmulatedDavis346(emulated, faults)
+        if speed is None:
+            camera_options = CameraOptions(reconnect=options.reconnect, buffer_s=MAX_SPEED_LAG_S)
     if options.device == "dv":
         from necviz.drivers.dv_camera import open_dv_camera
 
@@ -104,9 +123,7 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
 
         camera = open_dv_camera(options.serial, options=CameraOptions())
     else:
-        camera = open_camera(
-            options.device, options.serial, options=CameraOptions(reconnect=options.reconnect), backend=backend
-        )
+        camera = open_camera(options.device, options.serial, options=camera_options, backend=backend)
     info, limits, sensor = camera.info, camera.limits, camera.sensor
     kw = {} if profile is None else {"tedi": profile.tedi, "crf": profile.crf}
     rate = camera.camera_info.event_rate_max  # the device's event bus ceiling (NEC's escape rule)
@@ -135,7 +152,13 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
         f"{limits.gain_max:g})",
         file=out,
     )
-    return run_session(
+    props["speed"] = "max" if speed is None else speed
+
+    def write_summary(stats):  # before the recordings are committed: a file that cannot be written fails the run
+        if options.json is not None:
+            write_json(options.json, live_summary(stats, props, backend), indent=1, flag="--json")
+
+    stats = run_session(
         Session(
             "live",
             camera,
@@ -154,7 +177,71 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
             stop_after_s=options.duration_s,
             keep_partial=True,
             observers=[clip_observer(options.clips)] if options.clips is not None else [],
+            before_commit=write_summary,
         ),
         out,
         stdin,
     )
+    slip = getattr(backend, "clock_slip_us", 0)
+    if slip and out is not None:  # the emulated sensor could not keep up with the wall clock: say how far it slipped
+        print(
+            f"  emulated sensor: its simulation fell {slip / 1e6:.2f} s behind the wall clock; the sensor's clock "
+            "slipped by as much (it never sends stale time in bulk)",
+            file=out,
+        )
+    if options.json is not None and out is not None:
+        print(f"  wrote {options.json}", file=out)
+    return stats
+
+
+def live_summary(stats: dict, properties: dict | None = None, backend=None) -> dict:
+    """The JSON of ``live --json``: the run, then per lane its frames, saturated frames (> 50 % clipped),
+    events, commands, the processing latency (packet out of the source -> command handed back, wall µs) and
+    the reaction in sensor time (:mod:`necviz.reaction`): ``frames_late`` p50/p99/max and
+    ``command_to_exposure_us`` p50/p99 over the exposure changes that reached a frame; the reader's deepest
+    backlog and how often it held back; for the emulated camera, how far its clock slipped behind the wall
+    clock and the frames its full FIFO kept from being exposed."""
+
+    def num(v):
+        return None if v is None or (isinstance(v, float) and v != v) else v
+
+    lanes = {}
+    for name, s in stats["lanes"].items():
+        r = s.get("reaction") or {}
+        late, lag = r.get("frames_late", {}), r.get("command_to_exposure_us", {})
+        lanes[name] = {
+            "frames": s["frames"],
+            "saturated_frames": s["saturated_frames_50"],
+            "events": stats["events"],
+            "commands": s["commands"],
+            "exposure_changes": r.get("changes"),
+            "changes_applied": r.get("applied"),
+            "changes_superseded": r.get("superseded"),
+            "processing_latency_p50_us": num(s["latency_p50_us"]),
+            "processing_latency_p99_us": num(s["latency_p99_us"]),
+            "frames_late": {k: late.get(k) for k in ("p50", "p99", "max")},
+            "command_to_exposure_us": {k: lag.get(k) for k in ("p50", "p99")},
+        }
+        if "ptedi" in s:  # the contrast thresholds P-TEDI used (they follow the DVS biases), beside its events
+            lanes[name]["ptedi"] = {k: s["ptedi"][k] for k in ("c_on", "c_off")}
+    src = stats.get("source") or {}
+    props = {k: v for k, v in (properties or {}).items() if isinstance(v, (str, int, float, bool)) or v is None}
+    return {
+        "run": props,
+        "duration_s": stats["duration_s"],
+        "wall_s": stats["wall_s"],
+        "events": stats["events"],
+        "frames": stats["frames"],
+        "reader": {
+            k: src[k]
+            for k in ("lag_peak_us", "backpressure_events", "backpressure_s", "dropped_events", "queue_peak_bytes")
+            if k in src
+        },
+        "lanes": lanes,
+        **({"dvs": stats["dvs"]} if "dvs" in stats else {}),
+        **(
+            {"emulator": {"clock_slip_s": backend.clock_slip_us / 1e6, "frames_skipped": backend.frames_skipped}}
+            if hasattr(backend, "clock_slip_us")
+            else {}
+        ),
+    }

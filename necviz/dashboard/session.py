@@ -27,6 +27,7 @@ from necviz.options import ShowOptions, TuneOptions, ViewerOptions
 from necviz.outputs import OutputError, low_space
 from necviz.pipeline import Lane, Pipeline, RecorderObserver
 from necviz.progress import LiveLine, output, plural
+from necviz.reaction import reaction_line
 
 
 @dataclass
@@ -339,10 +340,13 @@ def print_summary(out, stats: dict) -> None:
     for name, s in stats["lanes"].items():
         print(
             f"  {name:8s} {s['frames']:4d} frames, {s['saturated_frames_50']:3d} saturated, {s['commands']:5d} "
-            f"commands, latency p50 {_us(s['latency_p50_us'])} p99 {_us(s['latency_p99_us'])}"
+            f"commands, processing p50 {_us(s['latency_p50_us'])} p99 {_us(s['latency_p99_us'])}"
             + (f", P-TEDI c_on {s['ptedi']['c_on']:.4g} c_off {s['ptedi']['c_off']:.4g}" if "ptedi" in s else ""),
             file=out,
         )
+        line = reaction_line(s.get("reaction"))
+        if line:
+            print(f"  {'':8s} {line}", file=out)
     src = stats.get("source")
     if src:
         lost = src.get("dropped_events", 0)
@@ -353,6 +357,18 @@ def print_summary(out, stats: dict) -> None:
             f"words skipped; {src.get('reconnects', 0)} reconnects",
             file=out,
         )
+        if "lag_peak_us" in src:
+            held = src.get("backpressure_events", 0)
+            print(
+                f"  reader: backlog peak {src['lag_peak_us'] / 1000:.1f} ms of sensor time; "
+                + (
+                    f"held back {held} times for {src.get('backpressure_s', 0.0):.2f} s (the host fell behind: "
+                    "the device dropped meanwhile)"
+                    if held
+                    else "never held back"
+                ),
+                file=out,
+            )
     fr = stats.get("flight_recorder")
     if fr:
         dropped = (
