@@ -77,10 +77,10 @@ def child(name: str, folder: str) -> dict:
     from necviz.core.events import EVENT_DTYPE
     from necviz.core.frames import ExposureMarker, Frame
     from necviz.core.sensor import DAVIS346
-    from necviz.dashboard.telemetry import FrameRecord
     from necviz.flight_recorder import FlightRecorder
     from necviz.memory import bound_heap_retention
     from necviz.options import ClipOptions
+    from necviz.telemetry import FrameRecord
 
     bound_heap_retention()  # as run_session does
     _warm_sink()

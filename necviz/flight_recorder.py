@@ -4,7 +4,7 @@ A live session lasts an hour; what matters are the ten seconds around each satur
 :class:`FlightRecorder` is a pipeline :class:`~necviz.pipeline.Observer` that keeps everything the
 observers are told — event batches, markers, frames (with their telemetry), IMU and triggers,
 commands, predictions, tuning and other notes — in a ring covering the last ``before_s`` seconds of
-sensor time. When a lane's frame is saturated (:class:`~necviz.dashboard.telemetry.FrameRecord`, more
+sensor time. When a lane's frame is saturated (:class:`~necviz.telemetry.FrameRecord`, more
 than half its pixels clipped) or the user types ``mark`` at the tuning prompt, a clip opens over the
 window ``[failure - before_s, failure + after_s]`` (the failure: the saturated frame's exposure start,
 or the moment of the mark). A failure whose window overlaps the open clip's, in any lane, extends it:
@@ -630,7 +630,7 @@ def focus_blueprint(blueprint, start_s: float, end_s: float):
     import rerun.blueprint as rrb
     from rerun.encodings import AbsoluteTimeRange, TimeInt
 
-    from necviz.dashboard import schema as S
+    from necviz import schema as S
 
     blueprint.time_panel = rrb.TimePanel(
         state="expanded",

@@ -8,7 +8,7 @@ straight back to the source (``source.set_exposure(camera, exposure_us, gain)``)
 at the rate event batches arrive.
 
 The pipeline only controls. What the frames and commands mean is computed once by a
-:class:`~necviz.dashboard.telemetry.Telemetry`; whoever wants to see the run — the Rerun sink
+:class:`~necviz.telemetry.Telemetry`; whoever wants to see the run — the Rerun sink
 (:mod:`necviz.dashboard.sink`), the native recorder — is an :class:`Observer`, called with what happened
 through methods that only append to memory, so control never waits for them.
 
@@ -37,6 +37,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from necviz import schema as S
 from necviz.core.checks import check_number
 from necviz.core.control import CONTROLLERS, Controller, ControllerContext, create_controller
 from necviz.core.errors import NecvizError, ParameterError, StreamError
@@ -45,8 +46,7 @@ from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import ImuBatch, TriggerBatch
 from necviz.core.ptedi import PeripheralEstimator
 from necviz.core.stream import packet_time_us
-from necviz.dashboard import schema as S
-from necviz.dashboard.telemetry import FrameRecord, Telemetry
+from necviz.telemetry import FrameRecord, Telemetry
 
 #: Thresholds of the lane's P-TEDI estimator, tunable like the controller's own parameters.
 THRESHOLD_KEYS = ("c_on", "c_off", "c")

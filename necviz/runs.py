@@ -27,9 +27,9 @@ from necviz.core.control import CONTROLLERS, CameraLimits, Controller, make_cont
 from necviz.core.errors import ParameterError
 from necviz.core.markers import MARKER_KEYS, summarise_markers
 from necviz.core.metrics import summarise, summarise_details
-from necviz.dashboard.telemetry import Telemetry
 from necviz.options import SceneOptions, check_param_lanes
 from necviz.pipeline import Lane, Pipeline
+from necviz.telemetry import Telemetry
 
 
 def sim_models(sim: dict | None):

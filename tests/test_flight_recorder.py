@@ -15,10 +15,10 @@ from necviz.core.control import ExposureCommand
 from necviz.core.events import EVENT_DTYPE, EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import SensorGeometry
-from necviz.dashboard.telemetry import FrameRecord
 from necviz.drivers.recordings import open_recording
 from necviz.flight_recorder import FlightRecorder, cause_slug
 from necviz.options import ClipOptions
+from necviz.telemetry import FrameRecord
 
 SENSOR = SensorGeometry(32, 24, "tiny")
 BATCH_US = 1000

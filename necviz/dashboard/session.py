@@ -18,7 +18,6 @@ import rerun as rr
 
 from necviz.dashboard.recorders import RecordingFile
 from necviz.dashboard.sink import RerunSink, SinkOptions
-from necviz.dashboard.telemetry import Telemetry
 from necviz.dashboard.tuning import TuningConsole, TuningFile
 from necviz.dashboard.viewer import FILE_FLUSH_S, open_viewer, text
 from necviz.layouts import make_blueprint, style_series
@@ -27,6 +26,7 @@ from necviz.options import ShowOptions, TuneOptions, ViewerOptions
 from necviz.outputs import OutputError, low_space
 from necviz.pipeline import Lane, Pipeline, RecorderObserver
 from necviz.progress import LiveLine, output, plural
+from necviz.telemetry import Telemetry
 
 
 @dataclass
