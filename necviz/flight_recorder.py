@@ -606,6 +606,7 @@ def _blueprint_child(spec_json: str) -> int:
     import json
 
     from necviz.layouts import make_blueprint
+    from necviz.layouts.focus import focus_blueprint
 
     spec = json.loads(spec_json)
     w, h = spec["size"]
@@ -622,24 +623,6 @@ def clip_write_error(folder, exc: BaseException):
     cause = write_failure(exc) or exc
     what = getattr(cause, "strerror", None) or " ".join(str(cause).split()) or type(cause).__name__
     return OutputError(f"--clips: cannot write a clip to {str(folder)!r}: {what}; nothing of it was left there")
-
-
-def focus_blueprint(blueprint, start_s: float, end_s: float):
-    """``blueprint`` with its time panel selecting ``[start_s, end_s]`` of sensor time and looping over it
-    (how a clip's ``.rrd`` and ``necviz replay CLIP`` open at the failure)."""
-    import rerun.blueprint as rrb
-    from rerun.encodings import AbsoluteTimeRange, TimeInt
-
-    from necviz import schema as S
-
-    blueprint.time_panel = rrb.TimePanel(
-        state="expanded",
-        timeline=S.TIME,
-        time_selection=AbsoluteTimeRange(TimeInt(seconds=max(0.0, start_s)), TimeInt(seconds=max(0.0, end_s))),
-        loop_mode="selection",
-        play_state="playing",
-    )
-    return blueprint
 
 
 def clip_focus(properties: dict) -> tuple[float, float, float, int] | None:
@@ -686,7 +669,6 @@ __all__ = [
     "clip_focus",
     "clip_observer",
     "clip_write_error",
-    "focus_blueprint",
     "plural",
 ]
 

@@ -174,7 +174,7 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
     sensor = ss.source.sensor
     blueprint = make_blueprint(layout, names, sensor.width, sensor.height)
     if ss.focus_s is not None:
-        from necviz.flight_recorder import focus_blueprint
+        from necviz.layouts.focus import focus_blueprint
 
         blueprint = focus_blueprint(blueprint, *ss.focus_s)
     viewer = open_viewer(v, ss.command, blueprint, ss.title, keep_partial=ss.keep_partial)
