@@ -337,7 +337,7 @@ class TuneOptions:
 class ClipOptions:
     """The flight recorder (``--clips DIR``): a clip around every saturated frame and every ``mark``.
 
-    See :mod:`necviz.flight_recorder`.
+    See :mod:`necviz.dashboard.flight_recorder`.
 
     Parameters
     ----------

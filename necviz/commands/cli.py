@@ -126,7 +126,7 @@ def add_show_args(parser, tuning: bool = True) -> None:
 
 
 def add_clip_args(parser) -> None:
-    """``--clips DIR`` and its bounds: the flight recorder (necviz.flight_recorder)."""
+    """``--clips DIR`` and its bounds: the flight recorder (necviz.dashboard.flight_recorder)."""
     from necviz.flags import number
 
     g = parser.add_argument_group("flight recorder (a clip around every saturated frame and every 'mark')")

@@ -24,7 +24,7 @@ from necviz.runs import build_rig
 def _observers(options: DemoOptions, video) -> list:
     out = []
     if options.clips is not None:
-        from necviz.flight_recorder import clip_observer
+        from necviz.dashboard.flight_recorder import clip_observer
 
         out.append(clip_observer(options.clips))
     if video is not None:

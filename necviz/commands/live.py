@@ -16,9 +16,9 @@ from __future__ import annotations
 
 from necviz.core.control import make_controller
 from necviz.core.errors import ParameterError
+from necviz.dashboard.flight_recorder import clip_observer
 from necviz.dashboard.recorders import open_recorder
 from necviz.dashboard.session import Session, preflight, run_session, scene_inputs
-from necviz.flight_recorder import clip_observer
 from necviz.options import LiveOptions, ViewerOptions
 from necviz.pipeline import Lane
 from necviz.progress import output

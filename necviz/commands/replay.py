@@ -155,7 +155,7 @@ def _replay(options: ReplayOptions, viewer, out, path: Path, source: Path, profi
         f"{recording.exposure_source}); {options.controller} in open loop",
         file=out,
     )
-    from necviz.flight_recorder import clip_focus
+    from necviz.dashboard.flight_recorder import clip_focus
 
     focus = clip_focus(getattr(recording, "properties", {}))  # a clip: the session's time axis and window
     if focus is not None:

@@ -594,7 +594,10 @@ def save_blueprint_apart(path: Path, layout: str, lanes: list, width: int, heigh
 
     spec = json.dumps({"path": str(path), "layout": layout, "lanes": lanes, "size": [width, height], "focus": focus})
     proc = subprocess.run(
-        [sys.executable, "-m", "necviz.flight_recorder", spec], stdin=subprocess.DEVNULL, capture_output=True, text=True
+        [sys.executable, "-m", "necviz.dashboard.flight_recorder", spec],
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
     )
     if proc.returncode != 0 or not path.is_file():
         lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
@@ -602,7 +605,7 @@ def save_blueprint_apart(path: Path, layout: str, lanes: list, width: int, heigh
 
 
 def _blueprint_child(spec_json: str) -> int:
-    """``python -m necviz.flight_recorder SPEC``: :func:`save_blueprint_apart`'s child."""
+    """``python -m necviz.dashboard.flight_recorder SPEC``: :func:`save_blueprint_apart`'s child."""
     import json
 
     from necviz.layouts import make_blueprint
