@@ -9,10 +9,10 @@ import pytest
 from rrd_read import Rrd
 
 from necviz import schema as S
-from necviz.bench.pipeline_speed import SyntheticStream, make_events
 from necviz.commands.cli import main
 from necviz.core.control import CameraLimits, make_controller
 from necviz.core.sensor import DAVIS346
+from necviz.dashboard.pipeline_speed import SyntheticStream, make_events
 from necviz.options import SceneOptions
 from necviz.pipeline import Lane, Pipeline
 from necviz.telemetry import FrameTable, LatencyHistogram, Telemetry

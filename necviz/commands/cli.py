@@ -373,7 +373,7 @@ def _cmd_bench_decode(args) -> int:
 
 
 def _cmd_bench_pipeline(args) -> int:
-    from necviz.bench.pipeline_speed import run
+    from necviz.dashboard.pipeline_speed import run
 
     run(
         duration_s=args.duration,
