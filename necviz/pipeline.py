@@ -34,6 +34,7 @@ import threading
 import time
 from concurrent.futures import Future
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
@@ -105,7 +106,15 @@ def _estimator(lane: Lane) -> PeripheralEstimator:
 
 class Observer:
     """Something that watches a run (the Rerun sink, the native recorder). Every method is called
-    on the streaming thread and must only append to memory; the defaults ignore everything."""
+    on the streaming thread and must only append to memory; the defaults ignore everything.
+
+    ``name`` keys what :meth:`close` returns in the run's summary (default: the class's name);
+    ``folder``, a folder the observer writes into while the run goes (the session watches its disk);
+    ``failure``, set when an output could not be written (the session stops the run and reports it)."""
+
+    name: str | None = None
+    folder: Path | None = None
+    failure: BaseException | None = None
 
     def warm_up(self) -> None:
         """Before the first packet (on the streaming thread): compile or load the kernels this observer
@@ -131,6 +140,11 @@ class Observer:
 
     def note(self, entity: str, t_us: int, message: str, level: str = "INFO", data: dict | None = None) -> None:
         """A change during the run (tuning, controller switch); ``data`` for machine-readable logs."""
+
+    def mark(self, text: str = "") -> str | None:
+        """The user marked this moment (tuning's ``mark``): the observer's reply, or None if marks mean
+        nothing to it (a flight recorder opens a clip around it)."""
+        return None
 
     def close(self) -> dict | None:
         """The run is over: flush. May return statistics for the run summary."""
@@ -522,7 +536,7 @@ class Pipeline:
             try:
                 out = o.close()
                 if out is not None:
-                    extra[getattr(o, "name", type(o).__name__)] = out
+                    extra[o.name or type(o).__name__] = out
             except BaseException as e:
                 errors.append(e)
         err = self.error or (errors[0] if errors else None)

@@ -23,7 +23,7 @@ from necviz.dashboard.viewer import FILE_FLUSH_S, open_viewer, text
 from necviz.layouts import make_blueprint, style_series
 from necviz.memory import bound_heap_retention
 from necviz.options import ShowOptions, TuneOptions, ViewerOptions
-from necviz.outputs import OutputError, low_space
+from necviz.outputs import Output, OutputError, low_space
 from necviz.pipeline import Lane, Pipeline, RecorderObserver
 from necviz.progress import LiveLine, output, plural
 from necviz.telemetry import Telemetry
@@ -109,7 +109,7 @@ def run_session(session: Session, out=..., stdin=None) -> dict:
 
     out = output(out)
     bound_heap_retention()  # a burst of events must not stay resident for the rest of a long session
-    outputs: list = []  # what to commit or discard: the recorder, the viewer's --save file
+    outputs: list[Output] = []  # what to commit or discard: the recorder, the viewer's --save file
     if session.recorder is not None:
         outputs.append(session.recorder)
     try:
@@ -136,7 +136,7 @@ def run_session(session: Session, out=..., stdin=None) -> dict:
                 pass
         if session.keep_partial:
             for o in outputs:
-                kept = getattr(o, "path", None) or getattr(o, "save_path", None)
+                kept = o.path
                 if kept is not None and os.path.exists(kept) and out is not None:
                     print(f"  recording so far: {kept}", file=out)
         new = failure_note(e, notes)
@@ -154,11 +154,11 @@ def run_session(session: Session, out=..., stdin=None) -> dict:
 
 
 class _ViewerOutput:
-    """The viewer's ``--save`` file as one of the session's outputs (commit/discard)."""
+    """The viewer's ``--save`` file as one of the session's outputs (:class:`~necviz.outputs.Output`)."""
 
     def __init__(self, viewer):
         self.viewer = viewer
-        self.save_path = viewer.save_path
+        self.path = viewer.save_path
 
     def commit(self) -> None:
         self.viewer.output.commit()
@@ -180,7 +180,7 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
     viewer = open_viewer(v, ss.command, blueprint, ss.title, keep_partial=ss.keep_partial)
     if viewer.output is not None:
         outputs.append(_ViewerOutput(viewer))
-    files = [p for p in (viewer.save_path, getattr(ss.recorder, "path", None)) if p is not None]
+    files = [p for p in (viewer.save_path, ss.recorder.path if ss.recorder is not None else None) if p is not None]
     for m in viewer.messages:
         print(f"  {m}", file=out)
     speed = ss.show.speed
@@ -210,7 +210,7 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
         observers.append(RecorderObserver(ss.recorder, cam, driver))
     for make in ss.observers:
         observers.append(make(ss, layout, out))
-    files += [o.folder for o in observers if getattr(o, "folder", None) is not None]  # clips fill a disk too
+    files += [o.folder for o in observers if o.folder is not None]  # clips fill a disk too
     pipe = Pipeline(
         ss.source,
         ss.lanes,
@@ -296,7 +296,7 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
 
 def _failed(observers):
     """The error of an observer whose output could not be written (its ``failure``), or None."""
-    return next((o.failure for o in observers if getattr(o, "failure", None) is not None), None)
+    return next((o.failure for o in observers if o.failure is not None), None)
 
 
 def _keep_serving(viewer, out) -> None:
