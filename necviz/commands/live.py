@@ -16,9 +16,11 @@ from __future__ import annotations
 
 from necviz.core.control import make_controller
 from necviz.core.errors import ParameterError
+from necviz.dashboard import session as dashboard
 from necviz.dashboard.flight_recorder import clip_observer
 from necviz.dashboard.recorders import open_recorder
-from necviz.dashboard.session import Session, preflight, run_session, scene_inputs
+from necviz.dashboard.session import Session, preflight, scene_inputs
+from necviz.layouts import make_blueprint
 from necviz.options import LiveOptions, ViewerOptions
 from necviz.pipeline import Lane
 from necviz.progress import output
@@ -43,7 +45,7 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     Returns
     -------
     dict
-        The run's summary (see :func:`necviz.dashboard.session.run_session`).
+        The run's summary (see :func:`necviz.dashboard.session.run`).
 
     Raises
     ------
@@ -135,26 +137,22 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
         f"{limits.gain_max:g})",
         file=out,
     )
-    return run_session(
-        Session(
-            "live",
-            camera,
-            [lane],
-            "live",
-            f"necviz live: {info.get('serial', '')}",
-            props,
-            viewer,
-            options.show,
-            options.tune,
-            recorder,
-            LANE,
-            lossless=False,
-            history=options.history,
-            expected_duration_s=options.duration_s,
-            stop_after_s=options.duration_s,
-            keep_partial=True,
-            observers=[clip_observer(options.clips)] if options.clips is not None else [],
-        ),
-        out,
-        stdin,
+    layout = viewer.layout or "live"
+    settings = Session(
+        command="live",
+        layout=layout,
+        title=f"necviz live: {info.get('serial', '')}",
+        properties=props,
+        show=options.show,
+        tune=options.tune,
+        recorder=recorder,
+        record_camera=LANE,
+        lossless=False,
+        history=options.history,
+        expected_duration_s=options.duration_s,
+        stop_after_s=options.duration_s,
+        keep_partial=True,
+        observers=[clip_observer(options.clips)] if options.clips is not None else [],
     )
+    blueprint = make_blueprint(layout, [LANE], sensor.width, sensor.height)
+    return dashboard.run(camera, [lane], viewer, blueprint, settings, out, stdin)

@@ -1,10 +1,13 @@
-"""What ``demo``, ``replay`` and ``live`` share: open the viewer, run the loop, show progress.
+"""What ``demo``, ``replay``, ``live`` and ``sweep show`` share: open the viewer, run the loop, show progress.
 
-:func:`run_session` opens the Rerun recording the :class:`~necviz.options.ViewerOptions` ask for
-(with the command's layout), logs run properties and series styles, runs the
-:class:`~necviz.pipeline.Pipeline` on its streaming thread with a :class:`~necviz.dashboard.sink.RerunSink`
-(and a native recorder, if asked), offers live tuning (a prompt and/or a watched file), shows a
-live count until the source ends or Ctrl-C, then flushes everything and prints a summary.
+In Rerun's own shape (its examples: parse the arguments, ``rr.script_setup(args, ...,
+default_blueprint=...)``, a plain run function): a command builds its source, its lanes and its
+blueprint and calls :func:`run`, which opens the Rerun recording the
+:class:`~necviz.options.ViewerOptions` ask for (``script_setup``'s part), logs run properties and
+series styles, runs the :class:`~necviz.pipeline.Pipeline` on its streaming thread with a
+:class:`~necviz.dashboard.sink.RerunSink` (and a native recorder, if asked), offers live tuning (a
+prompt and/or a watched file), shows a live count until the source ends or Ctrl-C, then flushes
+everything and prints a summary.
 """
 
 from __future__ import annotations
@@ -12,15 +15,17 @@ from __future__ import annotations
 import os
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import rerun as rr
+import rerun.blueprint as rrb
 
 from necviz.dashboard.recorders import RecordingFile
 from necviz.dashboard.sink import RerunSink, SinkOptions
 from necviz.dashboard.tuning import TuningConsole, TuningFile
 from necviz.dashboard.viewer import FILE_FLUSH_S, open_viewer, text
-from necviz.layouts import make_blueprint, style_series
+from necviz.drivers.source import Source
+from necviz.layouts import style_series
 from necviz.memory import bound_heap_retention
 from necviz.options import ShowOptions, TuneOptions, ViewerOptions
 from necviz.outputs import Output, OutputError, low_space
@@ -29,10 +34,11 @@ from necviz.progress import LiveLine, output, plural
 from necviz.telemetry import Telemetry
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Session:
     """One dashboard run: a source, its lanes and how to show them.
 
+    ``layout``: the name of ``blueprint``'s layout (the run's properties, a clip's own layout).
     ``recorder``: a native :class:`~necviz.drivers.recordings.native.Recorder` keeping ``record_camera``
     (default: the first lane's camera). ``lossless``: keep every frame and event image when the
     run is not paced (a simulation or replay into a file). ``history``: frames of per-frame
@@ -42,12 +48,14 @@ class Session:
     """
 
     command: str
-    source: object
-    lanes: list[Lane]
     layout: str
     title: str
     properties: dict
+    #: what :func:`run` is given: the source, its lanes, the viewer options and the command's blueprint
+    source: Source | None = None
+    lanes: list[Lane] = field(default_factory=list)
     viewer: ViewerOptions = field(default_factory=ViewerOptions)
+    blueprint: rrb.Blueprint | None = None
     show: ShowOptions = field(default_factory=ShowOptions)
     tune: TuneOptions | None = None
     recorder: RecordingFile | None = None  # the native recorder (--record)
@@ -59,8 +67,6 @@ class Session:
     stop_after_s: float | None = None
     #: more observers (the flight recorder, the video writer): factories ``f(session, layout, out)``
     observers: list = field(default_factory=list)
-    #: ``(start_s, end_s)`` of sensor time the viewer selects and loops over (a clip's failure)
-    focus_s: tuple | None = None
     keep_partial: bool = False
     before_commit: object = None  # callable(stats): last step of a run (e.g. write --json); raising fails it
 
@@ -95,6 +101,24 @@ def preflight(command: str, viewer: ViewerOptions | None, outputs: dict, force: 
 
         profile = load_profile(profile)
     return viewer, profile
+
+
+def run(
+    source: Source,
+    lanes: list[Lane],
+    viewer: ViewerOptions,
+    blueprint: rrb.Blueprint,
+    session: Session,
+    out=...,
+    stdin=None,
+) -> dict:
+    """Show ``source`` driven by ``lanes`` in the viewer ``viewer`` asks for, laid out by ``blueprint``, and
+    return the run's summary: a command's one call into the dashboard. ``session``: the rest (the command's
+    name, properties, tuning, recorder, observers ...); ``out``: where progress and the summary go;
+    ``stdin``: tuning commands. See :func:`run_session`."""
+    return run_session(
+        replace(session, source=source, lanes=list(lanes), viewer=viewer, blueprint=blueprint), out, stdin
+    )
 
 
 def run_session(session: Session, out=..., stdin=None) -> dict:
@@ -169,15 +193,10 @@ class _ViewerOutput:
 
 def _run(ss: Session, out, stdin, outputs: list) -> dict:
     v = ss.viewer
-    layout = v.layout or ss.layout
+    layout = ss.layout
     names = [lane.name for lane in ss.lanes]
     sensor = ss.source.sensor
-    blueprint = make_blueprint(layout, names, sensor.width, sensor.height)
-    if ss.focus_s is not None:
-        from necviz.layouts.focus import focus_blueprint
-
-        blueprint = focus_blueprint(blueprint, *ss.focus_s)
-    viewer = open_viewer(v, ss.command, blueprint, ss.title, keep_partial=ss.keep_partial)
+    viewer = open_viewer(v, ss.command, ss.blueprint, ss.title, keep_partial=ss.keep_partial)
     if viewer.output is not None:
         outputs.append(_ViewerOutput(viewer))
     files = [p for p in (viewer.save_path, ss.recorder.path if ss.recorder is not None else None) if p is not None]
