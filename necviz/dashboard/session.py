@@ -192,22 +192,62 @@ class _ViewerOutput:
 
 
 def _run(ss: Session, out, stdin, outputs: list) -> dict:
-    v = ss.viewer
-    layout = ss.layout
-    names = [lane.name for lane in ss.lanes]
-    sensor = ss.source.sensor
-    viewer = open_viewer(v, ss.command, ss.blueprint, ss.title, keep_partial=ss.keep_partial)
-    if viewer.output is not None:
-        outputs.append(_ViewerOutput(viewer))
-    files = [p for p in (viewer.save_path, ss.recorder.path if ss.recorder is not None else None) if p is not None]
-    for m in viewer.messages:
-        print(f"  {m}", file=out)
+    """Open the viewer, run the loop with its observers until the source ends (or Ctrl-C, a full disk, a
+    failed output), and summarise."""
+    viewer = _open(ss, out, outputs)
     speed = ss.show.speed
     if speed == "auto":
-        speed = 1.0 if v.watched else None
+        speed = 1.0 if ss.viewer.watched else None
+    observers = _observers(ss, viewer, speed, out)
+    pipe = Pipeline(
+        ss.source,
+        ss.lanes,
+        telemetry=Telemetry([lane.name for lane in ss.lanes], history=ss.history),
+        observers=observers,
+        speed=speed,
+        stop_after_s=ss.stop_after_s,
+    )
+    files = [p for p in (viewer.save_path, ss.recorder.path if ss.recorder is not None else None) if p is not None]
+    files += [o.folder for o in observers if o.folder is not None]  # clips fill a disk too
+    stats, disk_full = _watch(ss, pipe, viewer, files, out, stdin)
+    broken = _failed(observers)
+    if broken is not None:  # an output that could not be written (a clip on a full disk)
+        at = (pipe.now_us or 0) / 1e6 - (pipe.first_us or 0) / 1e6
+        raise type(broken)(f"{broken}; the run was stopped at {at:.1f} s")
+    if disk_full is not None:
+        path, free = disk_full
+        raise OutputError(
+            f"the disk holding {path} is nearly full ({free >> 20} MB free): the run was stopped at "
+            f"{(pipe.now_us or 0) / 1e6 - (pipe.first_us or 0) / 1e6:.1f} s so the files end whole"
+        )
+    source_stats = getattr(ss.source, "stats", None)
+    if isinstance(source_stats, dict) and "dropped_events" in source_stats:  # a camera: what the device lost
+        stats["source"] = {k: v for k, v in source_stats.items() if isinstance(v, (int, float))}
+    print_summary(out, stats)
+    stats["rrd"] = str(viewer.save_path) if viewer.save_path is not None else None
+    stats["telemetry"] = pipe.telemetry
+    return stats, viewer
+
+
+def _open(ss: Session, out, outputs: list):
+    """Open the viewer with the command's blueprint (``rr.script_setup``'s part) and log the run's
+    properties and series styles; its ``--save`` file joins ``outputs``."""
+    viewer = open_viewer(ss.viewer, ss.command, ss.blueprint, ss.title, keep_partial=ss.keep_partial)
+    if viewer.output is not None:
+        outputs.append(_ViewerOutput(viewer))
+    for m in viewer.messages:
+        print(f"  {m}", file=out)
     rec = viewer.rec
-    rec.send_property("run", rr.AnyValues(**{k: text(val) for k, val in ss.properties.items()}, layout=layout))
-    style_series(rec, names)
+    rec.send_property("run", rr.AnyValues(**{k: text(val) for k, val in ss.properties.items()}, layout=ss.layout))
+    style_series(rec, [lane.name for lane in ss.lanes])
+    return viewer
+
+
+def _observers(ss: Session, viewer, speed, out) -> list:
+    """The run's observers: the Rerun sink, the native recorder (``--record``), the command's own."""
+    v = ss.viewer
+    names = [lane.name for lane in ss.lanes]
+    sensor = ss.source.sensor
     lossless = ss.lossless and speed is None and not v.watched
     # a live session only saved to a file: series in 2 s chunks (Rerun's file sink indexes every chunk)
     flush = FILE_FLUSH_S if not (lossless or v.watched) else None
@@ -219,25 +259,21 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
         flush_period_s=flush,
         image_period_us=0 if ss.show.image_rate_hz is None else int(round(1e6 / ss.show.image_rate_hz)),
     )
-    sink = RerunSink(rec, names, sensor.height, sensor.width, sink_options)
+    sink = RerunSink(viewer.rec, names, sensor.height, sensor.width, sink_options)
     sink.files = viewer.files
     sink.rotate = viewer.rotate
-    observers = [sink]
+    recorders = []
     if ss.recorder is not None:
         cam = ss.record_camera or ss.lanes[0].camera or ss.lanes[0].name
         driver = next((ln.name for ln in ss.lanes if ln.drives and (ln.camera or ln.name) == cam), cam)
-        observers.append(RecorderObserver(ss.recorder, cam, driver))
-    for make in ss.observers:
-        observers.append(make(ss, layout, out))
-    files += [o.folder for o in observers if o.folder is not None]  # clips fill a disk too
-    pipe = Pipeline(
-        ss.source,
-        ss.lanes,
-        telemetry=Telemetry(names, history=ss.history),
-        observers=observers,
-        speed=speed,
-        stop_after_s=ss.stop_after_s,
-    )
+        recorders = [RecorderObserver(ss.recorder, cam, driver)]
+    return [sink, *recorders, *(make(ss, ss.layout, out) for make in ss.observers)]
+
+
+def _watch(ss: Session, pipe: Pipeline, viewer, files: list, out, stdin):
+    """Run ``pipe`` with live tuning (a prompt, a watched file) and a live count until the source ends,
+    Ctrl-C, a nearly full disk or a failed output; then finish it and close the viewer. Returns the
+    pipeline's summary and ``(file, bytes free)`` when the disk stopped the run, else None."""
     tune_file = console = None
     t0 = time.perf_counter()
     disk_full = None  # (file, bytes free) when the run was stopped to keep its files whole
@@ -269,7 +305,7 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
                 line.show(status())
                 joining = viewer.segments.size() if viewer.segments is not None else 0  # the join copies the file
                 disk_full = low_space(files, extra=joining)
-                broken = _failed(observers)
+                broken = _failed(pipe.observers)
                 if disk_full is not None or broken is not None:  # stop while the files can still be completed
                     pipe.stop()
                     break
@@ -294,23 +330,7 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
             except BaseException:
                 if not failed and disk_full is None:
                     raise  # else the run's own error (or the disk guard's, below) is the one reported
-    broken = _failed(observers)
-    if broken is not None:  # an output that could not be written (a clip on a full disk)
-        at = (pipe.now_us or 0) / 1e6 - (pipe.first_us or 0) / 1e6
-        raise type(broken)(f"{broken}; the run was stopped at {at:.1f} s")
-    if disk_full is not None:
-        path, free = disk_full
-        raise OutputError(
-            f"the disk holding {path} is nearly full ({free >> 20} MB free): the run was stopped at "
-            f"{(pipe.now_us or 0) / 1e6 - (pipe.first_us or 0) / 1e6:.1f} s so the files end whole"
-        )
-    source_stats = getattr(ss.source, "stats", None)
-    if isinstance(source_stats, dict) and "dropped_events" in source_stats:  # a camera: what the device lost
-        stats["source"] = {k: v for k, v in source_stats.items() if isinstance(v, (int, float))}
-    print_summary(out, stats)
-    stats["rrd"] = str(viewer.save_path) if viewer.save_path is not None else None
-    stats["telemetry"] = pipe.telemetry
-    return stats, viewer
+    return stats, disk_full
 
 
 def _failed(observers):
