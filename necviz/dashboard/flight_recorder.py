@@ -341,7 +341,7 @@ class FlightRecorder(Observer):
 
     def _bare(self, frame: Frame) -> Frame:
         """The frame without its ground truth (simulated frames carry per-pixel truth: not kept)."""
-        if getattr(frame, "truth", None) is None:
+        if frame.truth is None:
             return frame
         last = self._frame_ids
         if last is not None and last[0] == id(frame):
