@@ -177,20 +177,6 @@ def run_session(session: Session, out=..., stdin=None) -> dict:
     return stats
 
 
-class _ViewerOutput:
-    """The viewer's ``--save`` file as one of the session's outputs (:class:`~necviz.outputs.Output`)."""
-
-    def __init__(self, viewer):
-        self.viewer = viewer
-        self.path = viewer.save_path
-
-    def commit(self) -> None:
-        self.viewer.output.commit()
-
-    def discard(self) -> str:
-        return self.viewer.discard()
-
-
 def _run(ss: Session, out, stdin, outputs: list) -> dict:
     """Open the viewer, run the loop with its observers until the source ends (or Ctrl-C, a full disk, a
     failed output), and summarise."""
@@ -233,8 +219,8 @@ def _open(ss: Session, out, outputs: list):
     """Open the viewer with the command's blueprint (``rr.script_setup``'s part) and log the run's
     properties and series styles; its ``--save`` file joins ``outputs``."""
     viewer = open_viewer(ss.viewer, ss.command, ss.blueprint, ss.title, keep_partial=ss.keep_partial)
-    if viewer.output is not None:
-        outputs.append(_ViewerOutput(viewer))
+    if viewer.output is not None:  # the --save file: committed or discarded with the run
+        outputs.append(viewer)
     for m in viewer.messages:
         print(f"  {m}", file=out)
     rec = viewer.rec
