@@ -12,7 +12,7 @@ import math
 import os
 import re
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import KW_ONLY, dataclass, field
 
 import necviz.tuned  # noqa: F401 - registers the tuned controllers (navid-tuned, ...) with CONTROLLERS
 from necviz.core.checks import check_number
@@ -250,6 +250,7 @@ class ViewerOptions:
         A bad port, memory limit or layout, or ``notebook`` combined with another target.
     """
 
+    _: KW_ONLY
     spawn: bool = False
     serve: bool = False
     connect: str | None = None
@@ -304,6 +305,7 @@ class ShowOptions:
     """
 
     speed: object = "auto"  # "auto": real time when a viewer watches, as fast as possible into a file
+    _: KW_ONLY
     event_window_ms: float = 33.3
     event_points: int = 0
     image_rate_hz: float | None = None
@@ -329,6 +331,7 @@ class TuneOptions:
         Watch this file: every changed ``key = value`` line is applied when it is saved.
     """
 
+    _: KW_ONLY
     prompt: bool = True
     file: str | os.PathLike | None = None
 
@@ -356,6 +359,7 @@ class ClipOptions:
     """
 
     folder: str | os.PathLike = ""
+    _: KW_ONLY
     before_s: float = 5.0
     after_s: float = 5.0
     memory_mb: float = 512.0
@@ -399,6 +403,7 @@ class VideoOptions:
     """
 
     path: str | os.PathLike = ""
+    _: KW_ONLY
     speed: float | None = None
     fps: float = 30.0
     force: bool = False
@@ -444,6 +449,7 @@ class DemoOptions:
 
     scene: SceneOptions = field(default_factory=SceneOptions)
     controllers: tuple = DEFAULT_CONTROLLERS
+    _: KW_ONLY
     record: str | os.PathLike | None = None
     force: bool = False
     profile: str | os.PathLike | None = None
@@ -492,6 +498,7 @@ class ReplayOptions:
     """
 
     file: str | os.PathLike = ""
+    _: KW_ONLY
     start_s: float | None = None
     end_s: float | None = None
     exposure_us: float | None = None
@@ -620,6 +627,7 @@ class LiveOptions:
     """
 
     device: str = "usb"
+    _: KW_ONLY
     serial: str | None = None
     reconnect: bool = False
     controller: str = "nec"
@@ -680,6 +688,7 @@ class CompareOptions:
 
     scene: SceneOptions = field(default_factory=SceneOptions)
     controllers: tuple = COMPARE_CONTROLLERS
+    _: KW_ONLY
     seeds: int = 1
     sift: bool = True
     json: str | os.PathLike | None = None

@@ -203,7 +203,7 @@ def test_mark_at_the_prompt_writes_a_clip_in_a_demo(tmp_path):
             SceneOptions("static_lab", duration_s=0.6),
             ("nec",),
             tune=TuneOptions(prompt=True),
-            clips=ClipOptions(clips, 0.2, 0.1),
+            clips=ClipOptions(clips, before_s=0.2, after_s=0.1),
         ),
         ViewerOptions(save=tmp_path / "demo.rrd"),
         out=out,
