@@ -2,7 +2,7 @@
 
 A stream like ``necviz bench pipeline``'s (346x260 events at 12 Mev/s in 1 ms batches, 50 fps frames,
 a command and a prediction per frame), generated on the fly so the generator holds nothing, is fed
-straight to a :class:`~necviz.flight_recorder.FlightRecorder` (the observer calls the pipeline makes),
+straight to a :class:`~necviz.dashboard.flight_recorder.FlightRecorder` (the observer calls the pipeline makes),
 as fast as the machine goes. Each scenario runs in its own process; its resident memory (VmRSS) is
 sampled every 0.5 s of sensor time and its peak (``ru_maxrss``) read at the end, against the same
 process before the recorder existed (the baseline: what a session has loaded and compiled anyway, the
@@ -77,10 +77,10 @@ def child(name: str, folder: str) -> dict:
     from necviz.core.events import EVENT_DTYPE
     from necviz.core.frames import ExposureMarker, Frame
     from necviz.core.sensor import DAVIS346
-    from necviz.dashboard.telemetry import FrameRecord
-    from necviz.flight_recorder import FlightRecorder
+    from necviz.dashboard.flight_recorder import FlightRecorder
     from necviz.memory import bound_heap_retention
     from necviz.options import ClipOptions
+    from necviz.telemetry import FrameRecord
 
     bound_heap_retention()  # as run_session does
     _warm_sink()

@@ -24,22 +24,16 @@ from pathlib import Path
 
 def time_controller(name: str, params: dict, scenario: str, duration_s: float) -> float:
     """Seconds of wall time per simulated second of one single-threaded run of ``name``."""
-    from necviz.drivers.sim import rig as camera
     from necviz.runs import run_spec
-    from necviz.sweeps.worker import InlineExecutor
 
     spec = {"scenario": scenario, "seed": 0, "controllers": [name], "sift": False}
     if params:
         spec["controller_params"] = {name: params}
-    saved = camera.ThreadPoolExecutor
-    camera.ThreadPoolExecutor = InlineExecutor  # as on a sweep worker
-    try:
-        run_spec(dict(spec, duration_s=0.05))  # warm-up: the Numba kernels
-        t0 = time.perf_counter()
-        run_spec(dict(spec, duration_s=duration_s))
-        return (time.perf_counter() - t0) / duration_s
-    finally:
-        camera.ThreadPoolExecutor = saved
+    # single-threaded, as on a sweep worker; first a warm-up: the Numba kernels
+    run_spec(dict(spec, duration_s=0.05), threads=False)
+    t0 = time.perf_counter()
+    run_spec(dict(spec, duration_s=duration_s), threads=False)
+    return (time.perf_counter() - t0) / duration_s
 
 
 def main(argv=None) -> int:

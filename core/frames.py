@@ -10,10 +10,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from necviz.core.errors import FrameFormatError
+
+if TYPE_CHECKING:
+    from necviz.core.ground_truth import GroundTruth
 
 
 @dataclass(frozen=True, eq=False)
@@ -31,7 +35,7 @@ class Frame:
     exposure_end_us: int
     gain: float = 1.0
     sequence: int = 0
-    truth: object | None = field(default=None, compare=False, repr=False)
+    truth: GroundTruth | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         img = self.image

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from necviz.core.crf import CameraResponse
+from necviz.core.markers import MarkerTruth
 
 #: Digits at or above ``OVER`` are over-exposed, at or below ``UNDER`` under-exposed (the paper's 9..250).
 OVER = 250
@@ -61,7 +62,7 @@ class GroundTruth:
     readout_us: float = 0.0
     changes: tuple = ()
     pedestrian_box: tuple | None = None
-    markers: object | None = None
+    markers: MarkerTruth | None = None
     lost_t_us: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     lost_on: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     lost_off: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))

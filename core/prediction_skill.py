@@ -1,6 +1,6 @@
 """What the events add to the next-frame prediction: P-TEDI against predictors that see frames only.
 
-For every usable frame ``i`` (its ln P̄ measured, :class:`necviz.dashboard.telemetry.FrameRecord`)
+For every usable frame ``i`` (its ln P̄ measured, :class:`necviz.telemetry.FrameRecord`)
 P-TEDI predicts the frame's ln P̄ from the last anchor and the events since (``ln P(s) + ln E_p(s)``).
 Two predictors that see the frames alone give the yardstick:
 

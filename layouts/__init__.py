@@ -2,7 +2,7 @@
 recorded failure) and ``compare`` (one column per controller).
 
 :func:`make_blueprint` builds one by name for the given lanes (entity roots, see
-:mod:`necviz.dashboard.schema`) and sensor size. :func:`style_series` logs the static series styles
+:mod:`necviz.schema`) and sensor size. :func:`style_series` logs the static series styles
 (names, lane colours, saturated-frame markers) that make the plots readable.
 """
 
@@ -18,8 +18,8 @@ if __name__ != "necviz.layouts":  # the folder imported as a top-level package (
 import rerun as rr
 import rerun.blueprint as rrb
 
+from necviz import schema as S
 from necviz.core.errors import ParameterError
-from necviz.dashboard import schema as S
 from necviz.layouts import blueprints
 from necviz.layouts.views import lane_color
 

@@ -1,12 +1,12 @@
 """The three blueprints: ``live`` (tuning one camera), ``inspect`` (stepping through a recorded
 failure) and ``compare`` (one column per controller). Each takes the lanes (entity roots, see
-:mod:`necviz.dashboard.schema`) and the sensor size."""
+:mod:`necviz.schema`) and the sensor size."""
 
 from __future__ import annotations
 
 import rerun.blueprint as rrb
 
-from necviz.dashboard import schema as S
+from necviz import schema as S
 from necviz.layouts.views import image_view, panels, series_view
 
 #: the ``live`` layout's curves show the last this many seconds of sensor time

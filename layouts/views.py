@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import rerun.blueprint as rrb
 
-from necviz.dashboard import schema as S
+from necviz import schema as S
 
 #: One colour per lane (RGB), stable across layouts and series styles.
 LANE_COLORS = {

@@ -12,7 +12,7 @@ import math
 import os
 import re
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import KW_ONLY, dataclass, field
 
 import necviz.tuned  # noqa: F401 - registers the tuned controllers (navid-tuned, ...) with CONTROLLERS
 from necviz.core.checks import check_number
@@ -122,7 +122,7 @@ def parse_params(items, flag: str = "--param") -> dict:
     return out
 
 
-@dataclass
+@dataclass(frozen=True)
 class SceneOptions:
     """A simulated scene: a preset name or a TOML scenario file, a seed, a duration, overrides.
 
@@ -152,17 +152,17 @@ class SceneOptions:
     def __post_init__(self):
         from necviz.drivers.sim.scenes import SCENARIOS
 
-        self.scenario = str(self.scenario)
+        object.__setattr__(self, "scenario", str(self.scenario))
         if self.scenario not in SCENARIOS and not self.is_file:
             raise ParameterError(
                 f"--scenario: {self.scenario!r} is neither a preset ({', '.join(sorted(SCENARIOS))}) "
                 "nor a .toml scenario file"
             )
         if self.seed is not None:
-            self.seed = check_flag("--seed", self.seed)
+            object.__setattr__(self, "seed", check_flag("--seed", self.seed))
         if self.duration_s is not None:
-            self.duration_s = check_flag("--duration", self.duration_s)
-        self.params = dict(self.params)
+            object.__setattr__(self, "duration_s", check_flag("--duration", self.duration_s))
+        object.__setattr__(self, "params", dict(self.params))
 
     @property
     def is_file(self) -> bool:
@@ -213,7 +213,7 @@ class SceneOptions:
             raise ParameterError(f"{self.scenario}: {e}" if self.is_file else str(e)) from None
 
 
-@dataclass
+@dataclass(frozen=True)
 class ViewerOptions:
     """Where the Rerun data goes (as the flags of Rerun's own examples); combine freely.
 
@@ -250,6 +250,7 @@ class ViewerOptions:
         A bad port, memory limit or layout, or ``notebook`` combined with another target.
     """
 
+    _: KW_ONLY
     spawn: bool = False
     serve: bool = False
     connect: str | None = None
@@ -270,8 +271,8 @@ class ViewerOptions:
         if self.layout is not None and self.layout not in LAYOUT_NAMES:
             raise ParameterError(f"unknown layout {self.layout!r}; available: {', '.join(LAYOUT_NAMES)}")
         for label in ("grpc_port", "web_port"):
-            setattr(self, label, check_flag("--" + label.replace("_", "-"), getattr(self, label)))
-        self.memory_limit = parse_memory_limit(self.memory_limit)
+            object.__setattr__(self, label, check_flag("--" + label.replace("_", "-"), getattr(self, label)))
+        object.__setattr__(self, "memory_limit", parse_memory_limit(self.memory_limit))
         if self.serve and self.grpc_port == self.web_port:
             raise ParameterError(f"--grpc-port and --web-port are both {self.grpc_port}; they must differ")
 
@@ -280,7 +281,7 @@ class ViewerOptions:
         return bool(self.spawn or self.serve or self.connect or self.notebook)
 
 
-@dataclass
+@dataclass(frozen=True)
 class ShowOptions:
     """How a dashboard run paces and draws (shared by demo, replay and live).
 
@@ -304,20 +305,21 @@ class ShowOptions:
     """
 
     speed: object = "auto"  # "auto": real time when a viewer watches, as fast as possible into a file
+    _: KW_ONLY
     event_window_ms: float = 33.3
     event_points: int = 0
     image_rate_hz: float | None = None
 
     def __post_init__(self):
         if self.speed != "auto":
-            self.speed = parse_speed(self.speed)
-        self.event_window_ms = check_flag("--event-window-ms", self.event_window_ms)
-        self.event_points = check_flag("--event-points", self.event_points)
+            object.__setattr__(self, "speed", parse_speed(self.speed))
+        object.__setattr__(self, "event_window_ms", check_flag("--event-window-ms", self.event_window_ms))
+        object.__setattr__(self, "event_points", check_flag("--event-points", self.event_points))
         if self.image_rate_hz is not None:
-            self.image_rate_hz = check_flag("--image-rate", self.image_rate_hz)
+            object.__setattr__(self, "image_rate_hz", check_flag("--image-rate", self.image_rate_hz))
 
 
-@dataclass
+@dataclass(frozen=True)
 class TuneOptions:
     """Live tuning: a prompt on the terminal and/or a watched file.
 
@@ -331,16 +333,17 @@ class TuneOptions:
         DVS controls set before the first packet (``--dvs KEY=VALUE``; :mod:`necviz.dvs_controls`).
     """
 
+    _: KW_ONLY
     prompt: bool = True
     file: str | os.PathLike | None = None
     dvs: tuple = ()
 
 
-@dataclass
+@dataclass(frozen=True)
 class ClipOptions:
     """The flight recorder (``--clips DIR``): a clip around every saturated frame and every ``mark``.
 
-    See :mod:`necviz.flight_recorder`.
+    See :mod:`necviz.dashboard.flight_recorder`.
 
     Parameters
     ----------
@@ -359,6 +362,7 @@ class ClipOptions:
     """
 
     folder: str | os.PathLike = ""
+    _: KW_ONLY
     before_s: float = 5.0
     after_s: float = 5.0
     memory_mb: float = 512.0
@@ -366,9 +370,9 @@ class ClipOptions:
     def __post_init__(self):
         if not str(self.folder):
             raise ParameterError("--clips needs a folder")
-        self.before_s = check_flag("--clip-before", self.before_s)
-        self.after_s = check_flag("--clip-after", self.after_s)
-        self.memory_mb = check_flag("--clip-memory", self.memory_mb)
+        object.__setattr__(self, "before_s", check_flag("--clip-before", self.before_s))
+        object.__setattr__(self, "after_s", check_flag("--clip-after", self.after_s))
+        object.__setattr__(self, "memory_mb", check_flag("--clip-memory", self.memory_mb))
 
     def check(self) -> None:
         """The folder exists (created when missing, said in one line) and is writable; before anything starts."""
@@ -379,7 +383,7 @@ class ClipOptions:
             raise ParameterError(f"--clips: folder {folder!r} is not writable")
 
 
-@dataclass
+@dataclass(frozen=True)
 class VideoOptions:
     """``--video OUT.mp4``: an H.264 video of what the dashboard shows (:mod:`necviz.dashboard.video`).
 
@@ -402,6 +406,7 @@ class VideoOptions:
     """
 
     path: str | os.PathLike = ""
+    _: KW_ONLY
     speed: float | None = None
     fps: float = 30.0
     force: bool = False
@@ -410,13 +415,13 @@ class VideoOptions:
         if not str(self.path):
             raise ParameterError("--video needs a file name")
         if self.speed is not None:
-            self.speed = parse_speed(self.speed)
+            object.__setattr__(self, "speed", parse_speed(self.speed))
             if self.speed is None:
                 raise ParameterError("--speed for a video must be a number (0.1 is ten times slower than real time)")
-        self.fps = check_flag("--video-fps", self.fps)
+        object.__setattr__(self, "fps", check_flag("--video-fps", self.fps))
 
 
-@dataclass
+@dataclass(frozen=True)
 class DemoOptions:
     """``necviz demo``: every controller drives its own simulated camera; one scene, side by side.
 
@@ -447,6 +452,7 @@ class DemoOptions:
 
     scene: SceneOptions = field(default_factory=SceneOptions)
     controllers: tuple = DEFAULT_CONTROLLERS
+    _: KW_ONLY
     record: str | os.PathLike | None = None
     force: bool = False
     profile: str | os.PathLike | None = None
@@ -456,10 +462,10 @@ class DemoOptions:
     video: VideoOptions | None = None
 
     def __post_init__(self):
-        self.controllers = parse_controllers(self.controllers)
+        object.__setattr__(self, "controllers", parse_controllers(self.controllers))
 
 
-@dataclass
+@dataclass(frozen=True)
 class ReplayOptions:
     """``necviz replay FILE``: a recording through P-TEDI and a controller in open loop.
 
@@ -495,6 +501,7 @@ class ReplayOptions:
     """
 
     file: str | os.PathLike = ""
+    _: KW_ONLY
     start_s: float | None = None
     end_s: float | None = None
     exposure_us: float | None = None
@@ -510,10 +517,13 @@ class ReplayOptions:
     def __post_init__(self):
         if not str(self.file):
             raise ParameterError("replay needs a recording file")
-        (self.controller,) = parse_controllers([self.controller])
-        self.start_s, self.end_s, self.exposure_us = _check_reading(self.start_s, self.end_s, self.exposure_us)
+        object.__setattr__(self, "controller", parse_controllers([self.controller])[0])
+        start_s, end_s, exposure_us = _check_reading(self.start_s, self.end_s, self.exposure_us)
+        object.__setattr__(self, "start_s", start_s)
+        object.__setattr__(self, "end_s", end_s)
+        object.__setattr__(self, "exposure_us", exposure_us)
         if self.pipe_timeout_s is not None:
-            self.pipe_timeout_s = check_flag("--pipe-timeout", self.pipe_timeout_s)
+            object.__setattr__(self, "pipe_timeout_s", check_flag("--pipe-timeout", self.pipe_timeout_s))
 
 
 def _check_reading(start_s, end_s, exposure_us) -> tuple[float | None, float | None, float | None]:
@@ -579,7 +589,7 @@ class ExportOptions:
         object.__setattr__(self, "exposure_us", exposure_us)
 
 
-@dataclass
+@dataclass(frozen=True)
 class LiveOptions:
     """``necviz live``: a DAVIS camera (USB or emulated) with a controller closing the loop.
 
@@ -623,6 +633,7 @@ class LiveOptions:
     """
 
     device: str = "usb"
+    _: KW_ONLY
     serial: str | None = None
     reconnect: bool = False
     controller: str = "nec"
@@ -641,15 +652,15 @@ class LiveOptions:
     def __post_init__(self):
         if self.device not in ("usb", "dv", "emulated"):
             raise ParameterError(f"--device must be usb, dv or emulated, got {self.device!r}")
-        (self.controller,) = parse_controllers([self.controller])
+        object.__setattr__(self, "controller", parse_controllers([self.controller])[0])
         if self.duration_s is not None:
-            self.duration_s = check_flag("--duration", self.duration_s, "live")
+            object.__setattr__(self, "duration_s", check_flag("--duration", self.duration_s, "live"))
         if self.emulate_unplug_s is not None:
-            self.emulate_unplug_s = check_flag("--emulate-unplug", self.emulate_unplug_s)
-        self.history = check_number("history", self.history, 1, integer=True)
+            object.__setattr__(self, "emulate_unplug_s", check_flag("--emulate-unplug", self.emulate_unplug_s))
+        object.__setattr__(self, "history", check_number("history", self.history, 1, integer=True))
 
 
-@dataclass
+@dataclass(frozen=True)
 class CompareOptions:
     """``necviz compare``: every controller in closed loop on one simulated scene, over seeds.
 
@@ -684,6 +695,7 @@ class CompareOptions:
 
     scene: SceneOptions = field(default_factory=SceneOptions)
     controllers: tuple = COMPARE_CONTROLLERS
+    _: KW_ONLY
     seeds: int = 1
     sift: bool = True
     json: str | os.PathLike | None = None
@@ -695,11 +707,11 @@ class CompareOptions:
     markers: bool = False  # detect the scene's fiducial markers on every frame (--markers)
 
     def __post_init__(self):
-        self.controllers = parse_controllers(self.controllers)
-        self.seeds = check_flag("--seeds", self.seeds)
-        self.controller_params = {k: dict(v) for k, v in (self.controller_params or {}).items()}
+        object.__setattr__(self, "controllers", parse_controllers(self.controllers))
+        object.__setattr__(self, "seeds", check_flag("--seeds", self.seeds))
+        object.__setattr__(self, "controller_params", {k: dict(v) for k, v in (self.controller_params or {}).items()})
         check_param_lanes(self.controller_params, self.controllers)
-        self.sim = dict(self.sim or {})
+        object.__setattr__(self, "sim", dict(self.sim or {}))
 
 
 __all__ = [

@@ -40,6 +40,7 @@ import tempfile
 from collections.abc import Iterable, Mapping
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Protocol
 
 from necviz.core.errors import NecvizError, ParameterError
 
@@ -382,6 +383,18 @@ def write_json(path, data, indent: int | None = 2, flag: str | None = None) -> N
         f.write(text)
 
 
+class Output(Protocol):
+    """A file a run writes and commits only when the run succeeded: the native recorder
+    (:class:`~necviz.dashboard.recorders.RecordingFile`), the viewer's ``--save`` file. ``path`` is
+    where it ends up; ``discard`` deletes it (or keeps it, readable, when asked) and returns a note."""
+
+    path: Path
+
+    def commit(self) -> None: ...
+
+    def discard(self) -> str: ...
+
+
 class StreamedOutput:
     """A recording streamed to ``path`` for the length of a run (see the module docstring).
 
@@ -494,6 +507,7 @@ def failure_note(exc: BaseException, notes: list[str]) -> BaseException:
 
 
 __all__ = [
+    "Output",
     "OutputError",
     "RECORDING_RESERVE",
     "StreamedOutput",

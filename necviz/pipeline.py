@@ -8,7 +8,7 @@ straight back to the source (``source.set_exposure(camera, exposure_us, gain)``)
 at the rate event batches arrive.
 
 The pipeline only controls. What the frames and commands mean is computed once by a
-:class:`~necviz.dashboard.telemetry.Telemetry`; whoever wants to see the run — the Rerun sink
+:class:`~necviz.telemetry.Telemetry`; whoever wants to see the run — the Rerun sink
 (:mod:`necviz.dashboard.sink`), the native recorder — is an :class:`Observer`, called with what happened
 through methods that only append to memory, so control never waits for them.
 
@@ -36,9 +36,11 @@ import threading
 import time
 from concurrent.futures import Future
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
+from necviz import schema as S
 from necviz.core.checks import check_number
 from necviz.core.control import CONTROLLERS, Controller, ControllerContext, create_controller
 from necviz.core.errors import NecvizError, ParameterError, StreamError
@@ -47,10 +49,9 @@ from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import ImuBatch, TriggerBatch
 from necviz.core.ptedi import PeripheralEstimator
 from necviz.core.stream import packet_time_us
-from necviz.dashboard import schema as S
-from necviz.dashboard.telemetry import FrameRecord, Telemetry
 from necviz.dvs_controls import DvsControls
 from necviz.reaction import ReactionMeter
+from necviz.telemetry import FrameRecord, Telemetry
 
 #: Thresholds of the lane's P-TEDI estimator, tunable like the controller's own parameters.
 THRESHOLD_KEYS = ("c_on", "c_off", "c")
@@ -109,7 +110,15 @@ def _estimator(lane: Lane) -> PeripheralEstimator:
 
 class Observer:
     """Something that watches a run (the Rerun sink, the native recorder). Every method is called
-    on the streaming thread and must only append to memory; the defaults ignore everything."""
+    on the streaming thread and must only append to memory; the defaults ignore everything.
+
+    ``name`` keys what :meth:`close` returns in the run's summary (default: the class's name);
+    ``folder``, a folder the observer writes into while the run goes (the session watches its disk);
+    ``failure``, set when an output could not be written (the session stops the run and reports it)."""
+
+    name: str | None = None
+    folder: Path | None = None
+    failure: BaseException | None = None
 
     def warm_up(self) -> None:
         """Before the first packet (on the streaming thread): compile or load the kernels this observer
@@ -135,6 +144,11 @@ class Observer:
 
     def note(self, entity: str, t_us: int, message: str, level: str = "INFO", data: dict | None = None) -> None:
         """A change during the run (tuning, controller switch); ``data`` for machine-readable logs."""
+
+    def mark(self, text: str = "") -> str | None:
+        """The user marked this moment (tuning's ``mark``): the observer's reply, or None if marks mean
+        nothing to it (a flight recorder opens a clip around it)."""
+        return None
 
     def close(self) -> dict | None:
         """The run is over: flush. May return statistics for the run summary."""
@@ -565,7 +579,7 @@ class Pipeline:
             try:
                 out = o.close()
                 if out is not None:
-                    extra[getattr(o, "name", type(o).__name__)] = out
+                    extra[o.name or type(o).__name__] = out
             except BaseException as e:
                 errors.append(e)
         err = self.error or (errors[0] if errors else None)

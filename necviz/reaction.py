@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 from collections import deque
 
-from necviz.dashboard.telemetry import LatencyHistogram
+from necviz.telemetry import LatencyHistogram
 
 #: a frame's exposure matches a command's within this many µs ...
 TOLERANCE_US = 5.0

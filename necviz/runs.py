@@ -27,9 +27,9 @@ from necviz.core.control import CONTROLLERS, CameraLimits, Controller, make_cont
 from necviz.core.errors import ParameterError
 from necviz.core.markers import MARKER_KEYS, summarise_markers
 from necviz.core.metrics import summarise, summarise_details
-from necviz.dashboard.telemetry import Telemetry
 from necviz.options import SceneOptions, check_param_lanes
 from necviz.pipeline import Lane, Pipeline
+from necviz.telemetry import Telemetry
 
 
 def sim_models(sim: dict | None):
@@ -92,18 +92,29 @@ def build_rig(
     controller_params: dict | None = None,
     sim: dict | None = None,
     cache=None,
+    threads: bool | None = None,
 ):
     """The scene, the rig (one camera per controller) and one driving lane per controller.
 
     ``cache``: a :class:`~necviz.drivers.sim.scene_cache.SceneCache` the rig reads the rendered scene from,
-    or writes it to (a replayed demo; the packets are the same either way)."""
+    or writes it to (a replayed demo; the packets are the same either way). ``threads``: the rig's
+    :attr:`~necviz.drivers.sim.rig.RigOptions.threads` (``False``: all on the caller's thread, as a sweep
+    worker runs; the same packets either way)."""
     from necviz.core.ptedi import PeripheralEstimator
     from necviz.core.ptedi_shared import share_event_side
-    from necviz.drivers.sim.rig import SimRig
+    from necviz.drivers.sim.rig import RigOptions, SimRig
 
     scene = scene_options.build()
     dvs, aps = sim_models(sim)
-    rig = SimRig(scene, list(controllers), dvs=dvs, aps=aps, seed=scene_options.resolved_seed, cache=cache)
+    rig = SimRig(
+        scene,
+        list(controllers),
+        dvs=dvs,
+        aps=aps,
+        seed=scene_options.resolved_seed,
+        options=RigOptions(threads=threads),
+        cache=cache,
+    )
     limits = CameraLimits(aps.exposure_min_us, aps.exposure_max_us, aps.gain_max)
     check_param_lanes(controller_params, controllers)
     profile = profile if profile is not None else simulator_profile()
@@ -155,6 +166,9 @@ class RunOptions:
         ``{controller: {parameter: value}}``.
     sim : dict, optional
         Simulator overrides ``{"dvs.KEY" | "aps.KEY": value}``.
+    threads : bool, optional
+        The simulator's worker threads (:class:`~necviz.drivers.sim.rig.RigOptions`; ``False`` on a sweep
+        worker, one run per core; the same result either way).
     """
 
     scene: SceneOptions
@@ -164,6 +178,7 @@ class RunOptions:
     profile: object = None
     controller_params: dict | None = None
     sim: dict | None = None
+    threads: bool | None = None
 
 
 def run_once(options: RunOptions, observers=(), progress=None) -> dict:
@@ -174,7 +189,7 @@ def run_once(options: RunOptions, observers=(), progress=None) -> dict:
     """
     scene_options, controllers, sift, markers = options.scene, options.controllers, options.sift, options.markers
     scene, rig, lanes, _ = build_rig(
-        scene_options, controllers, options.profile, options.controller_params, options.sim
+        scene_options, controllers, options.profile, options.controller_params, options.sim, threads=options.threads
     )
     tel = Telemetry([ln.name for ln in lanes], sift=sift, markers=markers)
     obs = [o(rig, lanes) if callable(o) else o for o in observers]
@@ -241,8 +256,11 @@ SPEC_KEYS = {
 }
 
 
-def run_spec(spec: dict) -> dict:
-    """:func:`run_once` from a plain dict (keys in the module docstring); returns plain data."""
+def run_spec(spec: dict, threads: bool | None = None) -> dict:
+    """:func:`run_once` from a plain dict (keys in the module docstring); returns plain data.
+
+    ``threads``: the simulator's worker threads (:attr:`RunOptions.threads`), not part of the spec: the
+    result is the same either way."""
     unknown = set(spec) - SPEC_KEYS
     if unknown:
         raise ParameterError(f"unknown run key(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(SPEC_KEYS))}")
@@ -272,6 +290,7 @@ def run_spec(spec: dict) -> dict:
             profile=profile,
             controller_params=spec.get("controller_params"),
             sim=spec.get("sim"),
+            threads=threads,
         )
     )
 

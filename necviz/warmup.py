@@ -63,7 +63,7 @@ def warm_up_lanes(lanes, sensor) -> None:
     """Run :func:`warm_up_stream` through copies of every lane's controller and passive estimator, and a
     throwaway telemetry lane (the diagnosis of a saturated frame included). Errors are ignored: a
     controller that refuses the synthetic stream simply warms up on the real one."""
-    from necviz.dashboard.telemetry import LaneTelemetry
+    from necviz.telemetry import LaneTelemetry
 
     stream = warm_up_stream(sensor)
     for ln in lanes:

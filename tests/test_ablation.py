@@ -287,7 +287,7 @@ def test_absorbing_the_lag_keeps_the_frame_after_a_bounded_one_valid():
     """A 40 dB fall 1.5 ms before frame 2 starts (no bus ceiling): frame 2 cannot be helped (the
     command latency) and under-exposes; its bound lowers P-TEDI's anchor while the dark pixels' OFF
     events are still arriving. Counting those again left frame 3 over-exposed; absorbing them does not."""
-    from necviz.dashboard.telemetry import Telemetry
+    from necviz.telemetry import Telemetry
 
     scene = step_scene(39_500, 7.3, -4.6, duration_us=100_000)
     aps = ApsParams()

@@ -12,9 +12,9 @@ import pytest
 from conftest import SHARED_DATA
 from rrd_read import Rrd
 
+from necviz import schema as S
 from necviz.commands.cli import main
 from necviz.core.frames import Frame
-from necviz.dashboard import schema as S
 from necviz.drivers.recordings import open_recording
 from necviz.drivers.source import CameraInfo
 

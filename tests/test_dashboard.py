@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from rrd_read import Rrd
 
+from necviz import schema as S
 from necviz.commands.cli import main
-from necviz.dashboard import schema as S
 from necviz.layouts import LAYOUTS, make_blueprint
 
 CONTROLLERS = ("nec", "navid", "shim", "begin", "builtin", "fixed")

@@ -18,13 +18,13 @@ from necviz.core.crf import default_davis346
 from necviz.core.diagnosis import CAUSES, Command, Evidence, best_valid_fraction, diagnose
 from necviz.core.ground_truth import GroundTruth
 from necviz.core.sensor import SensorGeometry
-from necviz.dashboard.telemetry import Telemetry
 from necviz.drivers.sim.aps import ApsParams
 from necviz.drivers.sim.dvs import DvsParams
 from necviz.drivers.sim.rig import SimRig
 from necviz.drivers.sim.scene import FunctionScene, LightingChange
 from necviz.pipeline import Lane, Pipeline
 from necviz.runs import build_controller
+from necviz.telemetry import Telemetry
 
 SENSOR = SensorGeometry(64, 48)
 YY, XX = np.mgrid[0:48, 0:64].astype(np.float32)

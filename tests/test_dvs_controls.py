@@ -218,7 +218,7 @@ def test_a_bias_change_is_in_the_rrd_timeline_and_the_native_recording(tmp_path)
     sys.path.insert(0, str(Path(__file__).parent))
     from rrd_read import Rrd
 
-    from necviz.dashboard import schema as S
+    from necviz import schema as S
     from necviz.dashboard.sink import RerunSink, SinkOptions
     from necviz.drivers.recordings import Recorder, open_recording
     from necviz.pipeline import RecorderObserver

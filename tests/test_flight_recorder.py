@@ -15,10 +15,10 @@ from necviz.core.control import ExposureCommand
 from necviz.core.events import EVENT_DTYPE, EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import SensorGeometry
-from necviz.dashboard.telemetry import FrameRecord
+from necviz.dashboard.flight_recorder import FlightRecorder, cause_slug
 from necviz.drivers.recordings import open_recording
-from necviz.flight_recorder import FlightRecorder, cause_slug
 from necviz.options import ClipOptions
+from necviz.telemetry import FrameRecord
 
 SENSOR = SensorGeometry(32, 24, "tiny")
 BATCH_US = 1000
@@ -77,7 +77,7 @@ def test_a_run_without_failures_writes_nothing_and_memory_follows_the_window(tmp
     assert stats["clips_written"] == 0 and stats["dropped_events"] == 0
     # 0.2 s (+ the 0.2 s slack for an exposure seen at its end) of 100-event batches (13 bytes an event),
     # frames and small entries: a fifth of the 2 s fed
-    from necviz.flight_recorder import SLACK_US
+    from necviz.dashboard.flight_recorder import SLACK_US
 
     per_second = 1000 * 100 * 13 + 50 * (32 * 24 + 160) + 50 * 3 * 160
     window = 0.2 + SLACK_US / 1e6
@@ -203,7 +203,7 @@ def test_mark_at_the_prompt_writes_a_clip_in_a_demo(tmp_path):
             SceneOptions("static_lab", duration_s=0.6),
             ("nec",),
             tune=TuneOptions(prompt=True),
-            clips=ClipOptions(clips, 0.2, 0.1),
+            clips=ClipOptions(clips, before_s=0.2, after_s=0.1),
         ),
         ViewerOptions(save=tmp_path / "demo.rrd"),
         out=out,

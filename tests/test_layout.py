@@ -79,6 +79,34 @@ def test_the_import_graph_has_no_circles():
     assert cycles == []
 
 
+#: The application's own layers: only they (and ``python -m necviz``) may import them.
+APPLICATION = ("necviz.dashboard", "necviz.commands")
+#: The packages under the application: they import nothing of necviz but each other.
+FOUNDATION = {"necviz.core": ("necviz.core",), "necviz.drivers": ("necviz.core", "necviz.drivers")}
+
+
+def _within(module: str, packages) -> bool:
+    return any(module == p or module.startswith(p + ".") for p in packages)
+
+
+def test_imports_point_down_the_layers():
+    """``core`` imports only ``core``; ``drivers`` only ``core`` and ``drivers``; nothing outside
+    ``necviz/dashboard`` and ``necviz/commands`` imports either of them (the library and the blueprints sit
+    under the Rerun side and the command line, never on them); the blueprints are the dashboard's alone."""
+    modules = _modules()
+    wrong = []
+    for m, path in sorted(modules.items()):
+        deps = _imports(path, modules) - {m}
+        for pkg, allowed in FOUNDATION.items():
+            if _within(m, [pkg]):
+                wrong += [f"{m} -> {d}" for d in sorted(deps) if not _within(d, allowed) and d != "necviz"]
+        if not _within(m, APPLICATION) and m != "necviz.__main__":
+            wrong += [f"{m} -> {d}" for d in sorted(deps) if _within(d, APPLICATION)]
+        if not _within(m, (*APPLICATION, "necviz.layouts")):
+            wrong += [f"{m} -> {d}" for d in sorted(deps) if _within(d, ["necviz.layouts"])]
+    assert wrong == []
+
+
 def test_core_does_no_io_and_needs_no_opencv():
     # the two image-gradient baselines (Shim, Bégin) are defined by OpenCV's Sobel and Farneback flow
     for path in (p for p in (ROOT / "core").rglob("*.py") if p.name not in ("shim.py", "begin.py")):

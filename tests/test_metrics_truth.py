@@ -18,7 +18,6 @@ from necviz.core.diagnosis import CAUSES
 from necviz.core.ground_truth import GroundTruth, true_valid_fraction
 from necviz.core.metrics import rank_correlation, region_valid_fraction, summarise_details
 from necviz.core.sensor import SensorGeometry
-from necviz.dashboard.telemetry import Telemetry
 from necviz.drivers.sim.aps import ApsParams
 from necviz.drivers.sim.rig import RigOptions, SimRig
 from necviz.drivers.sim.scene import FunctionScene
@@ -27,6 +26,7 @@ from necviz.image_quality import SiftMatcher, normalise_brightness
 from necviz.options import CompareOptions, SceneOptions
 from necviz.pipeline import Lane, Observer, Pipeline
 from necviz.runs import build_controller
+from necviz.telemetry import Telemetry
 
 SENSOR = SensorGeometry(64, 48)
 N = SENSOR.num_pixels

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 from rrd_read import Rrd
 
-from necviz.bench.pipeline_speed import SyntheticStream, make_events
+from necviz import schema as S
 from necviz.commands.cli import main
 from necviz.core.control import CameraLimits, make_controller
 from necviz.core.sensor import DAVIS346
-from necviz.dashboard import schema as S
-from necviz.dashboard.telemetry import FrameTable, LatencyHistogram, Telemetry
+from necviz.dashboard.pipeline_speed import SyntheticStream, make_events
 from necviz.options import SceneOptions
 from necviz.pipeline import Lane, Pipeline
+from necviz.telemetry import FrameTable, LatencyHistogram, Telemetry
 
 
 def test_compare_and_demo_write_the_same_schema_with_the_compare_layout(tmp_path):
@@ -95,7 +95,7 @@ def test_a_long_run_keeps_its_telemetry_bounded():
 
 
 def test_frame_table_ring_and_growth():
-    from necviz.dashboard.telemetry import FrameRecord
+    from necviz.telemetry import FrameRecord
 
     ring, full = FrameTable(3), FrameTable(None)
     for i in range(10):

@@ -10,6 +10,7 @@ import pytest
 import rerun as rr
 from rrd_read import Rrd
 
+from necviz import schema as S
 from necviz.core.control import CameraLimits, make_controller
 from necviz.core.errors import NecvizError, ParameterError, StreamError
 from necviz.core.event_image import EventImage
@@ -18,7 +19,6 @@ from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import IMU_DTYPE, ImuBatch
 from necviz.core.sensor import SensorGeometry
 from necviz.core.stream import packet_time_us
-from necviz.dashboard import schema as S
 from necviz.dashboard.sink import RerunSink, SinkOptions
 from necviz.drivers.recordings import Recorder, open_recording
 from necviz.drivers.source import CameraInfo, route

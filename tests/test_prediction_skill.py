@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from rrd_read import Rrd
 
+from necviz import schema as S
 from necviz.commands.cli import main
 from necviz.core.prediction_skill import SkillTracker, skill_from_columns
-from necviz.dashboard import schema as S
 
 SAMPLE = Path(__file__).resolve().parents[2] / "shared" / "data" / "davis346_sample.aedat4"
 NAN = math.nan

@@ -20,14 +20,14 @@ from rerun.chunk import LazyChunkStream, RrdReader
 from rrd_read import Rrd
 
 import necviz.dashboard.sink as sink_mod
+from necviz import schema as S
 from necviz.commands.cli import main
 from necviz.core.event_image import EventImage
 from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import Frame
-from necviz.dashboard import schema as S
 from necviz.dashboard.sink import EventPalette, RerunSink, SinkOptions, encode_indexed_png
-from necviz.dashboard.telemetry import FrameRecord
 from necviz.image_quality import ssim
+from necviz.telemetry import FrameRecord
 
 LANES = ("nec", "fixed")
 DURATION_S = 0.6

@@ -214,8 +214,8 @@ def test_report_refuses_to_replace_and_unknown_metrics(first, tmp_path, capsys):
 
 
 def test_show_reruns_a_cell_deterministically(first, tmp_path):
+    from necviz.commands.sweep_show import show
     from necviz.options import ViewerOptions
-    from necviz.sweeps.show import show
 
     _, out, _ = first
     h = next(iter(_ok_rows(out)))

@@ -15,9 +15,9 @@ from hypothesis import strategies as st
 from rrd_read import Rrd
 from test_pipeline import SENSOR, ListSource, nec_lane, stream
 
+from necviz import schema as S
 from necviz.core.control import CONTROLLERS, CameraLimits, NECController, make_controller
 from necviz.core.errors import ParameterError
-from necviz.dashboard import schema as S
 from necviz.dashboard.sink import RerunSink, SinkOptions
 from necviz.dashboard.tuning import TuningConsole, TuningFile, execute, parse
 from necviz.drivers.recordings import Recorder, open_recording

@@ -10,8 +10,8 @@ av = pytest.importorskip("av", reason="PyAV is not installed (pip install 'necvi
 
 from necviz.core.events import EVENT_DTYPE  # noqa: E402
 from necviz.core.frames import Frame  # noqa: E402
-from necviz.dashboard.telemetry import FrameRecord  # noqa: E402
 from necviz.dashboard.video import LABEL_H, Canvas, VideoWriter  # noqa: E402
+from necviz.telemetry import FrameRecord  # noqa: E402
 
 
 def _decode(path):

@@ -354,9 +354,7 @@ class DavisCamera(CommandedCamera):
             )
         except NecvizError:
             pass
-        backend = getattr(d, "backend", None)
-        if hasattr(backend, "warm_up"):
-            backend.warm_up()
+        d.warm_up()
 
     def close(self) -> None:
         """Stop the device (documented stop order), join the reader thread, release USB. Idempotent."""

@@ -478,6 +478,12 @@ class DavisDevice:
         """One bulk transfer from endpoint 0x82 into ``buffer``; returns the byte count (raises USBError)."""
         return self.dev.read(P.DATA_ENDPOINT, buffer, timeout_ms)
 
+    def warm_up(self) -> None:
+        """Before streaming: an emulated device's simulator compiles or loads its kernels (a few ms of its
+        scene), so it keeps real time from its first packet; a USB device has nothing to ready."""
+        if self.emulated:
+            self.backend.warm_up()
+
     def close(self) -> None:
         """Stop (if running) and release the device. Idempotent."""
         if self.closed:

@@ -134,7 +134,7 @@ def add_show_args(parser, tuning: bool = True) -> None:
 
 
 def add_clip_args(parser) -> None:
-    """``--clips DIR`` and its bounds: the flight recorder (necviz.flight_recorder)."""
+    """``--clips DIR`` and its bounds: the flight recorder (necviz.dashboard.flight_recorder)."""
     from necviz.flags import number
 
     g = parser.add_argument_group("flight recorder (a clip around every saturated frame and every 'mark')")
@@ -195,13 +195,18 @@ def _video(args):
     from necviz.options import VideoOptions
 
     speed = None if str(args.speed).lower() in ("auto", "max", "fast", "0") else args.speed
-    return VideoOptions(args.video, speed, args.video_fps, args.force)
+    return VideoOptions(args.video, speed=speed, fps=args.video_fps, force=args.force)
 
 
 def _show(args):
     from necviz.options import ShowOptions
 
-    return ShowOptions(args.speed, args.event_window_ms, args.event_points, getattr(args, "image_rate", None))
+    return ShowOptions(
+        args.speed,
+        event_window_ms=args.event_window_ms,
+        event_points=args.event_points,
+        image_rate_hz=getattr(args, "image_rate", None),
+    )
 
 
 def _tune(args):
@@ -268,11 +273,11 @@ def _cmd_demo(args) -> int:
         DemoOptions(
             scene_options(args),
             args.controllers,
-            args.record,
-            args.force,
-            args.profile,
-            _show(args),
-            _tune(args),
+            record=args.record,
+            force=args.force,
+            profile=args.profile,
+            show=_show(args),
+            tune=_tune(args),
             clips=_clips(args),
             video=_video(args),
         ),
@@ -289,15 +294,15 @@ def _cmd_replay(args) -> int:
     run(
         ReplayOptions(
             args.file,
-            args.start,
-            args.end,
-            args.exposure_us,
-            args.format,
-            args.controller,
-            args.json,
-            args.force,
-            args.profile,
-            _show(args),
+            start_s=args.start,
+            end_s=args.end,
+            exposure_us=args.exposure_us,
+            format=args.format,
+            controller=args.controller,
+            json=args.json,
+            force=args.force,
+            profile=args.profile,
+            show=_show(args),
             video=_video(args),
             pipe_timeout_s=args.pipe_timeout,
         ),
@@ -314,15 +319,15 @@ def _cmd_live(args) -> int:
     run(
         LiveOptions(
             args.device,
-            args.serial,
-            args.reconnect,
-            args.controller,
-            args.duration,
-            scene_options(args, scene_duration=False),
-            args.emulate_unplug,
-            args.record,
-            args.force,
-            args.profile,
+            serial=args.serial,
+            reconnect=args.reconnect,
+            controller=args.controller,
+            duration_s=args.duration,
+            scene=scene_options(args, scene_duration=False),
+            emulate_unplug_s=args.emulate_unplug,
+            record=args.record,
+            force=args.force,
+            profile=args.profile,
             show=_show(args),
             tune=_tune(args),
             clips=_clips(args),
@@ -342,14 +347,14 @@ def _cmd_compare(args) -> int:
         CompareOptions(
             scene_options(args),
             args.controllers,
-            args.seeds,
-            not args.no_sift,
-            args.json,
-            args.save,
-            args.force,
-            args.profile,
-            parse_params(args.param),
-            sim,
+            seeds=args.seeds,
+            sift=not args.no_sift,
+            json=args.json,
+            save=args.save,
+            force=args.force,
+            profile=args.profile,
+            controller_params=parse_params(args.param),
+            sim=sim,
             markers=args.markers,
         )
     )
@@ -384,7 +389,7 @@ def _cmd_bench_decode(args) -> int:
 
 
 def _cmd_bench_pipeline(args) -> int:
-    from necviz.bench.pipeline_speed import run
+    from necviz.dashboard.pipeline_speed import run
 
     run(
         duration_s=args.duration,

@@ -13,9 +13,11 @@ rendering (the packets are the same). From Python::
 
 from __future__ import annotations
 
+from necviz.dashboard import session as dashboard
 from necviz.dashboard.recorders import open_recorder
-from necviz.dashboard.session import Session, preflight, run_session, scene_inputs
+from necviz.dashboard.session import Session, preflight, scene_inputs
 from necviz.drivers.sim.scene_cache import SceneCache
+from necviz.layouts import make_blueprint
 from necviz.options import DemoOptions, ViewerOptions
 from necviz.progress import output
 from necviz.runs import build_rig
@@ -24,7 +26,7 @@ from necviz.runs import build_rig
 def _observers(options: DemoOptions, video) -> list:
     out = []
     if options.clips is not None:
-        from necviz.flight_recorder import clip_observer
+        from necviz.dashboard.flight_recorder import clip_observer
 
         out.append(clip_observer(options.clips))
     if video is not None:
@@ -51,7 +53,7 @@ def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None,
     Returns
     -------
     dict
-        The run's summary (see :func:`necviz.dashboard.session.run_session`).
+        The run's summary (see :func:`necviz.dashboard.session.run`).
 
     Raises
     ------
@@ -94,19 +96,22 @@ def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None,
     if options.record is not None:
         recorder = open_recorder(options.record, rig.sensor, {**props, "recorded_lane": lanes[0].name})
     print(f"  demo: {sc.name}, {', '.join(ln.name for ln in lanes)} ({props['duration_s']:g} s simulated)", file=out)
-    return run_session(
+    layout = viewer.layout or "compare"
+    blueprint = make_blueprint(layout, [ln.name for ln in lanes], rig.sensor.width, rig.sensor.height)
+    return dashboard.run(
+        rig,
+        lanes,
+        viewer,
+        blueprint,
         Session(
-            "demo",
-            rig,
-            lanes,
-            "compare",
-            f"necviz demo: {sc.name}",
-            props,
-            viewer,
-            show,
-            options.tune,
-            recorder,
-            lanes[0].camera or lanes[0].name,
+            command="demo",
+            layout=layout,
+            title=f"necviz demo: {sc.name}",
+            properties=props,
+            show=show,
+            tune=options.tune,
+            recorder=recorder,
+            record_camera=lanes[0].camera or lanes[0].name,
             lossless=True,
             expected_duration_s=props["duration_s"],
             observers=_observers(options, video_options),

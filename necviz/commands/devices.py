@@ -137,8 +137,7 @@ def check(
         else:
             backend = usb_backend()
     dev = open_device(backend, serial, emulated=device == "emulated")
-    if hasattr(backend, "warm_up"):  # the emulator's simulator compiles before it can keep real time
-        backend.warm_up()
+    dev.warm_up()  # an emulator's simulator compiles before it can keep real time
     try:
         print(f"  checking {dev.kind} {dev.serial}: recording {seconds:g} s of its stream ...", file=out)
         cap = capture(dev, seconds, capture_path)

@@ -16,9 +16,11 @@ from __future__ import annotations
 
 from necviz.core.control import make_controller
 from necviz.core.errors import ParameterError
+from necviz.dashboard import session as dashboard
+from necviz.dashboard.flight_recorder import clip_observer
 from necviz.dashboard.recorders import open_recorder
-from necviz.dashboard.session import Session, preflight, run_session, scene_inputs
-from necviz.flight_recorder import clip_observer
+from necviz.dashboard.session import Session, preflight, scene_inputs
+from necviz.layouts import make_blueprint
 from necviz.options import LiveOptions, ViewerOptions
 from necviz.outputs import write_json
 from necviz.pipeline import Lane
@@ -52,7 +54,7 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     Returns
     -------
     dict
-        The run's summary (see :func:`necviz.dashboard.session.run_session`).
+        The run's summary (see :func:`necviz.dashboard.session.run`).
 
     Raises
     ------
@@ -158,30 +160,26 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
         if options.json is not None:
             write_json(options.json, live_summary(stats, props, backend), indent=1, flag="--json")
 
-    stats = run_session(
-        Session(
-            "live",
-            camera,
-            [lane],
-            "live",
-            f"necviz live: {info.get('serial', '')}",
-            props,
-            viewer,
-            options.show,
-            options.tune,
-            recorder,
-            LANE,
-            lossless=False,
-            history=options.history,
-            expected_duration_s=options.duration_s,
-            stop_after_s=options.duration_s,
-            keep_partial=True,
-            observers=[clip_observer(options.clips)] if options.clips is not None else [],
-            before_commit=write_summary,
-        ),
-        out,
-        stdin,
+    layout = viewer.layout or "live"
+    settings = Session(
+        command="live",
+        layout=layout,
+        title=f"necviz live: {info.get('serial', '')}",
+        properties=props,
+        show=options.show,
+        tune=options.tune,
+        recorder=recorder,
+        record_camera=LANE,
+        lossless=False,
+        history=options.history,
+        expected_duration_s=options.duration_s,
+        stop_after_s=options.duration_s,
+        keep_partial=True,
+        observers=[clip_observer(options.clips)] if options.clips is not None else [],
+        before_commit=write_summary,
     )
+    blueprint = make_blueprint(layout, [LANE], sensor.width, sensor.height)
+    stats = dashboard.run(camera, [lane], viewer, blueprint, settings, out, stdin)
     slip = getattr(backend, "clock_slip_us", 0)
     if slip and out is not None:  # the emulated sensor could not keep up with the wall clock: say how far it slipped
         print(

@@ -28,8 +28,11 @@ from pathlib import Path
 
 from necviz.core.control import CameraLimits, make_controller
 from necviz.core.errors import ParameterError
-from necviz.dashboard.session import Session, preflight, run_session
+from necviz.dashboard import session as dashboard
+from necviz.dashboard.session import Session, preflight
 from necviz.dashboard.video import video_observer
+from necviz.layouts import make_blueprint
+from necviz.layouts.focus import focus_blueprint
 from necviz.options import ReplayOptions, ViewerOptions
 from necviz.outputs import write_json
 from necviz.pipeline import Lane
@@ -155,7 +158,7 @@ def _replay(options: ReplayOptions, viewer, out, path: Path, source: Path, profi
         f"{recording.exposure_source}); {options.controller} in open loop",
         file=out,
     )
-    from necviz.flight_recorder import clip_focus
+    from necviz.dashboard.flight_recorder import clip_focus
 
     focus = clip_focus(getattr(recording, "properties", {}))  # a clip: the session's time axis and window
     if focus is not None:
@@ -182,25 +185,22 @@ def _replay(options: ReplayOptions, viewer, out, path: Path, source: Path, profi
             write_json(options.json, summary, flag="--json")
         result["summary"] = summary
 
-    run_session(
-        Session(
-            "replay",
-            recording,
-            [lane],
-            "inspect",
-            f"necviz replay: {path.name}",
-            props,
-            viewer,
-            show,
-            None,
-            origin_us=origin,
-            lossless=True,
-            observers=[video_observer(video_options)] if video_options is not None else [],
-            focus_s=None if focus is None else focus[:2],
-            before_commit=finish,
-        ),
-        out,
+    layout = viewer.layout or "inspect"
+    blueprint = make_blueprint(layout, [LANE], sensor.width, sensor.height)
+    if focus is not None:
+        blueprint = focus_blueprint(blueprint, *focus[:2])
+    settings = Session(
+        command="replay",
+        layout=layout,
+        title=f"necviz replay: {path.name}",
+        properties=props,
+        show=show,
+        origin_us=origin,
+        lossless=True,
+        observers=[video_observer(video_options)] if video_options is not None else [],
+        before_commit=finish,
     )
+    dashboard.run(recording, [lane], viewer, blueprint, settings, out)
     summary = result["summary"]
     for w in getattr(recording, "warnings", []):
         print(f"  warning: {w}", file=out)

@@ -149,8 +149,8 @@ def _cmd_report(args) -> int:
 
 
 def _cmd_show(args) -> int:
+    from necviz.commands.sweep_show import show
     from necviz.dashboard.viewer_flags import viewer_options
-    from necviz.sweeps.show import show
 
     show(args.out, args.run, viewer_options(args), speed=args.speed)
     return 0

@@ -1,10 +1,13 @@
-"""What ``demo``, ``replay`` and ``live`` share: open the viewer, run the loop, show progress.
+"""What ``demo``, ``replay``, ``live`` and ``sweep show`` share: open the viewer, run the loop, show progress.
 
-:func:`run_session` opens the Rerun recording the :class:`~necviz.options.ViewerOptions` ask for
-(with the command's layout), logs run properties and series styles, runs the
-:class:`~necviz.pipeline.Pipeline` on its streaming thread with a :class:`~necviz.dashboard.sink.RerunSink`
-(and a native recorder, if asked), offers live tuning (a prompt and/or a watched file), shows a
-live count until the source ends or Ctrl-C, then flushes everything and prints a summary.
+In Rerun's own shape (its examples: parse the arguments, ``rr.script_setup(args, ...,
+default_blueprint=...)``, a plain run function): a command builds its source, its lanes and its
+blueprint and calls :func:`run`, which opens the Rerun recording the
+:class:`~necviz.options.ViewerOptions` ask for (``script_setup``'s part), logs run properties and
+series styles, runs the :class:`~necviz.pipeline.Pipeline` on its streaming thread with a
+:class:`~necviz.dashboard.sink.RerunSink` (and a native recorder, if asked), offers live tuning (a
+prompt and/or a watched file), shows a live count until the source ends or Ctrl-C, then flushes
+everything and prints a summary.
 """
 
 from __future__ import annotations
@@ -12,28 +15,31 @@ from __future__ import annotations
 import os
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import rerun as rr
+import rerun.blueprint as rrb
 
 from necviz.dashboard.recorders import RecordingFile
 from necviz.dashboard.sink import RerunSink, SinkOptions
-from necviz.dashboard.telemetry import Telemetry
 from necviz.dashboard.tuning import TuningConsole, TuningFile
 from necviz.dashboard.viewer import FILE_FLUSH_S, open_viewer, text
-from necviz.layouts import make_blueprint, style_series
+from necviz.drivers.source import Source
+from necviz.layouts import style_series
 from necviz.memory import bound_heap_retention
 from necviz.options import ShowOptions, TuneOptions, ViewerOptions
-from necviz.outputs import OutputError, low_space
+from necviz.outputs import Output, OutputError, low_space
 from necviz.pipeline import Lane, Pipeline, RecorderObserver
 from necviz.progress import LiveLine, output, plural
 from necviz.reaction import reaction_line
+from necviz.telemetry import Telemetry
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Session:
     """One dashboard run: a source, its lanes and how to show them.
 
+    ``layout``: the name of ``blueprint``'s layout (the run's properties, a clip's own layout).
     ``recorder``: a native :class:`~necviz.drivers.recordings.native.Recorder` keeping ``record_camera``
     (default: the first lane's camera). ``lossless``: keep every frame and event image when the
     run is not paced (a simulation or replay into a file). ``history``: frames of per-frame
@@ -43,12 +49,14 @@ class Session:
     """
 
     command: str
-    source: object
-    lanes: list[Lane]
     layout: str
     title: str
     properties: dict
+    #: what :func:`run` is given: the source, its lanes, the viewer options and the command's blueprint
+    source: Source | None = None
+    lanes: list[Lane] = field(default_factory=list)
     viewer: ViewerOptions = field(default_factory=ViewerOptions)
+    blueprint: rrb.Blueprint | None = None
     show: ShowOptions = field(default_factory=ShowOptions)
     tune: TuneOptions | None = None
     recorder: RecordingFile | None = None  # the native recorder (--record)
@@ -60,8 +68,6 @@ class Session:
     stop_after_s: float | None = None
     #: more observers (the flight recorder, the video writer): factories ``f(session, layout, out)``
     observers: list = field(default_factory=list)
-    #: ``(start_s, end_s)`` of sensor time the viewer selects and loops over (a clip's failure)
-    focus_s: tuple | None = None
     keep_partial: bool = False
     before_commit: object = None  # callable(stats): last step of a run (e.g. write --json); raising fails it
 
@@ -98,6 +104,24 @@ def preflight(command: str, viewer: ViewerOptions | None, outputs: dict, force: 
     return viewer, profile
 
 
+def run(
+    source: Source,
+    lanes: list[Lane],
+    viewer: ViewerOptions,
+    blueprint: rrb.Blueprint,
+    session: Session,
+    out=...,
+    stdin=None,
+) -> dict:
+    """Show ``source`` driven by ``lanes`` in the viewer ``viewer`` asks for, laid out by ``blueprint``, and
+    return the run's summary: a command's one call into the dashboard. ``session``: the rest (the command's
+    name, properties, tuning, recorder, observers ...); ``out``: where progress and the summary go;
+    ``stdin``: tuning commands. See :func:`run_session`."""
+    return run_session(
+        replace(session, source=source, lanes=list(lanes), viewer=viewer, blueprint=blueprint), out, stdin
+    )
+
+
 def run_session(session: Session, out=..., stdin=None) -> dict:
     """Run the session; returns the pipeline's summary (with ``"rrd"``, the file written, if any).
 
@@ -110,7 +134,7 @@ def run_session(session: Session, out=..., stdin=None) -> dict:
 
     out = output(out)
     bound_heap_retention()  # a burst of events must not stay resident for the rest of a long session
-    outputs: list = []  # what to commit or discard: the recorder, the viewer's --save file
+    outputs: list[Output] = []  # what to commit or discard: the recorder, the viewer's --save file
     if session.recorder is not None:
         outputs.append(session.recorder)
     try:
@@ -137,7 +161,7 @@ def run_session(session: Session, out=..., stdin=None) -> dict:
                 pass
         if session.keep_partial:
             for o in outputs:
-                kept = getattr(o, "path", None) or getattr(o, "save_path", None)
+                kept = o.path
                 if kept is not None and os.path.exists(kept) and out is not None:
                     print(f"  recording so far: {kept}", file=out)
         new = failure_note(e, notes)
@@ -154,68 +178,18 @@ def run_session(session: Session, out=..., stdin=None) -> dict:
     return stats
 
 
-class _ViewerOutput:
-    """The viewer's ``--save`` file as one of the session's outputs (commit/discard)."""
-
-    def __init__(self, viewer):
-        self.viewer = viewer
-        self.save_path = viewer.save_path
-
-    def commit(self) -> None:
-        self.viewer.output.commit()
-
-    def discard(self) -> str:
-        return self.viewer.discard()
-
-
 def _run(ss: Session, out, stdin, outputs: list) -> dict:
-    v = ss.viewer
-    layout = v.layout or ss.layout
-    names = [lane.name for lane in ss.lanes]
-    sensor = ss.source.sensor
-    blueprint = make_blueprint(layout, names, sensor.width, sensor.height)
-    if ss.focus_s is not None:
-        from necviz.flight_recorder import focus_blueprint
-
-        blueprint = focus_blueprint(blueprint, *ss.focus_s)
-    viewer = open_viewer(v, ss.command, blueprint, ss.title, keep_partial=ss.keep_partial)
-    if viewer.output is not None:
-        outputs.append(_ViewerOutput(viewer))
-    files = [p for p in (viewer.save_path, getattr(ss.recorder, "path", None)) if p is not None]
-    for m in viewer.messages:
-        print(f"  {m}", file=out)
+    """Open the viewer, run the loop with its observers until the source ends (or Ctrl-C, a full disk, a
+    failed output), and summarise."""
+    viewer = _open(ss, out, outputs)
     speed = ss.show.speed
     if speed == "auto":
-        speed = 1.0 if v.watched else None
-    rec = viewer.rec
-    rec.send_property("run", rr.AnyValues(**{k: text(val) for k, val in ss.properties.items()}, layout=layout))
-    style_series(rec, names)
-    lossless = ss.lossless and speed is None and not v.watched
-    # a live session only saved to a file: series in 2 s chunks (Rerun's file sink indexes every chunk)
-    flush = FILE_FLUSH_S if not (lossless or v.watched) else None
-    sink_options = SinkOptions(
-        event_window_us=int(ss.show.event_window_ms * 1000),
-        raw_points=ss.show.event_points,
-        origin_us=ss.origin_us,
-        lossless=lossless,
-        flush_period_s=flush,
-        image_period_us=0 if ss.show.image_rate_hz is None else int(round(1e6 / ss.show.image_rate_hz)),
-    )
-    sink = RerunSink(rec, names, sensor.height, sensor.width, sink_options)
-    sink.files = viewer.files
-    sink.rotate = viewer.rotate
-    observers = [sink]
-    if ss.recorder is not None:
-        cam = ss.record_camera or ss.lanes[0].camera or ss.lanes[0].name
-        driver = next((ln.name for ln in ss.lanes if ln.drives and (ln.camera or ln.name) == cam), cam)
-        observers.append(RecorderObserver(ss.recorder, cam, driver))
-    for make in ss.observers:
-        observers.append(make(ss, layout, out))
-    files += [o.folder for o in observers if getattr(o, "folder", None) is not None]  # clips fill a disk too
+        speed = 1.0 if ss.viewer.watched else None
+    observers = _observers(ss, viewer, speed, out)
     pipe = Pipeline(
         ss.source,
         ss.lanes,
-        telemetry=Telemetry(names, history=ss.history),
+        telemetry=Telemetry([lane.name for lane in ss.lanes], history=ss.history),
         observers=observers,
         speed=speed,
         stop_after_s=ss.stop_after_s,
@@ -228,6 +202,73 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
     notes = getattr(ss.source, "annotations", None)  # a native recording: P-TEDI follows its recorded bias changes
     if isinstance(notes, list) and pipe.dvs.follow_recording(notes) and out is not None:
         print(f"  P-TEDI follows the {len(pipe.dvs._schedule)} DVS bias change(s) recorded in the file", file=out)
+    files = [p for p in (viewer.save_path, ss.recorder.path if ss.recorder is not None else None) if p is not None]
+    files += [o.folder for o in observers if o.folder is not None]  # clips fill a disk too
+    stats, disk_full = _watch(ss, pipe, viewer, files, out, stdin)
+    broken = _failed(observers)
+    if broken is not None:  # an output that could not be written (a clip on a full disk)
+        at = (pipe.now_us or 0) / 1e6 - (pipe.first_us or 0) / 1e6
+        raise type(broken)(f"{broken}; the run was stopped at {at:.1f} s")
+    if disk_full is not None:
+        path, free = disk_full
+        raise OutputError(
+            f"the disk holding {path} is nearly full ({free >> 20} MB free): the run was stopped at "
+            f"{(pipe.now_us or 0) / 1e6 - (pipe.first_us or 0) / 1e6:.1f} s so the files end whole"
+        )
+    source_stats = getattr(ss.source, "stats", None)
+    if isinstance(source_stats, dict) and "dropped_events" in source_stats:  # a camera: what the device lost
+        stats["source"] = {k: v for k, v in source_stats.items() if isinstance(v, (int, float))}
+    print_summary(out, stats)
+    stats["rrd"] = str(viewer.save_path) if viewer.save_path is not None else None
+    stats["telemetry"] = pipe.telemetry
+    return stats, viewer
+
+
+def _open(ss: Session, out, outputs: list):
+    """Open the viewer with the command's blueprint (``rr.script_setup``'s part) and log the run's
+    properties and series styles; its ``--save`` file joins ``outputs``."""
+    viewer = open_viewer(ss.viewer, ss.command, ss.blueprint, ss.title, keep_partial=ss.keep_partial)
+    if viewer.output is not None:  # the --save file: committed or discarded with the run
+        outputs.append(viewer)
+    for m in viewer.messages:
+        print(f"  {m}", file=out)
+    rec = viewer.rec
+    rec.send_property("run", rr.AnyValues(**{k: text(val) for k, val in ss.properties.items()}, layout=ss.layout))
+    style_series(rec, [lane.name for lane in ss.lanes])
+    return viewer
+
+
+def _observers(ss: Session, viewer, speed, out) -> list:
+    """The run's observers: the Rerun sink, the native recorder (``--record``), the command's own."""
+    v = ss.viewer
+    names = [lane.name for lane in ss.lanes]
+    sensor = ss.source.sensor
+    lossless = ss.lossless and speed is None and not v.watched
+    # a live session only saved to a file: series in 2 s chunks (Rerun's file sink indexes every chunk)
+    flush = FILE_FLUSH_S if not (lossless or v.watched) else None
+    sink_options = SinkOptions(
+        event_window_us=int(ss.show.event_window_ms * 1000),
+        raw_points=ss.show.event_points,
+        origin_us=ss.origin_us,
+        lossless=lossless,
+        flush_period_s=flush,
+        image_period_us=0 if ss.show.image_rate_hz is None else int(round(1e6 / ss.show.image_rate_hz)),
+    )
+    sink = RerunSink(viewer.rec, names, sensor.height, sensor.width, sink_options)
+    sink.files = viewer.files
+    sink.rotate = viewer.rotate
+    recorders = []
+    if ss.recorder is not None:
+        cam = ss.record_camera or ss.lanes[0].camera or ss.lanes[0].name
+        driver = next((ln.name for ln in ss.lanes if ln.drives and (ln.camera or ln.name) == cam), cam)
+        recorders = [RecorderObserver(ss.recorder, cam, driver)]
+    return [sink, *recorders, *(make(ss, ss.layout, out) for make in ss.observers)]
+
+
+def _watch(ss: Session, pipe: Pipeline, viewer, files: list, out, stdin):
+    """Run ``pipe`` with live tuning (a prompt, a watched file) and a live count until the source ends,
+    Ctrl-C, a nearly full disk or a failed output; then finish it and close the viewer. Returns the
+    pipeline's summary and ``(file, bytes free)`` when the disk stopped the run, else None."""
     tune_file = console = None
     t0 = time.perf_counter()
     disk_full = None  # (file, bytes free) when the run was stopped to keep its files whole
@@ -259,7 +300,7 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
                 line.show(status())
                 joining = viewer.segments.size() if viewer.segments is not None else 0  # the join copies the file
                 disk_full = low_space(files, extra=joining)
-                broken = _failed(observers)
+                broken = _failed(pipe.observers)
                 if disk_full is not None or broken is not None:  # stop while the files can still be completed
                     pipe.stop()
                     break
@@ -284,28 +325,12 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
             except BaseException:
                 if not failed and disk_full is None:
                     raise  # else the run's own error (or the disk guard's, below) is the one reported
-    broken = _failed(observers)
-    if broken is not None:  # an output that could not be written (a clip on a full disk)
-        at = (pipe.now_us or 0) / 1e6 - (pipe.first_us or 0) / 1e6
-        raise type(broken)(f"{broken}; the run was stopped at {at:.1f} s")
-    if disk_full is not None:
-        path, free = disk_full
-        raise OutputError(
-            f"the disk holding {path} is nearly full ({free >> 20} MB free): the run was stopped at "
-            f"{(pipe.now_us or 0) / 1e6 - (pipe.first_us or 0) / 1e6:.1f} s so the files end whole"
-        )
-    source_stats = getattr(ss.source, "stats", None)
-    if isinstance(source_stats, dict) and "dropped_events" in source_stats:  # a camera: what the device lost
-        stats["source"] = {k: v for k, v in source_stats.items() if isinstance(v, (int, float))}
-    print_summary(out, stats)
-    stats["rrd"] = str(viewer.save_path) if viewer.save_path is not None else None
-    stats["telemetry"] = pipe.telemetry
-    return stats, viewer
+    return stats, disk_full
 
 
 def _failed(observers):
     """The error of an observer whose output could not be written (its ``failure``), or None."""
-    return next((o.failure for o in observers if getattr(o, "failure", None) is not None), None)
+    return next((o.failure for o in observers if o.failure is not None), None)
 
 
 def _keep_serving(viewer, out) -> None:

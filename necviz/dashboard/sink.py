@@ -39,7 +39,7 @@ or skipped (simulations and replays written to a file).
 
 Every entity is on both timelines: ``t`` (sensor time) and ``frame`` (the newest frame of the lane
 at that moment; for the shared events, of the first lane), so no view is blank on either.
-Entity paths follow :mod:`necviz.dashboard.schema`.
+Entity paths follow :mod:`necviz.schema`.
 """
 
 from __future__ import annotations
@@ -57,14 +57,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 import rerun as rr
 
+from necviz import schema as S
 from necviz.core.checks import check_number
 from necviz.core.errors import ParameterError
 from necviz.core.event_image import BACKGROUND_RGB, OFF_RGB, ON_RGB, EventImage, colour_table, palette_rows
 from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import Frame
-from necviz.dashboard import schema as S
-from necviz.dashboard.telemetry import FrameRecord
 from necviz.pipeline import Observer
+from necviz.telemetry import FrameRecord
 
 
 def _ramp_table(base: int, slope: float) -> list[int]:

@@ -151,9 +151,9 @@ def execute(pipeline, command: Command, timeout: float | None = 5.0) -> str:
 
 
 def mark(pipeline, text: str = "") -> tuple[str, dict]:
-    """``mark``: every observer that keeps clips (:class:`~necviz.flight_recorder.FlightRecorder`) opens
+    """``mark``: every observer that keeps clips (:class:`~necviz.dashboard.flight_recorder.FlightRecorder`) opens
     one around this moment; the mark is also noted in the recording. Runs on the streaming thread."""
-    replies = [o.mark(text) for o in pipeline.observers if callable(getattr(o, "mark", None))]
+    replies = [r for r in (o.mark(text) for o in pipeline.observers) if r is not None]
     msg = "; ".join(replies) if replies else "mark noted in the recording (no --clips: no clip is written)"
     return f"mark{': ' + text if text else ''} — {msg}", {"mark": {"text": text}}
 

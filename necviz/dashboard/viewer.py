@@ -92,7 +92,8 @@ class Viewer:
     """An open recording stream and what the user was told about it.
 
     ``output``: the ``--save`` file being written (:class:`~necviz.outputs.StreamedOutput`); the
-    command commits it when the run succeeded and discards it when it failed."""
+    command commits it when the run succeeded and discards it when it failed. With one, the viewer
+    is one of the run's :class:`~necviz.outputs.Output` s (``path``, :meth:`commit`, :meth:`discard`)."""
 
     rec: rr.RecordingStream
     messages: list[str] = field(default_factory=list)
@@ -104,6 +105,15 @@ class Viewer:
     #: the ``--save`` file written in segments (:mod:`necviz.dashboard.rrd_file`), and the other sinks
     segments: SegmentedFile | None = None
     other_sinks: list = field(default_factory=list)
+
+    @property
+    def path(self) -> Path | None:
+        """The ``--save`` file (an :class:`~necviz.outputs.Output`'s ``path``)."""
+        return self.save_path
+
+    def commit(self) -> None:
+        """The run succeeded: the ``--save`` file becomes the file the user asked for."""
+        self.output.commit()
 
     @property
     def target(self) -> Path | None:

@@ -84,9 +84,8 @@ def describe(plan: Plan) -> dict:
 
 def calibrate(plan: Plan, cap_s: float = 2.0) -> dict | None:
     """Time one run of the grid's first spec (see the module docstring) as a sweep worker runs it."""
-    from necviz.drivers.sim import rig as camera
     from necviz.runs import run_spec
-    from necviz.sweeps.worker import InlineExecutor, flatten_result
+    from necviz.sweeps.worker import flatten_result
 
     if not plan.runs:
         return None
@@ -95,24 +94,17 @@ def calibrate(plan: Plan, cap_s: float = 2.0) -> dict | None:
         d = min(run_duration_s(first), cap_s)
     except Exception as e:  # noqa: BLE001 - no estimate rather than no plan
         return {"error": f"{type(e).__name__}: {' '.join(str(e).split())[:200]}"}
-    saved = getattr(camera, "ThreadPoolExecutor", None)
     try:
-        if saved is not None:
-            camera.ThreadPoolExecutor = InlineExecutor  # single-threaded, as on a sweep worker
-        try:
-            from necviz.sweeps.engine import _warmup_spec
+        from necviz.sweeps.engine import _warmup_spec
 
-            # warm-up: load the kernels, as a sweep worker does (a preset: a scenario file's own parameters,
-            # its change jitter say, may not fit a few-ms run)
-            run_spec(_warmup_spec(plan))
-            t0 = time.perf_counter()
-            result = run_spec(dict(first, duration_s=d))
-            took = time.perf_counter() - t0
-        except Exception as e:  # noqa: BLE001 - no estimate rather than no plan
-            return {"error": f"{type(e).__name__}: {' '.join(str(e).split())[:200]}"}
-    finally:
-        if saved is not None:
-            camera.ThreadPoolExecutor = saved
+        # warm-up: load the kernels, as a sweep worker does (a preset: a scenario file's own parameters,
+        # its change jitter say, may not fit a few-ms run); single-threaded, as on a sweep worker
+        run_spec(_warmup_spec(plan), threads=False)
+        t0 = time.perf_counter()
+        result = run_spec(dict(first, duration_s=d), threads=False)
+        took = time.perf_counter() - t0
+    except Exception as e:  # noqa: BLE001 - no estimate rather than no plan
+        return {"error": f"{type(e).__name__}: {' '.join(str(e).split())[:200]}"}
     metrics = flatten_result(result["results"][first["controllers"][0]])[1]
     return {
         "scenario": first["scenario"],

@@ -9,7 +9,7 @@ whose worker died.
 Once per worker process (:func:`prepare`, on its first task) the process is set up for one run at
 a time on one core: one Numba thread (``NUMBA_NUM_THREADS=1`` in the embedded cluster's
 environment, and ``numba.set_num_threads(1)`` for workers started elsewhere), one OpenCV thread,
-the simulator's DVS step on the run's own thread (:class:`InlineExecutor`; the same events),
+the simulator on the run's own thread (``RigOptions(threads=False)``; the same events),
 glibc's heap for image-sized arrays (:func:`_heap_allocations`, on workers started with Dask's
 ``MALLOC_TRIM_THRESHOLD_``), and a warm-up run (a short run of every controller of the sweep) so that loading the compiled
 Numba kernels from their on-disk cache is not counted in the first run's time.
@@ -39,42 +39,6 @@ import traceback
 ROW_FORMAT = "necviz-sweep-row/1"
 TRACE_SKIP = {"frames_detail", "exposure_trace_us", "gain_trace", "frame_starts_us"}
 MAX_LIST = 64  # longer lists are traces, not row values
-
-
-class InlineExecutor:
-    """A stand-in for ``ThreadPoolExecutor`` that runs each call at ``submit`` on the calling thread.
-
-    The simulator (:meth:`necviz.drivers.sim.rig.SimRig.packets`) overlaps its DVS step with
-    scene rendering on a second thread: right for one run on an idle machine, but a sweep already
-    runs one run per core, and the second thread would make every worker compete for two. The
-    DVS steps are submitted and collected in order, so running them inline gives the same events.
-    """
-
-    def __init__(self, max_workers=None, thread_name_prefix=""):
-        pass
-
-    def submit(self, fn, *args, **kwargs):
-        from concurrent.futures import Future
-
-        fut: Future = Future()
-        try:
-            fut.set_result(fn(*args, **kwargs))
-        except BaseException as e:  # noqa: BLE001 - delivered by fut.result(), as a pool would
-            fut.set_exception(e)
-        return fut
-
-    def shutdown(self, wait=True, cancel_futures=False):
-        pass
-
-
-def serial_simulator() -> bool:
-    """Make this process's simulator single-threaded (:class:`InlineExecutor`); False if it cannot."""
-    from necviz.drivers.sim import rig as camera
-
-    if not hasattr(camera, "ThreadPoolExecutor"):
-        return False
-    camera.ThreadPoolExecutor = InlineExecutor
-    return True
 
 
 def _heap_allocations() -> bool:
@@ -110,8 +74,6 @@ def prepare(warmup: dict | None, serial: bool = True) -> float | None:
             return None
         os.environ.setdefault("NUMBA_NUM_THREADS", "1")
         _heap_allocations()
-        if serial:
-            serial_simulator()
         try:
             import cv2
 
@@ -123,7 +85,7 @@ def prepare(warmup: dict | None, serial: bool = True) -> float | None:
             from necviz.runs import run_spec
 
             try:
-                run_spec(warmup)
+                run_spec(warmup, threads=False if serial else None)
             except Exception:  # noqa: BLE001 - a failing warm-up shows up again in the real run
                 pass
         _warmup_s = time.perf_counter() - t0
@@ -176,7 +138,7 @@ def execute(task: dict) -> dict:
     t0 = time.perf_counter()
     result, error, tb = None, None, None
     try:
-        result = run_spec(spec)
+        result = run_spec(spec, threads=False if task.get("serial", True) else None)
     except Exception as e:  # noqa: BLE001 - recorded in the row, the sweep goes on
         error = f"{type(e).__name__}: {' '.join(str(e).split())}"
         tb = traceback.format_exc()
@@ -302,9 +264,7 @@ def trace_bytes(frames: list[dict], run_hash: str) -> bytes:
 
 __all__ = [
     "IgnoreInterrupt",
-    "InlineExecutor",
     "execute",
-    "serial_simulator",
     "flatten_result",
     "prepare",
     "row_bytes",

@@ -38,7 +38,7 @@ import numpy as np
 from necviz.core.diagnosis import CAUSES, Command, Evidence, diagnose
 from necviz.core.errors import NecvizError
 from necviz.core.frames import Frame
-from necviz.core.ground_truth import WELL_EXPOSED, true_valid_fraction
+from necviz.core.ground_truth import WELL_EXPOSED, GroundTruth, true_valid_fraction
 from necviz.core.metrics import over_exposed_rate, rank_correlation, region_valid_fraction, under_exposed_rate
 from necviz.core.prediction_skill import SkillTracker
 from necviz.image_quality import SiftMatcher
@@ -376,7 +376,7 @@ class LaneTelemetry:
         self.table.append(rec)
         return rec
 
-    def _truth_metrics(self, rec: FrameRecord, frame: Frame, truth) -> None:
+    def _truth_metrics(self, rec: FrameRecord, frame: Frame, truth: GroundTruth) -> None:
         rec.true_valid_fraction = true_valid_fraction(truth, frame.exposure_us, frame.gain)
         rec.rank_correlation = rank_correlation(frame.image, truth.mean_irradiance)
         for key in self._truth_sums:
@@ -384,7 +384,7 @@ class LaneTelemetry:
             if math.isfinite(v):
                 self._truth_sums[key][0] += v
                 self._truth_sums[key][1] += 1
-        mk = getattr(truth, "markers", None)
+        mk = truth.markers
         if self.markers is not None and mk is not None:
             vis, det, rate, err = self.markers.score(frame.image, mk)
             rec.marker_visible_mask, rec.marker_detected_mask = vis, det
@@ -392,7 +392,7 @@ class LaneTelemetry:
             n_vis = bin(vis).count("1")
             self._marker_counts[0] += n_vis
             self._marker_counts[1] += bin(vis & det).count("1")
-        box = getattr(truth, "pedestrian_box", None)
+        box = truth.pedestrian_box
         if self.pedestrian is None and box is not None:
             rec.pedestrian_valid_fraction = region_valid_fraction(frame.image, box)
             self.pedestrian = {

@@ -2,7 +2,7 @@
 
 The row's exact spec (its ``spec_json`` column) is rebuilt into the same scene, rig, controller,
 profile and simulator overrides as :func:`necviz.runs.run_spec` builds, and run through the
-dashboard's session (:func:`necviz.dashboard.session.run_session`, the ``compare`` layout): a native
+dashboard (:func:`necviz.dashboard.session.run`, the ``compare`` layout): a native
 viewer, ``--serve``, ``--connect`` or ``--save FILE.rrd``, as ``necviz demo``. The simulator is
 deterministic for its seed, so the re-run shows exactly the run in the table; its metrics are
 recomputed from the session's telemetry (as :func:`necviz.runs.run_once` computes them) and
@@ -50,7 +50,9 @@ def show(out, run: str, viewer=None, speed="auto", stream=...) -> dict:
 
     Returns ``{"hash", "spec", "metrics", "row", "matches", "rrd"}``.
     """
-    from necviz.dashboard.session import Session, preflight, run_session
+    from necviz.dashboard import session as dashboard
+    from necviz.dashboard.session import Session, preflight
+    from necviz.layouts import make_blueprint
     from necviz.options import SceneOptions, ShowOptions, ViewerOptions
     from necviz.runs import build_rig
 
@@ -97,23 +99,18 @@ def show(out, run: str, viewer=None, speed="auto", stream=...) -> dict:
             f"({props['duration_s']:g} s simulated)",
             file=stream,
         )
-    stats = run_session(
-        Session(
-            "sweep show",
-            rig,
-            lanes,
-            "compare",
-            f"necviz sweep show {h}",
-            props,
-            viewer,
-            show_opts,
-            None,
-            None,
-            lossless=True,
-            expected_duration_s=props["duration_s"],
-        ),
-        stream,
+    layout = viewer.layout or "compare"
+    settings = Session(
+        command="sweep show",
+        layout=layout,
+        title=f"necviz sweep show {h}",
+        properties=props,
+        show=show_opts,
+        lossless=True,
+        expected_duration_s=props["duration_s"],
     )
+    blueprint = make_blueprint(layout, names, rig.sensor.width, rig.sensor.height)
+    stats = dashboard.run(rig, lanes, viewer, blueprint, settings, stream)
     metrics = _metrics(stats["telemetry"][names[0]], scene)
     checked = {
         k: (v, row.get(k)) for k, v in metrics.items() if k in row and (v is None or isinstance(v, (int, float)))

@@ -4,7 +4,7 @@ A live session lasts an hour; what matters are the ten seconds around each satur
 :class:`FlightRecorder` is a pipeline :class:`~necviz.pipeline.Observer` that keeps everything the
 observers are told — event batches, markers, frames (with their telemetry), IMU and triggers,
 commands, predictions, tuning and other notes — in a ring covering the last ``before_s`` seconds of
-sensor time. When a lane's frame is saturated (:class:`~necviz.dashboard.telemetry.FrameRecord`, more
+sensor time. When a lane's frame is saturated (:class:`~necviz.telemetry.FrameRecord`, more
 than half its pixels clipped) or the user types ``mark`` at the tuning prompt, a clip opens over the
 window ``[failure - before_s, failure + after_s]`` (the failure: the saturated frame's exposure start,
 or the moment of the mark). A failure whose window overlaps the open clip's, in any lane, extends it:
@@ -341,7 +341,7 @@ class FlightRecorder(Observer):
 
     def _bare(self, frame: Frame) -> Frame:
         """The frame without its ground truth (simulated frames carry per-pixel truth: not kept)."""
-        if getattr(frame, "truth", None) is None:
+        if frame.truth is None:
             return frame
         last = self._frame_ids
         if last is not None and last[0] == id(frame):
@@ -594,7 +594,10 @@ def save_blueprint_apart(path: Path, layout: str, lanes: list, width: int, heigh
 
     spec = json.dumps({"path": str(path), "layout": layout, "lanes": lanes, "size": [width, height], "focus": focus})
     proc = subprocess.run(
-        [sys.executable, "-m", "necviz.flight_recorder", spec], stdin=subprocess.DEVNULL, capture_output=True, text=True
+        [sys.executable, "-m", "necviz.dashboard.flight_recorder", spec],
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
     )
     if proc.returncode != 0 or not path.is_file():
         lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
@@ -602,10 +605,11 @@ def save_blueprint_apart(path: Path, layout: str, lanes: list, width: int, heigh
 
 
 def _blueprint_child(spec_json: str) -> int:
-    """``python -m necviz.flight_recorder SPEC``: :func:`save_blueprint_apart`'s child."""
+    """``python -m necviz.dashboard.flight_recorder SPEC``: :func:`save_blueprint_apart`'s child."""
     import json
 
     from necviz.layouts import make_blueprint
+    from necviz.layouts.focus import focus_blueprint
 
     spec = json.loads(spec_json)
     w, h = spec["size"]
@@ -622,24 +626,6 @@ def clip_write_error(folder, exc: BaseException):
     cause = write_failure(exc) or exc
     what = getattr(cause, "strerror", None) or " ".join(str(cause).split()) or type(cause).__name__
     return OutputError(f"--clips: cannot write a clip to {str(folder)!r}: {what}; nothing of it was left there")
-
-
-def focus_blueprint(blueprint, start_s: float, end_s: float):
-    """``blueprint`` with its time panel selecting ``[start_s, end_s]`` of sensor time and looping over it
-    (how a clip's ``.rrd`` and ``necviz replay CLIP`` open at the failure)."""
-    import rerun.blueprint as rrb
-    from rerun.encodings import AbsoluteTimeRange, TimeInt
-
-    from necviz.dashboard import schema as S
-
-    blueprint.time_panel = rrb.TimePanel(
-        state="expanded",
-        timeline=S.TIME,
-        time_selection=AbsoluteTimeRange(TimeInt(seconds=max(0.0, start_s)), TimeInt(seconds=max(0.0, end_s))),
-        loop_mode="selection",
-        play_state="playing",
-    )
-    return blueprint
 
 
 def clip_focus(properties: dict) -> tuple[float, float, float, int] | None:
@@ -686,7 +672,6 @@ __all__ = [
     "clip_focus",
     "clip_observer",
     "clip_write_error",
-    "focus_blueprint",
     "plural",
 ]
 
