@@ -128,8 +128,8 @@ def newton_optimum(
 
 def flow_speed(prev_small: np.ndarray, small: np.ndarray, scale_x: float, scale_y: float) -> float:
     """``v = (mean |flow|)²`` in full-resolution px²/frame² (Farneback, published parameters)."""
-    # OpenCV allocates the flow when it is None; its stubs do not allow None
-    flow = cv2.calcOpticalFlowFarneback(prev_small, small, None, *FARNEBACK, 0)  # type: ignore[call-overload]
+    # OpenCV allocates the flow when it is None; the stubs of OpenCV < 5 do not allow None (5.x do)
+    flow = cv2.calcOpticalFlowFarneback(prev_small, small, None, *FARNEBACK, 0)  # type: ignore[call-overload, unused-ignore]
     mag = np.hypot(flow[..., 0] * scale_x, flow[..., 1] * scale_y)
     v = float(mag.mean()) ** 2
     return v if math.isfinite(v) else 0.0
