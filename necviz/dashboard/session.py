@@ -153,6 +153,17 @@ def run_session(session: Session, out=..., stdin=None) -> dict:
     return stats
 
 
+def lane_labels(lanes) -> dict[str, str]:
+    """The name each lane is shown by where it is not its controller's (``camera`` in ``live`` and
+    ``replay`` is shown as ``nec``, ``navid``, …), so the views and curves say which controller they show."""
+    out = {}
+    for ln in lanes:
+        ctrl = getattr(ln.controller, "name", None)
+        if isinstance(ctrl, str) and ctrl and ctrl != "base" and ctrl != ln.name:
+            out[ln.name] = ctrl
+    return out
+
+
 class _ViewerOutput:
     """The viewer's ``--save`` file as one of the session's outputs (commit/discard)."""
 
@@ -171,8 +182,9 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
     v = ss.viewer
     layout = v.layout or ss.layout
     names = [lane.name for lane in ss.lanes]
+    labels = lane_labels(ss.lanes)
     sensor = ss.source.sensor
-    blueprint = make_blueprint(layout, names, sensor.width, sensor.height)
+    blueprint = make_blueprint(layout, names, sensor.width, sensor.height, labels)
     if ss.focus_s is not None:
         from necviz.flight_recorder import focus_blueprint
 
@@ -188,7 +200,7 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
         speed = 1.0 if v.watched else None
     rec = viewer.rec
     rec.send_property("run", rr.AnyValues(**{k: text(val) for k, val in ss.properties.items()}, layout=layout))
-    style_series(rec, names)
+    style_series(rec, names, labels)
     lossless = ss.lossless and speed is None and not v.watched
     # a live session only saved to a file: series in 2 s chunks (Rerun's file sink indexes every chunk)
     flush = FILE_FLUSH_S if not (lossless or v.watched) else None

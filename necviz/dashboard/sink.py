@@ -64,6 +64,8 @@ from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import Frame
 from necviz.dashboard import schema as S
 from necviz.dashboard.telemetry import FrameRecord
+from necviz.layouts.blueprints import HEADER_PX
+from necviz.layouts.views import FRAME_HEADER, FRAME_SATURATED
 from necviz.pipeline import Observer
 
 
@@ -174,6 +176,25 @@ class EventPalette:
             self._raw = np.empty((h, 1 + (w * bits + 7) // 8), np.uint8)
         palette_rows(image.counts_on, image.counts_off, self.k, bits, self._raw)
         return png_from_rows(self._raw, w, bits, self.palette, level)
+
+
+def format_exposure(exposure_us: float) -> str:
+    """An exposure as people read it: ``850 µs`` below a millisecond, ``5.00 ms`` above."""
+    return f"{exposure_us:.0f} µs" if exposure_us < 999.5 else f"{exposure_us / 1000:.2f} ms"
+
+
+def frame_header(exposure_us: float, gain: float) -> str:
+    """The label above a frame: its exposure and gain (``5.00 ms · gain 1``)."""
+    return f"{format_exposure(exposure_us)} · gain {gain:.3g}"
+
+
+def saturated_label(record: FrameRecord) -> str:
+    """The label of a saturated frame's outline (``SATURATED: 73 % over-exposed``), ``''`` otherwise."""
+    if not record.saturated:
+        return ""
+    over = record.over_exposed_rate >= record.under_exposed_rate
+    worst = record.over_exposed_rate if over else record.under_exposed_rate
+    return f"SATURATED: {worst:.0%} {'over' if over else 'under'}-exposed"
 
 
 class RateLimit:
@@ -354,6 +375,9 @@ class RerunSink(Observer):
         self._scalar_q: deque = deque()
         self._text_q: deque = deque()
         self._seq = {lane: 0 for lane in self.lanes}  # newest frame per lane (the `frame` timeline)
+        self._commanded: dict[tuple, tuple[int, float]] = {}  # (lane, leaf) -> the command in force (t_us, value)
+        self._now_us = -(1 << 62)  # the latest sensor time of any scalar
+        self._outlined: set[str] = set()  # lanes whose last logged frame was outlined as saturated
         self._first_lane = self.lanes[0] if self.lanes else None
         # owned by the worker
         self._series: dict[str, list] = defaultdict(list)  # path -> [(t_us, seq, value)]
@@ -395,6 +419,8 @@ class RerunSink(Observer):
 
     def _scalar(self, lane: str, leaf: str, t_us: int, value: float) -> None:
         self._scalar_q.append((S.path(lane, leaf), t_us, self._seq.get(lane, 0), value))
+        if t_us > self._now_us:
+            self._now_us = t_us
 
     def warm_up(self) -> None:
         """Load the event-image kernels (drawing, palette rows) before the run, on a scratch image."""
@@ -409,10 +435,21 @@ class RerunSink(Observer):
         bits = _palette_bits(len(pal.palette))
         palette_rows(img.counts_on, img.counts_off, pal.k, bits, np.empty((h, 1 + (w * bits + 7) // 8), np.uint8))
 
+    def _held(self, lane: str, leaf: str, t_us: int, value: float) -> None:
+        """A commanded setting, as the step it is: a command holds until the next, so at a change the
+        old value is logged again 1 µs before the new one (the series reads as a step function in the
+        viewer and to anyone reading the file, whatever they interpolate with)."""
+        key = (lane, leaf)
+        last = self._commanded.get(key)
+        if last is not None and last[1] != value:
+            self._scalar(lane, leaf, max(last[0], t_us - 1), last[1])
+        self._commanded[key] = (t_us, value)
+        self._scalar(lane, leaf, t_us, value)
+
     def started(self, t_us: int, initial: dict) -> None:
         for lane, cmd in initial.items():  # the commanded series start with the setting the run began with
-            self._scalar(lane, S.EXPOSURE_COMMANDED, t_us, cmd.exposure_us)
-            self._scalar(lane, S.GAIN_COMMANDED, t_us, cmd.gain)
+            self._held(lane, S.EXPOSURE_COMMANDED, t_us, cmd.exposure_us)
+            self._held(lane, S.GAIN_COMMANDED, t_us, cmd.gain)
 
     def events(self, batch: np.ndarray) -> None:
         if len(batch):
@@ -431,8 +468,8 @@ class RerunSink(Observer):
 
     def command(self, lane: str, command, latency_us: float) -> None:
         t = int(command.issue_time_us)
-        self._scalar(lane, S.EXPOSURE_COMMANDED, t, command.exposure_us)
-        self._scalar(lane, S.GAIN_COMMANDED, t, command.gain)
+        self._held(lane, S.EXPOSURE_COMMANDED, t, command.exposure_us)
+        self._held(lane, S.GAIN_COMMANDED, t, command.gain)
         self._scalar(lane, S.LATENCY, t, latency_us)
 
     def frame(self, lane: str, frame: Frame, record: FrameRecord) -> None:
@@ -484,7 +521,7 @@ class RerunSink(Observer):
             if len(q) >= self._frame_queue_size:
                 q.popleft()
                 self.dropped["frames"] += 1
-        q.append((lane, frame))
+        q.append((lane, frame, frame_header(frame.exposure_us, frame.gain), saturated_label(record)))
 
     def note(self, entity: str, t_us: int, message: str, level: str = "INFO", data=None) -> None:
         lane = entity.split("/", 1)[0]
@@ -623,10 +660,31 @@ class RerunSink(Observer):
         self.rec.set_time(S.TIME, duration=np.timedelta64(int(t_us) - self.origin_us, "us"))
         self.rec.set_time(S.FRAME, sequence=int(seq))
 
-    def _log_frame(self, lane: str, frame: Frame) -> None:
+    def _log_frame(self, lane: str, frame: Frame, header: str = "", saturated: str = "") -> None:
         blob = encode_frame(frame.image, quality=self.jpeg_quality, optimize=self.lossless)
         self._log_image(S.path(lane, S.FRAME_IMAGE), frame.exposure_start_us, frame.sequence, blob, "image/jpeg")
+        self._log_header(lane, frame, f"{header} · {saturated}" if saturated else header, saturated)
         self.stats["frames_logged"] += 1
+
+    def _log_header(self, lane: str, frame: Frame, header: str, saturated: str) -> None:
+        """The frame's header (a line above it in the lane's colour, labelled with its exposure and
+        gain; colours are static, see :func:`necviz.layouts.style_series`) and, while the frame is
+        saturated, a red outline (and the header says what clipped), as the ``--video``'s bars show."""
+        h, w = frame.image.shape[:2]
+        self._set_time(frame.exposure_start_us, frame.sequence)
+        self.rec.log(
+            S.path(lane, FRAME_HEADER), rr.Boxes2D(mins=[[0, -HEADER_PX]], sizes=[[w, 1]], labels=[header], radii=[1.0])
+        )
+        if saturated:
+            self.rec.log(
+                S.path(lane, FRAME_SATURATED),
+                rr.Boxes2D(mins=[[1, 1]], sizes=[[w - 2, h - 2]], radii=[2.0]),
+            )
+            self._outlined.add(lane)
+        elif lane in self._outlined:
+            self.rec.log(S.path(lane, FRAME_SATURATED), rr.Clear(recursive=False))
+            self._outlined.discard(lane)
+        self.rec.reset_time()
 
     def _log_image(self, entity: str, t_us: int, seq: int, blob: bytes, media_type: str) -> None:
         """Log an encoded image now (live), or batch it with the entity's others (lossless)."""
@@ -686,6 +744,9 @@ class RerunSink(Observer):
     def close(self) -> dict:
         """Drain the queue, send the last series, flush the recording; returns the stats."""
         if not self._stop:
+            for (lane, leaf), (t, value) in self._commanded.items():  # each command holds to the end of the run
+                if self._now_us > t:
+                    self._scalar(lane, leaf, self._now_us, value)
             self._stop = True
             self._thread.join()
             if self._error is None:
