@@ -122,7 +122,11 @@ def inspect(lanes: list[str], width: int, height: int, labels: dict | None = Non
                 contents=[f"/{p(S.LOG)}", f"/{S.TUNING}"],
                 name=f"{name}: log (saturated frames and their causes, controller switches)",
                 columns=rrb.TextLogColumns(
-                    timeline_columns=[rrb.encodings.TimelineColumn(S.TIME), rrb.encodings.TimelineColumn(S.FRAME)],
+                    # the frame number (the time is under the cursor; its narrow column showed only "…")
+                    timeline_columns=[
+                        rrb.encodings.TimelineColumn(S.FRAME),
+                        rrb.encodings.TimelineColumn(S.TIME, visible=False),
+                    ],
                     text_log_columns=[
                         rrb.encodings.TextLogColumn("LogLevel"),
                         rrb.encodings.TextLogColumn("Body"),
