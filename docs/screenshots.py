@@ -63,7 +63,9 @@ def shoot(rrd: Path, target: Path) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=Path, default=ROOT / "docs" / "images", help="folder for the images (default docs/images)")
+    ap.add_argument(
+        "--out", type=Path, default=ROOT / "docs" / "images", help="folder for the images (default docs/images)"
+    )
     ap.add_argument("--force", action="store_true", help="replace existing images")
     a = ap.parse_args(argv)
     targets = {layout: a.out / name for layout, name in SHOTS.items()}

@@ -114,7 +114,9 @@ def style_series(rec: rr.RecordingStream, lanes: list[str], labels: dict[str, st
                 static=True,
             )
         rec.log(S.path(n, FRAME_HEADER), rr.Boxes2D.from_fields(colors=[c], show_labels=True), static=True)
-        rec.log(S.path(n, FRAME_SATURATED), rr.Boxes2D.from_fields(colors=[SATURATED_RGB], show_labels=True), static=True)
+        rec.log(
+            S.path(n, FRAME_SATURATED), rr.Boxes2D.from_fields(colors=[SATURATED_RGB], show_labels=True), static=True
+        )
     rec.log(S.EVENT_RATE, rr.SeriesLines(colors=[(200, 200, 200)], names=["events/s"], widths=[1.5]), static=True)
 
 

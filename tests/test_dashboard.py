@@ -131,9 +131,9 @@ def test_recording_verifies_and_replays(demo, tmp_path):
     # the replayed lane (entity root `camera`) is shown by its controller: curves named and coloured as NEC's
     replayed = Rrd(tmp_path / "r.rrd")
     assert replayed.static_values("camera/" + S.EXPOSURE_APPLIED, "SeriesLines:names") == ["nec applied"]
-    assert replayed.static_values("camera/" + S.EXPOSURE_APPLIED, "SeriesLines:colors") == Rrd(
-        rrd_path
-    ).static_values("nec/" + S.EXPOSURE_APPLIED, "SeriesLines:colors")
+    assert replayed.static_values("camera/" + S.EXPOSURE_APPLIED, "SeriesLines:colors") == Rrd(rrd_path).static_values(
+        "nec/" + S.EXPOSURE_APPLIED, "SeriesLines:colors"
+    )
 
 
 @pytest.mark.parametrize("layout", sorted(LAYOUTS))

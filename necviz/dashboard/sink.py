@@ -178,6 +178,12 @@ class EventPalette:
         return png_from_rows(self._raw, w, bits, self.palette, level)
 
 
+def _header_center(width: int) -> list[float]:
+    """Centre of a frame header: a line 1 px high across the frame, :data:`HEADER_PX` above it (its
+    label is drawn under the line, in the room the layouts leave above the frame)."""
+    return [width / 2, -HEADER_PX + 0.5]
+
+
 def format_exposure(exposure_us: float) -> str:
     """An exposure as people read it: ``850 µs`` below a millisecond, ``5.00 ms`` above."""
     return f"{exposure_us:.0f} µs" if exposure_us < 999.5 else f"{exposure_us / 1000:.2f} ms"
@@ -378,6 +384,7 @@ class RerunSink(Observer):
         self._commanded: dict[tuple, tuple[int, float]] = {}  # (lane, leaf) -> the command in force (t_us, value)
         self._now_us = -(1 << 62)  # the latest sensor time of any scalar
         self._outlined: set[str] = set()  # lanes whose last logged frame was outlined as saturated
+        self._headers: dict[str, list] = defaultdict(list)  # lane -> frame headers not yet sent (lossless)
         self._first_lane = self.lanes[0] if self.lanes else None
         # owned by the worker
         self._series: dict[str, list] = defaultdict(list)  # path -> [(t_us, seq, value)]
@@ -559,6 +566,8 @@ class RerunSink(Observer):
             self._flush_series()
             for entity in list(self._images):
                 self._send_images(entity)
+            for lane in list(self._headers):
+                self._send_headers(lane)
         except BaseException as e:  # report in close(); the control path must go on
             self._error = e
 
@@ -669,22 +678,66 @@ class RerunSink(Observer):
     def _log_header(self, lane: str, frame: Frame, header: str, saturated: str) -> None:
         """The frame's header (a line above it in the lane's colour, labelled with its exposure and
         gain; colours are static, see :func:`necviz.layouts.style_series`) and, while the frame is
-        saturated, a red outline (and the header says what clipped), as the ``--video``'s bars show."""
+        saturated, a red outline (and the header says what clipped), as the ``--video``'s bars show.
+
+        A live sink logs them with the frame; a lossless one keeps them and sends each lane's as one
+        chunk per entity once ``chunk_rows`` have gathered, and at the end (like its series). The
+        outline is logged only when it changes: drawn on a saturated frame, removed (no box) on the
+        next frame that is not."""
         h, w = frame.image.shape[:2]
-        self._set_time(frame.exposure_start_us, frame.sequence)
-        self.rec.log(
-            S.path(lane, FRAME_HEADER), rr.Boxes2D(mins=[[0, -HEADER_PX]], sizes=[[w, 1]], labels=[header], radii=[1.0])
-        )
+        t, seq = int(frame.exposure_start_us), int(frame.sequence)
+        outline = None  # unchanged
         if saturated:
-            self.rec.log(
-                S.path(lane, FRAME_SATURATED),
-                rr.Boxes2D(mins=[[1, 1]], sizes=[[w - 2, h - 2]], radii=[2.0]),
-            )
+            outline = True
             self._outlined.add(lane)
         elif lane in self._outlined:
-            self.rec.log(S.path(lane, FRAME_SATURATED), rr.Clear(recursive=False))
+            outline = False
             self._outlined.discard(lane)
+        if self.lossless:
+            rows = self._headers[lane]
+            rows.append((t, seq, w, h, header, outline))
+            if len(rows) >= self.chunk_rows:
+                self._send_headers(lane)
+            return
+        self._set_time(t, seq)
+        self.rec.log(
+            S.path(lane, FRAME_HEADER),
+            rr.Boxes2D(centers=[_header_center(w)], half_sizes=[[w / 2, 0.5]], labels=[header], radii=[1.0]),
+        )
+        if outline is not None:
+            boxes = [[w / 2 - 1, h / 2 - 1]] if outline else []
+            centers = [[w / 2, h / 2]] if outline else []
+            self.rec.log(S.path(lane, FRAME_SATURATED), rr.Boxes2D(centers=centers, half_sizes=boxes, radii=[2.0]))
         self.rec.reset_time()
+
+    def _send_headers(self, lane: str) -> None:
+        """Send a lossless sink's gathered headers and outline changes of ``lane`` (one chunk per entity)."""
+        rows = self._headers.pop(lane, None)
+        if not rows:
+            return
+        t, seq, w, h, labels, outline = zip(*rows, strict=True)
+        self.rec.send_columns(
+            S.path(lane, FRAME_HEADER),
+            indexes=self._index(t, seq),
+            columns=rr.Boxes2D.columns(
+                centers=[_header_center(x) for x in w],
+                half_sizes=[[x / 2, 0.5] for x in w],
+                labels=list(labels),
+                radii=[1.0] * len(w),
+            ),
+        )
+        k = [i for i, o in enumerate(outline) if o is not None]
+        if k:
+            drawn = [i for i in k if outline[i]]
+            self.rec.send_columns(
+                S.path(lane, FRAME_SATURATED),
+                indexes=self._index([t[i] for i in k], [seq[i] for i in k]),
+                columns=rr.Boxes2D.columns(
+                    centers=[[w[i] / 2, h[i] / 2] for i in drawn],
+                    half_sizes=[[w[i] / 2 - 1, h[i] / 2 - 1] for i in drawn],
+                    radii=[2.0] * len(drawn),
+                ).partition([1 if outline[i] else 0 for i in k]),
+            )
 
     def _log_image(self, entity: str, t_us: int, seq: int, blob: bytes, media_type: str) -> None:
         """Log an encoded image now (live), or batch it with the entity's others (lossless)."""
