@@ -22,6 +22,8 @@ EVENTS_TITLE = "events: ON blue, OFF red (shared)"
 #: The skill plot's y-axis: a skill of −1,000 on one frame would flatten every other value.
 SKILL_RANGE = (-1.0, 1.0)
 SKILL_TITLE = "skill vs last frame (axis −1…1)"
+#: The inspect layout's irradiance plot (``name``: the lane's controller).
+INSPECT_IRRADIANCE = "{name}: ln irradiance, P-TEDI predicted vs each frame measured (orange)"
 
 
 def _label(lane: str, labels: dict | None) -> str:
@@ -48,10 +50,14 @@ def live(lanes: list[str], width: int, height: int, labels: dict | None = None) 
                 image_view(S.EVENTS, EVENTS_TITLE, width, height, HEADER_PX),
             ),
             rrb.Horizontal(
-                series_view(f"{name}: exposure (µs)", [p(S.EXPOSURE_COMMANDED), p(S.EXPOSURE_APPLIED)], window_s),
-                series_view("ln irradiance", [p(S.IRRADIANCE_PREDICTED), p(S.IRRADIANCE_FRAME)], window_s),
                 series_view(
-                    "clipped pixels (fraction)",
+                    f"{name}: exposure µs (grey: commanded)", [p(S.EXPOSURE_COMMANDED), p(S.EXPOSURE_APPLIED)], window_s
+                ),
+                series_view(
+                    "ln irradiance (orange: frame)", [p(S.IRRADIANCE_PREDICTED), p(S.IRRADIANCE_FRAME)], window_s
+                ),
+                series_view(
+                    "clipped (grey: under; red: saturated)",
                     [p(S.OVER_EXPOSED), p(S.UNDER_EXPOSED), p(S.SATURATED)],
                     window_s,
                     y_range=(0.0, 1.0),
@@ -88,20 +94,19 @@ def inspect(lanes: list[str], width: int, height: int, labels: dict | None = Non
                         image_view(S.EVENTS, EVENTS_TITLE, width, height, HEADER_PX),
                     ),
                     series_view(
-                        f"{name}: ln irradiance, P-TEDI predicted vs frame measured",
+                        INSPECT_IRRADIANCE.format(name=name),
                         [p(S.IRRADIANCE_PREDICTED), p(S.IRRADIANCE_FRAME)],
-                        legend="LeftTop",
                     ),
                     rrb.Horizontal(
                         series_view(
-                            f"{name}: exposure (µs), commanded vs applied",
+                            f"{name}: exposure (µs) of each frame, commanded in grey",
                             [p(S.EXPOSURE_COMMANDED), p(S.EXPOSURE_APPLIED)],
                         ),
-                        series_view("gain (linear)", [p(S.GAIN_COMMANDED), p(S.GAIN_APPLIED)]),
+                        series_view("gain (grey: commanded)", [p(S.GAIN_COMMANDED), p(S.GAIN_APPLIED)]),
                         column_shares=[3, 1],
                     ),
                     series_view(
-                        "clipped pixels (fraction), saturated frames marked",
+                        f"{name}: clipped fraction, over-exposed (under-exposed grey, saturated frames red)",
                         [p(S.OVER_EXPOSED), p(S.UNDER_EXPOSED), p(S.SATURATED)],
                         y_range=(0.0, 1.0),
                     ),
@@ -109,11 +114,10 @@ def inspect(lanes: list[str], width: int, height: int, labels: dict | None = Non
                 ),
                 rrb.Vertical(
                     series_view(
-                        "prediction error (ln)",
+                        "prediction error, ln (grey: last frame)",
                         [p(S.PREDICTION_ERROR), p(S.PERSISTENCE_ERROR)],
-                        legend="LeftBottom",
                     ),
-                    series_view(SKILL_TITLE, [p(S.PREDICTION_SKILL)], y_range=SKILL_RANGE, legend="LeftBottom"),
+                    series_view(SKILL_TITLE, [p(S.PREDICTION_SKILL)], y_range=SKILL_RANGE),
                 ),
                 column_shares=[3, 1],
             ),
@@ -147,7 +151,7 @@ def compare(lanes: list[str], width: int, height: int, labels: dict | None = Non
     under a header in its lane's colour with the frame's exposure and gain, outlined in red while
     saturated. Below, every lane's exposure in one plot, every over-exposed fraction in another and
     every P-TEDI prediction in a third, so the moment one recovers and another is still blind lines
-    up. The plots carry no legend to cover the curves: a curve's colour is its lane's header colour,
+    up. No plot carries a legend to cover its curves: a curve's colour is its lane's header colour,
     and hovering it names it.
     """
     views = [image_view(S.path(n, S.FRAME_IMAGE), _label(n, labels), width, height, HEADER_PX) for n in lanes]
@@ -156,16 +160,13 @@ def compare(lanes: list[str], width: int, height: int, labels: dict | None = Non
         rrb.Vertical(
             rrb.Grid(*views, grid_columns=grid_columns(len(views))),
             rrb.Horizontal(
-                series_view("exposure of each frame (µs)", [S.path(n, S.EXPOSURE_APPLIED) for n in lanes], legend=None),
+                series_view("exposure of each frame (µs)", [S.path(n, S.EXPOSURE_APPLIED) for n in lanes]),
                 series_view(
                     "over-exposed pixels (fraction ≥ 250 DN)",
                     [S.path(n, S.OVER_EXPOSED) for n in lanes],
                     y_range=(0.0, 1.0),
-                    legend=None,
                 ),
-                series_view(
-                    "P-TEDI prediction (ln irradiance)", [S.path(n, S.IRRADIANCE_PREDICTED) for n in lanes], legend=None
-                ),
+                series_view("P-TEDI prediction (ln irradiance)", [S.path(n, S.IRRADIANCE_PREDICTED) for n in lanes]),
             ),
             row_shares=[2, 1],
         ),

@@ -78,11 +78,12 @@ def recent(seconds: float | None):
 
 
 def series_view(
-    name: str, entities: list[str], window_s: float | None = None, y_range=None, legend: str | None = "RightTop"
+    name: str, entities: list[str], window_s: float | None = None, y_range=None, legend: str | None = None
 ) -> rrb.TimeSeriesView:
     """A time series of ``entities``. ``y_range``: a fixed y-axis (zoom still works); ``legend``: its
-    corner (``LeftTop``, ``RightTop``, ``LeftBottom``, ``RightBottom``) or ``None`` for none (the
-    compare layout: the frame headers carry the lane colours, hovering a curve names it)."""
+    corner (``LeftTop``, ``RightTop``, ``LeftBottom``, ``RightBottom``), by default none: a legend
+    inside the plot covers curves wherever the data go, so the view's name says which colour is what
+    (the lane's own colour for its curves, grey for references; hovering a curve names it)."""
     axis = rrb.ScalarAxis(range=y_range, zoom_lock=False) if y_range is not None else None
     plot_legend = rrb.PlotLegend(visible=False) if legend is None else rrb.PlotLegend(corner=legend, visible=True)
     return rrb.TimeSeriesView(

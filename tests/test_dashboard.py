@@ -246,3 +246,43 @@ def test_every_frame_has_a_header_and_saturated_frames_an_outline(demo):
     assert len(outlines) == int(np.sum(over_fixed > 0.5)) > 0
     labels = [x[0] for x in rrd.column(S.path("fixed", FRAME_HEADER), "Boxes2D:labels")]
     assert sum("SATURATED" in x for x in labels) == len(outlines)
+
+
+def _blueprint_views(container) -> list:
+    import rerun.blueprint as rrb
+
+    if isinstance(container, rrb.View):
+        return [container]
+    return [v for child in (getattr(container, "contents", None) or []) for v in _blueprint_views(child)]
+
+
+@pytest.mark.parametrize("layout", sorted(LAYOUTS))
+def test_layouts_name_the_controller_and_keep_legends_off_the_curves(layout):
+    """A lane called ``camera`` is shown by its controller's name; no plot has a legend over its curves; the
+    skill plot's y-axis is held at -1..1 (its name says so) so a skill of -1,000 cannot flatten it."""
+    import rerun.blueprint as rrb
+
+    bp = make_blueprint(layout, ["camera"], 346, 260, {"camera": "navid"})
+    views = _blueprint_views(bp.root_container)
+    names = [str(v.name) for v in views]
+    assert not any("camera" in n for n in names) and any("navid" in n for n in names), names
+    plots = [v for v in views if isinstance(v, rrb.TimeSeriesView)]
+    assert plots
+    for v in plots:
+        assert v.properties["PlotLegend"].visible.as_arrow_array().to_pylist() == [False], v.name
+    if layout == "inspect":
+        (skill,) = [v for v in plots if "skill" in str(v.name)]
+        assert "−1…1" in str(skill.name)
+        assert skill.properties["ScalarAxis"].range.as_arrow_array().to_pylist() == [[-1.0, 1.0]]
+
+
+def test_compare_frames_fill_a_grid_not_one_row():
+    """Seven lanes and the events: 4 x 2, not eight frames in a row."""
+    import rerun.blueprint as rrb
+
+    from necviz.layouts.blueprints import grid_columns
+
+    assert [grid_columns(n) for n in (1, 2, 3, 4, 5, 8, 9, 10)] == [1, 2, 3, 4, 3, 4, 3, 4]
+    bp = make_blueprint("compare", ["nec", "nec-frames", "navid", "shim", "begin", "builtin", "fixed"], 346, 260)
+    top = bp.root_container.contents[0]
+    assert isinstance(top, rrb.Grid) and len(top.contents) == 8

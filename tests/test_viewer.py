@@ -17,7 +17,7 @@ from conftest import SHARED_DATA
 
 from necviz.commands.cli import main
 from necviz.layouts import make_blueprint
-from necviz.layouts.blueprints import EVENTS_TITLE
+from necviz.layouts.blueprints import EVENTS_TITLE, INSPECT_IRRADIANCE
 
 SAMPLE = SHARED_DATA / "davis346_sample.aedat4"
 
@@ -68,7 +68,7 @@ def test_blueprint_loads_in_native_viewer(recording, tmp_path):
     assert set(expected) <= shown, f"missing views {set(expected) - shown}; shown {sorted(shown)}"
     if layout == "inspect":
         names = {v["name"] for v in ev["views"]}
-        assert {"nec: frame", EVENTS_TITLE, "nec: ln irradiance, P-TEDI predicted vs frame measured"} <= names
+        assert {"nec: frame", EVENTS_TITLE, INSPECT_IRRADIANCE.format(name="nec")} <= names
     assert all(v["visible"] for v in ev["views"])
     assert ev["view_errors"] == {}, f"views report errors: {ev['view_errors']}"
     # something is drawn: the whole viewer, and the camera frame itself
