@@ -37,6 +37,11 @@ less than ``1 / max_rate_hz`` ago in wall time) a window's image is skipped. Bot
 regardless. Frames follow the same wall-clock rate cap. With ``lossless=True`` nothing is dropped
 or skipped (simulations and replays written to a file).
 
+Above each lane's frame a header (``NAME/frame/header``: its exposure and gain, in the lane's colour)
+and, while the frame is saturated, a red outline around it (``NAME/frame/saturated_outline``), as the
+``--video``'s bars. Commanded settings are logged as the steps they are: at each change the value in
+force is logged again 1 µs before the new one, and at the end of the run.
+
 Every entity is on both timelines: ``t`` (sensor time) and ``frame`` (the newest frame of the lane
 at that moment; for the shared events, of the first lane), so no view is blank on either.
 Entity paths follow :mod:`necviz.dashboard.schema`.
@@ -195,7 +200,7 @@ def frame_header(exposure_us: float, gain: float) -> str:
 
 
 def saturated_label(record: FrameRecord) -> str:
-    """The label of a saturated frame's outline (``SATURATED: 73 % over-exposed``), ``''`` otherwise."""
+    """What a saturated frame's header adds (``SATURATED: 73% over-exposed``), ``''`` for other frames."""
     if not record.saturated:
         return ""
     over = record.over_exposed_rate >= record.under_exposed_rate
