@@ -1,9 +1,10 @@
 """Rerun blueprints, built in code: ``live`` (tuning one camera), ``inspect`` (stepping through a
-recorded failure) and ``compare`` (one column per controller).
+recorded failure) and ``compare`` (every controller's camera in a grid).
 
 :func:`make_blueprint` builds one by name for the given lanes (entity roots, see
 :mod:`necviz.schema`) and sensor size. :func:`style_series` logs the static series styles
-(names, lane colours, saturated-frame markers) that make the plots readable.
+(names, one colour per lane from a fixed palette, steps for commands, saturated-frame markers) that
+make the plots readable.
 """
 
 from __future__ import annotations
@@ -21,51 +22,102 @@ import rerun.blueprint as rrb
 from necviz import schema as S
 from necviz.core.errors import ParameterError
 from necviz.layouts import blueprints
-from necviz.layouts.views import lane_color
+from necviz.layouts.views import (
+    BACKGROUND_LANES,
+    FRAME_HEADER,
+    FRAME_SATURATED,
+    LANE_COLORS,
+    MEASURED_RGB,
+    REFERENCE_RGB,
+    SATURATED_RGB,
+    lane_color,
+)
 
 LAYOUTS = {"live": blueprints.live, "inspect": blueprints.inspect, "compare": blueprints.compare}
+#: Series a controller holds until it changes them (commands, and each frame's settings): drawn as steps.
+STEPPED = (S.EXPOSURE_COMMANDED, S.EXPOSURE_APPLIED, S.GAIN_COMMANDED, S.GAIN_APPLIED)
 
 
-def make_blueprint(name: str, lanes: list[str], width: int, height: int) -> rrb.Blueprint:
-    """The named layout for these lanes on a ``width`` x ``height`` sensor."""
+def make_blueprint(
+    name: str, lanes: list[str], width: int, height: int, labels: dict[str, str] | None = None
+) -> rrb.Blueprint:
+    """The named layout for these lanes on a ``width`` x ``height`` sensor. ``labels``: lane ->
+    the name shown for it (a lane called ``camera`` is shown by its controller's name)."""
     if name not in LAYOUTS:
         raise ParameterError(f"unknown layout {name!r}; available: {', '.join(LAYOUTS)}")
     if not lanes:
         raise ParameterError("a layout needs at least one lane")
-    return LAYOUTS[name](list(lanes), int(width), int(height))
+    return LAYOUTS[name](list(lanes), int(width), int(height), dict(labels or {}))
 
 
-def style_series(rec: rr.RecordingStream, lanes: list[str]) -> None:
-    """Static series styles: lane colour, a name per curve, points for saturated-frame markers."""
-    for i, n in enumerate(lanes):
-        c = lane_color(n, i)
-        dim = tuple(int(v * 0.55) for v in c)
+def lane_colors(lanes: list[str], labels: dict[str, str] | None = None) -> dict[str, tuple[int, int, int]]:
+    """Each lane's colour: its controller's (:data:`~necviz.layouts.views.LANE_COLORS`, by its label),
+    else a fallback colour not already taken by another lane."""
+    labels = labels or {}
+    used = {LANE_COLORS[labels.get(n, n)] for n in lanes if labels.get(n, n) in LANE_COLORS}
+    out, k = {}, 0
+    for n in lanes:
+        key = labels.get(n, n)
+        if key in LANE_COLORS:
+            out[n] = LANE_COLORS[key]
+            continue
+        c = lane_color(key, k)
+        while c in used and k < 8:
+            k += 1
+            c = lane_color(key, k)
+        used.add(c)
+        out[n] = c
+        k += 1
+    return out
+
+
+def style_series(rec: rr.RecordingStream, lanes: list[str], labels: dict[str, str] | None = None) -> None:
+    """Static styles: each lane's colour and name on its curves (commanded and applied settings drawn
+    as steps; the reference series, "same as the last frame" and the commands, in a neutral grey beside
+    the lane's colour), points for saturated-frame markers, the frame header's colour."""
+    labels = labels or {}
+    colors = lane_colors(lanes, labels)
+    for n in lanes:
+        label = labels.get(n, n)
+        c = colors[n]
+        alpha = BACKGROUND_LANES.get(label, 255)
+        width = 1.0 if alpha < 255 else 2.0
+        lane_rgba = (*c, alpha)
         lines = {
-            S.EXPOSURE_COMMANDED: (f"{n} commanded", dim),
-            S.EXPOSURE_APPLIED: (f"{n} applied", c),
-            S.GAIN_COMMANDED: (f"{n} gain commanded", dim),
-            S.GAIN_APPLIED: (f"{n} gain applied", c),
-            S.IRRADIANCE_PREDICTED: (f"{n} P-TEDI", c),
-            S.IRRADIANCE_FRAME: (f"{n} frame", (255, 160, 40)),
-            S.OVER_EXPOSED: (f"{n} over", c),
-            S.UNDER_EXPOSED: (f"{n} under", dim),
-            S.LATENCY: (f"{n} latency µs", c),
-            S.PREDICTION_ERROR: (f"{n} error", c),
-            S.PERSISTENCE_ERROR: (f"{n} same as last frame", dim),
-            S.PREDICTION_SKILL: (f"{n} skill vs last frame", c),
+            S.EXPOSURE_COMMANDED: (f"{label} commanded", REFERENCE_RGB),
+            S.EXPOSURE_APPLIED: (f"{label} applied", lane_rgba),
+            S.GAIN_COMMANDED: (f"{label} gain commanded", REFERENCE_RGB),
+            S.GAIN_APPLIED: (f"{label} gain applied", lane_rgba),
+            S.IRRADIANCE_PREDICTED: (f"{label} P-TEDI", lane_rgba),
+            S.IRRADIANCE_FRAME: (f"{label} frame measured", MEASURED_RGB),
+            S.OVER_EXPOSED: (f"{label} over-exposed", lane_rgba),
+            S.UNDER_EXPOSED: (f"{label} under-exposed", REFERENCE_RGB),
+            S.LATENCY: (f"{label} latency µs", lane_rgba),
+            S.PREDICTION_ERROR: (f"{label} P-TEDI error", lane_rgba),
+            S.PERSISTENCE_ERROR: (f"{label} same-as-last-frame error", REFERENCE_RGB),
+            S.PREDICTION_SKILL: (f"{label} skill vs last frame", lane_rgba),
         }
-        for leaf, (label, col) in lines.items():
-            rec.log(S.path(n, leaf), rr.SeriesLines(colors=[col], names=[label], widths=[1.5]), static=True)
-        for leaf, (label, col) in (
-            (S.IRRADIANCE_FRAME, (f"{n} frame", (255, 160, 40))),
-            (S.SATURATED, (f"{n} saturated frame", (231, 76, 60))),
+        for leaf, (name, col) in lines.items():
+            mode = "StepAfter" if leaf in STEPPED else "Linear"
+            rec.log(
+                S.path(n, leaf),
+                rr.SeriesLines(colors=[col], names=[name], widths=[width], interpolation_mode=mode),
+                static=True,
+            )
+        for leaf, (name, col) in (
+            (S.IRRADIANCE_FRAME, (f"{label} frame measured", MEASURED_RGB)),
+            (S.SATURATED, (f"{label} saturated frame", SATURATED_RGB)),
         ):
             rec.log(
                 S.path(n, leaf),
-                rr.SeriesPoints(colors=[col], names=[label], markers=["circle"], marker_sizes=[4.0]),
+                rr.SeriesPoints(colors=[col], names=[name], markers=["circle"], marker_sizes=[4.0]),
                 static=True,
             )
+        rec.log(S.path(n, FRAME_HEADER), rr.Boxes2D.from_fields(colors=[c], show_labels=True), static=True)
+        rec.log(
+            S.path(n, FRAME_SATURATED), rr.Boxes2D.from_fields(colors=[SATURATED_RGB], show_labels=True), static=True
+        )
     rec.log(S.EVENT_RATE, rr.SeriesLines(colors=[(200, 200, 200)], names=["events/s"], widths=[1.5]), static=True)
 
 
-__all__ = ["LAYOUTS", "make_blueprint", "style_series", "lane_color"]
+__all__ = ["LAYOUTS", "STEPPED", "make_blueprint", "lane_color", "lane_colors", "style_series"]

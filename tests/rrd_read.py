@@ -29,6 +29,7 @@ class Rrd:
         self.timelines: dict[str, set] = defaultdict(set)
         self.kinds: dict[str, set] = defaultdict(set)  # entity -> archetypes logged on it (e.g. "Scalars")
         self.properties: dict[str, dict] = defaultdict(dict)  # recording properties: name -> {key: value}
+        self.static: dict[str, dict] = defaultdict(dict)  # entity -> {component: values} logged static (styles)
         for ch in RrdReader(str(path)).stream().to_chunks():
             ent = str(ch.entity_path).lstrip("/")
             rb = ch.to_record_batch()
@@ -44,6 +45,9 @@ class Rrd:
             if ch.timeline_names:  # static style rows have no timeline
                 self.rows[ent] += ch.num_rows
                 self._batches[ent].append(rb)
+            else:
+                for n in names:
+                    self.static[ent][n] = _flat(rb.column(n))
 
     def property(self, name: str, key: str):
         """A recording property (``rr.send_property(name, rr.AnyValues(key=...))``)."""
@@ -90,6 +94,20 @@ class Rrd:
                 )
             rows.extend(zip(*cols, strict=True))
         return np.asarray(sorted(rows), float).reshape(-1, len(timelines))
+
+    def static_values(self, entity: str, component: str) -> list:
+        """The values of a component logged static on ``entity`` (e.g. ``SeriesLines:colors``), ``[]`` if none."""
+        return list(self.static.get(entity, {}).get(component, []))
+
+    def column(self, entity: str, component: str) -> list:
+        """Every row's value of a temporal component of ``entity``, in chunk order (``None`` where a row lacks it)."""
+        out = []
+        for rb in self._batches.get(entity, []):
+            if component in rb.schema.names:
+                out.extend(rb.column(component).to_pylist())
+            else:
+                out.extend([None] * rb.num_rows)
+        return out
 
     def texts(self, entity: str) -> list[str]:
         out = []

@@ -128,6 +128,12 @@ def test_recording_verifies_and_replays(demo, tmp_path):
     assert np.sum(np.abs(err) > 0.5) <= 3
     assert summary["prediction_error_rmse"] == pytest.approx(float(np.sqrt(np.mean(err**2))))
     assert len(summary["frames_detail"]) == summary["frames"]
+    # the replayed lane (entity root `camera`) is shown by its controller: curves named and coloured as NEC's
+    replayed = Rrd(tmp_path / "r.rrd")
+    assert replayed.static_values("camera/" + S.EXPOSURE_APPLIED, "SeriesLines:names") == ["nec applied"]
+    assert replayed.static_values("camera/" + S.EXPOSURE_APPLIED, "SeriesLines:colors") == Rrd(rrd_path).static_values(
+        "nec/" + S.EXPOSURE_APPLIED, "SeriesLines:colors"
+    )
 
 
 @pytest.mark.parametrize("layout", sorted(LAYOUTS))
@@ -155,3 +161,128 @@ def test_ground_truth_of_simulated_frames_is_logged(demo):
         assert len(rho) > 0 and np.all(np.abs(rho) <= 1)
         valid[name] = float(np.mean(v))
     assert valid["nec"] > valid["fixed"] + 0.2
+
+
+def _rgb(packed: int) -> tuple[int, int, int]:
+    """An Rgba32 (0xRRGGBBAA) as RGB."""
+    return (packed >> 24) & 0xFF, (packed >> 16) & 0xFF, (packed >> 8) & 0xFF
+
+
+def test_the_palette_keeps_every_lane_colour_apart():
+    """Every registered controller (ablations and tuned baselines included) has its own colour, at least
+    100 apart in RGB from every other and from the red of saturated frames."""
+    import itertools
+    import math
+
+    from necviz.layouts.views import LANE_COLORS, SATURATED_RGB
+    from necviz.names import CONTROLLER_NAMES
+
+    assert set(CONTROLLER_NAMES) <= set(LANE_COLORS)
+    colours = [*LANE_COLORS.values(), SATURATED_RGB]
+    assert min(math.dist(a, b) for a, b in itertools.combinations(colours, 2)) >= 100
+
+
+def test_lane_colours_in_the_recording_are_distinct_and_shared_by_every_view(demo):
+    """Read back from the demo's file: one colour per lane, the same on its curves and its frame header,
+    and every two lanes' colours at least 100 apart in RGB (the issue's nec / nec-frames were 50 apart)."""
+    import itertools
+    import math
+
+    from necviz.layouts.views import FRAME_HEADER
+
+    rrd, _, _ = demo
+    lanes = sorted({e.split("/", 1)[0] for e in rrd.rows if e.endswith("/" + S.FRAME_IMAGE)})
+    assert len(lanes) == 7 and "nec-frames" in lanes  # the demo's default lanes, the ablation included
+    colour = {}
+    for lane in lanes:
+        seen = {
+            _rgb(rrd.static_values(S.path(lane, leaf), "SeriesLines:colors")[0])
+            for leaf in (S.EXPOSURE_APPLIED, S.IRRADIANCE_PREDICTED, S.OVER_EXPOSED, S.PREDICTION_SKILL)
+        }
+        seen.add(_rgb(rrd.static_values(S.path(lane, FRAME_HEADER), "Boxes2D:colors")[0]))
+        assert len(seen) == 1, f"{lane}: {seen}"
+        colour[lane] = seen.pop()
+    closest = min(math.dist(colour[a], colour[b]) for a, b in itertools.combinations(lanes, 2))
+    assert closest >= 100, colour
+    # the lane's reference curves (its commands, the same-as-last-frame error) differ from its own colour
+    for lane in lanes:
+        ref = _rgb(rrd.static_values(S.path(lane, S.PERSISTENCE_ERROR), "SeriesLines:colors")[0])
+        assert math.dist(ref, colour[lane]) >= 100
+
+
+def test_commanded_series_hold_their_value_between_commands(demo):
+    """A command holds until the next: read back, every commanded series is a step function (each change
+    of value comes within 1 µs of the previous point, so no line ramps between two commands) and is
+    styled to be drawn as steps; it starts at the run's first setting and lasts to the run's end."""
+    rrd, _, _ = demo
+    checked = 0
+    for lane in ("nec", "nec-frames", "navid", "shim", "begin", "builtin"):
+        for leaf in (S.EXPOSURE_COMMANDED, S.GAIN_COMMANDED):
+            t, v = rrd.series(S.path(lane, leaf))
+            assert len(t) >= 2
+            change = np.flatnonzero(np.diff(v) != 0)
+            assert np.all(t[change + 1] - t[change] <= 1.001e-6), (lane, leaf)
+            checked += len(change)
+            assert t[-1] >= 0.95 * DURATION_S  # the last command is drawn to the end of the run
+            assert rrd.static_values(S.path(lane, leaf), "SeriesLines:interpolation_mode") == [2]  # StepAfter
+    assert checked > 20  # the demo's controllers do change their settings
+    # the commands NEC issued, unchanged: the held copies only repeat values already commanded
+    t, v = rrd.series(S.path("nec", S.EXPOSURE_COMMANDED))
+    assert len(np.unique(v)) > 5 and v[0] > 1000 and v[-1] < 0.5 * v[0]  # tunnel setting, then the bright outside
+
+
+def test_every_frame_has_a_header_and_saturated_frames_an_outline(demo):
+    """Each logged frame has its header (exposure and gain, as the video's bars); each saturated frame a red
+    outline, taken away on the next frame that is not."""
+    from necviz.layouts.views import FRAME_HEADER, FRAME_SATURATED
+
+    rrd, _, _ = demo
+    for lane in ("nec", "fixed"):
+        labels = rrd.column(S.path(lane, FRAME_HEADER), "Boxes2D:labels")
+        assert len(labels) == rrd.rows[S.path(lane, S.FRAME_IMAGE)]
+        assert all(" · gain " in x[0] and (" ms" in x[0] or " µs" in x[0]) for x in labels)
+    _, over_fixed = rrd.series(S.path("fixed", S.OVER_EXPOSED))
+    outlines = [x for x in rrd.column(S.path("fixed", FRAME_SATURATED), "Boxes2D:half_sizes") if x]
+    assert len(outlines) == int(np.sum(over_fixed > 0.5)) > 0
+    labels = [x[0] for x in rrd.column(S.path("fixed", FRAME_HEADER), "Boxes2D:labels")]
+    assert sum("SATURATED" in x for x in labels) == len(outlines)
+
+
+def _blueprint_views(container) -> list:
+    import rerun.blueprint as rrb
+
+    if isinstance(container, rrb.View):
+        return [container]
+    return [v for child in (getattr(container, "contents", None) or []) for v in _blueprint_views(child)]
+
+
+@pytest.mark.parametrize("layout", sorted(LAYOUTS))
+def test_layouts_name_the_controller_and_keep_legends_off_the_curves(layout):
+    """A lane called ``camera`` is shown by its controller's name; no plot has a legend over its curves; the
+    skill plot's y-axis is held at -1..1 (its name says so) so a skill of -1,000 cannot flatten it."""
+    import rerun.blueprint as rrb
+
+    bp = make_blueprint(layout, ["camera"], 346, 260, {"camera": "navid"})
+    views = _blueprint_views(bp.root_container)
+    names = [str(v.name) for v in views]
+    assert not any("camera" in n for n in names) and any("navid" in n for n in names), names
+    plots = [v for v in views if isinstance(v, rrb.TimeSeriesView)]
+    assert plots
+    for v in plots:
+        assert v.properties["PlotLegend"].visible.as_arrow_array().to_pylist() == [False], v.name
+    if layout == "inspect":
+        (skill,) = [v for v in plots if "skill" in str(v.name)]
+        assert "−1…1" in str(skill.name)
+        assert skill.properties["ScalarAxis"].range.as_arrow_array().to_pylist() == [[-1.0, 1.0]]
+
+
+def test_compare_frames_fill_a_grid_not_one_row():
+    """Seven lanes and the events: 4 x 2, not eight frames in a row."""
+    import rerun.blueprint as rrb
+
+    from necviz.layouts.blueprints import grid_columns
+
+    assert [grid_columns(n) for n in (1, 2, 3, 4, 5, 8, 9, 10)] == [1, 2, 3, 4, 3, 4, 3, 4]
+    bp = make_blueprint("compare", ["nec", "nec-frames", "navid", "shim", "begin", "builtin", "fixed"], 346, 260)
+    top = bp.root_container.contents[0]
+    assert isinstance(top, rrb.Grid) and len(top.contents) == 8

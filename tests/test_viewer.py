@@ -17,6 +17,7 @@ from conftest import SHARED_DATA
 
 from necviz.commands.cli import main
 from necviz.layouts import make_blueprint
+from necviz.layouts.blueprints import EVENTS_TITLE, INSPECT_IRRADIANCE
 
 SAMPLE = SHARED_DATA / "davis346_sample.aedat4"
 
@@ -42,10 +43,12 @@ def recording(tmp_path_factory):
     if SAMPLE.exists():
         assert main(["replay", str(SAMPLE), "--save", str(rrd)]) == 0
         layout, lanes = "inspect", ["camera"]
+        labels = {"camera": "nec"}  # replay's lane is shown by its controller
     else:
         assert main(["demo", "--duration", "0.3", "--controllers", "nec,navid", "--save", str(rrd), "--no-prompt"]) == 0
         layout, lanes = "compare", ["nec", "navid"]
-    expected = _views(make_blueprint(layout, lanes, 346, 260).root_container)
+        labels = {}
+    expected = _views(make_blueprint(layout, lanes, 346, 260, labels).root_container)
     assert expected, "the layout has no views"
     return rrd, layout, expected
 
@@ -64,12 +67,13 @@ def test_blueprint_loads_in_native_viewer(recording, tmp_path):
     shown = {(v["name"], v["origin"]) for v in ev["views"]}
     assert set(expected) <= shown, f"missing views {set(expected) - shown}; shown {sorted(shown)}"
     if layout == "inspect":
-        assert {"frame", "events", "ln irradiance: predicted vs frame"} <= {v["name"] for v in ev["views"]}
+        names = {v["name"] for v in ev["views"]}
+        assert {"nec: frame", EVENTS_TITLE, INSPECT_IRRADIANCE.format(name="nec")} <= names
     assert all(v["visible"] for v in ev["views"])
     assert ev["view_errors"] == {}, f"views report errors: {ev['view_errors']}"
     # something is drawn: the whole viewer, and the camera frame itself
     assert vc.looks_drawn(ev["image"]), brief
-    frame_view = "frame" if layout == "inspect" else "nec"
+    frame_view = "nec: frame" if layout == "inspect" else "nec"
     assert ev["view_images"][frame_view]["distinct_colours"] >= 32, brief
 
 
@@ -121,4 +125,4 @@ def test_compare_and_demo_recordings_open_with_the_compare_layout(command, tmp_p
     shown = {(v["name"], v["origin"]) for v in ev["views"]}
     assert set(expected) <= shown, f"missing views {set(expected) - shown}; shown {sorted(shown)}"
     assert ev["view_errors"] == {}, f"views report errors: {ev['view_errors']}"
-    assert ev["view_images"]["events (all cameras)"]["distinct_colours"] >= 3  # the shared event image is drawn
+    assert ev["view_images"][EVENTS_TITLE]["distinct_colours"] >= 3  # the shared event image is drawn

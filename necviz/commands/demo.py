@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from necviz.dashboard import session as dashboard
 from necviz.dashboard.recorders import open_recorder
-from necviz.dashboard.session import Session, preflight, scene_inputs
+from necviz.dashboard.session import Session, lane_labels, preflight, scene_inputs
 from necviz.drivers.sim.scene_cache import SceneCache
 from necviz.layouts import make_blueprint
 from necviz.options import DemoOptions, ViewerOptions
@@ -97,7 +97,9 @@ def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None,
         recorder = open_recorder(options.record, rig.sensor, {**props, "recorded_lane": lanes[0].name})
     print(f"  demo: {sc.name}, {', '.join(ln.name for ln in lanes)} ({props['duration_s']:g} s simulated)", file=out)
     layout = viewer.layout or "compare"
-    blueprint = make_blueprint(layout, [ln.name for ln in lanes], rig.sensor.width, rig.sensor.height)
+    blueprint = make_blueprint(
+        layout, [ln.name for ln in lanes], rig.sensor.width, rig.sensor.height, lane_labels(lanes)
+    )
     return dashboard.run(
         rig,
         lanes,

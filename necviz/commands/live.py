@@ -19,7 +19,7 @@ from necviz.core.errors import ParameterError
 from necviz.dashboard import session as dashboard
 from necviz.dashboard.flight_recorder import clip_observer
 from necviz.dashboard.recorders import open_recorder
-from necviz.dashboard.session import Session, preflight, scene_inputs
+from necviz.dashboard.session import Session, lane_labels, preflight, scene_inputs
 from necviz.layouts import make_blueprint
 from necviz.options import LiveOptions, ViewerOptions
 from necviz.outputs import write_json
@@ -178,7 +178,7 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
         observers=[clip_observer(options.clips)] if options.clips is not None else [],
         before_commit=write_summary,
     )
-    blueprint = make_blueprint(layout, [LANE], sensor.width, sensor.height)
+    blueprint = make_blueprint(layout, [LANE], sensor.width, sensor.height, lane_labels([lane]))
     stats = dashboard.run(camera, [lane], viewer, blueprint, settings, out, stdin)
     slip = getattr(backend, "clock_slip_us", 0)
     if slip and out is not None:  # the emulated sensor could not keep up with the wall clock: say how far it slipped

@@ -29,7 +29,7 @@ from pathlib import Path
 from necviz.core.control import CameraLimits, make_controller
 from necviz.core.errors import ParameterError
 from necviz.dashboard import session as dashboard
-from necviz.dashboard.session import Session, preflight
+from necviz.dashboard.session import Session, lane_labels, preflight
 from necviz.dashboard.video import video_observer
 from necviz.layouts import make_blueprint
 from necviz.layouts.focus import focus_blueprint
@@ -186,7 +186,7 @@ def _replay(options: ReplayOptions, viewer, out, path: Path, source: Path, profi
         result["summary"] = summary
 
     layout = viewer.layout or "inspect"
-    blueprint = make_blueprint(layout, [LANE], sensor.width, sensor.height)
+    blueprint = make_blueprint(layout, [LANE], sensor.width, sensor.height, lane_labels([lane]))
     if focus is not None:
         blueprint = focus_blueprint(blueprint, *focus[:2])
     settings = Session(

@@ -51,7 +51,7 @@ def show(out, run: str, viewer=None, speed="auto", stream=...) -> dict:
     Returns ``{"hash", "spec", "metrics", "row", "matches", "rrd"}``.
     """
     from necviz.dashboard import session as dashboard
-    from necviz.dashboard.session import Session, preflight
+    from necviz.dashboard.session import Session, lane_labels, preflight
     from necviz.layouts import make_blueprint
     from necviz.options import SceneOptions, ShowOptions, ViewerOptions
     from necviz.runs import build_rig
@@ -109,7 +109,7 @@ def show(out, run: str, viewer=None, speed="auto", stream=...) -> dict:
         lossless=True,
         expected_duration_s=props["duration_s"],
     )
-    blueprint = make_blueprint(layout, names, rig.sensor.width, rig.sensor.height)
+    blueprint = make_blueprint(layout, names, rig.sensor.width, rig.sensor.height, lane_labels(lanes))
     stats = dashboard.run(rig, lanes, viewer, blueprint, settings, stream)
     metrics = _metrics(stats["telemetry"][names[0]], scene)
     checked = {

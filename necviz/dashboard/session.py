@@ -178,6 +178,17 @@ def run_session(session: Session, out=..., stdin=None) -> dict:
     return stats
 
 
+def lane_labels(lanes) -> dict[str, str]:
+    """The name each lane is shown by where it is not its controller's (``camera`` in ``live`` and
+    ``replay`` is shown as ``nec``, ``navid``, …), so the views and curves say which controller they show."""
+    out = {}
+    for ln in lanes:
+        ctrl = getattr(ln.controller, "name", None)
+        if isinstance(ctrl, str) and ctrl and ctrl != "base" and ctrl != ln.name:
+            out[ln.name] = ctrl
+    return out
+
+
 def _run(ss: Session, out, stdin, outputs: list) -> dict:
     """Open the viewer, run the loop with its observers until the source ends (or Ctrl-C, a full disk, a
     failed output), and summarise."""
@@ -234,7 +245,7 @@ def _open(ss: Session, out, outputs: list):
         print(f"  {m}", file=out)
     rec = viewer.rec
     rec.send_property("run", rr.AnyValues(**{k: text(val) for k, val in ss.properties.items()}, layout=ss.layout))
-    style_series(rec, [lane.name for lane in ss.lanes])
+    style_series(rec, [lane.name for lane in ss.lanes], lane_labels(ss.lanes))
     return viewer
 
 

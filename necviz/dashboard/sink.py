@@ -37,6 +37,11 @@ less than ``1 / max_rate_hz`` ago in wall time) a window's image is skipped. Bot
 regardless. Frames follow the same wall-clock rate cap. With ``lossless=True`` nothing is dropped
 or skipped (simulations and replays written to a file).
 
+Above each lane's frame a header (``NAME/frame/header``: its exposure and gain, in the lane's colour)
+and, while the frame is saturated, a red outline around it (``NAME/frame/saturated_outline``), as the
+``--video``'s bars. Commanded settings are logged as the steps they are: at each change the value in
+force is logged again 1 µs before the new one, and at the end of the run.
+
 Every entity is on both timelines: ``t`` (sensor time) and ``frame`` (the newest frame of the lane
 at that moment; for the shared events, of the first lane), so no view is blank on either.
 Entity paths follow :mod:`necviz.schema`.
@@ -63,6 +68,8 @@ from necviz.core.errors import ParameterError
 from necviz.core.event_image import BACKGROUND_RGB, OFF_RGB, ON_RGB, EventImage, colour_table, palette_rows
 from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import Frame
+from necviz.layouts.blueprints import HEADER_PX
+from necviz.layouts.views import FRAME_HEADER, FRAME_SATURATED
 from necviz.pipeline import Observer
 from necviz.telemetry import FrameRecord
 
@@ -174,6 +181,31 @@ class EventPalette:
             self._raw = np.empty((h, 1 + (w * bits + 7) // 8), np.uint8)
         palette_rows(image.counts_on, image.counts_off, self.k, bits, self._raw)
         return png_from_rows(self._raw, w, bits, self.palette, level)
+
+
+def _header_center(width: int) -> list[float]:
+    """Centre of a frame header: a line 1 px high across the frame, :data:`HEADER_PX` above it (its
+    label is drawn under the line, in the room the layouts leave above the frame)."""
+    return [width / 2, -HEADER_PX + 0.5]
+
+
+def format_exposure(exposure_us: float) -> str:
+    """An exposure as people read it: ``850 µs`` below a millisecond, ``5.00 ms`` above."""
+    return f"{exposure_us:.0f} µs" if exposure_us < 999.5 else f"{exposure_us / 1000:.2f} ms"
+
+
+def frame_header(exposure_us: float, gain: float) -> str:
+    """The label above a frame: its exposure and gain (``5.00 ms · gain 1``)."""
+    return f"{format_exposure(exposure_us)} · gain {gain:.3g}"
+
+
+def saturated_label(record: FrameRecord) -> str:
+    """What a saturated frame's header adds (``SATURATED: 73% over-exposed``), ``''`` for other frames."""
+    if not record.saturated:
+        return ""
+    over = record.over_exposed_rate >= record.under_exposed_rate
+    worst = record.over_exposed_rate if over else record.under_exposed_rate
+    return f"SATURATED: {worst:.0%} {'over' if over else 'under'}-exposed"
 
 
 class RateLimit:
@@ -354,6 +386,10 @@ class RerunSink(Observer):
         self._scalar_q: deque = deque()
         self._text_q: deque = deque()
         self._seq = {lane: 0 for lane in self.lanes}  # newest frame per lane (the `frame` timeline)
+        self._commanded: dict[tuple, tuple[int, float]] = {}  # (lane, leaf) -> the command in force (t_us, value)
+        self._now_us = -(1 << 62)  # the latest sensor time of any scalar
+        self._outlined: set[str] = set()  # lanes whose last logged frame was outlined as saturated
+        self._headers: dict[str, list] = defaultdict(list)  # lane -> frame headers not yet sent (lossless)
         self._first_lane = self.lanes[0] if self.lanes else None
         # owned by the worker
         self._series: dict[str, list] = defaultdict(list)  # path -> [(t_us, seq, value)]
@@ -395,6 +431,8 @@ class RerunSink(Observer):
 
     def _scalar(self, lane: str, leaf: str, t_us: int, value: float) -> None:
         self._scalar_q.append((S.path(lane, leaf), t_us, self._seq.get(lane, 0), value))
+        if t_us > self._now_us:
+            self._now_us = t_us
 
     def warm_up(self) -> None:
         """Load the event-image kernels (drawing, palette rows) before the run, on a scratch image."""
@@ -409,10 +447,21 @@ class RerunSink(Observer):
         bits = _palette_bits(len(pal.palette))
         palette_rows(img.counts_on, img.counts_off, pal.k, bits, np.empty((h, 1 + (w * bits + 7) // 8), np.uint8))
 
+    def _held(self, lane: str, leaf: str, t_us: int, value: float) -> None:
+        """A commanded setting, as the step it is: a command holds until the next, so at a change the
+        old value is logged again 1 µs before the new one (the series reads as a step function in the
+        viewer and to anyone reading the file, whatever they interpolate with)."""
+        key = (lane, leaf)
+        last = self._commanded.get(key)
+        if last is not None and last[1] != value:
+            self._scalar(lane, leaf, max(last[0], t_us - 1), last[1])
+        self._commanded[key] = (t_us, value)
+        self._scalar(lane, leaf, t_us, value)
+
     def started(self, t_us: int, initial: dict) -> None:
         for lane, cmd in initial.items():  # the commanded series start with the setting the run began with
-            self._scalar(lane, S.EXPOSURE_COMMANDED, t_us, cmd.exposure_us)
-            self._scalar(lane, S.GAIN_COMMANDED, t_us, cmd.gain)
+            self._held(lane, S.EXPOSURE_COMMANDED, t_us, cmd.exposure_us)
+            self._held(lane, S.GAIN_COMMANDED, t_us, cmd.gain)
 
     def events(self, batch: np.ndarray) -> None:
         if len(batch):
@@ -431,8 +480,8 @@ class RerunSink(Observer):
 
     def command(self, lane: str, command, latency_us: float) -> None:
         t = int(command.issue_time_us)
-        self._scalar(lane, S.EXPOSURE_COMMANDED, t, command.exposure_us)
-        self._scalar(lane, S.GAIN_COMMANDED, t, command.gain)
+        self._held(lane, S.EXPOSURE_COMMANDED, t, command.exposure_us)
+        self._held(lane, S.GAIN_COMMANDED, t, command.gain)
         self._scalar(lane, S.LATENCY, t, latency_us)
 
     def frame(self, lane: str, frame: Frame, record: FrameRecord) -> None:
@@ -484,7 +533,7 @@ class RerunSink(Observer):
             if len(q) >= self._frame_queue_size:
                 q.popleft()
                 self.dropped["frames"] += 1
-        q.append((lane, frame))
+        q.append((lane, frame, frame_header(frame.exposure_us, frame.gain), saturated_label(record)))
 
     def note(self, entity: str, t_us: int, message: str, level: str = "INFO", data=None) -> None:
         lane = entity.split("/", 1)[0]
@@ -534,6 +583,8 @@ class RerunSink(Observer):
             self._flush_series()
             for entity in list(self._images):
                 self._send_images(entity)
+            for lane in list(self._headers):
+                self._send_headers(lane)
         except BaseException as e:  # report in close(); the control path must go on
             self._error = e
 
@@ -635,10 +686,75 @@ class RerunSink(Observer):
         self.rec.set_time(S.TIME, duration=np.timedelta64(int(t_us) - self.origin_us, "us"))
         self.rec.set_time(S.FRAME, sequence=int(seq))
 
-    def _log_frame(self, lane: str, frame: Frame) -> None:
+    def _log_frame(self, lane: str, frame: Frame, header: str = "", saturated: str = "") -> None:
         blob = encode_frame(frame.image, quality=self.jpeg_quality, optimize=self.lossless)
         self._log_image(S.path(lane, S.FRAME_IMAGE), frame.exposure_start_us, frame.sequence, blob, "image/jpeg")
+        self._log_header(lane, frame, f"{header} · {saturated}" if saturated else header, saturated)
         self.stats["frames_logged"] += 1
+
+    def _log_header(self, lane: str, frame: Frame, header: str, saturated: str) -> None:
+        """The frame's header (a line above it in the lane's colour, labelled with its exposure and
+        gain; colours are static, see :func:`necviz.layouts.style_series`) and, while the frame is
+        saturated, a red outline (and the header says what clipped), as the ``--video``'s bars show.
+
+        A live sink logs them with the frame; a lossless one keeps them and sends each lane's as one
+        chunk per entity once ``chunk_rows`` have gathered, and at the end (like its series). The
+        outline is logged only when it changes: drawn on a saturated frame, removed (no box) on the
+        next frame that is not."""
+        h, w = frame.image.shape[:2]
+        t, seq = int(frame.exposure_start_us), int(frame.sequence)
+        outline = None  # unchanged
+        if saturated:
+            outline = True
+            self._outlined.add(lane)
+        elif lane in self._outlined:
+            outline = False
+            self._outlined.discard(lane)
+        if self.lossless:
+            rows = self._headers[lane]
+            rows.append((t, seq, w, h, header, outline))
+            if len(rows) >= self.chunk_rows:
+                self._send_headers(lane)
+            return
+        self._set_time(t, seq)
+        self.rec.log(
+            S.path(lane, FRAME_HEADER),
+            rr.Boxes2D(centers=[_header_center(w)], half_sizes=[[w / 2, 0.5]], labels=[header], radii=[1.0]),
+        )
+        if outline is not None:
+            boxes = [[w / 2 - 1, h / 2 - 1]] if outline else []
+            centers = [[w / 2, h / 2]] if outline else []
+            self.rec.log(S.path(lane, FRAME_SATURATED), rr.Boxes2D(centers=centers, half_sizes=boxes, radii=[2.0]))
+        self.rec.reset_time()
+
+    def _send_headers(self, lane: str) -> None:
+        """Send a lossless sink's gathered headers and outline changes of ``lane`` (one chunk per entity)."""
+        rows = self._headers.pop(lane, None)
+        if not rows:
+            return
+        t, seq, w, h, labels, outline = zip(*rows, strict=True)
+        self.rec.send_columns(
+            S.path(lane, FRAME_HEADER),
+            indexes=self._index(t, seq),
+            columns=rr.Boxes2D.columns(
+                centers=[_header_center(x) for x in w],
+                half_sizes=[[x / 2, 0.5] for x in w],
+                labels=list(labels),
+                radii=[1.0] * len(w),
+            ),
+        )
+        k = [i for i, o in enumerate(outline) if o is not None]
+        if k:
+            drawn = [i for i in k if outline[i]]
+            self.rec.send_columns(
+                S.path(lane, FRAME_SATURATED),
+                indexes=self._index([t[i] for i in k], [seq[i] for i in k]),
+                columns=rr.Boxes2D.columns(
+                    centers=[[w[i] / 2, h[i] / 2] for i in drawn],
+                    half_sizes=[[w[i] / 2 - 1, h[i] / 2 - 1] for i in drawn],
+                    radii=[2.0] * len(drawn),
+                ).partition([1 if outline[i] else 0 for i in k]),
+            )
 
     def _log_image(self, entity: str, t_us: int, seq: int, blob: bytes, media_type: str) -> None:
         """Log an encoded image now (live), or batch it with the entity's others (lossless)."""
@@ -698,6 +814,9 @@ class RerunSink(Observer):
     def close(self) -> dict:
         """Drain the queue, send the last series, flush the recording; returns the stats."""
         if not self._stop:
+            for (lane, leaf), (t, value) in self._commanded.items():  # each command holds to the end of the run
+                if self._now_us > t:
+                    self._scalar(lane, leaf, self._now_us, value)
             self._stop = True
             self._thread.join()
             if self._error is None:
