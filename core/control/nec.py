@@ -58,7 +58,9 @@ of the valid range, ``g(valid_min) + m`` (``d = +1``; ``g(valid_max) - m`` for `
 records it for every ``e`` in ``[0, W - m]``, ``W = g(valid_max) - g(valid_min)`` — the widest
 one-sided interval a single exposure can cover. ``m`` is ``edge_margin`` (ln). The rule ends
 at the first frame that determines the statistic with no ceiling-saturated batch since its
-exposure started. Case (a) needs the ceiling: ``bus_event_rate``, by default the source's own
+exposure started. A ceiling window that is a flickering light's swing (``flicker_rule``: the windows'
+direction reverses within a frame interval, :mod:`necviz.core.control.flicker`) is not a loss and
+does not start case (a). Case (a) needs the ceiling: ``bus_event_rate``, by default the source's own
 (:class:`~necviz.drivers.source.CameraInfo` ``event_rate_max``: the simulator's configured
 ``dvs.max_event_rate``, 12 Mev/s for a DAVIS346 device or a recording from one), never a literal;
 a source without a ceiling makes case (a) impossible.
@@ -106,6 +108,7 @@ import numpy as np
 
 from necviz.core.checks import check_number
 from necviz.core.control.controller import CameraLimits, Controller, ControllerOptions, ExposureCommand, Tunable
+from necviz.core.control.flicker import FlickerWatch
 from necviz.core.crf import US_PER_S
 from necviz.core.errors import ParameterError
 from necviz.core.frames import Frame
@@ -282,6 +285,10 @@ class NECOptions(ControllerOptions):
         anchor was at the bus ceiling, count the events that follow in the bound's direction only beyond
         the gap the bound closed: they are the photoreceptor's lag catching up with a change the frame
         already saw (module docstring, "Events that lag").
+    flicker_rule : bool
+        A window at the bus ceiling that is a flickering light's swing (the ceiling windows' direction
+        reverses within a frame interval, :class:`~necviz.core.control.flicker.FlickerWatch`) is not
+        a one-sided loss: it does not start the escape rule's case (a).
     zone_grid : tuple of int, optional
         ``(columns, rows)`` of the P-TEDI zones :func:`~necviz.core.control.make_controller` builds
         (default: :data:`ZONE_GRID` for ``metering="zones"``, else the whole sensor).
@@ -347,6 +354,7 @@ class NECOptions(ControllerOptions):
     compensation: bool = True
     ceiling_rate: bool = False
     bound_lag: bool = True
+    flicker_rule: bool = True
 
     def check(self) -> None:
         if self.full_band <= self.dead_band:
@@ -355,7 +363,7 @@ class NECOptions(ControllerOptions):
             raise ParameterError(f"metering must be one of {', '.join(METERING)}, got {self.metering!r}")
         if self.goal_mode not in GOAL_MODES:
             raise ParameterError(f"goal_mode must be one of {', '.join(GOAL_MODES)}, got {self.goal_mode!r}")
-        for name in ("escape", "saturation_bound", "compensation", "ceiling_rate", "bound_lag"):
+        for name in ("escape", "saturation_bound", "compensation", "ceiling_rate", "bound_lag", "flicker_rule"):
             if not isinstance(getattr(self, name), bool):
                 raise ParameterError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if self.bus_event_rate is not None:
@@ -444,6 +452,7 @@ class NECController(Controller):
         self._counts_seen = (0, 0)
         self._win_up = 0
         self.saturated_windows = 0  # windows of events found at the bus ceiling (diagnostics)
+        self.flicker = FlickerWatch()  # which of them are a flicker's swings (flicker_rule)
         # rate at the ceiling: counted change of each ceiling-saturated window since the anchor, the gain a
         # saturated frame calibrated, and the change credited beyond the count (ln; added to M)
         self._sat_log: list[tuple[int, float]] = []
@@ -647,11 +656,13 @@ class NECController(Controller):
             self._win_n >= BUS_FRACTION * rate * span / US_PER_S
             and abs(self._win_on) >= POLARITY_DOMINANCE * self._win_n
         ):
-            self._sat_t = t_last
-            self._sat_dir = 1 if self._win_on > 0 else -1
             self.saturated_windows += 1
-            if self.options.ceiling_rate:
-                self._ceiling_window(t_last, self._win_up, self._win_up - self._win_on)
+            d = 1 if self._win_on > 0 else -1
+            if not (self.options.flicker_rule and self.flicker.observe(t_last, d)):  # a flicker's swing loses nothing
+                self._sat_t = t_last
+                self._sat_dir = d
+                if self.options.ceiling_rate:
+                    self._ceiling_window(t_last, self._win_up, self._win_up - self._win_on)
         self._win_t0 = t_last
         self._win_n = 0
         self._win_on = 0
