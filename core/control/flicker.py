@@ -20,8 +20,11 @@ windows (time, direction) and calls a window *flicker* when
   that keeps the bus at its ceiling longer than that is again a one-way loss).
 
 A window that is flicker is not a one-sided loss: the swings cancel over a period, and the frames,
-which average over their exposure, see the mean. The caller keeps the escape rule's case (b) (a
-saturated frame) and everything else. Designed on the training scenes only
+which average over their exposure, see the mean. While the light flickers (:meth:`FlickerWatch.active`)
+the event-propagated level between frames is the flicker's instantaneous phase, not the level the
+next exposure will average: NEC then meters the last frame's exposure-averaged level (as
+``nec-frames`` does), until a run of one direction longer than ``max_run_us`` shows a one-way
+change or the swings stop. The caller keeps the escape rule's case (b) (a saturated frame). Designed on the training scenes only
 (``benchmarks/training/*.toml``; docs/evaluation.md). O(1) amortised per window.
 """
 
@@ -60,6 +63,7 @@ class FlickerWatch:
         self._dir = 0  # direction of the current run (0: none yet)
         self._run_start = 0  # time of the run's first window
         self._last_t: int | None = None
+        self._flicker = False  # the newest window was a flicker's swing
         self.flicker_windows = 0  # windows called flicker (diagnostics)
 
     def observe(self, t_us: int, direction: int) -> bool:
@@ -79,4 +83,10 @@ class FlickerWatch:
         flicker = len(self._reversals) >= self.min_reversals and t - self._run_start <= self.max_run_us
         if flicker:
             self.flicker_windows += 1
+        self._flicker = flicker
         return flicker
+
+    def active(self, t_us: int) -> bool:
+        """True while the light flickers: the newest ceiling window, at most ``horizon_us`` before
+        ``t_us``, was a flicker's swing."""
+        return self._flicker and self._last_t is not None and int(t_us) - self._last_t <= self.horizon_us

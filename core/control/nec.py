@@ -570,6 +570,15 @@ class NECController(Controller):
     def metered(self, t_us: int | None = None) -> float:
         """``M(t)``: the metered log irradiance (module docstring) from P-TEDI's state now."""
         est = self.estimator
+        frame_level = self._flicker_level(t_us)
+        if frame_level is not None:  # a flickering light: the last frame's exposure-averaged level
+            if self.options.metering == "zones":
+                offsets = np.where(np.isfinite(self._offset), self._offset, 0.0)
+                assert self._weights is not None
+                return weighted_median(frame_level + offsets, self._weights)
+            lp = float(frame_level[0])
+            off = self._offset0
+            return lp if self.options.metering == "paper" or off != off else lp + off
         if self.options.metering == "zones":
             z = est.predict_zones(t_us)
             ok = np.isfinite(z)
@@ -586,6 +595,17 @@ class NECController(Controller):
             return lp
         off = self._offset0
         return lp + off if off == off else lp  # before the first measured offset: P-TEDI's level
+
+    def _flicker_level(self, t_us: int | None) -> np.ndarray | None:
+        """P-TEDI's exposure-averaged level over the last frame (per zone) while the light flickers
+        (``flicker_rule``, :meth:`FlickerWatch.active`), else ``None``."""
+        fe = self.last_frame_estimate
+        if not self.options.flicker_rule or fe is None:
+            return None
+        if not self.flicker.active(self.now_us if t_us is None else t_us):
+            return None
+        start = fe.log_start if fe.log_start is not None else fe.log_anchor
+        return start + fe.log_e
 
     def frame_statistic(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
         """The metering statistic of a frame's ``g(Z)`` per zone (log exposure, before ``- ln T K``)
