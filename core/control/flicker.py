@@ -24,7 +24,10 @@ which average over their exposure, see the mean. While the light flickers (:meth
 the event-propagated level between frames is the flicker's instantaneous phase, not the level the
 next exposure will average: NEC then meters the last frame's exposure-averaged level (as
 ``nec-frames`` does), until a run of one direction longer than ``max_run_us`` shows a one-way
-change or the swings stop. The caller keeps the escape rule's case (b) (a saturated frame). Designed on the training scenes only
+change or the swings stop. The first swings, seen before the flicker is recognised, started case (a):
+when it is recognised, case (a) is withdrawn back to what it was before the sequence began
+(:attr:`FlickerWatch.sequence_start_us`). The caller keeps the escape rule's case (b) (a saturated
+frame). Designed on the training scenes only
 (``benchmarks/training/*.toml``; docs/evaluation.md). O(1) amortised per window.
 """
 
@@ -63,6 +66,7 @@ class FlickerWatch:
         self._dir = 0  # direction of the current run (0: none yet)
         self._run_start = 0  # time of the run's first window
         self._last_t: int | None = None
+        self.sequence_start_us = 0  # the first window of the current sequence (none more than horizon_us apart)
         self._flicker = False  # the newest window was a flicker's swing
         self.flicker_windows = 0  # windows called flicker (diagnostics)
 
@@ -74,6 +78,7 @@ class FlickerWatch:
         if stale:
             self._reversals.clear()
             self._dir, self._run_start = direction, t
+            self.sequence_start_us = t
         elif direction != self._dir:
             self._reversals.append(t)
             self._dir, self._run_start = direction, t

@@ -453,6 +453,7 @@ class NECController(Controller):
         self._win_up = 0
         self.saturated_windows = 0  # windows of events found at the bus ceiling (diagnostics)
         self.flicker = FlickerWatch()  # which of them are a flicker's swings (flicker_rule)
+        self._sat_before = (self._sat_t, self._sat_dir)  # case (a) before the current sequence of ceiling windows
         # rate at the ceiling: counted change of each ceiling-saturated window since the anchor, the gain a
         # saturated frame calibrated, and the change credited beyond the count (ln; added to M)
         self._sat_log: list[tuple[int, float]] = []
@@ -678,7 +679,12 @@ class NECController(Controller):
         ):
             self.saturated_windows += 1
             d = 1 if self._win_on > 0 else -1
-            if not (self.options.flicker_rule and self.flicker.observe(t_last, d)):  # a flicker's swing loses nothing
+            if self.options.flicker_rule and self.flicker.observe(t_last, d):  # a flicker's swing loses nothing
+                if self._sat_t >= self.flicker.sequence_start_us:  # its first swings, taken for losses
+                    self._sat_t, self._sat_dir = self._sat_before
+            else:
+                if self.flicker.sequence_start_us == t_last:
+                    self._sat_before = (self._sat_t, self._sat_dir)
                 self._sat_t = t_last
                 self._sat_dir = d
                 if self.options.ceiling_rate:
