@@ -101,8 +101,7 @@ def test_nec_paper_is_nec_with_every_addition_off():
     nec = make_controller("nec-paper", sensor=SENSOR, limits=CameraLimits(), tedi=TEDI)
     assert {k: getattr(nec.options, k) for k in PAPER_OPTIONS} == PAPER_OPTIONS
     assert not nec.estimator.saturation_bound  # the paper's rule for a saturated anchor alone
-    p = nec.estimator.params
-    assert (p.a_on, p.b_on, p.a_off, p.b_off) == (0.0, 0.0, 0.0, 0.0) and (p.c_on, p.c_off) == (0.26, 0.24)
+    assert nec.estimator.params == TEDI  # the paper's TEDI applies its compensation (Eq. 6)
     default = make_controller("nec", sensor=SENSOR, limits=CameraLimits(), tedi=TEDI)
     assert default.estimator.saturation_bound and default.estimator.params == TEDI
     # every switch alone, on the default

@@ -68,9 +68,16 @@ a source without a ceiling makes case (a) impossible.
 The paper's controller and necviz's additions (each one switch, so the ladder from the paper to
 the default can be measured; ``docs/method.md``): ``saturation_bound`` (P-TEDI re-anchors at the
 bound a saturated frame proves, :mod:`necviz.core.ptedi`; off: the paper's skip rule alone),
-``metering``, ``goal_mode``, ``escape`` and ``compensation`` (the profile's TEDI terms ``a±, b±``;
-off: zeroed, the thresholds kept). ``saturation_bound=False, metering="paper", goal_mode="paper",
-escape=False, compensation=False`` is the paper's controller exactly (registered as ``nec-paper``).
+``metering``, ``goal_mode``, ``escape``, ``bound_lag`` and ``flicker_rule``; ``compensation`` (the
+profile's TEDI terms ``a±, b±``; off: zeroed, the thresholds kept) is the paper's own (Eq. 6) and on in
+``nec-paper``. ``saturation_bound=False, metering="paper", goal_mode="paper", escape=False,
+bound_lag=False, flicker_rule=False`` is the paper's controller wherever the paper is specific
+(registered as ``nec-paper``). Where it is silent necviz chooses, in ``nec-paper`` as in every
+rung of the ladder: ``f_w``'s smoothstep and its dead band (:func:`error_weight`; the paper's
+Fig. 8e gives no form), ``min_command_change`` (a command must differ from the last by 1 %), the
+stale-command re-send inside the dead band (:meth:`NECController.command_for`), the skip rule's
+threshold of 50 % valid pixels (``PeripheralOptions.min_valid_fraction``) and a first anchor on
+whatever frame comes first.
 :class:`NECFramesController` (``nec-frames``) is NEC with every event kept from its estimator.
 
 Defaults, chosen by ``benchmarks/metering.py`` over every preset scenario x 10 seeds and checked
@@ -293,8 +300,9 @@ class NECOptions(ControllerOptions):
         ``(columns, rows)`` of the P-TEDI zones :func:`~necviz.core.control.make_controller` builds
         (default: :data:`ZONE_GRID` for ``metering="zones"``, else the whole sensor).
 
-    ``saturation_bound=False, metering="paper", goal_mode="paper", escape=False, compensation=False``
-    is the paper's controller exactly (``nec-paper``).
+    ``saturation_bound=False, metering="paper", goal_mode="paper", escape=False, bound_lag=False,
+    flicker_rule=False`` (compensation on: the paper's Eq. 6) is the paper's controller wherever the
+    paper is specific (``nec-paper``; the necviz choices it keeps are named in the module docstring).
     """
 
     TUNABLE: ClassVar[tuple[Tunable, ...]] = (
