@@ -612,13 +612,21 @@ def render_page(results: dict[str, dict]) -> str:
     return "\n".join(out).rstrip() + "\n"
 
 
-def _diff_words(m: float, ci: float, n: int, unit: str) -> str:
-    """``2.1 ± 0.8 fewer frames`` / ``no significant difference (+0.1 ± 0.4)``."""
+def _diff_words(m: float, ci: float, n: int, unit: str, counts: dict | None = None) -> str:
+    """``2.1 ± 0.8 fewer frames (95 % CI clustered by scene, ...)`` / ``no significant difference (...)``;
+    ``counts`` (events_table's ``scene_counts``) adds in how many scenes the effect lives."""
     if not (math.isfinite(m) and math.isfinite(ci)):
         return "no difference measured"
+    where = f"95 % CI clustered by scene: t over {n} scenes' mean differences"
+    if counts:
+        where += (
+            f"; the effect lives in {counts['negative'] + counts['positive']} of {counts['scenes']} scenes "
+            f"({counts['negative']} fewer, {counts['positive']} more), {counts['zero_pairs']} of {counts['pairs']} "
+            "scene-seed pairs differ by exactly 0"
+        )
     if abs(m) <= ci:
-        return f"no significant difference ({m:+.2f} ± {ci:.2f} {unit}, 95 % CI over {n} scene-seed pairs)"
-    return f"{abs(m):.2f} ± {ci:.2f} {'fewer' if m < 0 else 'more'} {unit} (95 % CI over {n} scene-seed pairs)"
+        return f"no significant difference ({m:+.2f} ± {ci:.2f} {unit}, {where})"
+    return f"{abs(m):.2f} ± {ci:.2f} {'fewer' if m < 0 else 'more'} {unit} ({where})"
 
 
 def render_headline(results: dict[str, dict]) -> str:
@@ -638,19 +646,20 @@ def render_headline(results: dict[str, dict]) -> str:
     lines = [
         f"On held-out scenes and seeds that played no part in any choice, NEC saturated (more than half of a frame clipped) "
         f"{a:.2f} frames per run; the same controller with its events withheld (`nec-frames`) {b:.2f}: the events "
-        f"account for {_diff_words(m, ci, n, 'saturated frames per run')}.",
+        f"account for {_diff_words(m, ci, n, 'saturated frames per run', ev['events'].get('scene_counts'))}.",
     ]
     if best is not None:
         lines.append(
             f"The best baseline tuned with NEC's budget (`{best}`) saturated {tuned[best]:.2f}, and the paper's controller "
-            f"exactly (`nec-paper`) {paper:.2f}."
+            f"(`nec-paper`, the paper wherever it is specific) {paper:.2f}."
         )
-    ev10 = results.get("events", {}).get("saturated_frames_10", {}).get("events", {}).get("all")
-    if ev10:
-        a10, b10, m10, ci10, n10 = ev10
+    ev10 = results.get("events", {}).get("saturated_frames_10", {}).get("events", {})
+    if ev10.get("all"):
+        a10, b10, m10, ci10, n10 = ev10["all"]
         lines.append(
             f"Counting frames more than 10 % clipped instead, NEC {a10:.2f} and `nec-frames` {b10:.2f}: "
-            f"{_diff_words(m10, ci10, n10, 'frames per run')}; where NEC loses, and why, is on the results page."
+            f"{_diff_words(m10, ci10, n10, 'frames per run', ev10.get('scene_counts'))}; where NEC loses, and why, "
+            "is on the results page."
         )
     lines.append(
         "Per scene family, over the event bus ceiling and the command latency, and the ladder from the paper's "
