@@ -8,7 +8,12 @@ rig (same scene, same events) on the training scenes — the five presets and th
 paired differences (per seed) with their 95 % interval (Student's t over seeds). Training scenes only:
 the rule was designed on them, so this shows the design, not how it does on unseen scenes.
 
-usage: python benchmarks/flicker_rule.py [--seeds 3] [--jobs 2] [--json benchmarks/results/flicker_rule.json]
+On the validation set's flicker scenes (seen during the design of NEC, never in the rule's), with its seeds:
+``--scenarios benchmarks/heldout/flicker_1200.toml,... --first-seed 100 --seeds 5
+--json benchmarks/results/flicker_rule_validation.json``.
+
+usage: python benchmarks/flicker_rule.py [--seeds 3] [--first-seed 0] [--jobs 2] [--scenarios a,b]
+                                         [--json benchmarks/results/flicker_rule.json]
 """
 
 from __future__ import annotations
@@ -46,6 +51,7 @@ def _job(spec: dict) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--first-seed", type=int, default=0, help="seeds FIRST..FIRST+N-1 (training: 0)")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--scenarios", default=",".join(TRAINING_FILES + PRESETS))
     ap.add_argument("--json", default=str(HERE / "results" / "flicker_rule.json"))
@@ -61,7 +67,7 @@ def main() -> int:
             "sift": False,
         }
         for s in scenarios
-        for k in range(args.seeds)
+        for k in range(args.first_seed, args.first_seed + args.seeds)
     ]
     runs = []
     t0 = time.perf_counter()
@@ -90,7 +96,7 @@ def main() -> int:
               f"  {d('nec - nec-frames'):>16s} {d('nec - no rule'):>17s}")
     out = {
         "command": "python benchmarks/flicker_rule.py " + " ".join(sys.argv[1:]),
-        "seeds": list(range(args.seeds)),
+        "seeds": list(range(args.first_seed, args.first_seed + args.seeds)),
         "scenario_params": {"change_jitter_ms": CHANGE_JITTER_MS},
         "lanes": LANES,
         "controller_params": PARAMS,
