@@ -387,7 +387,9 @@ def section_ladder(idx, metric, out: list, data: dict) -> None:
         return
     out.append(f"### The ladder from `nec-paper` to `nec`, {metric} (simulator defaults)\n")
     out.append("Each rung adds one necviz addition to the one above it. Mean per family, then the rung's paired")
-    out.append("difference from the rung above ± 95 % CI clustered by scene (t over the scenes' means; n scenes). `nec-paper` is the paper where")
+    out.append(
+        "difference from the rung above ± 95 % CI clustered by scene (t over the scenes' means; n scenes). `nec-paper` is the paper where"
+    )
     out.append("the paper is specific (its TEDI compensation included); every rung keeps necviz's choices where it is")
     out.append(f"silent: {LADDER_KEPT}.\n")
     fams = sorted({k[1] for k in idx if k[0] in present})
@@ -452,7 +454,12 @@ def section_baselines(idx, metric, out: list, data: dict) -> None:
             ]
             per_scene = defaultdict(list)
             for k, r in idx.items():
-                if k[0] == name and (f == "all" or family(k[1]) == f) and default_condition(r) and r[metric] is not None:
+                if (
+                    k[0] == name
+                    and (f == "all" or family(k[1]) == f)
+                    and default_condition(r)
+                    and r[metric] is not None
+                ):
                     per_scene[k[1]].append(float(r[metric]))
             m, ci, n = t_ci([float(np.mean(v)) for v in per_scene.values()])
             if n:

@@ -74,11 +74,17 @@ def main() -> int:
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         for i, r in enumerate(pool.map(_job, specs)):
             runs.append(r)
-            print(f"  [{i + 1}/{len(specs)}] {Path(r['scenario']).stem} seed {r['seed']}: {r['seconds']:.0f} s "
-                  f"(elapsed {time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
+            print(
+                f"  [{i + 1}/{len(specs)}] {Path(r['scenario']).stem} seed {r['seed']}: {r['seconds']:.0f} s "
+                f"(elapsed {time.perf_counter() - t0:.0f} s)",
+                file=sys.stderr,
+                flush=True,
+            )
     table = {}
-    print(f"{'scene':24s} {'>50%: nec / no rule / frames':>30s} {'>10%: nec / no rule / frames':>30s}"
-          f"  {'>10% nec-frames':>16s} {'>10% nec-no rule':>17s}")
+    print(
+        f"{'scene':24s} {'>50%: nec / no rule / frames':>30s} {'>10%: nec / no rule / frames':>30s}"
+        f"  {'>10% nec-frames':>16s} {'>10% nec-no rule':>17s}"
+    )
     for s in scenarios:
         rs = [r for r in runs if r["scenario"] == s]
         row = {}
@@ -90,10 +96,12 @@ def main() -> int:
             )
         row["per_seed"] = {r["seed"]: r["results"] for r in rs}
         table[Path(s).stem] = row
-        f = lambda m: " / ".join(f"{row[m][ln][0]:.1f}" for ln in LANES)  # noqa: E731
-        d = lambda key: f"{row['saturated_frames_10'][key][0]:+.1f} ± {row['saturated_frames_10'][key][1]:.1f}"  # noqa: E731
-        print(f"{Path(s).stem:24s} {f('saturated_frames_50'):>30s} {f('saturated_frames_10'):>30s}"
-              f"  {d('nec - nec-frames'):>16s} {d('nec - no rule'):>17s}")
+        f = lambda m, row=row: " / ".join(f"{row[m][ln][0]:.1f}" for ln in LANES)  # noqa: E731
+        d = lambda key, row=row: f"{row['saturated_frames_10'][key][0]:+.1f} ± {row['saturated_frames_10'][key][1]:.1f}"  # noqa: E731
+        print(
+            f"{Path(s).stem:24s} {f('saturated_frames_50'):>30s} {f('saturated_frames_10'):>30s}"
+            f"  {d('nec - nec-frames'):>16s} {d('nec - no rule'):>17s}"
+        )
     out = {
         "command": "python benchmarks/flicker_rule.py " + " ".join(sys.argv[1:]),
         "seeds": list(range(args.first_seed, args.first_seed + args.seeds)),

@@ -630,7 +630,9 @@ def render_page(results: dict[str, dict]) -> str:
         "vary with its load: compare ratios measured in the same run, not figures across sections.",
         "",
     ]
-    first = [k for k in ("events", "tuning", "flicker_rule", "flicker_rule_validation", "events_training") if k in results]  # the evaluation leads
+    first = [
+        k for k in ("events", "tuning", "flicker_rule", "flicker_rule_validation", "events_training") if k in results
+    ]  # the evaluation leads
     summary = speed_summary(results)
     rest = [k for k in RENDERERS if k in results and k not in first] + sorted(k for k in results if k not in RENDERERS)
 

@@ -71,7 +71,9 @@ def sealed_params(name: str, rng: np.random.Generator, scene_seed: int) -> dict:
 
 def scene_paths() -> list[Path]:
     return [
-        DIRECTORY / f"{name}_{SCENE_SEED0 + 100 * i + k}.toml" for i, name in enumerate(PRESETS) for k in range(PER_PRESET)
+        DIRECTORY / f"{name}_{SCENE_SEED0 + 100 * i + k}.toml"
+        for i, name in enumerate(PRESETS)
+        for k in range(PER_PRESET)
     ]
 
 
@@ -129,9 +131,7 @@ scenarios = [  # one scene of each family in turn: an interrupted run still cove
 
 def sums(paths: list[Path]) -> str:
     files = [*paths, SWEEP]
-    return "".join(
-        f"{hashlib.sha256(f.read_bytes()).hexdigest()}  {f.relative_to(HERE).as_posix()}\n" for f in files
-    )
+    return "".join(f"{hashlib.sha256(f.read_bytes()).hexdigest()}  {f.relative_to(HERE).as_posix()}\n" for f in files)
 
 
 def main() -> int:

@@ -247,7 +247,9 @@ def main() -> int:
         best = ranking[0][3]
         pub = next(ln for ln in mine if index[ln][1] == PUBLISHED[c])
         print(f"\n## {c}: {VARIANTS} variants, chosen by least regret at > 50 % (then > 10 %, then true valid)")
-        print(f"{'variant':40s} " + " ".join(f"{Path(s).stem[:13]:>13s}" for s in scenarios) + "  regret  >10% sum  valid")
+        print(
+            f"{'variant':40s} " + " ".join(f"{Path(s).stem[:13]:>13s}" for s in scenarios) + "  regret  >10% sum  valid"
+        )
         for regret, s10, ntv, ln in ranking:
             cells = " ".join(f"{table[s][ln]['saturated_frames_50']['mean']:13.1f}" for s in scenarios)
             mark = " *" if ln == best else (" (published)" if ln == pub else "")

@@ -7,8 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from necviz.drivers.sim.scenes import make_scenario
-from necviz.drivers.sim.scenes import mains
+from necviz.drivers.sim.scenes import mains, make_scenario
 
 
 @pytest.mark.parametrize("duty", [0.3, 0.5])

@@ -277,8 +277,10 @@ class LaneTelemetry:
         self._period_us: float | None = None
         self._previous: tuple[float, float] | None = None  # (over, under) of the previous frame
         self._recent: deque = deque(maxlen=4)  # (start, end, exposure x gain) of the last frames
-        self._delivered_at_start: dict[int, int] = {}  # events the lane's controller had received by each exposure start
-        self._received = 0  # ... since P-TEDI's anchor, up to this frame (diagnosis: what it saw, not what it declares)
+        # events the lane's controller had received by each exposure start, and since P-TEDI's anchor up to
+        # this frame (the diagnosis: what it saw, not what it declares)
+        self._delivered_at_start: dict[int, int] = {}
+        self._received = 0
         self._zone_sizes = None  # pixels per P-TEDI zone (weights of zone means)
 
     def bind(self, lane=None, latency_us: float | None = None, limits=None) -> None:
