@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""NEC's flicker rule and its ablation on the training scenes (issue 30; core/control/flicker.py).
+"""NEC's flicker rule and its ablation on the training scenes (issue 30; core/control/flicker_watch.py).
 
 Runs ``nec`` (the rule on), ``nec`` with ``flicker_rule = false`` and ``nec-frames`` as lanes of the same
 rig (same scene, same events) on the training scenes — the five presets and the deep-flicker scenes

@@ -15,7 +15,7 @@ from necviz.commands.cli import main
 from necviz.dashboard import schema as S
 from necviz.layouts import LAYOUTS, make_blueprint
 
-CONTROLLERS = ("nec", "navid", "shim", "begin", "builtin", "fixed")
+CONTROLLERS = ("nec", "navid-tuned", "shim-tuned", "begin-tuned", "builtin", "fixed")  # the demo's (tuned baselines)
 DURATION_S = 1.0  # tunnel_exit: the portal is passed at 40 % of the duration
 
 
@@ -48,7 +48,7 @@ def test_every_view_has_data_on_both_timelines(demo):
         S.EVENT_RATE,
         S.path("nec", S.IRRADIANCE_PREDICTED),
         S.path("nec", S.EXPOSURE_COMMANDED),
-        S.path("navid", S.OVER_EXPOSED),
+        S.path("navid-tuned", S.OVER_EXPOSED),
     ):
         t, _ = rrd.series(entity, "t")
         f, _ = rrd.series(entity, "frame")

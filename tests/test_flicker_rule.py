@@ -1,4 +1,4 @@
-"""NEC's flicker rule (necviz.core.control.flicker): a flickering bus is not a one-way loss.
+"""NEC's flicker rule (necviz.core.control.flicker_watch): a flickering bus is not a one-way loss.
 
 The closed-loop checks run on a TRAINING scene (benchmarks/training/flicker_pwm_120.toml: 120 Hz PWM,
 depth 0.95), never on a held-out one."""
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from necviz.core.control.flicker import FlickerWatch
+from necviz.core.control.flicker_watch import FlickerWatch
 from necviz.core.errors import ParameterError
 from necviz.runs import run_spec
 

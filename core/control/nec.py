@@ -59,7 +59,7 @@ records it for every ``e`` in ``[0, W - m]``, ``W = g(valid_max) - g(valid_min)`
 one-sided interval a single exposure can cover. ``m`` is ``edge_margin`` (ln). The rule ends
 at the first frame that determines the statistic with no ceiling-saturated batch since its
 exposure started. A ceiling window that is a flickering light's swing (``flicker_rule``: the windows'
-direction reverses within a frame interval, :mod:`necviz.core.control.flicker`) is not a loss and
+direction reverses within a frame interval, :mod:`necviz.core.control.flicker_watch`) is not a loss and
 does not start case (a). Case (a) needs the ceiling: ``bus_event_rate``, by default the source's own
 (:class:`~necviz.drivers.source.CameraInfo` ``event_rate_max``: the simulator's configured
 ``dvs.max_event_rate``, 12 Mev/s for a DAVIS346 device or a recording from one), never a literal;
@@ -115,7 +115,7 @@ import numpy as np
 
 from necviz.core.checks import check_number
 from necviz.core.control.controller import CameraLimits, Controller, ControllerOptions, ExposureCommand, Tunable
-from necviz.core.control.flicker import FlickerWatch
+from necviz.core.control.flicker_watch import FlickerWatch
 from necviz.core.crf import US_PER_S
 from necviz.core.errors import ParameterError
 from necviz.core.frames import Frame
@@ -294,7 +294,7 @@ class NECOptions(ControllerOptions):
         already saw (module docstring, "Events that lag").
     flicker_rule : bool
         A window at the bus ceiling that is a flickering light's swing (the ceiling windows' direction
-        reverses within a frame interval, :class:`~necviz.core.control.flicker.FlickerWatch`) is not
+        reverses within a frame interval, :class:`~necviz.core.control.flicker_watch.FlickerWatch`) is not
         a one-sided loss: it does not start the escape rule's case (a).
     zone_grid : tuple of int, optional
         ``(columns, rows)`` of the P-TEDI zones :func:`~necviz.core.control.make_controller` builds
