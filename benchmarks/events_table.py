@@ -13,8 +13,12 @@ Reads one or more sweep folders (``necviz sweep run FILE --out DIR``; the evalua
 4. every **baseline, published and tuned** (``NAME`` against ``NAME-tuned``).
 
 Pairing (docs/evaluation.md): two lanes are compared on the same scene, seed and simulator settings —
-the same lighting, the same events; the difference is taken per seed, and the interval is Student's t
-on those differences (95 %), over the seeds of a scene, or over every (scene, seed) pair of a family.
+the same lighting, the same events; the difference is taken per seed. Within one scene the interval is
+Student's t over its seeds (95 %). Over several scenes (a family, every scene) the seeds of one scene are
+not independent of each other — the scene decides most of the difference — so the interval is
+**clustered by scene**: Student's t over the scenes' mean differences (``n`` counts scenes), and for
+every scene the headline also gives a percentile bootstrap over scenes (:func:`scene_bootstrap`) and
+in how many scenes the effect lives (a scene's mean difference non-zero; :func:`scene_counts`).
 ``nec-frames`` never receives an event, so its runs do not depend on the ceiling: NEC at every ceiling
 is paired with ``nec-frames`` at the same scene, seed, latency and transition. A negative difference
 in saturated frames means the first lane saturated fewer frames.
@@ -44,14 +48,18 @@ import numpy as np
 DEFAULT_CEILING = 12e6
 DEFAULT_LATENCY_US = 1000.0
 #: the ladder's rungs in order (sweeps/ladder.toml; its ends run in sweeps/heldout.toml)
-LADDER = ("nec-paper", "nec@bound", "nec@median", "nec@goal", "nec@escape", "nec@compensation", "nec")
+LADDER = ("nec-paper", "nec@bound", "nec@median", "nec@goal", "nec@escape", "nec")
+#: what every rung keeps of necviz's where the paper is silent (nec-paper included; docs/method.md)
+LADDER_KEPT = (
+    "f_w's smoothstep and dead band, min_command_change, the stale-command re-send, the 50 % valid-pixel "
+    "skip threshold, the first anchor on any frame"
+)
 LADDER_STEP = {
     "nec@bound": "+ saturation bound",
     "nec@median": "+ median metering",
     "nec@goal": "+ measured goal (100 DN)",
     "nec@escape": "+ escape rule",
-    "nec@compensation": "+ compensation",
-    "nec": "+ lagging events absorbed at a bound (the default)",
+    "nec": "+ lagging events absorbed at a bound, + the flicker rule (the default)",
 }
 BASELINES = ("navid", "shim", "begin")
 
@@ -66,6 +74,48 @@ def t_ci(values) -> tuple[float, float, int]:
     from scipy.stats import t
 
     return float(v.mean()), float(t.ppf(0.975, v.size - 1) * v.std(ddof=1) / math.sqrt(v.size)), int(v.size)
+
+
+def clustered(by_scene) -> tuple[float, float, int]:
+    """``(mean, 95 % half-width, scenes)``: Student's t over the scenes' mean paired differences.
+
+    ``by_scene``: ``{scene: [(seed, diff, a, b), ...]}`` (:func:`paired`). With the same seeds in every
+    scene the mean equals the mean over pairs; the interval treats a scene, not a pair, as the replicate.
+    """
+    means = [float(np.mean([x[1] for x in items])) for items in by_scene.values() if items]
+    return t_ci(means)
+
+
+def scene_bootstrap(by_scene, resamples: int = 10_000, seed: int = 0) -> tuple[float, float]:
+    """95 % percentile bootstrap interval of the mean paired difference, resampling whole scenes (with
+    their seeds) with replacement; a fixed generator seed, so the interval is reproducible."""
+    groups = [np.asarray([x[1] for x in items], np.float64) for items in by_scene.values() if items]
+    if not groups:
+        return math.nan, math.nan
+    sums = np.array([g.sum() for g in groups])
+    counts = np.array([g.size for g in groups], np.float64)
+    rng = np.random.default_rng(seed)
+    pick = rng.integers(0, len(groups), size=(resamples, len(groups)))
+    boot = sums[pick].sum(axis=1) / counts[pick].sum(axis=1)
+    lo, hi = np.percentile(boot, [2.5, 97.5])
+    return float(lo), float(hi)
+
+
+def scene_counts(by_scene) -> dict:
+    """In how many scenes the effect lives: scenes whose mean difference is below / above / at zero, those
+    whose interval over seeds excludes zero, and the pairs that are exactly zero."""
+    out = {"scenes": 0, "negative": 0, "positive": 0, "zero": 0, "significant": 0, "pairs": 0, "zero_pairs": 0}
+    for items in by_scene.values():
+        d = [x[1] for x in items]
+        if not d:
+            continue
+        m, ci, _ = t_ci(d)
+        out["scenes"] += 1
+        out["negative" if m < 0 else "positive" if m > 0 else "zero"] += 1
+        out["significant"] += bool(m != 0 and math.isfinite(ci) and abs(m) > ci)
+        out["pairs"] += len(d)
+        out["zero_pairs"] += sum(1 for x in d if x == 0)
+    return out
 
 
 def scene_name(label: str) -> str:
@@ -214,17 +264,23 @@ def paired(idx, a: str, b: str, metric: str, where, b_any_ceiling: bool = False)
     return by_scene
 
 
-def fmt(mean, ci, n=None, digits=1) -> str:
+def fmt(mean, ci, n=None, digits=1, what: str = "") -> str:
+    """``+1.2 ± 0.4 (n=5)``; ``what`` names what ``n`` counts (``scenes``: a clustered interval)."""
     if not math.isfinite(mean):
         return "—"
     s = f"{mean:+.{digits}f}" if n is not None else f"{mean:.{digits}f}"
     if ci and ci > 0:
         s += f" ± {ci:.{digits}f}"
-    return s + (f" (n={n})" if n is not None else "")
+    if n is None:
+        return s
+    if what and n == 1:
+        what = what.removesuffix("s")
+    return s + (f" ({n} {what})" if what else f" (n={n})")
 
 
 def diff_cells(by_scene) -> tuple[dict, dict]:
-    """Per scene and per family: ``(mean a, mean b, mean diff, ci, n)``."""
+    """Per scene ``(mean a, mean b, mean diff, ci over seeds, seeds)`` and per family ``(mean a, mean b,
+    mean diff, ci clustered by scene, scenes)`` (:func:`clustered`)."""
     scenes, fams = {}, defaultdict(list)
     for s, items in sorted(by_scene.items()):
         d = [x[1] for x in items]
@@ -233,7 +289,7 @@ def diff_cells(by_scene) -> tuple[dict, dict]:
         fams[family(s)].extend(items)
     fam = {}
     for f, items in sorted(fams.items()):
-        m, ci, n = t_ci([x[1] for x in items])
+        m, ci, n = clustered({s: v for s, v in by_scene.items() if family(s) == f})
         fam[f] = (float(np.mean([x[2] for x in items])), float(np.mean([x[3] for x in items])), m, ci, n)
     return scenes, fam
 
@@ -248,19 +304,37 @@ def section_events(idx, metric, out: list, data: dict) -> None:
         return
     scenes, fams = diff_cells(by_scene)
     allpairs = [x for items in by_scene.values() for x in items]
-    m, ci, n = t_ci([x[1] for x in allpairs])
+    m, ci, n = clustered(by_scene)
     overall = (float(np.mean([x[2] for x in allpairs])), float(np.mean([x[3] for x in allpairs])), m, ci, n)
-    data["events"] = {"scenes": scenes, "families": fams, "all": overall}
+    counts = scene_counts(by_scene)
+    boot = scene_bootstrap(by_scene)
+    data["events"] = {
+        "scenes": scenes,
+        "families": fams,
+        "all": overall,
+        "all_bootstrap": list(boot),
+        "scene_counts": counts,
+    }
     out.append(f"### What events add: `nec` − `nec-frames`, {metric} (simulator defaults: 12 Mev/s, 1 ms)\n")
-    out.append("| scene | nec | nec-frames | nec − nec-frames (95 % CI, paired by seed) |")
+    out.append(
+        "Per scene: paired by seed, 95 % CI over its seeds. Every scene and each family: clustered by scene "
+        "(Student's t over the scenes' mean differences; n counts scenes)."
+    )
+    out.append(
+        f"The effect lives in {counts['negative'] + counts['positive']} of {counts['scenes']} scenes "
+        f"({counts['negative']} lower, {counts['positive']} higher; {counts['significant']} with an interval over "
+        f"seeds that excludes 0); {counts['zero_pairs']} of {counts['pairs']} scene-seed pairs differ by exactly 0. "
+        f"Bootstrap over scenes (10,000 resamples): [{boot[0]:+.2f}, {boot[1]:+.2f}].\n"
+    )
+    out.append("| scene | nec | nec-frames | nec − nec-frames (95 % CI) |")
     out.append("|---|---|---|---|")
     a, b, m, ci, n = overall
-    out.append(f"| **every scene** | {a:.2f} | {b:.2f} | **{fmt(m, ci, n, 2)}** |")
+    out.append(f"| **every scene** | {a:.2f} | {b:.2f} | **{fmt(m, ci, n, 2, 'scenes')}** |")
     for f, (a, b, m, ci, n) in fams.items():
-        out.append(f"| **{f}** (all its scenes) | {a:.2f} | {b:.2f} | **{fmt(m, ci, n, 2)}** |")
+        out.append(f"| **{f}** (all its scenes) | {a:.2f} | {b:.2f} | **{fmt(m, ci, n, 2, 'scenes')}** |")
         for s, (a, b, m, ci, n) in scenes.items():
             if family(s) == f:
-                out.append(f"| {s} | {a:.2f} | {b:.2f} | {fmt(m, ci, n, 2)} |")
+                out.append(f"| {s} | {a:.2f} | {b:.2f} | {fmt(m, ci, n, 2, 'seeds')} |")
     out.append("")
 
 
@@ -276,7 +350,7 @@ def section_sweep(idx, metric, out: list, data: dict, key: str, values, label, w
         cols.append(v)
         _, fams = diff_cells(by_scene)
         allpairs = [x for items in by_scene.values() for x in items]
-        m, ci, n = t_ci([x[1] for x in allpairs])
+        m, ci, n = clustered(by_scene)
         fams["all"] = (float(np.mean([x[2] for x in allpairs])), float(np.mean([x[3] for x in allpairs])), m, ci, n)
         for f, cell in fams.items():
             rows.setdefault(f, {})[v] = cell
@@ -284,14 +358,17 @@ def section_sweep(idx, metric, out: list, data: dict, key: str, values, label, w
         return
     data[key] = {f: {str(v): c for v, c in cells.items()} for f, cells in rows.items()}
     out.append(f"### `nec` − `nec-frames` over the {label}, {metric}\n")
-    out.append("Each cell: mean of nec / nec-frames, then their paired difference ± 95 % CI (n pairs).\n")
+    out.append(
+        "Each cell: mean of nec / nec-frames, then their paired difference ± 95 % CI clustered by scene "
+        "(t over the scenes' mean differences; n scenes).\n"
+    )
     out.append("| family | " + " | ".join(str(_label(key, v)) for v in cols) + " |")
     out.append("|---|" + "---|" * len(cols))
     for f in sorted(rows, key=lambda x: (x == "all", x)):
         cells = []
         for v in cols:
             c = rows[f].get(v)
-            cells.append("—" if c is None else f"{c[0]:.2f} / {c[1]:.2f}: {fmt(c[2], c[3], c[4], 2)}")
+            cells.append("—" if c is None else f"{c[0]:.2f} / {c[1]:.2f}: {fmt(c[2], c[3], c[4], 2, 'scenes')}")
         out.append(f"| {'**all**' if f == 'all' else f} | " + " | ".join(cells) + " |")
     out.append("")
 
@@ -310,7 +387,11 @@ def section_ladder(idx, metric, out: list, data: dict) -> None:
         return
     out.append(f"### The ladder from `nec-paper` to `nec`, {metric} (simulator defaults)\n")
     out.append("Each rung adds one necviz addition to the one above it. Mean per family, then the rung's paired")
-    out.append("difference from the rung above ± 95 % CI (n pairs: scenes × seeds).\n")
+    out.append(
+        "difference from the rung above ± 95 % CI clustered by scene (t over the scenes' means; n scenes). `nec-paper` is the paper where"
+    )
+    out.append("the paper is specific (its TEDI compensation included); every rung keeps necviz's choices where it is")
+    out.append(f"silent: {LADDER_KEPT}.\n")
     fams = sorted({k[1] for k in idx if k[0] in present})
     fams = sorted({family(s) for s in fams})
     header = "| rung | " + " | ".join(fams) + " |"
@@ -330,10 +411,9 @@ def section_ladder(idx, metric, out: list, data: dict) -> None:
             cell = f"{mean:.2f}" if vals else "—"
             if prev is not None:
                 by_scene = paired(idx, rung, prev, metric, lambda r, f=f: default_condition(r) and r["family"] == f)
-                allp = [x[1] for items in by_scene.values() for x in items]
-                m, ci, n = t_ci(allp)
+                m, ci, n = clustered(by_scene)
                 if n:
-                    cell += f" ({fmt(m, ci, n, 2)})"
+                    cell += f" ({fmt(m, ci, n, 2, 'scenes')})"
                 data["ladder"].setdefault(rung, {})[f] = {"mean": mean, "step": [m, ci, n]}
             else:
                 data["ladder"].setdefault(rung, {})[f] = {"mean": mean}
@@ -355,7 +435,10 @@ def section_baselines(idx, metric, out: list, data: dict) -> None:
         return
     fams = sorted({family(k[1]) for k in idx if k[0] in present})
     out.append(f"### Baselines, published and tuned, {metric} (simulator defaults)\n")
-    out.append("Mean per family; in brackets the tuned − published paired difference ± 95 % CI. `nec` for reference.\n")
+    out.append(
+        "Mean per family ± 95 % CI clustered by scene (t over the scenes' means); in brackets the tuned − published "
+        "paired difference, clustered the same way. `nec` for reference.\n"
+    )
     out.append("| controller | " + " | ".join(fams) + " | every scene |")
     out.append("|---|" + "---|" * (len(fams) + 1))
     data["baselines"] = {}
@@ -369,18 +452,27 @@ def section_baselines(idx, metric, out: list, data: dict) -> None:
                 for k, r in idx.items()
                 if k[0] == name and (f == "all" or family(k[1]) == f) and default_condition(r)
             ]
-            vals = [v for v in vals if v is not None]
-            m, ci, n = t_ci(vals)
+            per_scene = defaultdict(list)
+            for k, r in idx.items():
+                if (
+                    k[0] == name
+                    and (f == "all" or family(k[1]) == f)
+                    and default_condition(r)
+                    and r[metric] is not None
+                ):
+                    per_scene[k[1]].append(float(r[metric]))
+            m, ci, n = t_ci([float(np.mean(v)) for v in per_scene.values()])
+            if n:
+                m = float(np.mean([v for v in vals if v is not None]))  # the mean over runs; the interval over scenes
             cell = fmt(m, ci, None, 2) if n else "—"
             if name.endswith("-tuned"):
                 base = name[: -len("-tuned")]
                 by = paired(
                     idx, name, base, metric, lambda r, f=f: default_condition(r) and (f == "all" or r["family"] == f)
                 )
-                d = [x[1] for items in by.values() for x in items]
-                dm, dci, dn = t_ci(d)
+                dm, dci, dn = clustered(by)
                 if dn:
-                    cell += f" ({fmt(dm, dci, dn, 2)})"
+                    cell += f" ({fmt(dm, dci, dn, 2, 'scenes')})"
             data["baselines"].setdefault(name, {})[f] = [m, ci, n]
             cells.append(cell)
         out.append(f"| `{name}` | " + " | ".join(cells) + " |")

@@ -12,7 +12,8 @@ with parameters the same treatment (docs/evaluation.md):
   controller's variants, so tuning can only keep it or beat it on the training runs. The DAVIS
   built-in rule and the fixed exposure have no parameters to tune (the built-in rule is the camera's
   own fixed algorithm; a fixed exposure's only parameter is the exposure): they are not tuned.
-* **Training runs**: the five presets × seeds ``0..N-1`` (default 5), every change moved by a seeded
+* **Training runs**: the five presets and the deep-flicker training scenes (``benchmarks/training/*.toml``)
+  × seeds ``0..N-1`` (default 5), every change moved by a seeded
   random phase against the 20 ms frame clock (``change_jitter_ms = 10``), so the seeds are
   independent replicates. Every variant of every controller runs as a lane of the same rig (same
   scene, same events), so they are compared on identical input.
@@ -46,6 +47,9 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 PRESETS = ["tunnel_exit", "indoor_outdoor", "flicker", "static_lab", "handheld_scan"]
+#: the deep mains-flicker training scenes (issue 30): 100 and 120 Hz, depths to 0.95, PWM, a switched light,
+#: a tunnel exit under flickering lamps; training only, like the presets
+TRAINING_FILES = sorted(str(p.relative_to(ROOT)) for p in (HERE / "training").glob("*.toml"))
 #: variants per controller: the budget every controller gets
 VARIANTS = 20
 #: training seeds move each lighting change by a seeded uniform offset in [-10, +10] ms: a uniform phase
@@ -188,7 +192,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=5, help="training seeds per preset (0..N-1)")
     ap.add_argument("--controllers", default="nec,navid,shim,begin", help="controllers to tune")
-    ap.add_argument("--scenarios", default=",".join(PRESETS))
+    ap.add_argument("--scenarios", default=",".join(PRESETS + TRAINING_FILES))
     ap.add_argument("--duration", type=float, default=None, help="simulated seconds per run (default: the preset's)")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--json", default=str(HERE / "results" / "tuning.json"))
@@ -225,7 +229,7 @@ def main() -> int:
         for k in range(args.seeds)
     ]
     print(
-        f"{len(specs)} training runs ({len(scenarios)} presets x {args.seeds} seeds), {len(lanes)} lanes each "
+        f"{len(specs)} training runs ({len(scenarios)} scenes x {args.seeds} seeds), {len(lanes)} lanes each "
         f"({VARIANTS} variants x {len(ctrls)} controllers), {args.jobs} processes",
         file=sys.stderr,
     )
@@ -243,7 +247,9 @@ def main() -> int:
         best = ranking[0][3]
         pub = next(ln for ln in mine if index[ln][1] == PUBLISHED[c])
         print(f"\n## {c}: {VARIANTS} variants, chosen by least regret at > 50 % (then > 10 %, then true valid)")
-        print(f"{'variant':40s} " + " ".join(f"{s[:13]:>13s}" for s in scenarios) + "  regret  >10% sum  valid")
+        print(
+            f"{'variant':40s} " + " ".join(f"{Path(s).stem[:13]:>13s}" for s in scenarios) + "  regret  >10% sum  valid"
+        )
         for regret, s10, ntv, ln in ranking:
             cells = " ".join(f"{table[s][ln]['saturated_frames_50']['mean']:13.1f}" for s in scenarios)
             mark = " *" if ln == best else (" (published)" if ln == pub else "")

@@ -16,8 +16,8 @@ to what the controller chose:
    frame, the longest at the highest gain for an under-exposed one. (A scene's dynamic range alone
    never forces a saturated frame: an exposure that records the median pixel validly clips at most
    half at either end; the residual's explanation says how much any single exposure could record.)
-4. ``prediction_undercount`` (:func:`rule_prediction_undercount`): a controller that uses events
-   set the exposure from P-TEDI's prediction, the frame proves the prediction missed part of the
+4. ``prediction_undercount`` (:func:`rule_prediction_undercount`): a controller whose estimator
+   received events (counted as delivered, not declared) set the exposure from P-TEDI's prediction, the frame proves the prediction missed part of the
    change — P-TEDI's change since its anchor falls short of the frame's by more than
    :data:`UNDERCOUNT_LN` (the frame clipped at one end only, :data:`ONE_SIDED`, so that its
    estimate is a bound) — *and* the events the sensor lost at its bus ceiling in that time
@@ -108,8 +108,10 @@ class Evidence:
     its clipped fractions. ``truth``: simulator ground truth (``None`` for real frames).
     ``exposure_min_us``/``exposure_max_us``/``gain_max``: the limits that applied (the tighter
     of the controller's and the camera's). ``latency_us``: a command takes effect at the first
-    exposure starting at least this long after its issue. ``sees_events``: the controller uses
-    events (NEC) or only frames (every baseline, ``nec-frames``). ``drives``: the lane's commands set this camera's exposure
+    exposure starting at least this long after its issue. ``sees_events``: events reached the
+    controller's estimator between the lane's previous frame and this one (counted where they were
+    delivered, never taken from what the controller declares: ``nec-frames`` and every baseline
+    receive none, NEC on a source without events none either). ``drives``: the lane's commands set this camera's exposure
     (``False`` in a replay). ``commands``: the lane's recent commands, oldest first.
     ``predicted_change``: P-TEDI's ln P(s) minus its anchor then; ``frame_change``: the frame's own
     estimate of ln P(s) (a bound when saturated) minus the same anchor. ``exposure_log_change``:

@@ -277,6 +277,10 @@ class LaneTelemetry:
         self._period_us: float | None = None
         self._previous: tuple[float, float] | None = None  # (over, under) of the previous frame
         self._recent: deque = deque(maxlen=4)  # (start, end, exposure x gain) of the last frames
+        # events the lane's controller had received by each exposure start, and since P-TEDI's anchor up to
+        # this frame (the diagnosis: what it saw, not what it declares)
+        self._delivered_at_start: dict[int, int] = {}
+        self._received = 0
         self._zone_sizes = None  # pixels per P-TEDI zone (weights of zone means)
 
     def bind(self, lane=None, latency_us: float | None = None, limits=None) -> None:
@@ -291,6 +295,9 @@ class LaneTelemetry:
     def exposure_start(self, t_us: int, estimator) -> None:
         """Remember P-TEDI's ln P(s) and its anchor at an exposure start (the frame's prediction error,
         the diagnosis' predicted change)."""
+        self._delivered_at_start[int(t_us)] = self._events_delivered()
+        while len(self._delivered_at_start) > ANCHOR_HISTORY:
+            del self._delivered_at_start[next(iter(self._delivered_at_start))]
         if estimator is not None and estimator.ready:
             self._zone_sizes = estimator.sizes
             try:
@@ -330,6 +337,8 @@ class LaneTelemetry:
         )
         s = rec.exposure_start_us
         pred_s, anchor_s, anchor_t = self._predicted_at_start.pop(s, (math.nan, math.nan, None))
+        since = self._delivered_at_start.get(anchor_t if anchor_t is not None else s, 0)
+        self._received = self._events_delivered() - since
         for k in [k for k in self._predicted_at_start if k < s]:  # starts whose frame never came
             del self._predicted_at_start[k]
         if estimate is not None:
@@ -402,6 +411,16 @@ class LaneTelemetry:
                 "box": [int(v) for v in box],
             }
 
+    def _events_delivered(self) -> int:
+        """Events the lane's controller has received so far: those its own estimator counted (0 for a
+        controller that has none, or that is fed none, like ``nec-frames``)."""
+        ctrl = self._lane.controller if self._lane is not None else None
+        est = getattr(ctrl, "estimator", None)
+        if est is None or not hasattr(est, "event_totals"):
+            return 0
+        on, off = est.event_totals()
+        return int(on) + int(off)
+
     def _lost_change(self, truth, anchor_t: int | None, end_us: int) -> float:
         """The log change carried by the events lost at the bus ceiling between P-TEDI's anchor (at
         ``anchor_t``) and ``end_us`` (ground truth); NaN where unknown."""
@@ -452,7 +471,7 @@ class LaneTelemetry:
             min(maxs) if maxs else None,
             min(gains) if gains else None,
             latency,
-            None if ctrl is None else ctrl.uses_events,
+            None if ctrl is None else self._received > 0,
             None if lane is None else bool(lane.drives),
             tuple(self._commands),
             pred_s - anchor_s if math.isfinite(anchor_s) else math.nan,

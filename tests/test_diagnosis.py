@@ -146,6 +146,19 @@ def test_a_lane_without_events_never_gets_prediction_undercount():
     assert lane.summary()["saturation_causes"]["prediction_undercount"] == 0
 
 
+def test_prediction_undercount_comes_from_events_delivered_not_declared(monkeypatch):
+    """A lane that declares events (``uses_events``) but whose estimator received none is a frame-only
+    lane for the diagnosis: the step NEC under-counts is not an undercount there."""
+    from necviz.core.control.nec import NECFramesController
+
+    monkeypatch.setattr(NECFramesController, "uses_events", True)  # declares events, is fed none
+    dvs = DvsParams.ideal(max_event_rate=3e5)
+    rows, lane = run(step_scene(37_500, 3.6, 9.2, ramp_us=2_000), "nec-frames", dvs=dvs)
+    assert lane._lane.controller.uses_events and lane._lane.controller.estimator.event_totals() == (0, 0)
+    sat = [r for r in rows.values() if r["saturated"]]
+    assert sat and not any(r["saturation_cause"] == "prediction_undercount" for r in sat)
+
+
 def test_a_miss_that_lost_events_do_not_explain_is_not_prediction_undercount():
     """The sensor's thresholds are 2.3x P-TEDI's (0.6 against 0.26), no event is lost: P-TEDI
     under-counts the step by more than half, but not because of the bus; the residual says so."""

@@ -78,7 +78,7 @@ def test_the_rule_is_least_regret_then_slightly_saturated_then_valid_fraction():
 
 
 # -- the events table -------------------------------------------------------------------------------
-def test_nec_minus_nec_frames_is_paired_by_seed_with_a_student_t_interval():
+def test_nec_minus_nec_frames_is_paired_by_seed_with_a_student_t_interval_clustered_by_scene():
     rows = []
     nec = {"tunnel_exit_1000": [0, 1, 0, 0], "tunnel_exit_1001": [1, 1, 2, 0]}
     frames = {"tunnel_exit_1000": [2, 2, 3, 1], "tunnel_exit_1001": [2, 3, 2, 2]}
@@ -94,10 +94,25 @@ def test_nec_minus_nec_frames_is_paired_by_seed_with_a_student_t_interval():
     half = student_t.ppf(0.975, 3) * d.std(ddof=1) / 2.0
     a, b, m, ci, n = scenes["tunnel_exit_1000"]
     assert (a, b, n) == (0.25, 2.0, 4) and m == pytest.approx(-1.75) and ci == pytest.approx(half)
-    allp = np.array([-2, -1, -3, -1, -1, -2, 0, -2], float)  # the family: every (scene, seed) pair
+    # the family: the interval is over its scenes' mean differences (-1.75, -1.25), not over its 8 pairs
+    means = np.array([-1.75, -1.25])
     _, _, m, ci, n = fams["tunnel_exit"]
-    assert n == 8 and m == pytest.approx(allp.mean())
-    assert ci == pytest.approx(student_t.ppf(0.975, 7) * allp.std(ddof=1) / math.sqrt(8))
+    assert n == 2 and m == pytest.approx(means.mean())
+    assert ci == pytest.approx(student_t.ppf(0.975, 1) * means.std(ddof=1) / math.sqrt(2))
+    # in how many scenes the effect lives, and a bootstrap that resamples whole scenes
+    counts = events_table.scene_counts(by)
+    assert counts["scenes"] == 2 and counts["negative"] == 2 and counts["zero_pairs"] == 1 and counts["pairs"] == 8
+    lo, hi = events_table.scene_bootstrap(by)
+    assert -1.75 <= lo <= hi <= -1.25  # only the two scenes' means can be drawn
+
+
+def test_a_scene_that_always_differs_by_zero_counts_as_no_effect():
+    by = {"a": [(0, -2.0, 0, 2), (1, -2.0, 0, 2)], "b": [(0, 0.0, 1, 1), (1, 0.0, 1, 1)], "c": [(0, 0.0, 0, 0)]}
+    counts = events_table.scene_counts(by)
+    assert (counts["scenes"], counts["negative"], counts["zero"], counts["zero_pairs"]) == (3, 1, 2, 3)
+    m, ci, n = events_table.clustered(by)
+    assert n == 3 and m == pytest.approx(-2.0 / 3)  # one scene of three carries the effect: not significant
+    assert ci > abs(m)
 
 
 def test_nec_at_any_ceiling_pairs_with_nec_frames_but_latency_must_match():
@@ -136,7 +151,7 @@ def test_the_tables_name_each_rung_and_each_tuned_baseline():
     assert data["ladder"]["nec@bound"]["flicker"]["step"][:2] == [-2.0, 0.0]
     out, data = [], {}
     events_table.section_baselines(idx, "saturated_frames_50", out, data)
-    assert "| `navid-tuned` | 3.00 (-1.00 (n=3)) |" in "\n".join(out)
+    assert "| `navid-tuned` | 3.00 (-1.00 (1 scene)) |" in "\n".join(out)
     out, data = [], {}
     events_table.section_events(idx, "saturated_frames_50", out, data)
     last = 10 - 2 * (len(events_table.LADDER) - 1)  # nec, the ladder's last rung

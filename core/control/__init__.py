@@ -99,14 +99,20 @@ def _build_nec_frames(ctx: ControllerContext, options: ControllerOptions | None)
     return NECFramesController(est, ctx.limits, ctx.exposure_us, ctx.gain, options, ctx.event_rate_max)
 
 
-#: ``nec-paper``'s options: every necviz addition switched off (the paper's controller exactly)
+#: ``nec-paper``'s options: every necviz addition switched off, the paper's setting wherever the paper is
+#: specific — including its TEDI compensation (Eq. 6: the trilinear TEDI applies ``a±, b±``; with the shipped
+#: simulator profile, whose ``a = b = 0``, on and off are the same). What the paper leaves open stays
+#: necviz's and is named in ``nec-paper``'s description and the ladder (docs/method.md): f_w's smoothstep and
+#: dead band, ``min_command_change``, the stale-command re-send, the 50 % valid-pixel skip threshold, the
+#: first anchor on any frame.
 PAPER_OPTIONS = {
     "saturation_bound": False,
     "metering": "paper",
     "goal_mode": "paper",
     "escape": False,
-    "compensation": False,
+    "compensation": True,
     "bound_lag": False,
+    "flicker_rule": False,
 }
 
 
@@ -169,7 +175,9 @@ register_controller(
     "nec-paper",
     NECController,
     _build_nec,
-    "the paper's controller exactly: mean metering, mid-point goal, skip saturated anchors, no escape, no compensation",
+    "the paper's controller where the paper is specific (mean metering, mid-point goal, skip saturated anchors, no "
+    "escape, TEDI with its compensation); necviz's where it is silent: f_w's smoothstep and dead band, "
+    "min_command_change, the stale-command re-send, the 50 % valid-pixel skip threshold",
     PAPER_OPTIONS,
 )
 register_controller(
@@ -228,7 +236,7 @@ def make_controller(
     for ``metering="zones"``); ``nec-raw`` is the same controller (same metering, goal and escape
     rule) with the compensation switched off (``a± = b± = 0``, the thresholds kept), so a
     comparison shows what the compensation adds; ``nec-paper`` is NEC with every necviz addition
-    off (:data:`PAPER_OPTIONS`); ``nec-frames`` is NEC whose estimator never sees an event.
+    off and the paper's setting where the paper is specific (:data:`PAPER_OPTIONS`); ``nec-frames`` is NEC whose estimator never sees an event.
     Controllers that use the camera response (Bégin) get ``crf``.
 
     Parameters

@@ -58,7 +58,9 @@ of the valid range, ``g(valid_min) + m`` (``d = +1``; ``g(valid_max) - m`` for `
 records it for every ``e`` in ``[0, W - m]``, ``W = g(valid_max) - g(valid_min)`` — the widest
 one-sided interval a single exposure can cover. ``m`` is ``edge_margin`` (ln). The rule ends
 at the first frame that determines the statistic with no ceiling-saturated batch since its
-exposure started. Case (a) needs the ceiling: ``bus_event_rate``, by default the source's own
+exposure started. A ceiling window that is a flickering light's swing (``flicker_rule``: the windows'
+direction reverses within a frame interval, :mod:`necviz.core.control.flicker_watch`) is not a loss and
+does not start case (a). Case (a) needs the ceiling: ``bus_event_rate``, by default the source's own
 (:class:`~necviz.drivers.source.CameraInfo` ``event_rate_max``: the simulator's configured
 ``dvs.max_event_rate``, 12 Mev/s for a DAVIS346 device or a recording from one), never a literal;
 a source without a ceiling makes case (a) impossible.
@@ -66,9 +68,16 @@ a source without a ceiling makes case (a) impossible.
 The paper's controller and necviz's additions (each one switch, so the ladder from the paper to
 the default can be measured; ``docs/method.md``): ``saturation_bound`` (P-TEDI re-anchors at the
 bound a saturated frame proves, :mod:`necviz.core.ptedi`; off: the paper's skip rule alone),
-``metering``, ``goal_mode``, ``escape`` and ``compensation`` (the profile's TEDI terms ``a±, b±``;
-off: zeroed, the thresholds kept). ``saturation_bound=False, metering="paper", goal_mode="paper",
-escape=False, compensation=False`` is the paper's controller exactly (registered as ``nec-paper``).
+``metering``, ``goal_mode``, ``escape``, ``bound_lag`` and ``flicker_rule``; ``compensation`` (the
+profile's TEDI terms ``a±, b±``; off: zeroed, the thresholds kept) is the paper's own (Eq. 6) and on in
+``nec-paper``. ``saturation_bound=False, metering="paper", goal_mode="paper", escape=False,
+bound_lag=False, flicker_rule=False`` is the paper's controller wherever the paper is specific
+(registered as ``nec-paper``). Where it is silent necviz chooses, in ``nec-paper`` as in every
+rung of the ladder: ``f_w``'s smoothstep and its dead band (:func:`error_weight`; the paper's
+Fig. 8e gives no form), ``min_command_change`` (a command must differ from the last by 1 %), the
+stale-command re-send inside the dead band (:meth:`NECController.command_for`), the skip rule's
+threshold of 50 % valid pixels (``PeripheralOptions.min_valid_fraction``) and a first anchor on
+whatever frame comes first.
 :class:`NECFramesController` (``nec-frames``) is NEC with every event kept from its estimator.
 
 Defaults, chosen by ``benchmarks/metering.py`` over every preset scenario x 10 seeds and checked
@@ -106,6 +115,7 @@ import numpy as np
 
 from necviz.core.checks import check_number
 from necviz.core.control.controller import CameraLimits, Controller, ControllerOptions, ExposureCommand, Tunable
+from necviz.core.control.flicker_watch import FlickerWatch
 from necviz.core.crf import US_PER_S
 from necviz.core.errors import ParameterError
 from necviz.core.frames import Frame
@@ -282,12 +292,17 @@ class NECOptions(ControllerOptions):
         anchor was at the bus ceiling, count the events that follow in the bound's direction only beyond
         the gap the bound closed: they are the photoreceptor's lag catching up with a change the frame
         already saw (module docstring, "Events that lag").
+    flicker_rule : bool
+        A window at the bus ceiling that is a flickering light's swing (the ceiling windows' direction
+        reverses within a frame interval, :class:`~necviz.core.control.flicker_watch.FlickerWatch`) is not
+        a one-sided loss: it does not start the escape rule's case (a).
     zone_grid : tuple of int, optional
         ``(columns, rows)`` of the P-TEDI zones :func:`~necviz.core.control.make_controller` builds
         (default: :data:`ZONE_GRID` for ``metering="zones"``, else the whole sensor).
 
-    ``saturation_bound=False, metering="paper", goal_mode="paper", escape=False, compensation=False``
-    is the paper's controller exactly (``nec-paper``).
+    ``saturation_bound=False, metering="paper", goal_mode="paper", escape=False, bound_lag=False,
+    flicker_rule=False`` (compensation on: the paper's Eq. 6) is the paper's controller wherever the
+    paper is specific (``nec-paper``; the necviz choices it keeps are named in the module docstring).
     """
 
     TUNABLE: ClassVar[tuple[Tunable, ...]] = (
@@ -347,6 +362,7 @@ class NECOptions(ControllerOptions):
     compensation: bool = True
     ceiling_rate: bool = False
     bound_lag: bool = True
+    flicker_rule: bool = True
 
     def check(self) -> None:
         if self.full_band <= self.dead_band:
@@ -355,7 +371,7 @@ class NECOptions(ControllerOptions):
             raise ParameterError(f"metering must be one of {', '.join(METERING)}, got {self.metering!r}")
         if self.goal_mode not in GOAL_MODES:
             raise ParameterError(f"goal_mode must be one of {', '.join(GOAL_MODES)}, got {self.goal_mode!r}")
-        for name in ("escape", "saturation_bound", "compensation", "ceiling_rate", "bound_lag"):
+        for name in ("escape", "saturation_bound", "compensation", "ceiling_rate", "bound_lag", "flicker_rule"):
             if not isinstance(getattr(self, name), bool):
                 raise ParameterError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if self.bus_event_rate is not None:
@@ -444,6 +460,8 @@ class NECController(Controller):
         self._counts_seen = (0, 0)
         self._win_up = 0
         self.saturated_windows = 0  # windows of events found at the bus ceiling (diagnostics)
+        self.flicker = FlickerWatch()  # which of them are a flicker's swings (flicker_rule)
+        self._sat_before = (self._sat_t, self._sat_dir)  # case (a) before the current sequence of ceiling windows
         # rate at the ceiling: counted change of each ceiling-saturated window since the anchor, the gain a
         # saturated frame calibrated, and the change credited beyond the count (ln; added to M)
         self._sat_log: list[tuple[int, float]] = []
@@ -561,6 +579,15 @@ class NECController(Controller):
     def metered(self, t_us: int | None = None) -> float:
         """``M(t)``: the metered log irradiance (module docstring) from P-TEDI's state now."""
         est = self.estimator
+        frame_level = self._flicker_level(t_us)
+        if frame_level is not None:  # a flickering light: the last frame's exposure-averaged level
+            if self.options.metering == "zones":
+                offsets = np.where(np.isfinite(self._offset), self._offset, 0.0)
+                assert self._weights is not None
+                return weighted_median(frame_level + offsets, self._weights)
+            lp = float(frame_level[0])
+            off = self._offset0
+            return lp if self.options.metering == "paper" or off != off else lp + off
         if self.options.metering == "zones":
             z = est.predict_zones(t_us)
             ok = np.isfinite(z)
@@ -577,6 +604,17 @@ class NECController(Controller):
             return lp
         off = self._offset0
         return lp + off if off == off else lp  # before the first measured offset: P-TEDI's level
+
+    def _flicker_level(self, t_us: int | None) -> np.ndarray | None:
+        """P-TEDI's exposure-averaged level over the last frame (per zone) while the light flickers
+        (``flicker_rule``, :meth:`FlickerWatch.active`), else ``None``."""
+        fe = self.last_frame_estimate
+        if not self.options.flicker_rule or fe is None:
+            return None
+        if not self.flicker.active(self.now_us if t_us is None else t_us):
+            return None
+        start = fe.log_start if fe.log_start is not None else fe.log_anchor
+        return start + fe.log_e
 
     def frame_statistic(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
         """The metering statistic of a frame's ``g(Z)`` per zone (log exposure, before ``- ln T K``)
@@ -647,11 +685,18 @@ class NECController(Controller):
             self._win_n >= BUS_FRACTION * rate * span / US_PER_S
             and abs(self._win_on) >= POLARITY_DOMINANCE * self._win_n
         ):
-            self._sat_t = t_last
-            self._sat_dir = 1 if self._win_on > 0 else -1
             self.saturated_windows += 1
-            if self.options.ceiling_rate:
-                self._ceiling_window(t_last, self._win_up, self._win_up - self._win_on)
+            d = 1 if self._win_on > 0 else -1
+            if self.options.flicker_rule and self.flicker.observe(t_last, d):  # a flicker's swing loses nothing
+                if self._sat_t >= self.flicker.sequence_start_us:  # its first swings, taken for losses
+                    self._sat_t, self._sat_dir = self._sat_before
+            else:
+                if self.flicker.sequence_start_us == t_last:
+                    self._sat_before = (self._sat_t, self._sat_dir)
+                self._sat_t = t_last
+                self._sat_dir = d
+                if self.options.ceiling_rate:
+                    self._ceiling_window(t_last, self._win_up, self._win_up - self._win_on)
         self._win_t0 = t_last
         self._win_n = 0
         self._win_on = 0

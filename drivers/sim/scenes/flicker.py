@@ -7,6 +7,7 @@ import math
 import numpy as np
 
 from necviz.drivers.sim.scene import LightingChange, db_to_log
+from necviz.drivers.sim.scenes import mains
 from necviz.drivers.sim.scenes.preset import (
     COMMON_PARAMS,
     US,
@@ -27,13 +28,15 @@ MARKER_CELL = 5
 class Flicker(PresetScene):
     """A static room lit by ambient light and a mains-powered lamp, plus a light switched on and off.
 
-    Linear irradiance ``L(x,t) = R(x) [E_a S(t) + E_l w(x) (1 + depth cos(2 pi mains_hz t))]``:
+    Linear irradiance ``L(x,t) = R(x) [E_a S(t) + E_l w(x) (1 + depth s(t))]``:
     ``R`` a structured reflectance texture, ``w`` the lamp's soft pool of light (a bright lamp
     blob at its top), ``E_l / E_a`` = ``lamp_db``, ``S(t)`` the switched light, 1 when off and
     ``switch_db`` brighter when on, toggled at ``switch_times_s`` (starting off), each switch a
     smoothstep ramp in ln S over ``switch_ms``.
 
-    ``mains_hz`` is the lamp's flicker frequency, twice the mains frequency (100 Hz on 50 Hz mains).
+    ``mains_hz`` is the lamp's flicker frequency, twice the mains frequency (100 Hz on 50 Hz mains);
+    ``s(t)`` is ``cos(2 pi mains_hz t)``, or with ``duty > 0`` a PWM-like pulse train (an LED driver:
+    full output for ``duty`` of each period; :mod:`.mains`).
     ``lamp_mask`` (bool image) marks where the lamp dominates. ``changes``: one per switch time
     (moved by ``change_jitter_ms``; ``times`` holds the switch times in s as applied).
 
@@ -47,6 +50,9 @@ class Flicker(PresetScene):
         "base_log": Param(5.0, -5.0, 15.0, "mean ln L of the ambient-lit scene (switched light off, lamp excluded)"),
         "mains_hz": Param(100.0, 1.0, 1000.0, "lamp modulation frequency, Hz"),
         "depth": Param(0.3, 0.0, 0.95, "modulation depth of the lamp"),
+        "duty": Param(
+            0.0, 0.0, 0.9, "lamp waveform: 0 sinusoidal, else a PWM pulse train on for this fraction of a period"
+        ),
         "lamp_db": Param(12.0, -20.0, 60.0, "lamp over ambient irradiance in its pool, dB"),
         "switch_db": Param(20.0, 0.0, 80.0, "switched light: on/off ratio, dB"),
         "switch_times_s": Param(
@@ -109,13 +115,17 @@ class Flicker(PresetScene):
         t = self._check_t(t_us)
         S = math.exp(self._switch(t) * self.s_log)
         out = self.A * np.float32(S)
-        mod = np.float32(1.0 + self.params["depth"] * math.cos(self.omega * t))
+        p = self.params
+        if p["duty"] > 0.0:
+            mod = np.float32(1.0 + p["depth"] * mains.modulation(t, p["mains_hz"], p["duty"]))
+        else:
+            mod = np.float32(1.0 + p["depth"] * math.cos(self.omega * t))
         out[self.roi] += self.B * mod
         return np.log(out)
 
     def max_log_rate(self, t0_us: float, t1_us: float) -> float | None:
-        m = self.params["depth"]
-        rate = m * self.omega / (1.0 - m)
+        p = self.params
+        rate = mains.max_log_rate(p["mains_hz"], p["depth"], p["duty"])
         for ts_us in self.t_us:
             if t1_us >= ts_us and t0_us <= ts_us + self.sw_us:
                 rate += self.s_log * 1.5 / max(self.sw_us, 1.0)

@@ -93,6 +93,14 @@ COMMON_PARAMS = {
         "the frame clock at its own phase; default half the APS frame interval (uniform phase over the 20 ms "
         "frame; less if changes are closer than 2j); 0: the nominal times, the same for every seed",
     ),
+    "phase_key": Param(
+        0.0,
+        0.0,
+        2.0**31 - 1,
+        "a whole number keying the change-time offsets' random stream together with the seed: scenes with "
+        "different keys draw independent phases for the same seed (a sealed set gives each scene its own); 0: "
+        "the seed alone (every scene of a family at the same offsets for a seed)",
+    ),
     "markers": Param(
         True,
         kind="flag",
@@ -387,14 +395,19 @@ class PresetScene(Scene):
     def _jitter_us(self, n: int) -> np.ndarray:
         """``n`` offsets in whole µs, independent and uniform on ``{-J, ..., +J}``; zeros when ``J = 0``.
 
-        Drawn from a stream spawned from the scene's seed (``SeedSequence(seed, spawn_key=(JITTER_STREAM,))``),
-        not from the texture generator: the same seed gives the same offsets, and jitter moves the
-        timing of a scene without changing its textures.
+        Drawn from a stream spawned from the scene's seed (``SeedSequence(seed, spawn_key=(JITTER_STREAM,))``;
+        with a non-zero ``phase_key`` ``(JITTER_STREAM, phase_key)``, so scenes with different keys draw
+        independent offsets for the same seed), not from the texture generator: the same seed gives the
+        same offsets, and jitter moves the timing of a scene without changing its textures.
         """
         J = self._jitter_bound_us()
         if J == 0:
             return np.zeros(n, np.int64)
-        rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(JITTER_STREAM,)))
+        key = self.params.get("phase_key", 0.0)
+        if key != int(key):
+            raise ParameterError(f"{self.name}: phase_key must be a whole number, got {key:g}")
+        spawn = (JITTER_STREAM,) if key == 0 else (JITTER_STREAM, int(key))
+        rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=spawn))
         return rng.integers(-J, J, size=n, endpoint=True)
 
     def _jittered_us(self, key: str, nominal_us: list[float]) -> list[float]:

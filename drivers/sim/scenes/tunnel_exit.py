@@ -11,6 +11,7 @@ import numpy as np
 from necviz.core.checks import check_number
 from necviz.core.sensor import SensorGeometry
 from necviz.drivers.sim.scene import LightingChange, db_to_log
+from necviz.drivers.sim.scenes import mains
 from necviz.drivers.sim.scenes.fiducials import PlacedMarker, paste_quad, quiet_corners
 from necviz.drivers.sim.scenes.preset import (
     COMMON_PARAMS,
@@ -140,6 +141,10 @@ class TunnelExit(PresetScene):
     than ``db_to_log(step_db)`` by the portal's share before it). ``annotations``: ``transition_us``
     (start, end), ``pedestrian_enters_us``, ``foe`` (x, y).
 
+    Lamps (``lamp_depth > 0``): the tunnel's light flickers at ``lamp_hz``, a factor
+    ``1 + lamp_depth s(t)`` on every inside surface (:mod:`.mains`; sinusoidal, or PWM with
+    ``lamp_duty``), the outside's daylight steady; the levels and the exit's size are the lamps' mean.
+
     Markers (``markers``): three signs beyond the exit facing the camera (:data:`SIGNS`), each an
     ArUco marker (ids 0-2) 1.6-2 m wide, 14, 22 and 32 m ahead when the car exits, lit by the
     outside; they grow as the car approaches (visible, :mod:`necviz.core.markers`, once 18 px wide
@@ -167,12 +172,18 @@ class TunnelExit(PresetScene):
         "pedestrian_delay_ms": Param(150.0, 0.0, 1e6, "pedestrian enters the view this long after the exit, ms"),
         "pedestrian_speed_px_s": Param(60.0, 0.0, 2000.0, "lateral pedestrian speed, px/s"),
         "pedestrian_px": Param(48.0, 8.0, 250.0, "pedestrian height, px"),
+        "lamp_depth": Param(
+            0.0, 0.0, 0.95, "the tunnel's lamps (all its light) flicker with this modulation depth; 0: steady"
+        ),
+        "lamp_hz": Param(100.0, 1.0, 1000.0, "the tunnel lamps' flicker frequency (twice the mains), Hz"),
+        "lamp_duty": Param(0.0, 0.0, 0.9, "the tunnel lamps' waveform: 0 sinusoidal, else PWM on for this fraction"),
         **COMMON_PARAMS,
     }
 
     def _build(self) -> None:
         p, rng, sensor = self.params, self._rng, self.sensor
         H, W = sensor.shape
+        self._lamps_on = False  # levels, bounds and the change's size are the lamps' mean
         self.t_exit = self._jittered_us("exit_s", [self._time_s("exit_s", 0.4) * US])[0]
         self.tr_us = p["transition_ms"] * 1e3
         self.t0_tr, self.t1_tr = self.t_exit - self.tr_us / 2, self.t_exit + self.tr_us / 2
@@ -267,10 +278,18 @@ class TunnelExit(PresetScene):
         before = self._mean_now(self.t0_tr - 1.0)
         after = self._mean_now(self.t1_tr + 1.0)
         self.changes = [LightingChange(int(round(self.t_exit)), "tunnel exit", after - before)]
+        self._lamps_on = True
 
     def _inside(self, t: float) -> np.ndarray:
         img = self.inside.render(self.tex_in, self.v * t)
-        return img * self.in_gain + self.in_off
+        return img * self.in_gain + self.in_off + np.float32(self._lamp_log(t))
+
+    def _lamp_log(self, t: float) -> float:
+        """ln of the tunnel lamps' flicker factor (0 while the scene is built: the levels are the mean's)."""
+        p = self.params
+        if p["lamp_depth"] <= 0.0 or not self._lamps_on:
+            return 0.0
+        return math.log1p(p["lamp_depth"] * mains.modulation(t, p["lamp_hz"], p["lamp_duty"]))
 
     def _outside(self, t: float) -> np.ndarray:
         img = self.outside.render(self.tex_out, self.v * t)
@@ -357,7 +376,8 @@ class TunnelExit(PresetScene):
         return inside
 
     def max_log_rate(self, t0_us: float, t1_us: float) -> float | None:
-        rate = self._motion_rate
+        p = self.params
+        rate = self._motion_rate + mains.max_log_rate(p["lamp_hz"], p["lamp_depth"], p["lamp_duty"])
         if t1_us >= self.t0_tr and t0_us <= self.t1_tr:
             rate += self._span * 1.5 / self.tr_us
         tt = min(max(t1_us, t0_us), self.t0_tr)
