@@ -29,6 +29,8 @@ from necviz.drivers.sim.scene import FunctionScene, LightingChange
 from necviz.options import BASELINES, COMPARE_CONTROLLERS, DEFAULT_CONTROLLERS, SceneOptions
 from necviz.pipeline import Lane, Pipeline
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 SENSOR = SensorGeometry(64, 48)
 YY, XX = np.mgrid[0:48, 0:64].astype(np.float32)
 TEXTURE = 0.5 * np.sin(XX / 3.0) * np.cos(YY / 4.0)

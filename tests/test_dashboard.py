@@ -15,6 +15,8 @@ from necviz.commands.cli import main
 from necviz.dashboard import schema as S
 from necviz.layouts import LAYOUTS, make_blueprint
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 CONTROLLERS = ("nec", "navid", "shim", "begin", "builtin", "fixed")
 DURATION_S = 1.0  # tunnel_exit: the portal is passed at 40 % of the duration
 

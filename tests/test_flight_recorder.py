@@ -20,6 +20,8 @@ from necviz.drivers.recordings import open_recording
 from necviz.flight_recorder import FlightRecorder, cause_slug
 from necviz.options import ClipOptions
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 SENSOR = SensorGeometry(32, 24, "tiny")
 BATCH_US = 1000
 

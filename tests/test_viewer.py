@@ -18,6 +18,8 @@ from conftest import SHARED_DATA
 from necviz.commands.cli import main
 from necviz.layouts import make_blueprint
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 SAMPLE = SHARED_DATA / "davis346_sample.aedat4"
 
 
