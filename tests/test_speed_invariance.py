@@ -67,6 +67,7 @@ def sim_digest(threads=None, duration_s: float = 0.3) -> str:
     return h.hexdigest()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("threads", [True, False])
 def test_simulator_packets_are_those_of_the_code_before_the_speed_work(threads):
     assert sim_digest(threads) == SIM_DIGEST
@@ -111,6 +112,7 @@ def _shim_exposures(commands):
     return np.array([float(c.split("exposure_us=")[1].split(",")[0]) for c in commands])
 
 
+@pytest.mark.slow
 def test_closed_loop_with_worker_threads_equals_the_serial_reference(monkeypatch):
     a, rec_a = _closed_loop(True, monkeypatch)
     b, rec_b = _closed_loop(False, monkeypatch)
