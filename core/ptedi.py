@@ -77,7 +77,7 @@ from necviz.core.frames import Frame
 from necviz.core.ptedi_comp import MAX_LEVEL
 from necviz.core.ptedi_frame import FrameSideMixin
 from necviz.core.ptedi_kernels import BLOCK, ptedi_close, ptedi_update, ptedi_update_whole
-from necviz.core.ptedi_side import EventSide
+from necviz.core.ptedi_side import EventSide, batch_error
 from necviz.core.regions import zone_map, zone_sizes
 from necviz.core.sensor import SensorGeometry
 from necviz.core.stream import Packet, PacketHandler, dispatch
@@ -583,18 +583,8 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
                 self._webase,
             )
         if bad >= 0:
-            ev = events[bad]
-            before = int(events["t"][bad - 1]) if bad > 0 else self.last_event_us
-            self.last_event_us = before
-            if int(ev["t"]) < before:
-                raise EventFormatError(
-                    f"event {bad} of the batch at {int(ev['t'])} µs is earlier than events already processed "
-                    f"({before} µs); the {bad} events before it were applied"
-                )
-            raise EventFormatError(
-                f"event {bad} of the batch at (x={int(ev['x'])}, y={int(ev['y'])}) lies outside the "
-                f"{self.sensor.width}x{self.sensor.height} sensor; the {bad} events before it were applied"
-            )
+            self.last_event_us = before = int(events["t"][bad - 1]) if bad > 0 else self.last_event_us
+            raise batch_error(events, bad, before, self.sensor)
         self.last_event_us = int(events["t"][-1])
 
     def begin_exposure(self, t_us: int) -> None:

@@ -94,34 +94,16 @@ def _one_advance(h, lv, k, s, r, hi):
 
 
 @nb.njit(cache=True, inline="always")
-def _one_window_integral(
-    lo,
-    hi,
-    m_on,
-    m_off,
-    inv,
-    h_on,
-    h_off,
-    l_on,
-    k_on,
-    s_on,
-    l_off,
-    k_off,
-    s_off,
-    c_on,
-    c_off,
-    a_on,
-    b_on,
-    a_off,
-    b_off,
-    r_on,
-    r_off,
-):
-    """``∫_lo^hi exp(c^T D_p(s, s+u)) du`` for one zone of a slot whose levels and sums are passed as values,
-    no events inside: ``c^T D_p = c+ (m+ + C+(u)/N) - c- (m- + C-(u)/N)`` with the per-pixel compensation
-    sums ``C±(u) = a± S± - b± u K±`` (Eq. 11, 13); the levels advance to ``hi`` as the pieces are integrated
-    (levels left behind ``lo`` are caught up first, without integrating). Returns the integral and the updated
-    ``(level, K, S)`` of both polarities. O(1 + levels crossed)."""
+def _one_window_integral(lo, hi, m_on, m_off, inv, h_on, h_off, lks, kp, rr):
+    """``∫_lo^hi exp(c^T D_p(s, s+u)) du`` for one zone of a slot, no events inside:
+    ``c^T D_p = c+ (m+ + C+(u)/N) - c- (m- + C-(u)/N)`` with the per-pixel compensation sums
+    ``C±(u) = a± S± - b± u K±`` (Eq. 11, 13). ``h_on``, ``h_off``: the zone's count histograms;
+    ``lks``: its ``(level, K, S)`` of ON then OFF; ``kp``: ``(c+, c-, a+, b+, a-, b-)``; ``rr``: ``(a+/b+, a-/b-)``.
+    The levels advance to ``hi`` as the pieces are integrated (levels left behind ``lo`` are caught up
+    first, without integrating). Returns the integral and the updated ``lks``. O(1 + levels crossed)."""
+    l_on, k_on, s_on, l_off, k_off, s_off = lks
+    c_on, c_off, a_on, b_on, a_off, b_off = kp
+    r_on, r_off = rr
     total = 0.0
     act_on = a_on > 0.0
     act_off = a_off > 0.0
@@ -145,7 +127,7 @@ def _one_window_integral(
             total += exp_linear_integral(alpha + beta * lo, beta, end - lo)
             lo = end
         if u_on == math.inf and u_off == math.inf:
-            return total, l_on, k_on, s_on, l_off, k_off, s_off
+            return total, (l_on, k_on, s_on, l_off, k_off, s_off)
         if u_on == end:  # the pixels with count level + 1 stop being compensated here
             l_on += 1
             hk = h_on[l_on]
@@ -159,6 +141,18 @@ def _one_window_integral(
 
 
 # -- the steps of the per-event loop (inlined into side_update and side_update_one) --------------------
+#
+# Bundles passed to the loops: ev = (t, x, y, p) the event fields; counts = (counts_on, counts_off, 1/N)
+# per zone; slots = (hist, lev, kk, ss, start_t, c0_on, c0_off, w_last, w_int), the side's per-slot arrays
+# (module notes; c0_*: the zone counts at the slot's start, w_*: the running exposure integral and its
+# last time); kp = (c+, c-, a+, b+, a-, b-).
+
+
+@nb.njit(cache=True, inline="always")
+def _ratios(kp):
+    """``(a+/b+, a-/b-)``: µs per count of each polarity's knee (``inf`` where ``b = 0``)."""
+    a_on, b_on, a_off, b_off = kp[2], kp[3], kp[4], kp[5]
+    return (a_on / b_on if b_on > 0.0 else math.inf, a_off / b_off if b_off > 0.0 else math.inf)
 
 
 @nb.njit(cache=True, inline="always")
@@ -183,63 +177,17 @@ def _fits(pc, pix, live, q, cap):
 
 
 @nb.njit(cache=True, inline="always")
-def _window_step(
-    ti,
-    last,
-    start,
-    n_on,
-    n_off,
-    base_on,
-    base_off,
-    inv,
-    h_on,
-    h_off,
-    l_on,
-    k_on,
-    s_on,
-    l_off,
-    k_off,
-    s_off,
-    c_on,
-    c_off,
-    a_on,
-    b_on,
-    a_off,
-    b_off,
-    r_on,
-    r_off,
-):
+def _window_step(ti, last, start, n_on, n_off, base_on, base_off, inv, h_on, h_off, lks, kp, rr):
     """Step 3: the open exposure's integral (Eq. 13) from its last event ``last`` to the event at ``ti``, no
     event between: one ``exp`` while no pixel of the zone is compensated (at the kept level, hence at the
     current one: a constant exponent), else the closed-form pieces of :func:`_one_window_integral`.
-    Returns the piece and the slot's updated ``(level, K, S)`` of both polarities. O(1 + levels crossed)."""
+    ``n_*``: the zone's counts now, ``base_*`` at the exposure's start. Returns the piece and the slot's
+    updated ``(level, K, S)`` of both polarities. O(1 + levels crossed)."""
     m_on = (n_on - base_on) * inv
     m_off = (n_off - base_off) * inv
-    if (k_on == 0 or not a_on > 0.0) and (k_off == 0 or not a_off > 0.0):
-        return math.exp(c_on * m_on - c_off * m_off) * float(ti - last), l_on, k_on, s_on, l_off, k_off, s_off
-    return _one_window_integral(
-        float(last - start),
-        float(ti - start),
-        m_on,
-        m_off,
-        inv,
-        h_on,
-        h_off,
-        l_on,
-        k_on,
-        s_on,
-        l_off,
-        k_off,
-        s_off,
-        c_on,
-        c_off,
-        a_on,
-        b_on,
-        a_off,
-        b_off,
-        r_on,
-        r_off,
-    )
+    if (lks[1] == 0 or not kp[2] > 0.0) and (lks[4] == 0 or not kp[4] > 0.0):
+        return math.exp(kp[0] * m_on - kp[1] * m_off) * float(ti - last), lks
+    return _one_window_integral(float(last - start), float(ti - start), m_on, m_off, inv, h_on, h_off, lks, kp, rr)
 
 
 @nb.njit(cache=True, inline="always")
@@ -258,52 +206,28 @@ def _count_up(h, n, lv, k, s):
 
 
 @nb.njit(cache=True, inline="always")
-def _follow_time(hist, s, z, lev, kk, ss, a_on, a_off, r_on, r_off, u):
+def _follow_time(slots, s, z, kp, rr, u):
     """Step 5, once per batch: the levels of slot ``s``, zone ``z`` follow time to ``u`` (both polarities)."""
-    if a_on > 0.0:
-        comp_sweep(hist, s, 0, z, lev, kk, ss, r_on, u)
-    if a_off > 0.0:
-        comp_sweep(hist, s, 1, z, lev, kk, ss, r_off, u)
+    hist, lev, kk, ss = slots[0], slots[1], slots[2], slots[3]
+    if kp[2] > 0.0:
+        comp_sweep(hist, s, 0, z, lev, kk, ss, rr[0], u)
+    if kp[4] > 0.0:
+        comp_sweep(hist, s, 1, z, lev, kk, ss, rr[1], u)
+
+
+@nb.njit(cache=True, inline="always")
+def _slot_state(lev, kk, ss, s, z):
+    """Slot ``s``, zone ``z``: ``(level, K, S)`` of ON then OFF."""
+    return (lev[s, 0, z], kk[s, 0, z], ss[s, 0, z], lev[s, 1, z], kk[s, 1, z], ss[s, 1, z])
 
 
 # -- the per-event loop ---------------------------------------------------------------------------------
 
 
 @nb.njit(cache=True)
-def side_update(
-    t,
-    x,
-    y,
-    p,
-    zflat,
-    whole,
-    width,
-    height,
-    last_t,
-    counts_on,
-    counts_off,
-    inv_n,
-    pc,
-    live,
-    integ,
-    hist,
-    lev,
-    kk,
-    ss,
-    start_t,
-    c0_on,
-    c0_off,
-    w_last,
-    w_int,
-    c_on,
-    c_off,
-    a_on,
-    b_on,
-    a_off,
-    b_off,
-):
+def side_update(ev, zflat, whole, width, height, last_t, counts, pc, live, integ, slots, kp):
     """Apply an event batch to every live slot of an :class:`~necviz.core.ptedi_side.EventSide` (Eq. 11
-    with the Eq. 6 terms per pixel, for any number of reference times and zones).
+    with the Eq. 6 terms per pixel, for any number of reference times and zones; bundles: see above).
 
     ``live``: the slot positions (1..M) to update; slot ``s`` keeps its pixels' counts in ``pc`` columns
     ``2 (s - 1) + q``; ``integ[s]``: an exposure from the slot's start is open (its integral runs). Per
@@ -315,8 +239,10 @@ def side_update(
     Returns ``(index, code, last time)``: code 0 all applied, 1 time decreased, 2 coordinates off the
     sensor, 3 a histogram is full (grow it and resume at ``index``).
     """
-    r_on = a_on / b_on if b_on > 0.0 else math.inf
-    r_off = a_off / b_off if b_off > 0.0 else math.inf
+    t, x, y, p = ev
+    counts_on, counts_off, inv_n = counts
+    hist, lev, kk, ss, start_t, c0_on, c0_off, w_last, w_int = slots
+    rr = _ratios(kp)
     cap = hist.shape[3]
     prev = last_t
     stop = -1
@@ -340,32 +266,12 @@ def side_update(
         for j in range(live.shape[0]):
             s = live[j]
             if integ[s] and ti > w_last[s, z]:
-                piece, lev[s, 0, z], kk[s, 0, z], ss[s, 0, z], lev[s, 1, z], kk[s, 1, z], ss[s, 1, z] = _window_step(
-                    ti,
-                    w_last[s, z],
-                    start_t[s],
-                    counts_on[z],
-                    counts_off[z],
-                    c0_on[s, z],
-                    c0_off[s, z],
-                    inv_n[z],
-                    hist[s, 0, z],
-                    hist[s, 1, z],
-                    lev[s, 0, z],
-                    kk[s, 0, z],
-                    ss[s, 0, z],
-                    lev[s, 1, z],
-                    kk[s, 1, z],
-                    ss[s, 1, z],
-                    c_on,
-                    c_off,
-                    a_on,
-                    b_on,
-                    a_off,
-                    b_off,
-                    r_on,
-                    r_off,
-                )
+                hs = hist[s]
+                piece, lks = _window_step(
+                    ti, w_last[s, z], start_t[s], counts_on[z], counts_off[z], c0_on[s, z], c0_off[s, z],
+                    inv_n[z], hs[0, z], hs[1, z], _slot_state(lev, kk, ss, s, z), kp, rr,
+                )  # fmt: skip
+                lev[s, 0, z], kk[s, 0, z], ss[s, 0, z], lev[s, 1, z], kk[s, 1, z], ss[s, 1, z] = lks
                 w_int[s, z] += piece
                 w_last[s, z] = ti
             col = 2 * (s - 1) + q
@@ -380,43 +286,12 @@ def side_update(
         s = live[j]
         if not integ[s] and prev >= start_t[s]:
             for z in range(counts_on.shape[0]):
-                _follow_time(hist, s, z, lev, kk, ss, a_on, a_off, r_on, r_off, float(prev - start_t[s]))
+                _follow_time(slots, s, z, kp, rr, float(prev - start_t[s]))
     return stop, code, prev
 
 
 @nb.njit(cache=True)
-def side_update_one(
-    t,
-    x,
-    y,
-    p,
-    zflat,
-    whole,
-    width,
-    height,
-    last_t,
-    counts_on,
-    counts_off,
-    inv_n,
-    pc,
-    live,
-    ws,
-    hist,
-    lev,
-    kk,
-    ss,
-    start_t,
-    c0_on,
-    c0_off,
-    w_last,
-    w_int,
-    c_on,
-    c_off,
-    a_on,
-    b_on,
-    a_off,
-    b_off,
-):
+def side_update_one(ev, zflat, whole, width, height, last_t, counts, pc, live, ws, slots, kp):
     """:func:`side_update` for one zone (``zflat`` 0 or -1) with at most one integrating slot ``ws`` (0: none),
     the usual case (one estimator, or the lanes of a rig starting their exposures together). Same steps, same
     floating-point operations in the same order, so the same state bit for bit; but slot ``ws`` and one other
@@ -425,8 +300,10 @@ def side_update_one(
     at every event (the compiler cannot keep those in registers, not knowing that the arrays do not overlap).
     Per event: O(live slots) plus the levels crossed; returns what :func:`side_update` returns.
     """
-    r_on = a_on / b_on if b_on > 0.0 else math.inf
-    r_off = a_off / b_off if b_off > 0.0 else math.inf
+    t, x, y, p = ev
+    counts_on, counts_off, inv_n = counts
+    hist, lev, kk, ss, start_t, c0_on, c0_off, w_last, w_int = slots
+    rr = _ratios(kp)
     cap = hist.shape[3]
     n_on = counts_on[0]
     n_off = counts_off[0]
@@ -445,8 +322,7 @@ def side_update_one(
             nrest += 1
     wcol = 2 * (ws - 1)
     h1_on, h1_off = hist[ws, 0, 0], hist[ws, 1, 0]
-    l1_on, k1_on, s1_on = lev[ws, 0, 0], kk[ws, 0, 0], ss[ws, 0, 0]
-    l1_off, k1_off, s1_off = lev[ws, 1, 0], kk[ws, 1, 0], ss[ws, 1, 0]
+    l1_on, k1_on, s1_on, l1_off, k1_off, s1_off = _slot_state(lev, kk, ss, ws, 0)
     wl = w_last[ws, 0]
     wi = w_int[ws, 0]
     w_start = start_t[ws]
@@ -454,8 +330,7 @@ def side_update_one(
     base_off = c0_off[ws, 0]
     ocol = 2 * (so - 1)
     h2_on, h2_off = hist[so, 0, 0], hist[so, 1, 0]
-    l2_on, k2_on, s2_on = lev[so, 0, 0], kk[so, 0, 0], ss[so, 0, 0]
-    l2_off, k2_off, s2_off = lev[so, 1, 0], kk[so, 1, 0], ss[so, 1, 0]
+    l2_on, k2_on, s2_on, l2_off, k2_off, s2_off = _slot_state(lev, kk, ss, so, 0)
     prev = last_t
     stop = -1
     code = 0
@@ -477,32 +352,11 @@ def side_update_one(
         prev = ti
         if ws > 0:
             if ti > wl:
-                piece, l1_on, k1_on, s1_on, l1_off, k1_off, s1_off = _window_step(
-                    ti,
-                    wl,
-                    w_start,
-                    n_on,
-                    n_off,
-                    base_on,
-                    base_off,
-                    inv,
-                    h1_on,
-                    h1_off,
-                    l1_on,
-                    k1_on,
-                    s1_on,
-                    l1_off,
-                    k1_off,
-                    s1_off,
-                    c_on,
-                    c_off,
-                    a_on,
-                    b_on,
-                    a_off,
-                    b_off,
-                    r_on,
-                    r_off,
+                lks = (l1_on, k1_on, s1_on, l1_off, k1_off, s1_off)
+                piece, lks = _window_step(
+                    ti, wl, w_start, n_on, n_off, base_on, base_off, inv, h1_on, h1_off, lks, kp, rr
                 )
+                l1_on, k1_on, s1_on, l1_off, k1_off, s1_off = lks
                 wi += piece
                 wl = ti
             n = np.int64(pc[pix, wcol + q])
@@ -541,48 +395,28 @@ def side_update_one(
     for j in range(live.shape[0]):  # the levels of the live slots not integrating follow time, once per batch
         s = live[j]
         if s != ws and prev >= start_t[s]:
-            _follow_time(hist, s, 0, lev, kk, ss, a_on, a_off, r_on, r_off, float(prev - start_t[s]))
+            _follow_time(slots, s, 0, kp, rr, float(prev - start_t[s]))
     return stop, code, prev
 
 
 @nb.njit(cache=True)
-def side_close(
-    t_end, s, counts_on, counts_off, inv_n, hist, lev, kk, ss, start_t, c0_on, c0_off, w_last, w_int, kp, out
-):
+def side_close(t_end, s, counts, slots, kp, out):
     """An exposure from slot ``s``'s start ends at ``t_end``: ``out[z]`` = the slot's integral so far plus the
     closing piece (Eq. 13 from the last event to ``t_end``, no event between), computed on copies of the
     slot's levels (the slot's own stay for the other estimators whose exposures from it are still open).
-    ``kp``: ``(c+, c-, a+, b+, a-, b-)``. O(zones + levels crossed)."""
-    c_on, c_off, a_on, b_on, a_off, b_off = kp
-    r_on = a_on / b_on if b_on > 0.0 else math.inf
-    r_off = a_off / b_off if b_off > 0.0 else math.inf
+    Bundles: see above. O(zones + levels crossed)."""
+    counts_on, counts_off, inv_n = counts
+    hist, lev, kk, ss, start_t, c0_on, c0_off, w_last, w_int = slots
+    rr = _ratios(kp)
     for z in range(counts_on.shape[0]):
         m_on = (counts_on[z] - c0_on[s, z]) * inv_n[z]
         m_off = (counts_off[z] - c0_off[s, z]) * inv_n[z]
-        piece = _one_window_integral(
-            float(w_last[s, z] - start_t[s]),
-            float(t_end - start_t[s]),
-            m_on,
-            m_off,
-            inv_n[z],
-            hist[s, 0, z],
-            hist[s, 1, z],
-            lev[s, 0, z],
-            kk[s, 0, z],
-            ss[s, 0, z],
-            lev[s, 1, z],
-            kk[s, 1, z],
-            ss[s, 1, z],
-            c_on,
-            c_off,
-            a_on,
-            b_on,
-            a_off,
-            b_off,
-            r_on,
-            r_off,
-        )[0]
-        out[z] = w_int[s, z] + piece
+        lo, hi = float(w_last[s, z] - start_t[s]), float(t_end - start_t[s])
+        lks = _slot_state(lev, kk, ss, s, z)
+        out[z] = (
+            w_int[s, z]
+            + _one_window_integral(lo, hi, m_on, m_off, inv_n[z], hist[s, 0, z], hist[s, 1, z], lks, kp, rr)[0]
+        )
 
 
 @nb.njit(cache=True)

@@ -40,7 +40,22 @@ import numpy as np
 from necviz.core.errors import EventFormatError, ParameterError, StreamError
 from necviz.core.ptedi_comp import comp_between, comp_restate, comp_sums, side_close, side_update, side_update_one
 
-__all__ = ["EventSide"]
+__all__ = ["EventSide", "batch_error"]
+
+
+def batch_error(events: np.ndarray, bad: int, before: int, sensor) -> EventFormatError:
+    """The one-line error for event ``bad`` of a batch, which an event loop stopped at: earlier than
+    ``before`` (the last time applied), or off the ``sensor``; the events before it were applied."""
+    ev = events[bad]
+    if int(ev["t"]) < before:
+        return EventFormatError(
+            f"event {bad} of the batch at {int(ev['t'])} µs is earlier than events already processed "
+            f"({before} µs); the {bad} events before it were applied"
+        )
+    return EventFormatError(
+        f"event {bad} of the batch at (x={int(ev['x'])}, y={int(ev['y'])}) lies outside the "
+        f"{sensor.width}x{sensor.height} sensor; the {bad} events before it were applied"
+    )
 
 
 class EventSide:
@@ -140,6 +155,10 @@ class EventSide:
         """Slots some member uses now (its windows and anchors)."""
         return sum(r > 0 for r in self.refs[1:])
 
+    def _slots(self) -> tuple:
+        """The per-slot arrays as the kernels take them (:mod:`necviz.core.ptedi_comp`'s bundles)."""
+        return (self.hist, self.lev, self.kk, self.ss, self.start_t, self.c0_on, self.c0_off, self.w_last, self.w_int)
+
     def _words(self) -> np.ndarray:
         return self.pc.view(np.uint32 if self.pc.itemsize == 2 else np.uint64)
 
@@ -211,31 +230,18 @@ class EventSide:
         while True:
             kernel, arg = (side_update_one, integ[0] if integ else 0) if one else (side_update, self.integ)
             stop, code, last = kernel(
-                t[pos:],
-                x[pos:],
-                y[pos:],
-                p[pos:],
+                (t[pos:], x[pos:], y[pos:], p[pos:]),
                 self.zflat,
                 self.whole,
                 self.sensor.width,
                 self.sensor.height,
                 last,
-                self.counts_on,
-                self.counts_off,
-                self.inv_n,
+                (self.counts_on, self.counts_off, self.inv_n),
                 self.pc,
                 live,
                 arg,
-                self.hist,
-                self.lev,
-                self.kk,
-                self.ss,
-                self.start_t,
-                self.c0_on,
-                self.c0_off,
-                self.w_last,
-                self.w_int,
-                *self.kp,
+                self._slots(),
+                self.kp,
             )
             if code != 3:
                 break
@@ -249,16 +255,7 @@ class EventSide:
         bad = pos + stop
         before = int(t[bad - 1]) if bad > 0 else self.last_event_us
         self.last_event_us = before
-        ev = events[bad]
-        if code == 1:
-            raise EventFormatError(
-                f"event {bad} of the batch at {int(ev['t'])} µs is earlier than events already processed "
-                f"({before} µs); the {bad} events before it were applied"
-            )
-        raise EventFormatError(
-            f"event {bad} of the batch at (x={int(ev['x'])}, y={int(ev['y'])}) lies outside the "
-            f"{self.sensor.width}x{self.sensor.height} sensor; the {bad} events before it were applied"
-        )
+        raise batch_error(events, bad, before, self.sensor)
 
     def begin(self, t_us: int) -> int:
         """An exposure starts at ``t_us``: its slot (held once for it; its integral runs)."""
@@ -283,24 +280,7 @@ class EventSide:
         """An exposure from slot ``s`` ends at ``t_us``: its integral per zone, the slot's so far plus the
         closing piece (computed on copies of the slot's levels)."""
         out = np.empty(self.sizes.size)
-        side_close(
-            t_us,
-            s,
-            self.counts_on,
-            self.counts_off,
-            self.inv_n,
-            self.hist,
-            self.lev,
-            self.kk,
-            self.ss,
-            self.start_t,
-            self.c0_on,
-            self.c0_off,
-            self.w_last,
-            self.w_int,
-            self.kp,
-            out,
-        )
+        side_close(t_us, s, (self.counts_on, self.counts_off, self.inv_n), self._slots(), self.kp, out)
         self.opens[s] -= 1
         self.integ[s] = self.opens[s] > 0
         return out

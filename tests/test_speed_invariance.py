@@ -205,10 +205,10 @@ def _run_ptedi(monkeypatch, general: bool, **kw):
     if general:  # the reference: the kernel written for any number of zones
 
         def general(*args):  # side_update_one's arguments, its integrating slot ws as the flags side_update takes
-            ws, hist = args[14], args[15]
-            integ = np.zeros(hist.shape[0], np.bool_)
+            ws, slots = args[9], args[10]
+            integ = np.zeros(slots[0].shape[0], np.bool_)
             integ[ws] = ws > 0
-            return side_module.side_update(*args[:14], integ, *args[15:])
+            return side_module.side_update(*args[:9], integ, *args[10:])
 
         monkeypatch.setattr(side_module, "side_update_one", general)
     ev, frames = _ptedi_stream()
