@@ -24,7 +24,8 @@ def share_event_side(estimators) -> list:
     Returns the sides made. Estimators without compensation, or alone in their group, stay as they are."""
     groups: dict = {}
     for est in estimators:
-        if est is None or not getattr(est, "_comp", False) or len(est._side.members) > 1:
+        side = getattr(est, "event_side", None)
+        if side is None or len(side.members) > 1:
             continue
         if est.frames_seen or est.last_event_us != np.iinfo(np.int64).min or est._open >= 0:
             continue  # already fed: its state is its own
