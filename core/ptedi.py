@@ -820,15 +820,20 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
             pred = pred + (c_on * comp[0] - c_off * comp[1]) * self._inv_n
         return pred
 
+    def _scalar_times(self, t_us: int | None) -> tuple[int, int]:
+        """One zone: the prediction time (default: the last event's) and the anchor's, checked."""
+        if not math.isfinite(self.anchor_log[0]):
+            raise NotAnchoredError("P-TEDI has no anchor yet: no usable frame has arrived")
+        t = self.last_event_us if t_us is None else int(t_us)
+        g = int(self.anchor_t[0])
+        if t < g:
+            raise ParameterError(f"prediction time {t} µs precedes the anchor at {g} µs")
+        return t, g
+
     def predict(self, t_us: int | None = None) -> float:
         """Mean log irradiance ``ln P(t)`` over the anchored zones, weighted by their pixel counts."""
         if self.num_zones == 1 and not self._comp:  # scalar path: the controller calls this on every batch
-            if not math.isfinite(self.anchor_log[0]):
-                raise NotAnchoredError("P-TEDI has no anchor yet: no usable frame has arrived")
-            t = self.last_event_us if t_us is None else int(t_us)
-            g = int(self.anchor_t[0])
-            if t < g:
-                raise ParameterError(f"prediction time {t} µs precedes the anchor at {g} µs")
+            t, g = self._scalar_times(t_us)
             inv = self._inv_n0
             counts = self._counts2.tolist()
             m_on = (counts[0] - int(self.anchor_on[0])) * inv
@@ -836,12 +841,7 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
             # the kernel's Python form: called from Python, it skips Numba's dispatch
             return float(self.anchor_log[0]) + _direct_integral_py(1.0, float(t - g), m_on, m_off, *self._kp)
         if self.num_zones == 1:  # compensated, scalar: predict_zones' operations without its arrays
-            if not math.isfinite(self.anchor_log[0]):
-                raise NotAnchoredError("P-TEDI has no anchor yet: no usable frame has arrived")
-            t = self.last_event_us if t_us is None else int(t_us)
-            g = int(self.anchor_t[0])
-            if t < g:
-                raise ParameterError(f"prediction time {t} µs precedes the anchor at {g} µs")
+            t, g = self._scalar_times(t_us)
             inv = float(self._inv_n[0])
             c_on, c_off, a_on, b_on, a_off, b_off = self._kp
             m_on = (int(self.counts_on[0]) - int(self.anchor_on[0])) * inv

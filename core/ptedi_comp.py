@@ -156,14 +156,17 @@ def _ratios(kp):
 
 
 @nb.njit(cache=True, inline="always")
-def _event_pixel(ti, xi, yi, prev, width, height):
-    """Step 1: ``(0, pixel index)`` of an event, or ``(1, 0)`` when it is earlier than ``prev``, ``(2, 0)``
-    when it lies off the ``width x height`` sensor. O(1)."""
+def _event_pixel(ev, i, prev, width, height):
+    """Step 1: ``(0, time, pixel index)`` of event ``i``, or code 1 when it is earlier than ``prev``, 2 when it
+    lies off the ``width x height`` sensor. O(1)."""
+    ti = ev[0][i]
+    xi = np.int64(ev[1][i])
+    yi = np.int64(ev[2][i])
     if ti < prev:
-        return 1, np.int64(0)
+        return 1, ti, np.int64(0)
     if xi >= width or yi >= height:
-        return 2, np.int64(0)
-    return 0, yi * width + xi
+        return 2, ti, np.int64(0)
+    return 0, ti, yi * width + xi
 
 
 @nb.njit(cache=True, inline="always")
@@ -239,17 +242,14 @@ def side_update(ev, zflat, whole, width, height, last_t, counts, pc, live, integ
     Returns ``(index, code, last time)``: code 0 all applied, 1 time decreased, 2 coordinates off the
     sensor, 3 a histogram is full (grow it and resume at ``index``).
     """
-    t, x, y, p = ev
+    p = ev[3]
     counts_on, counts_off, inv_n = counts
     hist, lev, kk, ss, start_t, c0_on, c0_off, w_last, w_int = slots
     rr = _ratios(kp)
     cap = hist.shape[3]
-    prev = last_t
-    stop = -1
-    code = 0
-    for i in range(t.shape[0]):
-        ti = t[i]
-        code, pix = _event_pixel(ti, np.int64(x[i]), np.int64(y[i]), prev, width, height)
+    prev, stop, code = last_t, -1, 0
+    for i in range(ev[0].shape[0]):
+        code, ti, pix = _event_pixel(ev, i, prev, width, height)
         if code != 0:
             stop = i
             break
@@ -300,7 +300,7 @@ def side_update_one(ev, zflat, whole, width, height, last_t, counts, pc, live, w
     at every event (the compiler cannot keep those in registers, not knowing that the arrays do not overlap).
     Per event: O(live slots) plus the levels crossed; returns what :func:`side_update` returns.
     """
-    t, x, y, p = ev
+    p = ev[3]
     counts_on, counts_off, inv_n = counts
     hist, lev, kk, ss, start_t, c0_on, c0_off, w_last, w_int = slots
     rr = _ratios(kp)
@@ -331,12 +331,9 @@ def side_update_one(ev, zflat, whole, width, height, last_t, counts, pc, live, w
     ocol = 2 * (so - 1)
     h2_on, h2_off = hist[so, 0, 0], hist[so, 1, 0]
     l2_on, k2_on, s2_on, l2_off, k2_off, s2_off = _slot_state(lev, kk, ss, so, 0)
-    prev = last_t
-    stop = -1
-    code = 0
-    for i in range(t.shape[0]):
-        ti = t[i]
-        code, pix = _event_pixel(ti, np.int64(x[i]), np.int64(y[i]), prev, width, height)
+    prev, stop, code = last_t, -1, 0
+    for i in range(ev[0].shape[0]):
+        code, ti, pix = _event_pixel(ev, i, prev, width, height)
         if code != 0:
             stop = i
             break
