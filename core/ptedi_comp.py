@@ -291,14 +291,14 @@ def side_update(ev, zflat, whole, width, height, last_t, counts, pc, live, integ
 
 
 @nb.njit(cache=True)
-def side_update_one(ev, zflat, whole, width, height, last_t, counts, pc, live, ws, slots, kp):
-    """:func:`side_update` for one zone (``zflat`` 0 or -1) with at most one integrating slot ``ws`` (0: none),
-    the usual case (one estimator, or the lanes of a rig starting their exposures together). Same steps, same
-    floating-point operations in the same order, so the same state bit for bit; but slot ``ws`` and one other
-    live slot (usually the anchor's) keep their levels, sums, counts and integral in local variables
-    (registers) during the batch, written back at its end, instead of being loaded and stored through arrays
-    at every event (the compiler cannot keep those in registers, not knowing that the arrays do not overlap).
-    Per event: O(live slots) plus the levels crossed; returns what :func:`side_update` returns.
+def side_update_one(ev, zflat, whole, width, height, last_t, counts, pc, live, integ, slots, kp):
+    """:func:`side_update` (same arguments) for one zone (``zflat`` 0 or -1) and one or two live slots, of which
+    at most one integrates: the usual case (one estimator's anchor and open exposure, or the lanes of a rig
+    starting their exposures together). Same steps, same floating-point operations in the same order, so the
+    same state bit for bit; but both slots keep their levels, sums and counts (and the integrating one its
+    integral) in local variables (registers) during the batch, written back at its end, instead of being loaded
+    and stored through arrays at every event (the compiler cannot keep those in registers, not knowing that the
+    arrays do not overlap). Per event: O(1) plus the levels crossed; returns what :func:`side_update` returns.
     """
     p = ev[3]
     counts_on, counts_off, inv_n = counts
@@ -308,22 +308,22 @@ def side_update_one(ev, zflat, whole, width, height, last_t, counts, pc, live, w
     n_on = counts_on[0]
     n_off = counts_off[0]
     inv = inv_n[0]
-    # the second slot in locals (0: none) and the live slots beyond those two
-    so = 0
-    rest = np.empty(live.shape[0], np.int64)
-    nrest = 0
+    ws = 0  # the first slot in locals: the integrating one if any (runs), else the first live one
     for j in range(live.shape[0]):
-        if live[j] == ws:
-            continue
-        if so == 0:
-            so = live[j]
-        else:
-            rest[nrest] = live[j]
-            nrest += 1
+        if integ[live[j]]:
+            ws = live[j]
+    so = 0  # the second (0: none)
+    for j in range(live.shape[0]):
+        if live[j] != ws:
+            if ws == 0:
+                ws = live[j]
+            else:
+                so = live[j]
+    runs = ws > 0 and integ[ws]
     wcol = 2 * (ws - 1)
     h1_on, h1_off = hist[ws, 0, 0], hist[ws, 1, 0]
     l1_on, k1_on, s1_on, l1_off, k1_off, s1_off = _slot_state(lev, kk, ss, ws, 0)
-    wl = w_last[ws, 0]
+    wl = w_last[ws, 0] if runs else np.iinfo(np.int64).max  # (not integrating: never later than wl)
     wi = w_int[ws, 0]
     w_start = start_t[ws]
     base_on = c0_on[ws, 0]
@@ -342,48 +342,37 @@ def side_update_one(ev, zflat, whole, width, height, last_t, counts, pc, live, w
             continue
         on = p[i] > 0
         q = 0 if on else 1
-        if not _fits(pc, pix, live, q, cap):
+        n1 = np.int64(pc[pix, wcol + q])  # the pixel's counts in the two local slots
+        n2 = np.int64(pc[pix, ocol + q]) if so > 0 else np.int64(0)
+        if n1 + 2 > cap or n2 + 2 > cap:
             stop = i
             code = 3
             break
         prev = ti
-        if ws > 0:
-            if ti > wl:
-                lks = (l1_on, k1_on, s1_on, l1_off, k1_off, s1_off)
-                piece, lks = _window_step(
-                    ti, wl, w_start, n_on, n_off, base_on, base_off, inv, h1_on, h1_off, lks, kp, rr
-                )
-                l1_on, k1_on, s1_on, l1_off, k1_off, s1_off = lks
-                wi += piece
-                wl = ti
-            n = np.int64(pc[pix, wcol + q])
-            pc[pix, wcol + q] = n + 1
-            if on:
-                k1_on, s1_on = _count_up(h1_on, n, l1_on, k1_on, s1_on)
-            else:
-                k1_off, s1_off = _count_up(h1_off, n, l1_off, k1_off, s1_off)
+        if ti > wl:
+            lks = (l1_on, k1_on, s1_on, l1_off, k1_off, s1_off)
+            piece, lks = _window_step(ti, wl, w_start, n_on, n_off, base_on, base_off, inv, h1_on, h1_off, lks, kp, rr)
+            l1_on, k1_on, s1_on, l1_off, k1_off, s1_off = lks
+            wi += piece
+            wl = ti
+        pc[pix, wcol + q] = n1 + 1
         if so > 0:
-            n = np.int64(pc[pix, ocol + q])
-            pc[pix, ocol + q] = n + 1
-            if on:
-                k2_on, s2_on = _count_up(h2_on, n, l2_on, k2_on, s2_on)
-            else:
-                k2_off, s2_off = _count_up(h2_off, n, l2_off, k2_off, s2_off)
-        for j in range(nrest):
-            s = rest[j]
-            col = 2 * (s - 1) + q
-            n = np.int64(pc[pix, col])
-            kk[s, q, 0], ss[s, q, 0] = _count_up(hist[s, q, 0], n, lev[s, q, 0], kk[s, q, 0], ss[s, q, 0])
-            pc[pix, col] = n + 1
+            pc[pix, ocol + q] = n2 + 1
         if on:
+            k1_on, s1_on = _count_up(h1_on, n1, l1_on, k1_on, s1_on)
+            if so > 0:
+                k2_on, s2_on = _count_up(h2_on, n2, l2_on, k2_on, s2_on)
             n_on += 1
         else:
+            k1_off, s1_off = _count_up(h1_off, n1, l1_off, k1_off, s1_off)
+            if so > 0:
+                k2_off, s2_off = _count_up(h2_off, n2, l2_off, k2_off, s2_off)
             n_off += 1
     counts_on[0] = n_on
     counts_off[0] = n_off
-    if ws > 0:
-        lev[ws, 0, 0], kk[ws, 0, 0], ss[ws, 0, 0] = l1_on, k1_on, s1_on
-        lev[ws, 1, 0], kk[ws, 1, 0], ss[ws, 1, 0] = l1_off, k1_off, s1_off
+    lev[ws, 0, 0], kk[ws, 0, 0], ss[ws, 0, 0] = l1_on, k1_on, s1_on
+    lev[ws, 1, 0], kk[ws, 1, 0], ss[ws, 1, 0] = l1_off, k1_off, s1_off
+    if runs:
         w_last[ws, 0] = wl
         w_int[ws, 0] = wi
     if so > 0:
@@ -391,7 +380,7 @@ def side_update_one(ev, zflat, whole, width, height, last_t, counts, pc, live, w
         lev[so, 1, 0], kk[so, 1, 0], ss[so, 1, 0] = l2_off, k2_off, s2_off
     for j in range(live.shape[0]):  # the levels of the live slots not integrating follow time, once per batch
         s = live[j]
-        if s != ws and prev >= start_t[s]:
+        if not integ[s] and prev >= start_t[s]:
             _follow_time(slots, s, 0, kp, rr, float(prev - start_t[s]))
     return stop, code, prev
 

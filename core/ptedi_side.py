@@ -225,10 +225,10 @@ class EventSide:
         t, x, y, p = events["t"], events["x"], events["y"], events["p"]
         pos, last = 0, self.last_event_us
         live = np.array([s for s in range(1, len(self.refs)) if self.refs[s] > 0], np.int64)
-        integ = [s for s in live.tolist() if self.integ[s]]
-        one = self.sizes.size == 1 and len(integ) <= 1  # the usual case: one zone, one open exposure
+        # the usual case, one zone and one or two live slots of which one integrates: side_update_one
+        one = self.sizes.size == 1 and 0 < live.size <= 2 and int(self.integ[live].sum()) <= 1
+        kernel = side_update_one if one else side_update
         while True:
-            kernel, arg = (side_update_one, integ[0] if integ else 0) if one else (side_update, self.integ)
             stop, code, last = kernel(
                 (t[pos:], x[pos:], y[pos:], p[pos:]),
                 self.zflat,
@@ -239,7 +239,7 @@ class EventSide:
                 (self.counts_on, self.counts_off, self.inv_n),
                 self.pc,
                 live,
-                arg,
+                self.integ,
                 self._slots(),
                 self.kp,
             )

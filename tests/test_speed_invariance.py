@@ -203,14 +203,7 @@ def _run_ptedi(monkeypatch, general: bool, **kw):
     from necviz.core.stream import interleave
 
     if general:  # the reference: the kernel written for any number of zones
-
-        def general(*args):  # side_update_one's arguments, its integrating slot ws as the flags side_update takes
-            ws, slots = args[9], args[10]
-            integ = np.zeros(slots[0].shape[0], np.bool_)
-            integ[ws] = ws > 0
-            return side_module.side_update(*args[:9], integ, *args[10:])
-
-        monkeypatch.setattr(side_module, "side_update_one", general)
+        monkeypatch.setattr(side_module, "side_update_one", side_module.side_update)
     ev, frames = _ptedi_stream()
     est = P.PeripheralEstimator(
         DAVIS346, TediParams(0.26, 0.24, 0.45, 150.0, 0.35, 120.0), options=P.PeripheralOptions(**kw)
