@@ -28,15 +28,18 @@ arrives (after its exposure) ``ln E_p`` is one division and one log. Several zon
 - Without compensation (``a± = 0``, the default) the exponent is constant between events and
   changes by ``±c/N_R`` per event: O(1) per event, coordinates are not even read for the
   whole-sensor region (:func:`ptedi_update_whole`).
-- With compensation, each pixel's counts since the anchor and since the latest exposure start
-  are kept (one uint16 row per pixel; an exposure start zeroes the window's pair, a fill of one
-  word per pixel; re-anchoring on the latest exposure swaps the pairs, O(1)) with, per zone, a histogram of
-  those counts and the exact integer sums ``K = #{n_x > L}``, ``S = Σ_{n_x > L} n_x`` at the
-  level ``L = floor(u b/a)``, so ``C(u) = a S - b u K`` (see the notes above
-  :func:`ptedi_update_comp`). Per event O(1) plus the levels crossed as time passes (at most
-  ``b u/a`` per reference, and never more than the largest per-pixel count); between events
-  the exponent is linear in ``u`` with breakpoints at multiples of ``a/b``, integrated exactly
-  piece by piece.
+- With compensation, each pixel's counts since the anchor and since each exposure start still
+  needed are kept by the estimator's event side (:class:`~necviz.core.ptedi_side.EventSide`: one
+  uint16 row per pixel, a pair of columns per reference time; an exposure start zeroes its pair, a
+  fill of one word per pixel; re-anchoring on an exposure start takes over its pair, O(1)) with, per
+  zone, a histogram of those counts and the exact integer sums ``K = #{n_x > L}``,
+  ``S = Σ_{n_x > L} n_x`` at the level ``L = floor(u b/a)``, so ``C(u) = a S - b u K`` (see the
+  notes in :mod:`necviz.core.ptedi_comp`). Per event O(1) per reference plus the levels crossed as
+  time passes (at most ``b u/a`` per reference, and never more than the largest per-pixel count);
+  between events the exponent is linear in ``u`` with breakpoints at multiples of ``a/b``,
+  integrated exactly piece by piece. A stand-alone estimator is the one member of a side of its
+  own; the lanes of one source may share one (:func:`necviz.core.ptedi_shared.share_event_side`),
+  with the same estimates bit for bit.
 
 Anchor rule: a zone is re-anchored only on a frame whose valid-pixel fraction (9..250) in
 that zone is at least ``min_valid_fraction``; otherwise the zone keeps propagating from its
@@ -56,14 +59,13 @@ propagating from.
 Layout: this module holds the estimator (exposure windows, anchors, prediction); its frame side
 (``ln Pbar`` per zone, the saturation bounds) is in :mod:`necviz.core.ptedi_frame`, its Numba kernels
 in :mod:`necviz.core.ptedi_kernels` (no compensation; the frame pass) and :mod:`necviz.core.ptedi_comp`
-(the per-pixel compensation); the kernels are re-exported here.
+(the per-pixel compensation), whose state is the event side's (:mod:`necviz.core.ptedi_side`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -72,24 +74,13 @@ from necviz.core.errors import EventFormatError, FrameFormatError, NotAnchoredEr
 from necviz.core.event_model import TediParams, direct_integral
 from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import Frame
-from necviz.core.ptedi_comp import (
-    MAX_LEVEL,
-    comp_between,
-    comp_reanchor,
-    comp_restate,
-    comp_sums,
-    ptedi_close_comp,
-    ptedi_update_comp,
-    ptedi_update_comp_one,
-)
+from necviz.core.ptedi_comp import MAX_LEVEL
 from necviz.core.ptedi_frame import FrameSideMixin
 from necviz.core.ptedi_kernels import BLOCK, ptedi_close, ptedi_update, ptedi_update_whole
+from necviz.core.ptedi_side import EventSide, batch_error
 from necviz.core.regions import zone_map, zone_sizes
 from necviz.core.sensor import SensorGeometry
 from necviz.core.stream import Packet, PacketHandler, dispatch
-
-if TYPE_CHECKING:
-    from necviz.core.ptedi_shared import EventSide
 
 __all__ = ["FrameEstimate", "IMAGE_FORMS", "PeripheralEstimator"]
 
@@ -242,15 +233,7 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         adopts an estimator sets it (:class:`~necviz.core.control.nec.NECController`).
     """
 
-    # Per-pixel compensation state (see _comp_start): arrays while the compensation is on and the
-    # event side is the estimator's own, else None (off, or kept by a shared EventSide).
-    _pc: np.ndarray | None
-    _wsnap: np.ndarray | None
-    _wacc: list[bool] | None
-    _hist: np.ndarray | None
-    _lev: np.ndarray | None
-    _kk: np.ndarray | None
-    _ss: np.ndarray | None
+    _side: EventSide | None  # the compensation's event side (a+ or a- > 0), else None
 
     def __init__(
         self,
@@ -313,10 +296,13 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         self.frames_seen = 0
         self.frames_skipped = 0
         self.frames_bounded = 0
-        # per-pixel compensation state (only while a+ or a- > 0; see the notes above ptedi_update_comp), or
-        # an event side shared with other estimators (share_events: their slots instead of this state)
-        self._side: EventSide | None = None
-        self._comp = False
+        # the compensation (only while a+ or a- > 0): an event side of its own, or one shared with other
+        # estimators (share_events); this estimator keeps which slot each zone is anchored on and each
+        # window's slot (0: none)
+        self._side = None
+        self._seen = 0  # event batches this estimator received (the side's lock step)
+        self._wslot = [0] * max_pending
+        self._aslot = np.zeros(k, np.int64)
         if self.params.a_on > 0.0 or self.params.a_off > 0.0:
             self._comp_start()
 
@@ -331,49 +317,83 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         self._g_tab = np.exp(-c_off * self._inv_n[0] * steps)
         self._h_tab = np.exp((c_on + c_off) * self._inv_n[0] * steps)
 
+    @property
+    def event_side(self) -> EventSide | None:
+        """The compensation's event side (its own, or shared with the lanes of one source); ``None`` while
+        the compensation is off."""
+        return self._side
+
+    @property
+    def _comp(self) -> bool:
+        """The TEDI compensation is on (``a+`` or ``a- > 0``): the per-pixel path, through the event side."""
+        return self._side is not None
+
     def set_params(self, params: TediParams) -> None:
-        """Change thresholds / compensation while streaming (live tuning).
+        """Change thresholds / compensation while streaming (live tuning), for this estimator alone.
 
         Takes effect at once: predictions propagate the counts since the last anchor with the
         new values, and an exposure already open integrates with the new values from now on.
         Per-pixel counts are kept only while the compensation is on (``a+`` or ``a- > 0``):
         switched on mid-stream, it counts the events from the switch on until the next anchor
-        and exposure start (after which it is exact again).
+        and exposure start (after which it is exact again). An estimator sharing its event side
+        continues on a side of its own (with the state it would have had); to change the contrast
+        thresholds of every estimator on a side, see :meth:`set_contrast_thresholds`.
         """
         if not isinstance(params, TediParams):
             raise ParameterError("params must be a TediParams")
-        if self._side is not None:  # its own thresholds from now on: it continues on its own
-            self._side.detach(self)
+        side = self._side
+        if side is not None and len(side.members) > 1:  # its own parameters from now on: a side of its own
+            self._split()
         self._derive(params)
         comp = params.a_on > 0.0 or params.a_off > 0.0
-        if comp and not self._comp:
+        if comp and self._side is None:
             self._comp_start()
         elif comp:
-            self._comp_restate(0, np.arange(self.num_zones), self._anchor_u())
-            if self._open >= 0:
-                self._comp_restate(1, np.arange(self.num_zones), self._window_u())
-        elif self._comp:
-            self._comp = False
-            self._pc = self._wsnap = self._hist = self._lev = self._kk = self._ss = None
-            self._wacc = None
+            assert self._side is not None
+            self._side.set_params(params)
+            self._restate_own()
+        elif self._side is not None:
+            self._leave()
+        self._restart_window_base()
+
+    def set_contrast_thresholds(self, c_on: float, c_off: float) -> None:
+        """Change the contrast thresholds ``c+``, ``c-`` while streaming (live tuning of the sensor's biases).
+
+        The thresholds live in one place, the event side: with the compensation on they change for every
+        estimator sharing this one's side (the lanes of one source see the same events, hence the same
+        thresholds); the compensation ``a±, b±`` stays. Takes effect at once, as :meth:`set_params`.
+
+        Raises
+        ------
+        ParameterError
+            A threshold that is not a positive finite number.
+        """
+        for name, c in (("c_on", c_on), ("c_off", c_off)):
+            if isinstance(c, bool) or not isinstance(c, (int, float)) or not (math.isfinite(c) and c > 0.0):
+                raise ParameterError(f"{name} must be a positive number, got {c!r}")
+        if self._side is None:
+            self._derive(replace(self.params, c_on=float(c_on), c_off=float(c_off)))
+            self._restart_window_base()
+            return
+        params = self._side.set_thresholds(c_on, c_off)
+        for member in self._side.members:
+            member._derive(params)
+            member._restart_window_base()
+
+    def _restart_window_base(self) -> None:
+        """The zone kernel's running exp of an open window restarts from the counts with the current thresholds."""
         w = self._open
-        if w >= 0:  # the zone kernel's running exp restarts from the counts with the new thresholds
+        if w >= 0:
+            p = self.params
             self._webase[w] = np.exp(
-                (params.c_on * (self.counts_on - self._c0_on[w]) - params.c_off * (self.counts_off - self._c0_off[w]))
+                (p.c_on * (self.counts_on - self._c0_on[w]) - p.c_off * (self.counts_off - self._c0_off[w]))
                 * self._inv_n
             )
 
-    def set_contrast_thresholds(self, c_on: float, c_off: float) -> None:
-        """New contrast thresholds (ln), e.g. after the camera's DVS biases changed; from the next event on
-        (as :meth:`set_params`, everything else kept)."""
-        from dataclasses import replace  # (local: keeps this addition to one place)
-
-        self.set_params(replace(self.params, c_on=float(c_on), c_off=float(c_off)))
-
-    def share_events(self, side) -> None:
-        """Keep the compensation's per-pixel bookkeeping in ``side`` (a :class:`~necviz.core.ptedi_shared.EventSide`
+    def share_events(self, side: EventSide) -> None:
+        """Keep the compensation's per-pixel bookkeeping in ``side`` (an :class:`~necviz.core.ptedi_side.EventSide`
         shared with the other estimators of one source's lanes; see :func:`~necviz.core.ptedi_shared.share_event_side`).
-        Only before the first packet; estimates stay exactly those of a stand-alone estimator."""
+        Only before the first packet; estimates stay exactly those of a side of its own."""
         if not self._comp or self.frames_seen or self._open >= 0 or self.last_event_us != np.iinfo(np.int64).min:
             raise ParameterError("only a fresh compensated estimator can share its event side")
         if (
@@ -382,35 +402,91 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
             or not np.array_equal(side.zmap, self.zmap)
         ):
             raise ParameterError("estimators sharing an event side need the same sensor, region and parameters")
+        assert self._side is not None
+        self._side.members.remove(self)
+        self._join(side)
+
+    # -- the compensation's event side (Eq. 11 with the Eq. 6 terms per pixel) -----------------------
+    def _join(self, side: EventSide) -> None:
+        side.members.append(self)
         self._side = side
         self._seen = side.batches
-        self._wslot = [0] * len(self._wstate)
-        self._aslot = np.zeros(self.num_zones, np.int64)
         self.counts_on, self.counts_off = side.counts_on, side.counts_off
-        self._pc = self._wsnap = self._hist = self._lev = self._kk = self._ss = None  # the side's instead
 
-    # -- per-pixel compensation bookkeeping (Eq. 11 with the Eq. 6 terms per pixel) ---------------
+    def _own_counts(self, on: np.ndarray, off: np.ndarray) -> None:
+        """Zone counts of this estimator's own (the whole-sensor layout: views into ``_counts2``)."""
+        if self.num_zones == 1:
+            self._counts2[:] = (on[0], off[0])
+            self.counts_on, self.counts_off = self._counts2[0:1], self._counts2[1:2]
+        else:
+            self.counts_on, self.counts_off = on.copy(), off.copy()
+
     def _comp_start(self) -> None:
-        """Allocate the per-pixel counts and the per-zone histograms; counting starts now."""
-        k = self.num_zones
-        npix = self.sensor.width * self.sensor.height
-        self._comp = True
-        # per pixel, ON/OFF counts since the anchor (columns 0, 1) and since the latest exposure start
-        # (columns 2, 3; _iw = -1: not kept); uint16 until a count could overflow it (_comp_grow)
-        self._pc = np.zeros((npix, 4), np.uint16)
-        self._iw = 2
-        # per window slot awaiting its frame while a later exposure started: its counts up to that start
-        # (allocated when first needed; _wacc[w] says whether slot w holds any)
-        self._wsnap = None
-        self._wacc = [False] * len(self._wstate)
-        self._hist = np.zeros((2, 2, k, 64), np.int32)
-        self._hist[:, :, :, 0] = self.sizes
-        self._lev = np.zeros((2, 2, k), np.int64)
-        self._kk = np.zeros((2, 2, k), np.int64)
-        self._ss = np.zeros((2, 2, k), np.int64)
-        self._comp_restate(0, np.arange(k), self._anchor_u())
+        """A side of its own; counting starts now. Mid-stream (the compensation switched on), each anchor
+        and each exposure awaiting its frame gets a slot at its start, with the counts from now on."""
+        side = EventSide(self.sensor, self.zmap, self.sizes, self.params, slots=2)
+        side.counts_on[:] = self.counts_on
+        side.counts_off[:] = self.counts_off
+        side.last_event_us = self.last_event_us
+        self._join(side)
+        anchored = np.isfinite(self.anchor_log)
+        for g in sorted(set(self.anchor_t[anchored].tolist())):
+            s = side.start_late(int(g))
+            zones = anchored & (self.anchor_t == g)
+            self._aslot[zones] = s
+        for v, st in enumerate(self._wstate):
+            if st != _FREE:
+                self._wslot[v] = side.start_late(
+                    int(self._wstart[v]),
+                    (self._c0_on[v], self._c0_off[v], self._wlast[v], self._wint[v]) if v == self._open else None,
+                )
+        self._restate_own()
+
+    def _restate_own(self) -> None:
+        """Levels and sums of this estimator's anchors at the last event, and of its open exposure (its own
+        side's parameters changed)."""
+        side = self._side
+        assert side is not None
+        u = self._anchor_u()
+        for a in set(self._aslot.tolist()):
+            if a > 0:
+                side.restate(a, self._aslot == a, u)
         if self._open >= 0:
-            self._comp_restate(1, np.arange(k), self._window_u())
+            side.restate(self._wslot[self._open], np.ones(self.num_zones, np.bool_), self._window_u())
+
+    def _uses(self) -> tuple[list[int], list[int]]:
+        """The slots this estimator uses (windows, then the anchors' once each) and how often."""
+        slots = [s for s in self._wslot if s > 0] + [a for a in set(self._aslot.tolist()) if a > 0]
+        return slots, [slots.count(s) for s in slots]
+
+    def _split(self) -> None:
+        """Continue on a side of its own: copies of the slots it uses; it releases the shared ones."""
+        side = self._side
+        assert side is not None
+        slots, uses = self._uses()
+        own, where = side.split(slots, uses)
+        opened = self._wslot[self._open] if self._open >= 0 else 0
+        for s in slots:
+            side.release(s)
+        side.members.remove(self)
+        self._wslot = [where.get(s, 0) for s in self._wslot]
+        self._aslot = np.array([where.get(a, 0) for a in self._aslot.tolist()], np.int64)
+        if opened:
+            own.opens[where[opened]] = 1
+            own.integ[where[opened]] = True
+        self._join(own)
+
+    def _leave(self) -> None:
+        """The compensation is off: no event side; the zone counts become this estimator's own."""
+        side = self._side
+        assert side is not None
+        for s in self._uses()[0]:
+            side.release(s)
+        side.members.remove(self)
+        self._side = None
+        self._wslot = [0] * len(self._wstate)
+        self._aslot[:] = 0
+        self._own_counts(side.counts_on, side.counts_off)
 
     def _anchor_u(self) -> np.ndarray:
         """Time since each zone's anchor up to the last event (0 where none, or none yet)."""
@@ -424,96 +500,33 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         u = float(max(0, self.last_event_us - int(self._wstart[w]))) if w >= 0 else 0.0
         return np.full(self.num_zones, u)
 
-    def _comp_restate(self, ref: int, zones: np.ndarray, u: np.ndarray) -> None:
-        """Levels and sums of ``zones`` for reference ``ref`` from their histograms at times ``u``."""
-        flags = np.zeros(self.num_zones, np.bool_)
-        flags[zones] = True
-        _, _, a_on, b_on, a_off, b_off = self._kp
-        comp_restate(
-            self._hist, ref, flags, np.asarray(u, np.float64), self._lev, self._kk, self._ss, a_on, b_on, a_off, b_off
-        )
-
-    def _comp_grow(self, need: int) -> None:
-        """Widen the count histograms to hold counts up to ``need`` (and the per-pixel counts to int32
-        before a count could pass what uint16 holds)."""
-        assert (
-            self._hist is not None and self._pc is not None
-        )  # the compensation is on and the event side is this estimator's own
-        cap = self._hist.shape[3]
-        if need < cap:
-            return
-        size = max(2 * cap, need + 1)
-        if self._pc.dtype == np.uint16 and size > np.iinfo(np.uint16).max + 1:
-            self._pc = self._pc.astype(np.int32)
-        new = np.zeros(self._hist.shape[:3] + (size,), np.int32)
-        new[..., :cap] = self._hist
-        self._hist = new
-
-    def _latest_counts(self) -> np.ndarray:
-        """Per pixel, the ON/OFF counts since the latest exposure start (a view). When they are not kept
-        the anchor is that start (it took them over), so they are the anchor's."""
-        assert self._pc is not None  # the compensation is on and the event side is this estimator's own
-        return self._pc[:, 2:4] if self._iw >= 0 else self._pc[:, 0:2]
-
-    def _since(self, w: int) -> np.ndarray:
-        """Per pixel, the ON/OFF counts since window ``w``'s start (a view when it is the latest start)."""
-        assert self._wacc is not None  # the compensation is on and the event side is this estimator's own
-        if self._wacc[w]:
-            assert self._wsnap is not None  # allocated before any slot holds counts (_comp_begin)
-            return self._wsnap[w] + self._latest_counts()
-        return self._latest_counts()
-
-    def _words(self) -> np.ndarray:
-        """``_pc`` with each pixel's pair of counts as one word (columns: anchor, window)."""
-        assert self._pc is not None  # the compensation is on and the event side is this estimator's own
-        return self._pc.view(np.uint32 if self._pc.itemsize == 2 else np.uint64)
+    def _drop_window(self, w: int) -> None:
+        """Window ``w`` is recycled or its frame came: it no longer needs its slot (as a window)."""
+        if self._side is not None and self._wslot[w] > 0:
+            self._side.release(self._wslot[w])
+            self._wslot[w] = 0
 
     def _comp_anchor(self, w: int, zones: np.ndarray, s: int) -> None:
-        """``zones`` re-anchored on window ``w`` (start ``s``): their per-pixel counts restart there.
-
-        The usual case — every zone, on the latest exposure, no other exposure awaiting its frame —
-        copies the latest exposure's counts over the anchor's (one word per pixel) and its histogram;
-        the window's counts are then not kept until the next exposure starts. Otherwise the pixels of
-        ``zones`` take their counts since ``s`` and their histograms are rebuilt (O(pixels)).
-        """
-        if self._side is not None:
-            self._side.anchor(self, w, zones, s)
-            return
-        assert self._hist is not None and self._pc is not None  # the compensation is on
-        flags = np.zeros(self.num_zones, np.bool_)
-        flags[zones] = True
-        others = any(st == _CLOSED and i != w for i, st in enumerate(self._wstate))
-        if flags.all() and w == self._latest and self._open < 0 and not others and self._iw >= 0:
-            words = self._words()
-            words[:, 0] = words[:, 1]
-            self._iw = -1
-            self._hist[0] = self._hist[1]
-        else:
-            since = self._since(w)
-            while (need := comp_reanchor(self._pc, since, self._zone_flat, flags, self.sizes, self._hist)) >= 0:
-                self._comp_grow(need)
-        self._comp_restate(0, zones, np.full(self.num_zones, float(max(0, self.last_event_us - s))))
+        """``zones`` re-anchored on window ``w`` (start ``s``): they now use that window's slot (held once
+        for all the zones on it)."""
+        side = self._side
+        assert side is not None
+        sw = self._wslot[w]
+        old = self._aslot.copy()
+        self._aslot[zones] = sw
+        for a in set(self._aslot.tolist()):
+            if a > 0 and a not in old:
+                side.hold(a)
+        for a in set(old.tolist()):
+            if a > 0 and a not in self._aslot:
+                side.release(a)
+        side.anchor(sw, zones, s)
 
     def _comp_between(self, w: int, u: np.ndarray) -> np.ndarray:
         """Per zone ``Σ_x max(0, a± n±_x - b± u)`` for the counts between the anchor and window ``w``'s
-        start (brute force over the pixels, O(pixels), :func:`comp_between`; used only for the saturation bound)."""
-        if self._side is not None:
-            return self._side.between(self, w, u)
-        assert self._pc is not None and self._wacc is not None  # the compensation is on
-        c_on, c_off, a_on, b_on, a_off, b_off = self._kp
-        out = np.empty((2, self.num_zones))
-        # comp_between takes (base, counts) and subtracts base columns 2, 3: the counts between the anchor and s
-        # are the anchor's (columns 0, 1) minus those since s (columns 2, 3 when s is the latest start: no copy)
-        if self._iw < 0:  # the anchor is the latest start: nothing between them
-            counts, base = self._pc[:, 0:2], np.zeros((self._pc.shape[0], 4), np.int32)
-            base[:, 2:4] = counts
-        elif self._wacc[w]:
-            assert self._wsnap is not None  # allocated before any slot holds counts (_comp_begin)
-            counts, base = self._pc[:, 0:2] - self._wsnap[w], self._pc
-        else:
-            counts, base = self._pc[:, 0:2], self._pc
-        comp_between(base, counts, self._zone_flat, np.asarray(u, np.float64), a_on, b_on, a_off, b_off, out)
-        return out
+        start (O(pixels); used only for the saturation bound)."""
+        assert self._side is not None
+        return self._side.between(self._aslot, self._wslot[w], u)
 
     # -- stream input -------------------------------------------------------------------------
     def update(self, events: np.ndarray) -> None:
@@ -522,13 +535,15 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
             raise EventFormatError(f"events must be a structured array of dtype {EVENT_DTYPE}")
         if events.size == 0:
             return
-        if self._side is not None:
-            self._side.update(self, events)
+        side = self._side
+        if side is not None:
+            try:
+                self._seen = side.update(events, self._seen)
+            finally:
+                self.last_event_us = side.last_event_us
             return
         w = self._open
-        if self._comp:
-            bad = self._update_comp(events, w)
-        elif self.whole:
+        if self.whole:
             c0 = self._c02
             if w >= 0:
                 c0[0], c0[1] = self._c0_on[w, 0], self._c0_off[w, 0]
@@ -568,81 +583,9 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
                 self._webase,
             )
         if bad >= 0:
-            ev = events[bad]
-            before = int(events["t"][bad - 1]) if bad > 0 else self.last_event_us
-            self.last_event_us = before
-            if int(ev["t"]) < before:
-                raise EventFormatError(
-                    f"event {bad} of the batch at {int(ev['t'])} µs is earlier than events already processed "
-                    f"({before} µs); the {bad} events before it were applied"
-                )
-            raise EventFormatError(
-                f"event {bad} of the batch at (x={int(ev['x'])}, y={int(ev['y'])}) lies outside the "
-                f"{self.sensor.width}x{self.sensor.height} sensor; the {bad} events before it were applied"
-            )
+            self.last_event_us = before = int(events["t"][bad - 1]) if bad > 0 else self.last_event_us
+            raise batch_error(events, bad, before, self.sensor)
         self.last_event_us = int(events["t"][-1])
-
-    def _update_comp(self, events: np.ndarray, w: int) -> int:
-        """The batch through :func:`ptedi_update_comp` (:func:`ptedi_update_comp_one` for a single zone),
-        widening the histograms when needed."""
-        assert self._hist is not None  # the compensation is on and the event side is this estimator's own
-        t, x, y, p = events["t"], events["x"], events["y"], events["p"]
-        ws = int(self._wstart[w]) if w >= 0 else 0
-        pos, last = 0, self.last_event_us
-        kernel = ptedi_update_comp_one if self.num_zones == 1 else ptedi_update_comp
-        while True:
-            stop, code, last = kernel(
-                t[pos:],
-                x[pos:],
-                y[pos:],
-                p[pos:],
-                self._zone_flat,
-                self.whole,
-                self.sensor.width,
-                self.sensor.height,
-                last,
-                self.counts_on,
-                self.counts_off,
-                self._inv_n,
-                self._pc,
-                self._iw,
-                self._hist,
-                self._lev,
-                self._kk,
-                self._ss,
-                self.anchor_t,
-                self.anchor_log,
-                w,
-                ws,
-                self._c0_on,
-                self._c0_off,
-                self._wlast,
-                self._wint,
-                *self._kp,
-            )
-            if code != 3:
-                return -1 if code == 0 else pos + stop
-            pos += stop
-            self._comp_grow(2 * self._hist.shape[3])
-
-    def _comp_begin(self, w: int) -> None:
-        """Compensation at an exposure start in slot ``w``: the counts since the latest start go to every
-        exposure still awaiting its frame; the window's pair of columns restarts from zero."""
-        assert (
-            self._pc is not None and self._wacc is not None
-        )  # the compensation is on and the event side is this estimator's own
-        latest = self._latest_counts()
-        for v, st in enumerate(self._wstate):
-            if st == _CLOSED and v != w:
-                if self._wsnap is None:
-                    self._wsnap = np.zeros((len(self._wstate), self._pc.shape[0], 2), np.int32)
-                if not self._wacc[v]:
-                    self._wsnap[v] = 0
-                    self._wacc[v] = True
-                self._wsnap[v] += latest
-        self._wacc[w] = False
-        self._iw = 2
-        self._words()[:, 1] = 0  # one word per pixel (a strided fill of a 2-column slice is ~8x slower)
 
     def begin_exposure(self, t_us: int) -> None:
         """An exposure starts at ``t_us`` (all events before it already applied)."""
@@ -662,12 +605,9 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         else:  # every slot awaits a frame that never came: recycle the oldest
             w = self._wage.index(min(self._wage))
             self.dropped_windows += 1
-            if self._side is not None:
-                self._side.drop_window(self, w)
+            self._drop_window(w)
         if self._side is not None:
-            self._side.begin(self, w, t_us)
-        elif self._comp:
-            self._comp_begin(w)
+            self._wslot[w] = self._side.begin(t_us)
         self._wstate[w] = _OPEN
         self._latest = w
         self._wstart[w] = t_us
@@ -684,13 +624,6 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
             self._wlast[w] = t_us
             self._wint[w] = 0.0
             self._webase[w] = 1.0
-        if self._comp and self._side is None:
-            assert self._hist is not None and self._lev is not None and self._kk is not None and self._ss is not None
-            self._hist[1] = 0
-            self._hist[1, :, :, 0] = self.sizes
-            self._lev[1] = 0
-            self._kk[1] = 0
-            self._ss[1] = 0
         self._open = w
 
     def end_exposure(self, t_us: int) -> None:
@@ -705,25 +638,8 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
                 f"already processed ({self.last_event_us} µs)"
             )
         if self._side is not None:
-            self._side.end(self, w, t_us)
-        elif self._comp:
-            ptedi_close_comp(
-                t_us,
-                self.counts_on,
-                self.counts_off,
-                self._inv_n,
-                self._hist,
-                self._lev,
-                self._kk,
-                self._ss,
-                w,
-                int(self._wstart[w]),
-                self._c0_on,
-                self._c0_off,
-                self._wlast,
-                self._wint,
-                *self._kp,
-            )
+            self._wint[w] = self._side.end(self._wslot[w], t_us)
+            self._wlast[w] = t_us
         else:
             ptedi_close(
                 t_us,
@@ -768,10 +684,9 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
                 self.anchor_t[0] = s
                 self.anchor_on[0] = w0[0][0]
                 self.anchor_off[0] = w0[1][0]
-                if self._comp:
-                    self._comp_anchor(w, np.zeros(1, np.int64), s)
                 if self._side is not None:
-                    self._side.drop_window(self, w)
+                    self._comp_anchor(w, np.zeros(1, np.int64), s)
+                    self._drop_window(w)
                 self._wstate[w] = _FREE
                 self.frames_seen += 1
                 anchor = np.array([lp - log_e0])
@@ -824,10 +739,10 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
         self.anchor_t[new] = s
         self.anchor_on[new] = w0[0][new]
         self.anchor_off[new] = w0[1][new]
-        if self._comp and new.any():
-            self._comp_anchor(w, np.flatnonzero(new), s)
         if self._side is not None:
-            self._side.drop_window(self, w)
+            if new.any():
+                self._comp_anchor(w, np.flatnonzero(new), s)
+            self._drop_window(w)
         self._wstate[w] = _FREE
         self.frames_seen += 1
         if not ok.all():
@@ -847,7 +762,7 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
     def _predict_at_window(self, w: int) -> np.ndarray:
         """Eq. 12 from each zone's anchor to window ``w``'s start, with the counts seen by then."""
         pred = self._propagate(self._c0_on[w], self._c0_off[w])
-        if self._comp:
+        if self._side is not None:
             u = np.maximum(0, int(self._wstart[w]) - self.anchor_t).astype(np.float64)
             comp = self._comp_between(w, u)
             pred = pred + (self._kp[0] * comp[0] - self._kp[1] * comp[1]) * self._inv_n
@@ -898,26 +813,27 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
                 f"prediction time {t} µs precedes the anchor at {int(self.anchor_t[anchored].max())} µs"
             )
         pred = self._propagate(self.counts_on, self.counts_off)
-        if self._comp:  # Eq. 11: the mean over the zone's pixels of their compensation terms
+        if self._side is not None:  # Eq. 11: the mean over the zone's pixels of their compensation terms
             u = np.where(anchored, (t - self.anchor_t).astype(np.float64), 0.0)
-            c_on, c_off, a_on, b_on, a_off, b_off = self._kp
-            if self._side is not None:
-                comp = self._side.sums(self, u)
-            else:
-                comp = np.empty((2, self.num_zones))
-                comp_sums(self._hist, self._lev, self._kk, self._ss, 0, u, a_on, b_on, a_off, b_off, comp)
+            c_on, c_off = self._kp[0], self._kp[1]
+            comp = self._side.sums(self._aslot, u)
             pred = pred + (c_on * comp[0] - c_off * comp[1]) * self._inv_n
         return pred
+
+    def _scalar_times(self, t_us: int | None) -> tuple[int, int]:
+        """One zone: the prediction time (default: the last event's) and the anchor's, checked."""
+        if not math.isfinite(self.anchor_log[0]):
+            raise NotAnchoredError("P-TEDI has no anchor yet: no usable frame has arrived")
+        t = self.last_event_us if t_us is None else int(t_us)
+        g = int(self.anchor_t[0])
+        if t < g:
+            raise ParameterError(f"prediction time {t} µs precedes the anchor at {g} µs")
+        return t, g
 
     def predict(self, t_us: int | None = None) -> float:
         """Mean log irradiance ``ln P(t)`` over the anchored zones, weighted by their pixel counts."""
         if self.num_zones == 1 and not self._comp:  # scalar path: the controller calls this on every batch
-            if not math.isfinite(self.anchor_log[0]):
-                raise NotAnchoredError("P-TEDI has no anchor yet: no usable frame has arrived")
-            t = self.last_event_us if t_us is None else int(t_us)
-            g = int(self.anchor_t[0])
-            if t < g:
-                raise ParameterError(f"prediction time {t} µs precedes the anchor at {g} µs")
+            t, g = self._scalar_times(t_us)
             inv = self._inv_n0
             counts = self._counts2.tolist()
             m_on = (counts[0] - int(self.anchor_on[0])) * inv
@@ -925,25 +841,15 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
             # the kernel's Python form: called from Python, it skips Numba's dispatch
             return float(self.anchor_log[0]) + _direct_integral_py(1.0, float(t - g), m_on, m_off, *self._kp)
         if self.num_zones == 1:  # compensated, scalar: predict_zones' operations without its arrays
-            if not math.isfinite(self.anchor_log[0]):
-                raise NotAnchoredError("P-TEDI has no anchor yet: no usable frame has arrived")
-            t = self.last_event_us if t_us is None else int(t_us)
-            g = int(self.anchor_t[0])
-            if t < g:
-                raise ParameterError(f"prediction time {t} µs precedes the anchor at {g} µs")
+            t, g = self._scalar_times(t_us)
             inv = float(self._inv_n[0])
             c_on, c_off, a_on, b_on, a_off, b_off = self._kp
             m_on = (int(self.counts_on[0]) - int(self.anchor_on[0])) * inv
             m_off = (int(self.counts_off[0]) - int(self.anchor_off[0])) * inv
             pred = float(self.anchor_log[0]) + c_on * m_on - c_off * m_off
-            if self._side is not None:
-                side, ref = self._side, int(self._aslot[0])
-                hist, lev, kk, ss = side.hist, side.lev, side.kk, side.ss
-            else:
-                assert (
-                    self._hist is not None and self._lev is not None and self._kk is not None and self._ss is not None
-                )
-                hist, lev, kk, ss, ref = self._hist, self._lev, self._kk, self._ss, 0
+            side, ref = self._side, int(self._aslot[0])
+            assert side is not None
+            hist, lev, kk, ss = side.hist, side.lev, side.kk, side.ss
             u = float(t - g)
             comp_on = _comp_sum_one(hist, lev, kk, ss, ref, 0, u, a_on, b_on)
             comp_off = _comp_sum_one(hist, lev, kk, ss, ref, 1, u, a_off, b_off)

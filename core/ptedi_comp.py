@@ -1,9 +1,11 @@
 """P-TEDI's per-pixel TEDI compensation averaged over a zone (Eq. 11 with the Eq. 6 terms), as Numba kernels.
 
-Exact integer bookkeeping per (reference, polarity, zone) — a histogram of per-pixel counts and
+Exact integer bookkeeping per (slot, polarity, zone) — a histogram of per-pixel counts and
 the sums ``K``, ``S`` at the current level — so the compensated exponent and its exposure
 integral are evaluated in closed form (the derivation follows, and :mod:`necviz.core.ptedi`'s
-docstring). Called by :class:`necviz.core.ptedi.PeripheralEstimator` when ``a± > 0``.
+docstring). The state is an :class:`~necviz.core.ptedi_side.EventSide`'s; the per-event loop is
+:func:`side_update` (any zones) with its single-zone form :func:`side_update_one`, both written
+from the same steps (the ``inline="always"`` helpers below), so they cannot drift apart.
 """
 
 from __future__ import annotations
@@ -28,15 +30,14 @@ from necviz.core.event_model import exp_linear_integral
 # per-pixel counts. An event moves one pixel from k to k+1 (O(1) update of h, K, S); as u grows
 # past (L+1) r the pixels with count L+1 stop being active (K -= h[L+1], S -= (L+1) h[L+1]).
 # Between events C(u) is linear in u with breakpoints at multiples of r: the exposure integral
-# is a sum of exp-of-linear pieces in closed form. Arrays: hist[ref, q, zone, k] (int32),
-# lev/kk/ss[ref, q, zone] (int64) with ref 0 = anchor, 1 = the latest exposure (open, or awaiting its
-# frame); q 0 = ON, 1 = OFF.
+# is a sum of exp-of-linear pieces in closed form. Arrays: hist[slot, q, zone, k] (int32),
+# lev/kk/ss[slot, q, zone] (int64), a slot being a reference time (an exposure start, which becomes an
+# anchor when its frame is usable; position 0 unused); q 0 = ON, 1 = OFF.
 #
-# Per pixel, pc[pixel] holds its counts since each reference directly (ON/OFF since the anchor, ON/OFF
-# since the latest exposure start: one row, so an event touches one cache line), as uint16 while every
-# count fits (the estimator widens them to int32 before one could overflow). Re-anchoring on the latest
-# exposure's start, the usual case, copies the window's pair of counts over the anchor's (one word per
-# pixel) and its histogram; a new exposure start zeroes the window's pair (one word per pixel).
+# Per pixel, pc[pixel] holds its counts since each slot directly (columns 2 (slot - 1) + q: one row,
+# so an event touches one cache line), as uint16 while every count fits (the side widens them to int32
+# before one could overflow). A new exposure start zeroes its slot's pair (one word per pixel);
+# re-anchoring on an exposure start just uses that start's slot.
 
 MAX_LEVEL = 1 << 50  # levels beyond any per-pixel count (keeps u/r for a tiny r inside int64)
 
@@ -58,7 +59,7 @@ def comp_level(u, r):
 
 
 @nb.njit(cache=True)
-def _comp_sweep(hist, ref, q, z, lev, kk, ss, r, u):
+def comp_sweep(hist, ref, q, z, lev, kk, ss, r, u):
     """Advance the level of ``(ref, q, z)`` to ``u`` (``u`` never decreases for a reference)."""
     target = comp_level(u, r)
     lv = lev[ref, q, z]
@@ -76,225 +77,9 @@ def _comp_sweep(hist, ref, q, z, lev, kk, ss, r, u):
     ss[ref, q, z] = s
 
 
-@nb.njit(cache=True)
-def _comp_window_integral(
-    lo, hi, z, m_on, m_off, inv, hist, lev, kk, ss, c_on, c_off, a_on, b_on, a_off, b_off, r_on, r_off
-):
-    """``∫_lo^hi exp(c^T D_p(s, s+u)) du`` for zone ``z`` of the open window (ref 1), no events inside.
-
-    ``c^T D_p = c+ (m+ + C+(u)/N) - c- (m- + C-(u)/N)`` with the per-pixel compensation sums
-    ``C±(u) = a± S± - b± u K±``; the levels advance to ``hi`` as the pieces are integrated
-    (levels left behind ``lo`` are caught up first, without integrating). O(1 + levels crossed).
-    """
-    total = 0.0
-    act_on = a_on > 0.0
-    act_off = a_off > 0.0
-    while True:
-        u_on = math.inf
-        if act_on and r_on < math.inf:
-            if kk[1, 0, z] == 0:
-                lv = comp_level(hi, r_on)
-                if lv > lev[1, 0, z]:
-                    lev[1, 0, z] = lv
-            else:
-                lv = lev[1, 0, z]
-                while (lv + 1) * r_on <= hi and hist[1, 0, z, lv + 1] == 0:
-                    lv += 1
-                lev[1, 0, z] = lv
-                if (lv + 1) * r_on <= hi:
-                    u_on = (lv + 1) * r_on
-        u_off = math.inf
-        if act_off and r_off < math.inf:
-            if kk[1, 1, z] == 0:
-                lv = comp_level(hi, r_off)
-                if lv > lev[1, 1, z]:
-                    lev[1, 1, z] = lv
-            else:
-                lv = lev[1, 1, z]
-                while (lv + 1) * r_off <= hi and hist[1, 1, z, lv + 1] == 0:
-                    lv += 1
-                lev[1, 1, z] = lv
-                if (lv + 1) * r_off <= hi:
-                    u_off = (lv + 1) * r_off
-        alpha = c_on * m_on - c_off * m_off
-        beta = 0.0
-        if act_on:
-            alpha += c_on * a_on * ss[1, 0, z] * inv
-            beta -= c_on * b_on * kk[1, 0, z] * inv
-        if act_off:
-            alpha -= c_off * a_off * ss[1, 1, z] * inv
-            beta += c_off * b_off * kk[1, 1, z] * inv
-        end = min(hi, u_on, u_off)
-        if end > lo:
-            total += exp_linear_integral(alpha + beta * lo, beta, end - lo)
-            lo = end
-        if u_on == math.inf and u_off == math.inf:
-            return total
-        if u_on == end:  # the pixels with count lv + 1 stop being compensated here
-            lv = lev[1, 0, z] + 1
-            hk = hist[1, 0, z, lv]
-            kk[1, 0, z] -= hk
-            ss[1, 0, z] -= lv * hk
-            lev[1, 0, z] = lv
-        if u_off == end:
-            lv = lev[1, 1, z] + 1
-            hk = hist[1, 1, z, lv]
-            kk[1, 1, z] -= hk
-            ss[1, 1, z] -= lv * hk
-            lev[1, 1, z] = lv
-
-
-@nb.njit(cache=True)
-def ptedi_update_comp(
-    t,
-    x,
-    y,
-    p,
-    zflat,
-    whole,
-    width,
-    height,
-    last_t,
-    counts_on,
-    counts_off,
-    inv_n,
-    pc,
-    iw,
-    hist,
-    lev,
-    kk,
-    ss,
-    anchor_t,
-    anchor_log,
-    w,
-    w_start,
-    c0_on,
-    c0_off,
-    w_last,
-    w_int,
-    c_on,
-    c_off,
-    a_on,
-    b_on,
-    a_off,
-    b_off,
-):
-    """:func:`ptedi_update` with the TEDI compensation applied per pixel and averaged (Eq. 11).
-
-    ``pc[pixel]`` holds the pixel's counts: columns 0, 1 ON and OFF since the anchor, ``iw, iw + 1``
-    (2, 3) since the latest exposure start (``iw < 0``: not kept, no exposure needs them);
-    ``whole``: every pixel is in zone 0 (``zflat`` is not read). The histograms and sums of the
-    module notes above give each zone's ``Σ_x max(0, a± n±_x - b± u)`` exactly. Per event: the open
-    window's integral up to the event (one ``exp`` while no pixel of the zone is compensated, else
-    the closed-form pieces of :func:`_comp_window_integral`), then O(1) updates of both references.
-    Levels may lag behind time (the sums are exact for the kept level; an event is classified
-    against it): the window's catch up when a piece is integrated, the anchor's once per batch.
-    O(1) per event plus the levels crossed (at most ``b u / a`` per reference in time ``u``, and
-    never more than the largest per-pixel count).
-
-    Returns ``(index, code, last time)``: code 0 all applied, 1 time decreased, 2 coordinates
-    off the sensor, 3 a histogram is full (grow it and resume at ``index``).
-    """
-    r_on = a_on / b_on if b_on > 0.0 else math.inf
-    r_off = a_off / b_off if b_off > 0.0 else math.inf
-    cap = hist.shape[3]
-    keep_w = iw >= 0
-    prev = last_t
-    stop = -1
-    code = 0
-    for i in range(t.shape[0]):
-        ti = t[i]
-        if ti < prev:
-            stop = i
-            code = 1
-            break
-        xi = np.int64(x[i])
-        yi = np.int64(y[i])
-        if xi >= width or yi >= height:
-            stop = i
-            code = 2
-            break
-        pix = yi * width + xi
-        z = 0 if whole else zflat[pix]
-        if z < 0:
-            prev = ti
-            continue
-        q = 0 if p[i] > 0 else 1
-        na = np.int64(pc[pix, q])
-        nw = np.int64(pc[pix, iw + q]) if keep_w else np.int64(0)
-        if na + 2 > cap or nw + 2 > cap:
-            stop = i
-            code = 3
-            break
-        prev = ti
-        if w >= 0:
-            last = w_last[w, z]
-            if ti > last:
-                m_on = (counts_on[z] - c0_on[w, z]) * inv_n[z]
-                m_off = (counts_off[z] - c0_off[w, z]) * inv_n[z]
-                if (kk[1, 0, z] == 0 or not a_on > 0.0) and (kk[1, 1, z] == 0 or not a_off > 0.0):
-                    # no pixel compensated (at the kept level, hence at the current one): constant exponent
-                    w_int[w, z] += math.exp(c_on * m_on - c_off * m_off) * float(ti - last)
-                else:
-                    w_int[w, z] += _comp_window_integral(
-                        float(last - w_start),
-                        float(ti - w_start),
-                        z,
-                        m_on,
-                        m_off,
-                        inv_n[z],
-                        hist,
-                        lev,
-                        kk,
-                        ss,
-                        c_on,
-                        c_off,
-                        a_on,
-                        b_on,
-                        a_off,
-                        b_off,
-                        r_on,
-                        r_off,
-                    )
-                w_last[w, z] = ti
-        if keep_w:  # the pixel moves from count nw to nw + 1 (written out: faster than an inlined helper here)
-            hist[1, q, z, nw] -= 1
-            hist[1, q, z, nw + 1] += 1
-            lv = lev[1, q, z]
-            if nw + 1 > lv:
-                if nw > lv:
-                    ss[1, q, z] += 1
-                else:
-                    kk[1, q, z] += 1
-                    ss[1, q, z] += nw + 1
-            pc[pix, iw + q] = nw + 1
-        hist[0, q, z, na] -= 1
-        hist[0, q, z, na + 1] += 1
-        lv = lev[0, q, z]
-        if na + 1 > lv:
-            if na > lv:
-                ss[0, q, z] += 1
-            else:
-                kk[0, q, z] += 1
-                ss[0, q, z] += na + 1
-        pc[pix, q] = na + 1
-        if q == 0:
-            counts_on[z] += 1
-        else:
-            counts_off[z] += 1
-    for z in range(counts_on.shape[0]):  # the anchor's levels follow time, once per batch
-        if math.isfinite(anchor_log[z]) and prev >= anchor_t[z]:
-            u = float(prev - anchor_t[z])
-            if a_on > 0.0:
-                _comp_sweep(hist, 0, 0, z, lev, kk, ss, r_on, u)
-            if a_off > 0.0:
-                _comp_sweep(hist, 0, 1, z, lev, kk, ss, r_off, u)
-    return stop, code, prev
-
-
 @nb.njit(cache=True, inline="always")
 def _one_advance(h, lv, k, s, r, hi):
-    """One polarity of :func:`_comp_window_integral`'s level bookkeeping for a zone held in locals:
+    """One polarity of the exposure integral (Eq. 13-14)'s level bookkeeping for a zone held in locals:
     skip empty levels up to ``hi``; returns ``(level, next breakpoint or inf)``."""
     if k == 0:
         nl = comp_level(hi, r)
@@ -309,32 +94,16 @@ def _one_advance(h, lv, k, s, r, hi):
 
 
 @nb.njit(cache=True, inline="always")
-def _one_window_integral(
-    lo,
-    hi,
-    m_on,
-    m_off,
-    inv,
-    h_on,
-    h_off,
-    l_on,
-    k_on,
-    s_on,
-    l_off,
-    k_off,
-    s_off,
-    c_on,
-    c_off,
-    a_on,
-    b_on,
-    a_off,
-    b_off,
-    r_on,
-    r_off,
-):
-    """:func:`_comp_window_integral` for a zone whose levels and sums are locals (same operations in
-    the same order, so the same result bit for bit); returns the integral and the updated
-    ``(level, K, S)`` of both polarities. O(1 + levels crossed)."""
+def _one_window_integral(lo, hi, m_on, m_off, inv, h_on, h_off, lks, kp, rr):
+    """``∫_lo^hi exp(c^T D_p(s, s+u)) du`` for one zone of a slot, no events inside:
+    ``c^T D_p = c+ (m+ + C+(u)/N) - c- (m- + C-(u)/N)`` with the per-pixel compensation sums
+    ``C±(u) = a± S± - b± u K±`` (Eq. 11, 13). ``h_on``, ``h_off``: the zone's count histograms;
+    ``lks``: its ``(level, K, S)`` of ON then OFF; ``kp``: ``(c+, c-, a+, b+, a-, b-)``; ``rr``: ``(a+/b+, a-/b-)``.
+    The levels advance to ``hi`` as the pieces are integrated (levels left behind ``lo`` are caught up
+    first, without integrating). Returns the integral and the updated ``lks``. O(1 + levels crossed)."""
+    l_on, k_on, s_on, l_off, k_off, s_off = lks
+    c_on, c_off, a_on, b_on, a_off, b_off = kp
+    r_on, r_off = rr
     total = 0.0
     act_on = a_on > 0.0
     act_off = a_off > 0.0
@@ -358,7 +127,7 @@ def _one_window_integral(
             total += exp_linear_integral(alpha + beta * lo, beta, end - lo)
             lo = end
         if u_on == math.inf and u_off == math.inf:
-            return total, l_on, k_on, s_on, l_off, k_off, s_off
+            return total, (l_on, k_on, s_on, l_off, k_off, s_off)
         if u_on == end:  # the pixels with count level + 1 stop being compensated here
             l_on += 1
             hk = h_on[l_on]
@@ -371,290 +140,269 @@ def _one_window_integral(
             s_off -= l_off * hk
 
 
+# -- the steps of the per-event loop (inlined into side_update and side_update_one) --------------------
+#
+# Bundles passed to the loops: ev = (t, x, y, p) the event fields; counts = (counts_on, counts_off, 1/N)
+# per zone; slots = (hist, lev, kk, ss, start_t, c0_on, c0_off, w_last, w_int), the side's per-slot arrays
+# (module notes; c0_*: the zone counts at the slot's start, w_*: the running exposure integral and its
+# last time); kp = (c+, c-, a+, b+, a-, b-).
+
+
+@nb.njit(cache=True, inline="always")
+def _ratios(kp):
+    """``(a+/b+, a-/b-)``: µs per count of each polarity's knee (``inf`` where ``b = 0``)."""
+    a_on, b_on, a_off, b_off = kp[2], kp[3], kp[4], kp[5]
+    return (a_on / b_on if b_on > 0.0 else math.inf, a_off / b_off if b_off > 0.0 else math.inf)
+
+
+@nb.njit(cache=True, inline="always")
+def _event_pixel(ev, i, prev, width, height):
+    """Step 1: ``(0, time, pixel index)`` of event ``i``, or code 1 when it is earlier than ``prev``, 2 when it
+    lies off the ``width x height`` sensor. O(1)."""
+    ti = ev[0][i]
+    xi = np.int64(ev[1][i])
+    yi = np.int64(ev[2][i])
+    if ti < prev:
+        return 1, ti, np.int64(0)
+    if xi >= width or yi >= height:
+        return 2, ti, np.int64(0)
+    return 0, ti, yi * width + xi
+
+
+@nb.njit(cache=True, inline="always")
+def _fits(pc, pix, live, q, cap):
+    """Step 2: every live slot's histogram (``cap`` bins) has room for the pixel's next count. O(slots)."""
+    ok = True
+    for j in range(live.shape[0]):
+        if np.int64(pc[pix, 2 * (live[j] - 1) + q]) + 2 > cap:
+            ok = False
+    return ok
+
+
+@nb.njit(cache=True, inline="always")
+def _window_step(ti, last, start, n_on, n_off, base_on, base_off, inv, h_on, h_off, lks, kp, rr):
+    """Step 3: the open exposure's integral (Eq. 13) from its last event ``last`` to the event at ``ti``, no
+    event between: one ``exp`` while no pixel of the zone is compensated (at the kept level, hence at the
+    current one: a constant exponent), else the closed-form pieces of :func:`_one_window_integral`.
+    ``n_*``: the zone's counts now, ``base_*`` at the exposure's start. Returns the piece and the slot's
+    updated ``(level, K, S)`` of both polarities. O(1 + levels crossed)."""
+    m_on = (n_on - base_on) * inv
+    m_off = (n_off - base_off) * inv
+    if (lks[1] == 0 or not kp[2] > 0.0) and (lks[4] == 0 or not kp[4] > 0.0):
+        return math.exp(kp[0] * m_on - kp[1] * m_off) * float(ti - last), lks
+    return _one_window_integral(float(last - start), float(ti - start), m_on, m_off, inv, h_on, h_off, lks, kp, rr)
+
+
+@nb.njit(cache=True, inline="always")
+def _count_up(h, n, lv, k, s):
+    """Step 4: a pixel with count ``n`` since the slot's start gets an event: it moves one bin up the
+    histogram ``h``; ``K``, ``S`` at level ``lv`` follow (returned). O(1)."""
+    h[n] -= 1
+    h[n + 1] += 1
+    if n + 1 > lv:
+        if n > lv:
+            s += 1
+        else:
+            k += 1
+            s += n + 1
+    return k, s
+
+
+@nb.njit(cache=True, inline="always")
+def _follow_time(slots, s, z, kp, rr, u):
+    """Step 5, once per batch: the levels of slot ``s``, zone ``z`` follow time to ``u`` (both polarities)."""
+    hist, lev, kk, ss = slots[0], slots[1], slots[2], slots[3]
+    if kp[2] > 0.0:
+        comp_sweep(hist, s, 0, z, lev, kk, ss, rr[0], u)
+    if kp[4] > 0.0:
+        comp_sweep(hist, s, 1, z, lev, kk, ss, rr[1], u)
+
+
+@nb.njit(cache=True, inline="always")
+def _slot_state(lev, kk, ss, s, z):
+    """Slot ``s``, zone ``z``: ``(level, K, S)`` of ON then OFF."""
+    return (lev[s, 0, z], kk[s, 0, z], ss[s, 0, z], lev[s, 1, z], kk[s, 1, z], ss[s, 1, z])
+
+
+# -- the per-event loop ---------------------------------------------------------------------------------
+
+
 @nb.njit(cache=True)
-def ptedi_update_comp_one(
-    t,
-    x,
-    y,
-    p,
-    zflat,
-    whole,
-    width,
-    height,
-    last_t,
-    counts_on,
-    counts_off,
-    inv_n,
-    pc,
-    iw,
-    hist,
-    lev,
-    kk,
-    ss,
-    anchor_t,
-    anchor_log,
-    w,
-    w_start,
-    c0_on,
-    c0_off,
-    w_last,
-    w_int,
-    c_on,
-    c_off,
-    a_on,
-    b_on,
-    a_off,
-    b_off,
-):
-    """:func:`ptedi_update_comp` for a single zone (``zflat`` 0 or -1): same arguments, same
-    equations and the same floating-point operations in the same order, so the same state bit for
-    bit — but the zone's counts, the levels and sums ``K``, ``S`` of both references and the open
-    window's integral are kept in local variables (registers) during the batch and written back
-    at its end, instead of being loaded and stored through arrays at every event (which the
-    compiler cannot keep in registers, not knowing that the arrays do not overlap). Per event:
-    O(1) plus the levels crossed, as :func:`ptedi_update_comp`; returns what it returns.
+def side_update(ev, zflat, whole, width, height, last_t, counts, pc, live, integ, slots, kp):
+    """Apply an event batch to every live slot of an :class:`~necviz.core.ptedi_side.EventSide` (Eq. 11
+    with the Eq. 6 terms per pixel, for any number of reference times and zones; bundles: see above).
+
+    ``live``: the slot positions (1..M) to update; slot ``s`` keeps its pixels' counts in ``pc`` columns
+    ``2 (s - 1) + q``; ``integ[s]``: an exposure from the slot's start is open (its integral runs). Per
+    event and live slot: the slot's exposure integral up to the event when it runs (step 3), then the O(1)
+    update of its histogram, ``K`` and ``S`` (step 4); at the batch end the levels of the live slots not
+    integrating follow time (an integrating slot's advance with its integral only, zone by zone: a sweep
+    would skip breakpoints a zone integrates later). O(live slots) per event plus the levels crossed.
+
+    Returns ``(index, code, last time)``: code 0 all applied, 1 time decreased, 2 coordinates off the
+    sensor, 3 a histogram is full (grow it and resume at ``index``).
     """
-    r_on = a_on / b_on if b_on > 0.0 else math.inf
-    r_off = a_off / b_off if b_off > 0.0 else math.inf
+    p = ev[3]
+    counts_on, counts_off, inv_n = counts
+    hist, lev, kk, ss, start_t, c0_on, c0_off, w_last, w_int = slots
+    rr = _ratios(kp)
     cap = hist.shape[3]
-    h0_on = hist[0, 0, 0]
-    h0_off = hist[0, 1, 0]
-    h1_on = hist[1, 0, 0]
-    h1_off = hist[1, 1, 0]
+    prev, stop, code = last_t, -1, 0
+    for i in range(ev[0].shape[0]):
+        code, ti, pix = _event_pixel(ev, i, prev, width, height)
+        if code != 0:
+            stop = i
+            break
+        z = 0 if whole else zflat[pix]
+        if z < 0:
+            prev = ti
+            continue
+        q = 0 if p[i] > 0 else 1
+        if not _fits(pc, pix, live, q, cap):
+            stop = i
+            code = 3
+            break
+        prev = ti
+        for j in range(live.shape[0]):
+            s = live[j]
+            if integ[s] and ti > w_last[s, z]:
+                hs = hist[s]
+                piece, lks = _window_step(
+                    ti, w_last[s, z], start_t[s], counts_on[z], counts_off[z], c0_on[s, z], c0_off[s, z],
+                    inv_n[z], hs[0, z], hs[1, z], _slot_state(lev, kk, ss, s, z), kp, rr,
+                )  # fmt: skip
+                lev[s, 0, z], kk[s, 0, z], ss[s, 0, z], lev[s, 1, z], kk[s, 1, z], ss[s, 1, z] = lks
+                w_int[s, z] += piece
+                w_last[s, z] = ti
+            col = 2 * (s - 1) + q
+            n = np.int64(pc[pix, col])
+            kk[s, q, z], ss[s, q, z] = _count_up(hist[s, q, z], n, lev[s, q, z], kk[s, q, z], ss[s, q, z])
+            pc[pix, col] = n + 1
+        if q == 0:
+            counts_on[z] += 1
+        else:
+            counts_off[z] += 1
+    for j in range(live.shape[0]):
+        s = live[j]
+        if not integ[s] and prev >= start_t[s]:
+            for z in range(counts_on.shape[0]):
+                _follow_time(slots, s, z, kp, rr, float(prev - start_t[s]))
+    return stop, code, prev
+
+
+@nb.njit(cache=True)
+def side_update_one(ev, zflat, whole, width, height, last_t, counts, pc, live, integ, slots, kp):
+    """:func:`side_update` (same arguments) for one zone (``zflat`` 0 or -1) and one or two live slots, of which
+    at most one integrates: the usual case (one estimator's anchor and open exposure, or the lanes of a rig
+    starting their exposures together). Same steps, same floating-point operations in the same order, so the
+    same state bit for bit; but both slots keep their levels, sums and counts (and the integrating one its
+    integral) in local variables (registers) during the batch, written back at its end, instead of being loaded
+    and stored through arrays at every event (the compiler cannot keep those in registers, not knowing that the
+    arrays do not overlap). Per event: O(1) plus the levels crossed; returns what :func:`side_update` returns.
+    """
+    p = ev[3]
+    counts_on, counts_off, inv_n = counts
+    hist, lev, kk, ss, start_t, c0_on, c0_off, w_last, w_int = slots
+    rr = _ratios(kp)
+    cap = hist.shape[3]
     n_on = counts_on[0]
     n_off = counts_off[0]
     inv = inv_n[0]
-    l0_on, l0_off, l1_on, l1_off = lev[0, 0, 0], lev[0, 1, 0], lev[1, 0, 0], lev[1, 1, 0]
-    k0_on, k0_off, k1_on, k1_off = kk[0, 0, 0], kk[0, 1, 0], kk[1, 0, 0], kk[1, 1, 0]
-    s0_on, s0_off, s1_on, s1_off = ss[0, 0, 0], ss[0, 1, 0], ss[1, 0, 0], ss[1, 1, 0]
-    wl = np.int64(0)
-    wi = 0.0
-    b_on0 = np.int64(0)
-    b_off0 = np.int64(0)
-    if w >= 0:
-        wl = w_last[w, 0]
-        wi = w_int[w, 0]
-        b_on0 = c0_on[w, 0]
-        b_off0 = c0_off[w, 0]
-    live_on = a_on > 0.0
-    live_off = a_off > 0.0
-    keep_w = iw >= 0
-    prev = last_t
-    stop = -1
-    code = 0
-    for i in range(t.shape[0]):
-        ti = t[i]
-        if ti < prev:
+    ws = 0  # the first slot in locals: the integrating one if any (runs), else the first live one
+    for j in range(live.shape[0]):
+        if integ[live[j]]:
+            ws = live[j]
+    so = 0  # the second (0: none)
+    for j in range(live.shape[0]):
+        if live[j] != ws:
+            if ws == 0:
+                ws = live[j]
+            else:
+                so = live[j]
+    runs = ws > 0 and integ[ws]
+    wcol = 2 * (ws - 1)
+    h1_on, h1_off = hist[ws, 0, 0], hist[ws, 1, 0]
+    l1_on, k1_on, s1_on, l1_off, k1_off, s1_off = _slot_state(lev, kk, ss, ws, 0)
+    wl = w_last[ws, 0] if runs else np.iinfo(np.int64).max  # (not integrating: never later than wl)
+    wi = w_int[ws, 0]
+    w_start = start_t[ws]
+    base_on = c0_on[ws, 0]
+    base_off = c0_off[ws, 0]
+    ocol = 2 * (so - 1)
+    h2_on, h2_off = hist[so, 0, 0], hist[so, 1, 0]
+    l2_on, k2_on, s2_on, l2_off, k2_off, s2_off = _slot_state(lev, kk, ss, so, 0)
+    prev, stop, code = last_t, -1, 0
+    for i in range(ev[0].shape[0]):
+        code, ti, pix = _event_pixel(ev, i, prev, width, height)
+        if code != 0:
             stop = i
-            code = 1
             break
-        xi = np.int64(x[i])
-        yi = np.int64(y[i])
-        if xi >= width or yi >= height:
-            stop = i
-            code = 2
-            break
-        pix = yi * width + xi
         if not whole and zflat[pix] < 0:
             prev = ti
             continue
         on = p[i] > 0
         q = 0 if on else 1
-        na = np.int64(pc[pix, q])
-        nw = np.int64(pc[pix, iw + q]) if keep_w else np.int64(0)
-        if na + 2 > cap or nw + 2 > cap:
+        n1 = np.int64(pc[pix, wcol + q])  # the pixel's counts in the two local slots
+        n2 = np.int64(pc[pix, ocol + q]) if so > 0 else np.int64(0)
+        if n1 + 2 > cap or n2 + 2 > cap:
             stop = i
             code = 3
             break
         prev = ti
-        if w >= 0:
-            if ti > wl:
-                m_on = (n_on - b_on0) * inv
-                m_off = (n_off - b_off0) * inv
-                if (k1_on == 0 or not live_on) and (k1_off == 0 or not live_off):
-                    # no pixel compensated (at the kept level, hence at the current one): constant exponent
-                    wi += math.exp(c_on * m_on - c_off * m_off) * float(ti - wl)
-                else:
-                    piece, l1_on, k1_on, s1_on, l1_off, k1_off, s1_off = _one_window_integral(
-                        float(wl - w_start),
-                        float(ti - w_start),
-                        m_on,
-                        m_off,
-                        inv,
-                        h1_on,
-                        h1_off,
-                        l1_on,
-                        k1_on,
-                        s1_on,
-                        l1_off,
-                        k1_off,
-                        s1_off,
-                        c_on,
-                        c_off,
-                        a_on,
-                        b_on,
-                        a_off,
-                        b_off,
-                        r_on,
-                        r_off,
-                    )
-                    wi += piece
-                wl = ti
-        if keep_w:  # the pixel moves from count nw to nw + 1 in the latest exposure's histogram
-            pc[pix, iw + q] = nw + 1
-            if on:
-                h1_on[nw] -= 1
-                h1_on[nw + 1] += 1
-                if nw + 1 > l1_on:
-                    if nw > l1_on:
-                        s1_on += 1
-                    else:
-                        k1_on += 1
-                        s1_on += nw + 1
-            else:
-                h1_off[nw] -= 1
-                h1_off[nw + 1] += 1
-                if nw + 1 > l1_off:
-                    if nw > l1_off:
-                        s1_off += 1
-                    else:
-                        k1_off += 1
-                        s1_off += nw + 1
-        # and from na to na + 1 in the anchor's
-        pc[pix, q] = na + 1
+        if ti > wl:
+            lks = (l1_on, k1_on, s1_on, l1_off, k1_off, s1_off)
+            piece, lks = _window_step(ti, wl, w_start, n_on, n_off, base_on, base_off, inv, h1_on, h1_off, lks, kp, rr)
+            l1_on, k1_on, s1_on, l1_off, k1_off, s1_off = lks
+            wi += piece
+            wl = ti
+        pc[pix, wcol + q] = n1 + 1
+        if so > 0:
+            pc[pix, ocol + q] = n2 + 1
         if on:
-            h0_on[na] -= 1
-            h0_on[na + 1] += 1
-            if na + 1 > l0_on:
-                if na > l0_on:
-                    s0_on += 1
-                else:
-                    k0_on += 1
-                    s0_on += na + 1
+            k1_on, s1_on = _count_up(h1_on, n1, l1_on, k1_on, s1_on)
+            if so > 0:
+                k2_on, s2_on = _count_up(h2_on, n2, l2_on, k2_on, s2_on)
             n_on += 1
         else:
-            h0_off[na] -= 1
-            h0_off[na + 1] += 1
-            if na + 1 > l0_off:
-                if na > l0_off:
-                    s0_off += 1
-                else:
-                    k0_off += 1
-                    s0_off += na + 1
+            k1_off, s1_off = _count_up(h1_off, n1, l1_off, k1_off, s1_off)
+            if so > 0:
+                k2_off, s2_off = _count_up(h2_off, n2, l2_off, k2_off, s2_off)
             n_off += 1
     counts_on[0] = n_on
     counts_off[0] = n_off
-    lev[0, 0, 0], lev[0, 1, 0], lev[1, 0, 0], lev[1, 1, 0] = l0_on, l0_off, l1_on, l1_off
-    kk[0, 0, 0], kk[0, 1, 0], kk[1, 0, 0], kk[1, 1, 0] = k0_on, k0_off, k1_on, k1_off
-    ss[0, 0, 0], ss[0, 1, 0], ss[1, 0, 0], ss[1, 1, 0] = s0_on, s0_off, s1_on, s1_off
-    if w >= 0:
-        w_last[w, 0] = wl
-        w_int[w, 0] = wi
-    if math.isfinite(anchor_log[0]) and prev >= anchor_t[0]:  # the anchor's levels follow time, once per batch
-        u = float(prev - anchor_t[0])
-        if a_on > 0.0:
-            _comp_sweep(hist, 0, 0, 0, lev, kk, ss, r_on, u)
-        if a_off > 0.0:
-            _comp_sweep(hist, 0, 1, 0, lev, kk, ss, r_off, u)
+    lev[ws, 0, 0], kk[ws, 0, 0], ss[ws, 0, 0] = l1_on, k1_on, s1_on
+    lev[ws, 1, 0], kk[ws, 1, 0], ss[ws, 1, 0] = l1_off, k1_off, s1_off
+    if runs:
+        w_last[ws, 0] = wl
+        w_int[ws, 0] = wi
+    if so > 0:
+        lev[so, 0, 0], kk[so, 0, 0], ss[so, 0, 0] = l2_on, k2_on, s2_on
+        lev[so, 1, 0], kk[so, 1, 0], ss[so, 1, 0] = l2_off, k2_off, s2_off
+    for j in range(live.shape[0]):  # the levels of the live slots not integrating follow time, once per batch
+        s = live[j]
+        if not integ[s] and prev >= start_t[s]:
+            _follow_time(slots, s, 0, kp, rr, float(prev - start_t[s]))
     return stop, code, prev
 
 
 @nb.njit(cache=True)
-def ptedi_close_comp(
-    t_end,
-    counts_on,
-    counts_off,
-    inv_n,
-    hist,
-    lev,
-    kk,
-    ss,
-    w,
-    w_start,
-    c0_on,
-    c0_off,
-    w_last,
-    w_int,
-    c_on,
-    c_off,
-    a_on,
-    b_on,
-    a_off,
-    b_off,
-):
-    """:func:`ptedi_close` with the per-pixel compensation. O(zones + levels crossed)."""
-    r_on = a_on / b_on if b_on > 0.0 else math.inf
-    r_off = a_off / b_off if b_off > 0.0 else math.inf
+def side_close(t_end, s, counts, slots, kp, out):
+    """An exposure from slot ``s``'s start ends at ``t_end``: ``out[z]`` = the slot's integral so far plus the
+    closing piece (Eq. 13 from the last event to ``t_end``, no event between), computed on copies of the
+    slot's levels (the slot's own stay for the other estimators whose exposures from it are still open).
+    Bundles: see above. O(zones + levels crossed)."""
+    counts_on, counts_off, inv_n = counts
+    hist, lev, kk, ss, start_t, c0_on, c0_off, w_last, w_int = slots
+    rr = _ratios(kp)
     for z in range(counts_on.shape[0]):
-        m_on = (counts_on[z] - c0_on[w, z]) * inv_n[z]
-        m_off = (counts_off[z] - c0_off[w, z]) * inv_n[z]
-        w_int[w, z] += _comp_window_integral(
-            float(w_last[w, z] - w_start),
-            float(t_end - w_start),
-            z,
-            m_on,
-            m_off,
-            inv_n[z],
-            hist,
-            lev,
-            kk,
-            ss,
-            c_on,
-            c_off,
-            a_on,
-            b_on,
-            a_off,
-            b_off,
-            r_on,
-            r_off,
+        m_on = (counts_on[z] - c0_on[s, z]) * inv_n[z]
+        m_off = (counts_off[z] - c0_off[s, z]) * inv_n[z]
+        lo, hi = float(w_last[s, z] - start_t[s]), float(t_end - start_t[s])
+        lks = _slot_state(lev, kk, ss, s, z)
+        out[z] = (
+            w_int[s, z]
+            + _one_window_integral(lo, hi, m_on, m_off, inv_n[z], hist[s, 0, z], hist[s, 1, z], lks, kp, rr)[0]
         )
-        w_last[w, z] = t_end
-
-
-@nb.njit(cache=True)
-def comp_reanchor(pc, since, zflat, zones, sizes, hist):
-    """Re-anchor the pixels of the zones flagged in ``zones`` at an exposure start: their counts since
-    the anchor (``pc`` columns 0, 1) become ``since`` (their counts since that start) and
-    their anchor histograms (``hist[0]``) are rebuilt. Returns ``-1``, or the histogram size needed
-    when a count does not fit (then grow and call again: the rebuild starts from scratch). O(pixels).
-
-    Pixels without events since the start (most of them, usually) are not added one by one: bin 0
-    is the zone size minus the others (a chain of increments of one bin would serialise).
-    """
-    cap = hist.shape[3]
-    need = -1
-    every = True
-    for z in range(zones.shape[0]):
-        if zones[z]:
-            hist[0, :, z, :] = 0
-        else:
-            every = False
-    for i in range(pc.shape[0]):
-        z = zflat[i]
-        if z < 0 or not (every or zones[z]):
-            continue
-        n0 = since[i, 0]
-        n1 = since[i, 1]
-        pc[i, 0] = n0
-        pc[i, 1] = n1
-        if n0 > 0:
-            if n0 + 2 > cap:
-                need = max(need, n0 + 2)
-            else:
-                hist[0, 0, z, n0] += 1
-        if n1 > 0:
-            if n1 + 2 > cap:
-                need = max(need, n1 + 2)
-            else:
-                hist[0, 1, z, n1] += 1
-    for z in range(zones.shape[0]):
-        if zones[z]:
-            for q in range(2):
-                others = 0
-                for n in range(1, cap):
-                    others += hist[0, q, z, n]
-                hist[0, q, z, 0] = sizes[z] - others
-    return need
 
 
 @nb.njit(cache=True)

@@ -34,6 +34,8 @@ from necviz.drivers.sim.calibration_scene import CalibrationScene, CalibrationSc
 from necviz.drivers.sim.dvs import DvsParams
 from necviz.profiles import default_sim_profile, load_profile
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 SAMPLE = Path(__file__).resolve().parents[2] / "shared" / "data" / "davis346_sample.aedat4"
 SMALL = SensorGeometry(48, 36)
 TRUE_ON, TRUE_OFF = 0.31, 0.19  # not the defaults (0.26 / 0.24), and ON != OFF

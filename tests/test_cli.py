@@ -9,6 +9,8 @@ import pytest
 from necviz import __version__
 from necviz.commands.cli import main
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 
 def test_version_and_module_entry_point():
     out = subprocess.run([sys.executable, "-m", "necviz", "--version"], capture_output=True, text=True)

@@ -18,6 +18,8 @@ from necviz.core.frames import Frame
 from necviz.drivers.recordings import open_recording
 from necviz.drivers.source import CameraInfo
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 SAMPLE = SHARED_DATA / "davis346_sample.aedat4"
 needs_sample = pytest.mark.skipif(not SAMPLE.exists(), reason=f"real recording {SAMPLE} not available")
 

@@ -12,6 +12,8 @@ from necviz.commands.cli import main
 from necviz.commands.compare import run
 from necviz.options import CompareOptions, SceneOptions
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 KEYS = {
     "frames",
     "saturated_frames_50",

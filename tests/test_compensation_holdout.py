@@ -15,6 +15,8 @@ from necviz.core.event_model import TediParams
 from necviz.core.tedi import TediFitOptions, fit_tedi_pairs, prepare_pair
 from necviz.profiles import default_sim_profile
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 C = ("c_on", "c_off")
 COMP = ("a_on", "b_on", "a_off", "b_off")
 

@@ -113,6 +113,7 @@ def test_commands_are_always_within_limits(log_l):
         assert math.isfinite(cmd.exposure_us) and math.isfinite(cmd.gain)
 
 
+@pytest.mark.slow
 def test_closed_loop_exposes_the_first_frame_after_a_step_correctly(crf):
     """A miniature tunnel exit: +3 ln (26 dB) step between two frames; NEC, fed by events, commands the
     right exposure before the next frame starts, so that frame is well exposed (no saturated frame)."""

@@ -15,6 +15,8 @@ from necviz import schema as S
 from necviz.commands.cli import main
 from necviz.layouts import LAYOUTS, make_blueprint
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 CONTROLLERS = ("nec", "navid-tuned", "shim-tuned", "begin-tuned", "builtin", "fixed")  # the demo's (tuned baselines)
 DURATION_S = 1.0  # tunnel_exit: the portal is passed at 40 % of the duration
 

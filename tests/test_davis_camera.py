@@ -38,6 +38,7 @@ def event_times(packets):
     return np.concatenate([p.events["t"] for p in packets if isinstance(p, EventBatch)] or [np.zeros(0, np.int64)])
 
 
+@pytest.mark.slow
 def test_unplug_yields_what_was_decoded_then_raises():
     cam = open_camera("emulated", backend=backend(faults=Faults(unplug_after_s=0.1)))
     packets = []
@@ -200,6 +201,7 @@ def test_source_contract_batches_and_stats():
         cam.set_exposure("camera", 1000, 0.5)
 
 
+@pytest.mark.slow
 def test_nec_runs_in_closed_loop_on_the_emulated_camera():
     cam = open_camera("emulated", backend=backend(duration_s=0.6, seed=1), options=CameraOptions(exposure_us=5000))
     ctl = make_controller("nec", sensor=cam.sensor, limits=cam.limits, exposure_us=5000)

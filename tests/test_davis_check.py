@@ -26,6 +26,8 @@ from necviz.drivers.davis import (
 )
 from necviz.drivers.davis.capture import CaptureError, read_capture
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 SMALL = SensorGeometry(64, 48)
 
 

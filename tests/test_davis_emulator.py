@@ -20,6 +20,8 @@ from necviz.core.sensor import SensorGeometry
 from necviz.drivers.davis import CameraOptions, EmulatedDavis346, EmulatorOptions, open_camera
 from necviz.drivers.source import Source
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 SMALL = SensorGeometry(64, 48)
 
 

@@ -11,10 +11,14 @@ of the events its sensor produced and of those its FIFO dropped.
 
 import time
 
+import pytest
+
 from necviz.core.events import EventBatch
 from necviz.core.sensor import SensorGeometry
 from necviz.drivers.davis import CameraOptions, EmulatedDavis346, EmulatorOptions, open_camera
 from necviz.drivers.davis.device import PEAK_BYTES_PER_S
+
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
 
 SMALL = SensorGeometry(64, 48)
 SCALE = 0.05  # device seconds per wall second

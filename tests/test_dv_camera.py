@@ -18,6 +18,8 @@ from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, ImuBatch, TriggerBatch
 from necviz.drivers.davis import CameraOptions, DeviceError, DeviceNotFoundError
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 SAMPLE = SHARED_DATA / "davis346_sample.aedat4"
 
 

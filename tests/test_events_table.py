@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 from scipy.stats import t as student_t
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
 
 

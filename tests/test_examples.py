@@ -9,6 +9,8 @@ from pathlib import Path
 import pytest
 from conftest import SHARED_DATA
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 SAMPLE = SHARED_DATA / "davis346_sample.aedat4"
 

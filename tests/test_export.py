@@ -20,6 +20,8 @@ from necviz.drivers.recordings import RecordingError, open_recording
 from necviz.io import FAERY_DTYPE, TONIC_DTYPE, from_faery, from_tonic, load_npz, to_faery, to_tonic
 from necviz.options import ExportOptions
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 OUTPUTS = (".aedat4", ".h5", ".npz", ".necrec")
 EXPOSURE_US = 2000.0  # for the inputs that store none (MVSEC, RPG text)
 

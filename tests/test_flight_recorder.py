@@ -20,6 +20,8 @@ from necviz.drivers.recordings import open_recording
 from necviz.options import ClipOptions
 from necviz.telemetry import FrameRecord
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 SENSOR = SensorGeometry(32, 24, "tiny")
 BATCH_US = 1000
 

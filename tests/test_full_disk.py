@@ -19,6 +19,8 @@ from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import SensorGeometry
 from necviz.drivers.recordings.native import Recorder
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 
 @pytest.fixture
 def small_disk(tmp_path):

@@ -20,6 +20,8 @@ from fuzz_corpus import MUTATIONS, SAMPLE_AEDAT4, build_seeds, read_variant, rem
 from necviz.core.events import EventBatch
 from necviz.drivers.recordings import RecordingError, describe, open_recording
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 TIME_LIMIT_S = 5.0
 MEMORY_LIMIT = 200 * 1024 * 1024
 

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = {"necviz": "necviz", "core": "necviz.core", "drivers": "necviz.drivers", "layouts": "necviz.layouts"}
 

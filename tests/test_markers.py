@@ -180,6 +180,7 @@ def test_summarise_markers_on_a_hand_made_sequence():
 
 
 # -- in a run ---------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_compare_reports_marker_figures_that_follow_from_its_frames(tmp_path):
     from necviz.commands.compare import run
     from necviz.options import CompareOptions, SceneOptions

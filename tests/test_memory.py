@@ -15,6 +15,8 @@ import pytest
 from necviz.core.sensor import DAVIS346
 from necviz.memory import MMAP_THRESHOLD_BYTES, _glibc, bound_heap_retention
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 pytestmark = pytest.mark.skipif(_glibc() is None, reason="the thresholds are glibc's")
 
 # A session in miniature: an earlier burst (one 24 MB block, freed), then a burst of 6 MB blocks

@@ -28,6 +28,8 @@ from necviz.pipeline import Lane, Observer, Pipeline
 from necviz.runs import build_controller
 from necviz.telemetry import Telemetry
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 SENSOR = SensorGeometry(64, 48)
 N = SENSOR.num_pixels
 L0, L1 = 2.0, 8.0  # the raster ramp's ln L range

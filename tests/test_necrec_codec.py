@@ -68,6 +68,7 @@ def test_a_recording_reads_back_equal_with_every_compression(tmp_path, compressi
     assert (frame.exposure_start_us, frame.exposure_end_us, frame.gain, frame.sequence) == (50_000, 52_000, 1.5, 7)
 
 
+@pytest.mark.slow
 def test_two_seconds_of_emulated_live_record_in_at_most_25_mb(tmp_path):
     """The emulated DAVIS346 streams ~2.7 Mev/s and 50 frames a second: 13 bytes an event and a frame's
     pixels as they are would be ~80 MB for 2 s; compressed, at most a third of that and under 25 MB."""

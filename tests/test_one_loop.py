@@ -17,6 +17,8 @@ from necviz.options import SceneOptions
 from necviz.pipeline import Lane, Pipeline
 from necviz.telemetry import FrameTable, LatencyHistogram, Telemetry
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 
 def test_compare_and_demo_write_the_same_schema_with_the_compare_layout(tmp_path):
     x, y = tmp_path / "compare.rrd", tmp_path / "demo.rrd"

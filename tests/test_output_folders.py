@@ -9,6 +9,8 @@ from necviz.core.errors import ParameterError
 from necviz.options import ClipOptions
 from necviz.outputs import check_output
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 
 def test_a_missing_output_folder_is_created_and_said(tmp_path, capsys):
     out = tmp_path / "out" / "deep" / "x.json"

@@ -16,6 +16,8 @@ from necviz.commands.cli import main
 from necviz.core.errors import ParameterError
 from necviz.outputs import atomic_write, check_output, commit_recording, recording_target, write_json
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 SAMPLE = SHARED_DATA / "davis346_sample.aedat4"
 
 

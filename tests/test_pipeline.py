@@ -24,6 +24,8 @@ from necviz.drivers.recordings import Recorder, open_recording
 from necviz.drivers.source import CameraInfo, route
 from necviz.pipeline import Lane, Pipeline, RecorderObserver
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 SENSOR = SensorGeometry(32, 24, "test")
 
 

@@ -15,6 +15,8 @@ from necviz import schema as S
 from necviz.commands.cli import main
 from necviz.core.prediction_skill import SkillTracker, skill_from_columns
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 SAMPLE = Path(__file__).resolve().parents[2] / "shared" / "data" / "davis346_sample.aedat4"
 NAN = math.nan
 

@@ -226,14 +226,14 @@ def test_compensation_off_is_the_plain_model_and_can_be_switched():
     a = PeripheralEstimator(SENSOR, plain)
     b = PeripheralEstimator(SENSOR, PARAMS)
     b.set_params(plain)  # drops the per-pixel state: the fast path again
-    assert not b._comp
+    assert b.event_side is None
     c = PeripheralEstimator(SENSOR, plain)
     for pk in interleave(ev, frames(), batch_us=1_000):
         for est in (a, b, c):
             est.feed(pk)
-        if isinstance(pk, EventBatch) and pk.t_last_us >= 8_000 and not c._comp:
+        if isinstance(pk, EventBatch) and pk.t_last_us >= 8_000 and c.event_side is None:
             c.set_params(PARAMS)
-    assert c._comp  # the switch happened mid-stream
+    assert c.event_side is not None  # the switch happened mid-stream
     assert a.predict(60_000) == pytest.approx(b.predict(60_000), abs=1e-12)
     # c has the compensation on since 8 ms; from the anchors after that it matches a fresh estimator
     ref = PeripheralEstimator(SENSOR, PARAMS)
@@ -263,4 +263,4 @@ def test_hot_pixel_grows_the_count_histograms():
     u = 9_000 - 1_500
     want = est.anchor_log[0] + per_pixel_d(hot, 1_500, 9_000, u).mean()
     assert est.predict(9_000) == pytest.approx(want, abs=1e-9)
-    assert est._hist.shape[3] > n
+    assert est.event_side.histogram_size > n

@@ -5,11 +5,13 @@ brute force in ``test_ptedi_compensation``). Every lane of a rig has a stand-alo
 one, fed the same packets; every frame estimate and prediction must be equal to the last bit (``repr``).
 """
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from test_ptedi_compensation import PARAMS, SENSOR, H, W, random_stream
 
-from necviz.core.errors import StreamError
+from necviz.core.errors import ParameterError, StreamError
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.ptedi import PeripheralEstimator, PeripheralOptions
 from necviz.core.ptedi_shared import share_event_side
@@ -62,7 +64,7 @@ def test_shared_estimators_equal_stand_alone_ones_bit_for_bit(grid, delay_us):
     (side,) = share_event_side(shared)
     got, want, most_live = [], [], 0
     for cam, pk in stream:
-        most_live = max(most_live, sum(r > 0 for r in side.refs))
+        most_live = max(most_live, side.live_slots())
         for ests, out in ((alone, want), (shared, got)):
             for i, est in enumerate(ests):
                 if cam is None:
@@ -81,20 +83,17 @@ def test_shared_estimators_equal_stand_alone_ones_bit_for_bit(grid, delay_us):
     assert most_live >= (3 if delay_us else 2)
 
 
-def test_a_member_whose_thresholds_change_continues_on_its_own_exactly():
-    """Live tuning of one lane: the shared member leaves the side mid-stream and goes on as a stand-alone
-    estimator tuned at the same moment does."""
+def _tuned_mid_stream(tune):
+    """Three lanes alone and three sharing a side, fed the same packets; mid-stream (mid-exposure, frames
+    pending) ``tune(alone, shared)`` is called once. Returns every estimate of each group (``repr``)."""
     stream = _lanes_stream(3, 12_000)
     alone = [PeripheralEstimator(SENSOR, PARAMS) for _ in range(3)]
     shared = [PeripheralEstimator(SENSOR, PARAMS) for _ in range(3)]
     share_event_side(shared)
-    tuned = PARAMS.__class__(0.3, 0.2, PARAMS.a_on, PARAMS.b_on, PARAMS.a_off, PARAMS.b_off)
     got, want, done = [], [], False
     for n, (cam, pk) in enumerate(stream):
-        if not done and n > len(stream) // 2 and shared[1]._open >= 0:  # mid-exposure, frames pending
-            alone[1].set_params(tuned)
-            shared[1].set_params(tuned)
-            assert shared[1]._side is None
+        if not done and n > len(stream) // 2 and shared[1]._open >= 0:
+            tune(alone, shared)
             done = True
         for ests, out in ((alone, want), (shared, got)):
             for i, est in enumerate(ests):
@@ -106,7 +105,40 @@ def test_a_member_whose_thresholds_change_continues_on_its_own_exactly():
                     fe = est.feed(pk)
                     if fe is not None:
                         out.append(repr(fe))
-    assert done and got == want
+    assert done
+    return got, want
+
+
+def test_a_member_whose_thresholds_change_continues_on_its_own_exactly():
+    """Live tuning of one lane: the shared member leaves the side mid-stream and goes on as a stand-alone
+    estimator tuned at the same moment does."""
+    tuned = PARAMS.__class__(0.3, 0.2, PARAMS.a_on, PARAMS.b_on, PARAMS.a_off, PARAMS.b_off)
+
+    def tune(alone, shared):
+        alone[1].set_params(tuned)
+        shared[1].set_params(tuned)
+        # the tuned lane alone has the new parameters: the others go on with theirs
+        assert shared[1].params == tuned and shared[0].params == shared[2].params == PARAMS
+
+    got, want = _tuned_mid_stream(tune)
+    assert got == want
+
+
+def test_contrast_thresholds_change_on_the_side_for_every_member():
+    """set_contrast_thresholds on one lane changes the thresholds of every estimator on its event side, from
+    that moment on exactly as for a lone estimator given the same call; a+-, b+- stay; the next estimates
+    follow the new thresholds."""
+
+    def tune(alone, shared):
+        before = shared[0].predict()
+        for est in alone:
+            est.set_contrast_thresholds(0.3, 0.2)
+        shared[2].set_contrast_thresholds(0.3, 0.2)  # one call: every member
+        assert all(est.params == replace(PARAMS, c_on=0.3, c_off=0.2) for est in shared)
+        assert shared[0].predict() != before  # the counts since the anchor are weighed anew
+
+    got, want = _tuned_mid_stream(tune)
+    assert got == want
 
 
 def test_members_must_be_fed_in_lock_step():
@@ -116,3 +148,13 @@ def test_members_must_be_fed_in_lock_step():
     shared[0].update(ev[:10])
     with pytest.raises(StreamError, match="every event batch"):
         shared[1].update(ev[10:20])  # not the batch the other member received
+
+
+def test_contrast_thresholds_without_compensation_and_bad_values():
+    plain = PeripheralEstimator(SENSOR, PARAMS.plain)
+    plain.set_contrast_thresholds(0.3, 0.25)
+    assert plain.params == replace(PARAMS.plain, c_on=0.3, c_off=0.25) and plain.event_side is None
+    for bad in (0.0, -0.1, float("nan"), float("inf"), True, "0.2"):
+        with pytest.raises(ParameterError, match="c_on"):
+            plain.set_contrast_thresholds(bad, 0.2)
+    assert plain.params.c_on == 0.3

@@ -29,6 +29,8 @@ from necviz.dashboard.sink import EventPalette, RerunSink, SinkOptions, encode_i
 from necviz.image_quality import ssim
 from necviz.telemetry import FrameRecord
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 LANES = ("nec", "fixed")
 DURATION_S = 0.6
 

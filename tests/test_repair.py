@@ -13,6 +13,8 @@ from rerun.chunk import RrdReader
 from necviz.commands.cli import main
 from necviz.commands.repair import repair
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 
 def test_a_killed_run_is_repaired_into_a_copy(tmp_path, capsys):
     rrd = tmp_path / "cut.rrd"

@@ -19,6 +19,8 @@ from necviz.core.stream import interleave
 from necviz.drivers.recordings import Recorder, RecordingError, describe, open_recording
 from necviz.drivers.source import CommandRecord
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 SMALL = SensorGeometry(32, 24, "small")
 
 

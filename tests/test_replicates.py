@@ -12,6 +12,8 @@ from necviz.drivers.sim.scenes import SCENARIOS, make_scenario
 from necviz.drivers.sim.scenes.preset import DEFAULT_JITTER_MS
 from necviz.drivers.sim.scenes.static_lab import FIRST_START_US
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 PERIOD = ApsParams().frame_interval_us
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 
+import pytest
 from rerun.chunk import RrdReader
 from rrd_read import Rrd
 
@@ -11,6 +12,8 @@ import necviz.dashboard.rrd_file as rrd_file
 from necviz.commands.cli import main
 from necviz.dashboard.viewer import _rerun_binary
 from necviz.outputs import OutputError
+
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
 
 DEMO = ["demo", "--duration", "0.6", "--controllers", "nec,fixed", "--no-prompt"]
 

@@ -12,6 +12,8 @@ from necviz.drivers.sim.rig import RigOptions, SimRig
 from necviz.drivers.sim.scene_cache import SceneCache
 from necviz.options import SceneOptions
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 
 def _rig(cache, duration_s=0.2, threads=True, seed=0, **params):
     scene = SceneOptions("tunnel_exit", seed, duration_s, params).build()

@@ -11,6 +11,8 @@ import psutil
 import pytest
 from viewer_check import free_port
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 
 def listening(proc: psutil.Process) -> set[tuple[str, int]]:
     pids = {proc.pid, *(c.pid for c in proc.children(recursive=True))}

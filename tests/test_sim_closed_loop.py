@@ -2,12 +2,15 @@
 exposure's do not (the paper's claim in miniature; the full comparison is `necviz compare`)."""
 
 import numpy as np
+import pytest
 
 from necviz.core import Frame, PeripheralEstimator, SensorGeometry, TediParams
 from necviz.core.control import CameraLimits, NECController
 from necviz.drivers.sim.aps import ApsParams
 from necviz.drivers.sim.rig import SimRig
 from necviz.drivers.sim.scenes import make_scenario
+
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
 
 
 def test_nec_avoids_the_saturated_frames_a_fixed_exposure_gets():

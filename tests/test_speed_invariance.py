@@ -99,6 +99,7 @@ def sim_summary(threads=None) -> dict:
     return {"kinds": kinds, "counts": counts, "on_fraction": on, "frames": frames}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("threads", [True, False])
 def test_simulator_packets_are_those_of_the_code_before_the_speed_work(threads):
     ref = json.loads(REFERENCE.read_text())
@@ -160,6 +161,7 @@ def _shim_exposures(commands):
     return np.array([float(c.split("exposure_us=")[1].split(",")[0]) for c in commands])
 
 
+@pytest.mark.slow
 def test_closed_loop_with_worker_threads_equals_the_serial_reference(monkeypatch):
     a, rec_a = _closed_loop(True, monkeypatch)
     b, rec_b = _closed_loop(False, monkeypatch)
@@ -243,13 +245,14 @@ def _ptedi_stream(seed: int = 4):
 
 def _run_ptedi(monkeypatch, general: bool, **kw):
     import necviz.core.ptedi as P
+    import necviz.core.ptedi_side as side_module
     from necviz.core.event_model import TediParams
     from necviz.core.frames import ExposureMarker
     from necviz.core.sensor import DAVIS346
     from necviz.core.stream import interleave
 
     if general:  # the reference: the kernel written for any number of zones
-        monkeypatch.setattr(P, "ptedi_update_comp_one", P.ptedi_update_comp)
+        monkeypatch.setattr(side_module, "side_update_one", side_module.side_update)
     ev, frames = _ptedi_stream()
     est = P.PeripheralEstimator(
         DAVIS346, TediParams(0.26, 0.24, 0.45, 150.0, 0.35, 120.0), options=P.PeripheralOptions(**kw)
@@ -262,7 +265,8 @@ def _run_ptedi(monkeypatch, general: bool, **kw):
         if r is not None:
             out.append(repr(r))
     monkeypatch.undo()
-    state = [est._hist, est._lev, est._kk, est._ss, est._pc, est._wint, est._wlast, est.counts_on, est.counts_off]
+    side = est.event_side
+    state = [side.hist, side.lev, side.kk, side.ss, side.pc, side.w_int, side.w_last, est.counts_on, est.counts_off]
     return out, [np.array(a, copy=True) for a in state], est
 
 
@@ -271,8 +275,8 @@ def test_single_zone_compensated_kernel_equals_the_general_one(monkeypatch, kw):
     got, state_got, est = _run_ptedi(monkeypatch, False, **kw)
     want, state_want, _ = _run_ptedi(monkeypatch, True, **kw)
     assert est.frames_seen >= 8 and est.frames_bounded + est.frames_skipped > 0  # anchors and saturated frames
-    assert est._hist.shape[3] > 64  # the histograms had to grow mid-batch
-    assert est._kk[0].sum() > 0  # some pixels were compensated
+    assert est.event_side.histogram_size > 64  # the histograms had to grow mid-batch
+    assert (est.event_side.kk > 0).any()  # some pixels were compensated
     assert got == want  # every FrameEstimate and prediction, exactly (repr: every float to the last bit)
     for a, b in zip(state_got, state_want, strict=True):
         assert np.array_equal(a, b)

@@ -27,6 +27,8 @@ from necviz.sweeps import SweepOptions, load_plan, run_sweep
 from necviz.sweeps.spec import spec_hash
 from necviz.sweeps.store import Store
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 SWEEP = """
 name = "tiny"
 seeds = "0..1"

@@ -39,6 +39,8 @@ from necviz.core.tedi import (
     valid_mask,
 )
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 TRUE = TediParams(c_on=0.25, c_off=0.22, a_on=0.6, b_on=300.0, a_off=0.4, b_off=200.0)
 LOG_CRF = CameraResponse((np.arange(256) - 128.0) / 20.0)
 QUANT = 0.5 / 20.0  # rounding to the nearest digit changes g by at most half a step

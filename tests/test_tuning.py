@@ -23,6 +23,8 @@ from necviz.dashboard.tuning import TuningConsole, TuningFile, execute, parse
 from necviz.drivers.recordings import Recorder, open_recording
 from necviz.pipeline import Lane, Pipeline, RecorderObserver
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 
 class TwoCameras(ListSource):
     cameras = ("nec", "navid")

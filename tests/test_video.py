@@ -6,6 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 av = pytest.importorskip("av", reason="PyAV is not installed (pip install 'necviz[video]')")
 
 from necviz.core.events import EVENT_DTYPE  # noqa: E402

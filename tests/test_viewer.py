@@ -19,6 +19,8 @@ from necviz.commands.cli import main
 from necviz.layouts import make_blueprint
 from necviz.layouts.blueprints import EVENTS_TITLE, INSPECT_IRRADIANCE
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 SAMPLE = SHARED_DATA / "davis346_sample.aedat4"
 
 

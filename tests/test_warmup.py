@@ -12,6 +12,8 @@ import sys
 import pytest
 from conftest import SHARED_DATA
 
+pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
+
 SAMPLE = SHARED_DATA / "davis346_sample.aedat4"
 
 _PROBE = """

@@ -116,6 +116,8 @@ import numpy as np
 from necviz.core.checks import check_number
 from necviz.core.control.controller import CameraLimits, Controller, ControllerOptions, ExposureCommand, Tunable
 from necviz.core.control.flicker_watch import FlickerWatch
+from necviz.core.control.nec_bus import BusWatch
+from necviz.core.control.nec_lag import LagTracker
 from necviz.core.crf import US_PER_S
 from necviz.core.errors import ParameterError
 from necviz.core.frames import Frame
@@ -129,12 +131,6 @@ GOAL_MODES = ("paper", "measured")
 #: goal digit per metering mode for ``goal_mode="measured"`` (``None``: the log mid-point), chosen by
 #: ``benchmarks/metering.py`` (README, "Metering and goal")
 MEASURED_GOAL_DN: dict[str, float | None] = {"paper": None, "median": 100.0, "percentile": None, "zones": None}
-#: a window of events is "at the ceiling" when its rate is at least this fraction of the bus maximum
-BUS_FRACTION = 0.9
-#: ... and one polarity dominates: |ON - OFF| at least this fraction of its events
-POLARITY_DOMINANCE = 0.6
-#: the event rate is judged over windows of at least this long (µs; shorter batches are pooled)
-BUS_WINDOW_US = 500
 #: default zone grid of ``metering="zones"`` (rows, columns)
 ZONE_GRID = (4, 4)
 
@@ -452,26 +448,15 @@ class NECController(Controller):
         self.escape_direction = 0  # +1 / -1 while the prediction is a lower / upper bound, else 0
         self._frame_dir = 0  # the last frame: +1 more than half over-exposed, -1 under, 0 neither
         self._determined_s = np.iinfo(np.int64).min  # exposure start of the last frame that determined M
-        self._sat_t = np.iinfo(np.int64).min  # last event time of the last ceiling-saturated window
-        self._sat_dir = 0
-        self._win_t0: int | None = None
-        self._win_n = 0
-        self._win_on = 0
-        self._counts_seen = (0, 0)
-        self._win_up = 0
-        self.saturated_windows = 0  # windows of events found at the bus ceiling (diagnostics)
+        self.bus = BusWatch()  # windows of events at the bus ceiling (case (a); nec_bus)
         self.flicker = FlickerWatch()  # which of them are a flicker's swings (flicker_rule)
-        self._sat_before = (self._sat_t, self._sat_dir)  # case (a) before the current sequence of ceiling windows
         # rate at the ceiling: counted change of each ceiling-saturated window since the anchor, the gain a
         # saturated frame calibrated, and the change credited beyond the count (ln; added to M)
         self._sat_log: list[tuple[int, float]] = []
         self._gain = 1.0
         self._gain_dir = 0
         self.ceiling_credit = 0.0
-        # lag after a saturation bound: the gap the bound closed (signed ln) and P-TEDI's level at the bound
-        self.bound_owed = 0.0
-        self._owed_base = 0.0
-        self._anchor_s = np.iinfo(np.int64).min  # exposure start of P-TEDI's last (re-)anchor
+        self.lag = LagTracker()  # lag after a saturation bound (bound_lag; nec_lag)
 
     # -- settings -------------------------------------------------------------------------------
     def _goal_log_exposure(self, options: NECOptions) -> float:
@@ -662,45 +647,25 @@ class NECController(Controller):
         return float(self._weights[side == 0].sum()) >= 0.5 * float(self._weights.sum())
 
     # -- the escape rule ------------------------------------------------------------------------
+    @property
+    def saturated_windows(self) -> int:
+        """Windows of events found at the bus ceiling so far (diagnostics)."""
+        return self.bus.saturated_windows
+
+    @property
+    def bound_owed(self) -> float:
+        """The gap a saturation bound closed that later events only catch up with (signed ln; ``bound_lag``)."""
+        return self.lag.owed
+
     def _watch_bus(self, n: int, t_last: int) -> None:
-        """Pool event windows of at least :data:`BUS_WINDOW_US`; flag one at the bus ceiling with a
-        dominant polarity (case (a) of the escape rule)."""
-        est = self.estimator
-        on, off = est.event_totals()
-        d_on = on - self._counts_seen[0]
-        d_off = off - self._counts_seen[1]
-        self._counts_seen = (on, off)
-        if self._win_t0 is None:
-            self._win_t0 = t_last
-            return
-        self._win_n += n
-        self._win_on += d_on - d_off  # net polarity of the region's events
-        self._win_up += d_on
-        span = t_last - self._win_t0
-        if span < BUS_WINDOW_US:
-            return
+        """Case (a) of the escape rule: a window at the bus ceiling (:class:`BusWatch`), credited when
+        ``ceiling_rate`` is on."""
         rate = self._bus_rate
         assert rate is not None  # on_events watches the bus only when it has a rate
-        if (
-            self._win_n >= BUS_FRACTION * rate * span / US_PER_S
-            and abs(self._win_on) >= POLARITY_DOMINANCE * self._win_n
-        ):
-            self.saturated_windows += 1
-            d = 1 if self._win_on > 0 else -1
-            if self.options.flicker_rule and self.flicker.observe(t_last, d):  # a flicker's swing loses nothing
-                if self._sat_t >= self.flicker.sequence_start_us:  # its first swings, taken for losses
-                    self._sat_t, self._sat_dir = self._sat_before
-            else:
-                if self.flicker.sequence_start_us == t_last:
-                    self._sat_before = (self._sat_t, self._sat_dir)
-                self._sat_t = t_last
-                self._sat_dir = d
-                if self.options.ceiling_rate:
-                    self._ceiling_window(t_last, self._win_up, self._win_up - self._win_on)
-        self._win_t0 = t_last
-        self._win_n = 0
-        self._win_on = 0
-        self._win_up = 0
+        flicker = self.flicker if self.options.flicker_rule else None
+        hit = self.bus.watch(n, t_last, self.estimator.event_totals(), rate, flicker)
+        if hit is not None and self.options.ceiling_rate:
+            self._ceiling_window(t_last, *hit)
 
     def _ceiling_window(self, t_end: int, n_on: int, n_off: int) -> None:
         """A window at the bus ceiling: remember its counted change; credit the calibrated extra."""
@@ -714,38 +679,14 @@ class NECController(Controller):
             self.ceiling_credit += (self._gain - 1.0) * counted
 
     def _absorbed(self, lp: float) -> float:
-        """The part of P-TEDI's change since the bound that only catches up with it (``bound_lag``):
-        the change in the gap's direction, up to the gap (0 without a gap)."""
-        owed = self.bound_owed
-        if owed == 0.0 or lp != lp:
-            return 0.0
-        moved = lp - self._owed_base
-        if owed < 0.0:
-            return max(owed, min(moved, 0.0))
-        return min(owed, max(moved, 0.0))
+        """The part of P-TEDI's change since the bound that only catches up with it (``bound_lag``)."""
+        return self.lag.absorbed(lp)
 
     def _track_lag(self, fe: FrameEstimate) -> None:
-        """After a frame: open a lag gap at a saturation bound no ceiling window explains, close it at a
-        normal anchor (``bound_lag``; module docstring)."""
-        s = int(fe.exposure_start_us)
-        bounded, log_start, predicted = fe.bounded, fe.log_start, fe.predicted_start
-        if bounded is None or not bool(bounded.any()) or predicted is None:
-            if bool(fe.anchored.any()):
-                self.bound_owed = 0.0
-                self._anchor_s = s
-            return
-        assert log_start is not None  # PeripheralEstimator.add_frame sets it on every frame
-        sizes = self.estimator.sizes.astype(np.float64)
-        w = np.where(bounded, sizes, 0.0)
-        with np.errstate(invalid="ignore"):
-            gap = float(np.nansum(np.where(bounded, log_start - predicted, 0.0) * w) / w.sum())
-        lost = self._bus_rate is not None and self.options.escape and self._sat_t >= self._anchor_s
-        self._anchor_s = s
-        if lost or not math.isfinite(gap):  # events lost at the ceiling never come: nothing to absorb
-            self.bound_owed = 0.0
-            return
-        self.bound_owed = gap
-        self._owed_base = float(np.nansum(np.where(bounded, log_start, 0.0) * w) / w.sum())
+        """After a frame: the lag tracker's gap (``bound_lag``; module docstring). A window at the bus ceiling
+        counts only while the bus is watched."""
+        watched = self._bus_rate is not None and self.options.escape
+        self.lag.after_frame(fe, self.estimator.sizes, self.bus.saturated_t if watched else None)
 
     def _credit(self) -> float:
         """The change credited beyond the count, at most half the slack of the valid range
@@ -788,10 +729,10 @@ class NECController(Controller):
     def _escape_direction(self) -> int:
         """+1 / -1 while the metered level is only a lower / upper bound, else 0 (module docstring)."""
         d = self._frame_dir
-        if self._sat_t >= self._determined_s:
+        if self.bus.saturated_t >= self._determined_s:
             if d == 0:
-                d = self._sat_dir
-            elif d != self._sat_dir:
+                d = self.bus.saturated_dir
+            elif d != self.bus.saturated_dir:
                 d = 0  # the frame bounds it one way, lost events the other: nothing one-sided is known
         return d
 

@@ -6,7 +6,7 @@ controller needs to command frame ``i+1``), from frame ``i`` (mEDI: frames ``i-1
 and the events up to ``s_{i+1}``. Per-pixel methods reconstruct ``ln L(s_{i+1}, x)`` and
 average it over valid pixels; P-TEDI streams every packet once and predicts at ``s_{i+1}``,
 twice: ``P-TEDI`` with the TEDI compensation (``a± > 0``, the per-pixel path of
-:func:`necviz.core.ptedi.ptedi_update_comp`) and ``P-TEDI a=0`` without it (the O(1)-per-event
+:func:`necviz.core.ptedi_comp.side_update_one`) and ``P-TEDI a=0`` without it (the O(1)-per-event
 path of :func:`necviz.core.ptedi.ptedi_update_whole`), same thresholds.
 ``floor`` is a Numba pass that only reads the same event arrays (t, x, y, p): the memory
 bound no event processor can beat; both P-TEDI rows are also given as a fraction of it from the
