@@ -25,6 +25,7 @@ from necviz.layouts import make_blueprint, style_series
 from necviz.memory import bound_heap_retention
 from necviz.options import ShowOptions, TuneOptions, ViewerOptions
 from necviz.outputs import OutputError, low_space
+from necviz.pace import SETTLE_S, PaceWatch, achieved_speed, pace_note
 from necviz.pipeline import Lane, Pipeline, RecorderObserver
 from necviz.progress import LiveLine, output, plural
 
@@ -211,6 +212,8 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
     for make in ss.observers:
         observers.append(make(ss, layout, out))
     files += [o.folder for o in observers if getattr(o, "folder", None) is not None]  # clips fill a disk too
+    pace = PaceWatch()  # a paced run that cannot keep its speed says so (necviz/pace.py)
+    observers.append(pace)
     pipe = Pipeline(
         ss.source,
         ss.lanes,
@@ -223,8 +226,14 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
     t0 = time.perf_counter()
     disk_full = None  # (file, bytes free) when the run was stopped to keep its files whole
 
+    def sensor_s() -> float:
+        return ((pipe.now_us or 0) - (pipe.first_us or 0)) / 1e6
+
     def status() -> str:
-        return progress_line(ss.command, pipe, ss.expected_duration_s, time.perf_counter() - t0)
+        wall = pace.wall_s()
+        behind = pace_note(speed, sensor_s(), wall, SETTLE_S) is not None
+        line = progress_line(ss.command, pipe, ss.expected_duration_s, time.perf_counter() - t0)
+        return line + (f" · behind: {achieved_speed(sensor_s(), wall):.2f}x real time" if behind else "")
 
     try:
         if ss.tune is not None and ss.tune.file:
@@ -259,6 +268,7 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
             pipe.stop()
         if console is not None:
             console.close()
+        pace_wall = pace.wall_s()
         if out is not None:
             line.clear()
             print(status(), file=out, flush=True)
@@ -288,7 +298,12 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
     source_stats = getattr(ss.source, "stats", None)
     if isinstance(source_stats, dict) and "dropped_events" in source_stats:  # a camera: what the device lost
         stats["source"] = {k: v for k, v in source_stats.items() if isinstance(v, (int, float))}
+    stats["speed"] = speed
+    stats["achieved_speed"] = achieved_speed(sensor_s(), pace_wall)
     print_summary(out, stats)
+    behind = pace_note(speed, sensor_s(), pace_wall)
+    if behind and out is not None:
+        print(f"  {behind}", file=out)
     stats["rrd"] = str(viewer.save_path) if viewer.save_path is not None else None
     stats["telemetry"] = pipe.telemetry
     return stats, viewer
