@@ -147,3 +147,24 @@ def test_the_default_controllers_are_the_parsers(cmd):
     parser = PARSERS[cmd].get_default("controllers").split(",")
     assert sorted(_controllers_in(stated)) == sorted(parser), (stated, parser)
     assert "all six" not in m.group(1)
+
+
+def test_the_sweep_file_in_the_docs_is_the_shipped_example():
+    """docs/sweeps.md shows benchmarks/sweeps/example.toml as it is (a copy must not, e.g., run the slow SIFT metric)."""
+    import tomllib
+
+    text = (DOCS / "sweeps.md").read_text(encoding="utf-8")
+    block = re.search(r"```toml\n(.*?)```", text, re.S)
+    assert block, "docs/sweeps.md shows no sweep file"
+    shipped = tomllib.loads((DOCS.parent / "benchmarks" / "sweeps" / "example.toml").read_text(encoding="utf-8"))
+    assert tomllib.loads(block.group(1)) == shipped
+    assert shipped.get("sift") is False
+
+
+def test_the_docs_index_lists_each_page_once_and_examples_use_no_private_paths():
+    index = (DOCS / "README.md").read_text(encoding="utf-8")
+    pages = re.findall(r"^\| \[([\w.-]+\.md)\]", index, re.M)
+    assert pages and len(pages) == len(set(pages)), sorted(p for p in pages if pages.count(p) > 1)
+    examples = DOCS.parent / "examples"
+    for f in [examples / "README.md", *examples.glob("*.py")]:
+        assert "/work/" not in f.read_text(encoding="utf-8"), f"{f.name} names a path users do not have"
