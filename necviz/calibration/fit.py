@@ -115,8 +115,8 @@ class CalibrationResult:
         p, se = self.params, self.stderr
         d = self.data
         lines = [
-            f"data: {d.get('frames', '?')} frames, {d.get('pairs_considered', '?')} pairs considered, "
-            f"{len(self.pairs)} used ({self.num_residuals:,} pixel residuals; "
+            f"data: {_count(d.get('frames'), 'frame')}, {_count(d.get('pairs_considered'), 'pair')} considered, "
+            f"{len(self.pairs)} used ({_plural(self.num_residuals, 'pixel residual')}; "
             f"{self.groups.get('saturated', {}).get('pairs', 0)} reached the sensor's bus ceiling)",
             f"fit: {self.method}",
             "fitted TEDI parameters"
@@ -184,7 +184,7 @@ class CalibrationResult:
             ho = comp.get("held_out")
             if ho:
                 lines.append(
-                    f"  held out ({comp['split']}; fitted on {comp['fit_pairs']} pairs, tested on "
+                    f"  held out ({comp['split']}; fitted on {_plural(comp['fit_pairs'], 'pair')}, tested on "
                     f"{comp['held_out_pairs']}), RMS residual without -> with compensation:"
                 )
                 for key in ("all", "unsaturated", "saturated"):
@@ -213,7 +213,11 @@ def _pct(level: float) -> str:
 
 
 def _plural(n: int, word: str) -> str:
-    return f"{n} {word}" + ("" if n == 1 else "s")
+    return f"{n:,} {word}" + ("" if n == 1 else "s")
+
+
+def _count(n, word: str) -> str:
+    return _plural(n, word) if isinstance(n, int) else f"? {word}s"
 
 
 def _num(v):

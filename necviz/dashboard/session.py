@@ -339,24 +339,24 @@ def print_summary(out, stats: dict) -> None:
     if out is None:
         return
     print(
-        f"  {stats['events']:,} events, {stats['frames']} frames over {stats['duration_s']:.2f} s "
+        f"  {plural(stats['events'], 'event')}, {plural(stats['frames'], 'frame')} over {stats['duration_s']:.2f} s "
         f"({stats['event_rate_mev_s']:.2f} Mev/s) in {stats['wall_s']:.1f} s wall",
         file=out,
     )
     for name, s in stats["lanes"].items():
         print(
-            f"  {name:8s} {s['frames']:4d} frames, {s['saturated_frames_50']:3d} saturated, {s['commands']:5d} "
-            f"commands, latency p50 {_us(s['latency_p50_us'])} p99 {_us(s['latency_p99_us'])}",
+            f"  {name:8s} {plural(s['frames'], 'frame'):>11s}, {s['saturated_frames_50']:3d} saturated, "
+            f"{plural(s['commands'], 'command'):>14s}, latency p50 {_us(s['latency_p50_us'])} p99 {_us(s['latency_p99_us'])}",
             file=out,
         )
     src = stats.get("source")
     if src:
         lost = src.get("dropped_events", 0)
         print(
-            f"  camera: {lost:,} events dropped by the device"
+            f"  camera: {plural(lost, 'event')} dropped by the device"
             + (" (its FIFO overflowed while the host was not reading, or its bus was saturated)" if lost else "")
-            + f"; {src.get('skipped_words', 0):,} stream "
-            f"words skipped; {src.get('reconnects', 0)} reconnects",
+            + f"; {plural(src.get('skipped_words', 0), 'stream word')} skipped; "
+            f"{plural(src.get('reconnects', 0), 'reconnect')}",
             file=out,
         )
     fr = stats.get("flight_recorder")
@@ -377,16 +377,16 @@ def print_summary(out, stats: dict) -> None:
     vd = stats.get("video")
     if vd:
         print(
-            f"  video: {vd['path']} ({vd['frames']} frames, {vd['duration_s']:.2f} s at x{vd['speed']:g}, "
+            f"  video: {vd['path']} ({plural(vd['frames'], 'frame')}, {vd['duration_s']:.2f} s at x{vd['speed']:g}, "
             f"{vd['width']}x{vd['height']})",
             file=out,
         )
     sk = stats.get("sink")
     if sk:
         print(
-            f"  viewer: {sk['frames_logged']} frames, {sk['event_images']} event images; dropped "
-            f"{sk['frames_dropped']} frames and {sk['event_batches_dropped']} event batches; "
-            f"{sk['events_decimated']:,} of {sk['events_seen']:,} events not drawn (decimation)",
+            f"  viewer: {plural(sk['frames_logged'], 'frame')}, {plural(sk['event_images'], 'event image')}; dropped "
+            f"{plural(sk['frames_dropped'], 'frame')} and {plural(sk['event_batches_dropped'], 'event batch', 'event batches')}; "
+            f"{sk['events_decimated']:,} of {plural(sk['events_seen'], 'event')} not drawn (decimation)",
             file=out,
         )
 
