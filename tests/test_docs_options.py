@@ -168,3 +168,16 @@ def test_the_docs_index_lists_each_page_once_and_examples_use_no_private_paths()
     examples = DOCS.parent / "examples"
     for f in [examples / "README.md", *examples.glob("*.py")]:
         assert "/work/" not in f.read_text(encoding="utf-8"), f"{f.name} names a path users do not have"
+
+
+def test_the_web_viewer_docs_name_its_url_and_forward_both_ports():
+    from necviz.names import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
+
+    text = (DOCS / "dashboard.md").read_text(encoding="utf-8")
+    data = f"rerun+http://127.0.0.1:{DEFAULT_GRPC_PORT}/proxy"
+    url = f"http://127.0.0.1:{DEFAULT_WEB_PORT}/?url={data.replace('+', '%2B')}"  # as viewer.start_web_server builds it
+    assert f"web viewer: {url}" in text
+    assert (
+        f"-L {DEFAULT_WEB_PORT}:127.0.0.1:{DEFAULT_WEB_PORT} -L {DEFAULT_GRPC_PORT}:127.0.0.1:{DEFAULT_GRPC_PORT}"
+        in text
+    )
