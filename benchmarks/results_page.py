@@ -303,6 +303,53 @@ def r_necrec_codec(d: dict) -> str:
     )
 
 
+def r_calibration_coverage(d: dict) -> str:
+    """How often calibrate's threshold intervals hold the simulator's thresholds (benchmarks/calibration_coverage.py)."""
+    sm = d.get("summary", {})
+    rows = [
+        [
+            f"`{n}`",
+            num(g["truth"], 2),
+            f"**{g['bootstrap_covers']}/{g['seeds']}**",
+            num(g["median_width"], 4),
+            f"{g['stderr_covers']}/{g['seeds']}",
+            num(g["median_error"], 4),
+        ]
+        for n, g in sm.items()
+    ]
+    seeds = [r["seed"] for r in d.get("rows", [])]
+    text = table(
+        [
+            "threshold",
+            "truth",
+            "95 % bootstrap interval holds it",
+            "median width",
+            "±1.96 s.e. holds it",
+            "median |error|",
+        ],
+        rows,
+    )
+    misses = [
+        f"seed {r['seed']} (`{n}` {r[n]['fitted']:.4f}, [{r[n]['interval'][0]:.4f}, {r[n]['interval'][1]:.4f}])"
+        for r in d.get("rows", [])
+        for n in sm
+        if not r[n]["covers"]
+    ]
+    return (
+        text
+        + f"\n\nSeeds {min(seeds, default=0)}-{max(seeds, default=0)} of {d.get('scene', 'the calibration scene')}, "
+        "one calibration per seed as `necviz calibrate --sim calibration --seeds S --duration 6` runs it. "
+        "The bootstrap resamples the frame pairs the thresholds were fitted on; the standard error takes "
+        "every pixel residual as independent. "
+        + ("Intervals that missed: " + "; ".join(misses) + "." if misses else "Every interval held the truth.")
+        + (
+            "\n\n![calibration intervals per seed](images/calibration_coverage.png)"
+            if (ROOT / "docs" / "images" / "calibration_coverage.png").exists()
+            else ""
+        )
+    )
+
+
 def r_sweep_scaling(d: dict) -> str:
     s = d.get("summary", {})
     return table(
@@ -398,6 +445,7 @@ RENDERERS: dict[str, tuple[str, Callable[[dict], str]]] = {
     "flight_recorder": ("Flight recorder memory", r_flight_recorder),
     "necrec_codec": ("Native recordings: size and speed per packet compression", r_necrec_codec),
     "sweep_scaling": ("Sweeps on one and two workers", r_sweep_scaling),
+    "calibration_coverage": ("Calibration intervals against the simulator's thresholds", r_calibration_coverage),
     "metering": ("NEC's metering, goal and escape rule (the earlier, in-sample choice)", r_metering),
     "tuning": ("Every controller tuned with the same budget (training scenes and seeds)", r_tuning),
     "events_training": (
