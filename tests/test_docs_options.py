@@ -181,3 +181,17 @@ def test_the_web_viewer_docs_name_its_url_and_forward_both_ports():
         f"-L {DEFAULT_WEB_PORT}:127.0.0.1:{DEFAULT_WEB_PORT} -L {DEFAULT_GRPC_PORT}:127.0.0.1:{DEFAULT_GRPC_PORT}"
         in text
     )
+
+
+def test_info_lists_every_controller_the_commands_accept_tuned_ones_included():
+    """docs/commands.md: "every registered name, tuned baselines included, is listed by `necviz info`"
+    (a fresh process: in this one another test may have registered the tuned controllers already)."""
+    import subprocess
+    import sys
+
+    from necviz.names import CONTROLLER_NAMES
+
+    assert "tuned baselines included, is listed by `necviz info`" in COMMANDS
+    out = subprocess.run([sys.executable, "-m", "necviz", "info"], capture_output=True, text=True, timeout=120)
+    line = next(ln for ln in out.stdout.splitlines() if ln.startswith("controllers:"))
+    assert sorted(n.strip() for n in line.split(":", 1)[1].split(",")) == sorted(CONTROLLER_NAMES), line
