@@ -51,3 +51,13 @@ def test_the_run_summary_says_1_frame_not_1_frames():
         text
     )
     assert "1 frame," in text and "1 command," in text and "1 event batch;" in text
+
+
+def test_lane_rows_line_up_whatever_the_names():
+    lane = {"frames": 40, "saturated_frames_50": 2, "commands": 12, "latency_p50_us": 80.0, "latency_p99_us": 90.0}
+    stats = {"events": 10, "frames": 80, "duration_s": 0.8, "event_rate_mev_s": 0.0, "wall_s": 1.0}
+    stats["lanes"] = {"nec": lane, "nec-frames": lane, "navid-tuned": lane}
+    out = io.StringIO()
+    print_summary(out, stats)
+    rows = [ln for ln in out.getvalue().splitlines() if "latency" in ln]
+    assert len(rows) == 3 and len({r.index(" frames,") for r in rows}) == 1, rows

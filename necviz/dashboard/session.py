@@ -343,9 +343,10 @@ def print_summary(out, stats: dict) -> None:
         f"({stats['event_rate_mev_s']:.2f} Mev/s) in {stats['wall_s']:.1f} s wall",
         file=out,
     )
+    w = max([8, *(len(n) for n in stats["lanes"])])  # nec-frames, user-registered names: every row aligned
     for name, s in stats["lanes"].items():
         print(
-            f"  {name:8s} {plural(s['frames'], 'frame'):>11s}, {s['saturated_frames_50']:3d} saturated, "
+            f"  {name:{w}s} {plural(s['frames'], 'frame'):>11s}, {s['saturated_frames_50']:3d} saturated, "
             f"{plural(s['commands'], 'command'):>14s}, latency p50 {_us(s['latency_p50_us'])} p99 {_us(s['latency_p99_us'])}",
             file=out,
         )
