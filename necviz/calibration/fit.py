@@ -19,7 +19,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from necviz.calibration.bootstrap import bootstrap_intervals
+from necviz.calibration.bootstrap import FEW_PAIRS, bootstrap_intervals
 from necviz.calibration.holdout import BLOCK_S, FitPlan, validate_compensation
 from necviz.calibration.pairs import DEFAULT_SELECTION, CollectorOptions, PairCollector
 from necviz.calibration.settings import DEFAULT_F_SCALE, DEFAULT_LOSS, DEFAULT_SLOW_RATE
@@ -146,8 +146,15 @@ class CalibrationResult:
                 extra = " (not fitted)"
             else:
                 extra = ""
-            if name in boot and all(math.isfinite(b) for b in boot[name]):
-                spread = f"  [{boot[name][0]:.4f}, {boot[name][1]:.4f}]"
+            if name in boot and self.bootstrap["effective_pairs"][name] == self.bootstrap["effective_pairs"][name]:
+                n_eff = self.bootstrap["effective_pairs"][name]
+                finite = all(b is not None and math.isfinite(b) for b in boot[name])
+                spread = f"  [{boot[name][0]:.4f}, {boot[name][1]:.4f}]" if finite else "  [not determined]"
+                if n_eff < FEW_PAIRS:
+                    spread += (
+                        f" (rests on {n_eff:.1f} pairs' worth of data: record more lighting changes "
+                        f"{'up' if name == 'c_on' else 'down'} to {'narrow' if finite else 'bound'} it)"
+                    )
             else:
                 spread = f" ± {s:.2g}" if math.isfinite(s) else ""
             lines.append(f"  {name:6s} {v:10.4g}{unit}" + spread + extra)
