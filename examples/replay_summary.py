@@ -1,14 +1,15 @@
 #!/usr/bin/env python
 """P-TEDI on a real recording: per frame, the event-propagated prediction vs what the frame measured.
 
-Opens a recording with ``necviz.drivers.recordings.open_recording`` (any supported format; default the
-DAVIS346 AEDAT 4 sample in /work/shared/data) and feeds every packet, in stream order, to a
+Opens a recording with ``necviz.drivers.recordings.open_recording`` (any supported format: a DAVIS
+recording of your own, or one made without a camera by
+``necviz live --device emulated --duration 2 --record run.necrec``) and feeds every packet, in stream order, to a
 whole-sensor ``PeripheralEstimator``. At each exposure start it records the prediction
 ``ln P(s)`` propagated with events from the previous frame's anchor; when the frame arrives it
 prints that prediction beside the frame's own estimate of ``ln P(s)`` (Eq. 14/15: image mean
 through the camera response, minus ln T, corrected for the events during the exposure).
 
-usage: python examples/replay_summary.py [RECORDING] [--c-on 0.26] [--c-off 0.24]
+usage: python examples/replay_summary.py RECORDING [--c-on 0.26] [--c-off 0.24]
 """
 
 import argparse
@@ -19,12 +20,14 @@ from pathlib import Path
 from necviz.core import EventBatch, ExposureMarker, NecvizError, PeripheralEstimator, TediParams
 from necviz.drivers.recordings import open_recording
 
-SAMPLE = Path("/work/shared/data/davis346_sample.aedat4")
-
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("recording", nargs="?", default=str(SAMPLE), help=f"recorded file (default {SAMPLE})")
+    ap.add_argument(
+        "recording",
+        help="a recorded file (AEDAT, native, ROS bag, ...); make one with "
+        "necviz live --device emulated --duration 2 --record run.necrec",
+    )
     ap.add_argument("--c-on", type=float, default=0.26, help="ON contrast threshold, ln units")
     ap.add_argument("--c-off", type=float, default=0.24, help="OFF contrast threshold, ln units")
     args = ap.parse_args()

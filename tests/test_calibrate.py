@@ -285,3 +285,34 @@ def test_default_sim_profile_is_the_shipped_calibration():
     # held-out pairs reject it, no compensation: tests/test_compensation_holdout.py)
     assert "compensation" in cal and isinstance(cal["compensation"]["kept"], bool)
     assert isinstance(prof, CameraProfile) and isinstance(prof.tedi, TediParams)
+
+
+def test_threshold_intervals_cover_the_truth_where_the_standard_errors_do_not():
+    """The simulated DAVIS346 (c_on 0.26, c_off 0.24), seed 0, 6 s, the command's defaults: the
+    Gauss-Newton standard errors (pixels taken as independent) put c_on at 0.254 ± 0.0003, twenty of
+    them from the truth; the bootstrap over frame pairs gives an interval that holds it, for both
+    thresholds (benchmarks/calibration_coverage.py measures how often over 20 held-out seeds)."""
+    from necviz.calibration.bootstrap import FEW_PAIRS
+
+    truth = {"c_on": DvsParams().c_on, "c_off": DvsParams().c_off}
+    r = calibrate_from_simulation(CalibrationSimulation("calibration", [0], 6.0), CalibrationOptions())
+    b = r.bootstrap
+    assert b is not None and b["pairs"] >= 10 and b["level"] == 0.95 and b["undetermined"] < b["replicates"] // 10
+    se = r.stderr["c_on"]
+    assert abs(r.params.c_on - truth["c_on"]) > 1.96 * se  # what the standard error claimed, and missed
+    text = r.summary()
+    for name, true in truth.items():
+        lo, hi = b["intervals"][name]
+        assert lo <= getattr(r.params, name) <= hi
+        assert lo <= true <= hi, (name, lo, hi)
+        assert hi - lo > 10 * 2 * 1.96 * r.stderr[name]  # not absurdly narrow
+        assert f"[{lo:.4f}, {hi:.4f}]" in text
+        n_eff = b["effective_pairs"][name]
+        assert 1 <= n_eff <= b["pairs"]
+        if n_eff >= FEW_PAIRS:
+            assert hi - lo < 0.1  # nor uninformative
+        else:  # a wide interval says why
+            assert f"rests on {n_eff:.1f} pairs' worth of data" in text
+    if r.rms_after > r.rms_before:  # the all-pairs residual rose: the summary says why
+        assert "it rose: the thresholds are fitted on the" in text
+    assert r.profile.calibration["intervals"]["c_off"] == b["intervals"]["c_off"]

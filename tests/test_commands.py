@@ -301,3 +301,28 @@ def test_live_at_real_time_pace_reacts_within_a_frame(tmp_path, capsys):
     assert main(args) == 2  # the --json file exists: refused, in one line, nothing overwritten
     err = capsys.readouterr().err
     assert "--json" in err and len(err.strip().splitlines()) == 1 and out_json.read_text() == before
+
+
+def test_a_run_that_cannot_keep_its_speed_says_so(tmp_path, capsys):
+    """--speed 1000 over 0.6 s of sensor time would need 0.6 ms of wall time: no machine keeps it,
+    and the summary says how fast the run went instead of letting its figures pass for paced ones."""
+    rrd = tmp_path / "fast.rrd"
+    code = main(
+        ["live", "--device", "emulated", "--duration", "0.6", "--speed", "1000", "--save", str(rrd), "--no-prompt"]
+    )
+    assert code == 0
+    out = capsys.readouterr().out
+    lines = [ln for ln in out.splitlines() if "not the 1000x asked" in ln]
+    assert len(lines) == 1 and "ran at " in lines[0], out
+    got = float(lines[0].split("ran at ")[1].split("x")[0])
+    assert 0 < got < 900
+
+
+def test_pace_note_only_for_a_paced_run_that_fell_behind():
+    from necviz.pace import pace_note
+
+    assert pace_note(None, 30.0, 47.8) is None  # --speed max: no pace was asked
+    assert pace_note(1.0, 30.0, 31.0) is None  # within 10 % of real time
+    assert pace_note(1.0, 30.0, 47.8) == "ran at 0.63x real time: latency and recovery are not real-time figures"
+    assert pace_note(1.0, 3.0, 1.5, settle_s=2.0) is None  # a running line waits for the start-up to pass
+    assert "not the 4x asked" in pace_note(4.0, 30.0, 15.0)

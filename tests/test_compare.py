@@ -1,6 +1,7 @@
 """`necviz compare`: closed-loop runs, the documented JSON, a valid Rerun recording, clear errors."""
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -154,3 +155,23 @@ def test_scenario_files_and_overrides_work_in_compare_demo_and_bench(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text('name = "static_lab"\n[params]\nramp_ms = "loud"\n')
     assert main(["compare", "--scenario", str(bad), "--no-sift"]) == 2
+
+
+def test_the_table_explains_its_columns_aligns_its_rows_and_leaves_out_empty_ones(capsys):
+    """--no-sift: no SIFT column of dashes; every column a newcomer cannot guess is explained below
+    the table; every row (nec-frames included) lines up with the header."""
+    run(CompareOptions(SceneOptions("tunnel_exit", seed=0, duration_s=0.3), "nec,nec-frames,fixed", sift=False))
+    out = capsys.readouterr().out
+    lines = out.splitlines()
+    head = next(i for i, ln in enumerate(lines) if ln.startswith("controller"))
+    rows = lines[head : head + 4]
+    assert "SIFT" not in rows[0] and "true valid" in rows[0] and "rank ρ" in rows[0]
+    assert [r.split()[0] for r in rows[1:]] == ["nec", "nec-frames", "fixed"]
+    assert len({len(r) for r in rows}) == 1, rows  # aligned: every row as wide as the header
+    ends = [m.end() for m in re.finditer(r"\S+(?: \S+)*", rows[0])][1:]  # the names' column is left-aligned
+    for r in rows[1:]:  # and every cell ends where its header ends (right-aligned)
+        assert all(r[e - 1] != " " for e in ends), (rows[0], r)
+    legend = out[out.index("columns:") :]
+    for name in ("sat>50%", "true valid", "rank ρ", "recovery ms"):
+        assert f"  {name} " in legend
+    assert "left out: SIFT inliers, SIFT norm." in legend  # (and the pedestrian: 0.3 s end before it shows)

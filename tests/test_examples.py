@@ -109,6 +109,21 @@ def test_replay_summary(tmp_path):
     assert "final prediction" in out
 
 
+def test_replay_summary_on_a_recording_a_user_can_make(tmp_path):
+    """examples/README.md's command, on the recording its line says how to make (no camera, no shared data)."""
+    from necviz.commands.cli import main
+
+    rec = tmp_path / "run.necrec"
+    argv = ["live", "--device", "emulated", "--duration", "0.5", "--record", str(rec)]
+    assert main([*argv, "--save", str(tmp_path / "run.rrd"), "--no-prompt"]) == 0
+    readme = (EXAMPLES / "README.md").read_text()
+    assert "necviz live --device emulated --duration 2 --record run.necrec" in readme
+    assert "python examples/replay_summary.py run.necrec" in readme
+    out = run_example("replay_summary.py", "run.necrec", cwd=tmp_path)
+    rows = re.findall(r"^\s+\d+ .* ([+-]\d\.\d{3})\s+[\d.]+%$", out, re.M)
+    assert len(rows) >= 10 and "final prediction" in out, out
+
+
 def test_replay_summary_missing_file(tmp_path):
     out = run_example("replay_summary.py", str(tmp_path / "absent.aedat4"), cwd=tmp_path, expect_rc=1)
     assert "not found" in out and "Traceback" not in out

@@ -96,3 +96,13 @@ def test_replay_video_and_refusals(tmp_path, capsys):
     bad = tmp_path / "x.avi"
     assert main(["demo", "--duration", "0.1", "--video", str(bad), "--save", str(tmp_path / "y.rrd")]) == 2
     assert ".mp4" in capsys.readouterr().err
+
+
+def test_frame_labels_print_short_exposures_in_microseconds():
+    """Exposures under 5 µs printed as '0.00 ms' said nothing; below 1 ms the label is in microseconds."""
+    from necviz.dashboard.video import exposure_text
+
+    assert exposure_text(4.0) == "4.0 us"
+    assert exposure_text(850) == "850 us"
+    assert exposure_text(12_500) == "12.50 ms"
+    assert "0.00" not in exposure_text(1.0)

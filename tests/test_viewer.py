@@ -9,6 +9,7 @@ Both skip, saying why, when this machine cannot run them: the native viewer need
 from __future__ import annotations
 
 import json
+import os
 
 import pytest
 import rerun.blueprint as rrb
@@ -22,6 +23,14 @@ from necviz.layouts.blueprints import EVENTS_TITLE, INSPECT_IRRADIANCE
 pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
 
 SAMPLE = SHARED_DATA / "davis346_sample.aedat4"
+
+
+def unavailable(why: str) -> None:
+    """Skip, saying why; fail instead where the viewer's needs were installed on purpose (.ci/run sets
+    ``NECVIZ_REQUIRE_VIEWER=1`` once Chromium and Mesa are in place), so CI never skips these quietly."""
+    if os.environ.get("NECVIZ_REQUIRE_VIEWER") == "1":
+        pytest.fail(f"{why} (NECVIZ_REQUIRE_VIEWER=1: Chromium and Mesa were installed for these checks)")
+    pytest.skip(why)
 
 
 def _views(container) -> list[tuple[str, str]]:
@@ -60,7 +69,7 @@ def test_blueprint_loads_in_native_viewer(recording, tmp_path):
     try:
         ev = vc.native_screenshot(rrd, tmp_path / "native.png", frame=1, timeout_s=60)
     except vc.ViewerUnavailable as e:
-        pytest.skip(f"native viewer cannot run headless here: {e}")
+        unavailable(f"native viewer cannot run headless here: {e}")
     brief = json.dumps({k: ev.get(k) for k in ("view_errors", "image", "view_images", "adapter")}, default=str)
 
     assert ev["loading_finished"] and ev["stable"], brief
@@ -86,7 +95,7 @@ def test_web_viewer_shows_recording_in_headless_chromium(recording, tmp_path):
             rrd, tmp_path / "browser.png", timeout_s=85, expected_views=[name for name, _ in expected]
         )
     except vc.ViewerUnavailable as e:
-        pytest.skip(f"web viewer check cannot run here: {e}")
+        unavailable(f"web viewer check cannot run here: {e}")
     # browser_screenshot raises unless all of this holds; spelled out here as the test's claim
     assert ev["loaded_recording"]
     assert ev["page"]["app_started"] and ev["page"]["panic"] is None
@@ -123,7 +132,7 @@ def test_compare_and_demo_recordings_open_with_the_compare_layout(command, tmp_p
     try:
         ev = vc.native_screenshot(rrd, tmp_path / "native.png", frame=1, timeout_s=60)
     except vc.ViewerUnavailable as e:
-        pytest.skip(f"native viewer cannot run headless here: {e}")
+        unavailable(f"native viewer cannot run headless here: {e}")
     shown = {(v["name"], v["origin"]) for v in ev["views"]}
     assert set(expected) <= shown, f"missing views {set(expected) - shown}; shown {sorted(shown)}"
     assert ev["view_errors"] == {}, f"views report errors: {ev['view_errors']}"

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from necviz.calibration.bootstrap import FEW_PAIRS, bootstrap_intervals
 from necviz.calibration.holdout import BLOCK_S, FitPlan, validate_compensation
 from necviz.calibration.pairs import DEFAULT_SELECTION, CollectorOptions, PairCollector
 from necviz.calibration.settings import DEFAULT_F_SCALE, DEFAULT_LOSS, DEFAULT_SLOW_RATE
@@ -54,7 +55,10 @@ class CalibrationResult:
     statistics with their RMS residual before and after; ``groups``: RMS before/after for the
     unsaturated and the saturated pairs (see :func:`calibrate_collected`); ``compensation``: whether
     the compensation was kept and why, with its held-out residuals (:mod:`.holdout`; ``None`` when
-    no compensation parameter was fitted).
+    no compensation parameter was fitted); ``bootstrap``: the thresholds' intervals, a bootstrap over
+    the pairs their fit used (:mod:`.bootstrap`; ``None`` when no threshold was fitted). The
+    standard errors take every pixel residual as independent and are far too narrow for the
+    thresholds (pixels of a pair err together); the bootstrap intervals are the ones to quote.
     """
 
     profile: CameraProfile
@@ -75,6 +79,7 @@ class CalibrationResult:
     groups: dict = field(default_factory=dict)
     inactive: tuple = ()
     compensation: dict | None = None
+    bootstrap: dict | None = None
 
     @property
     def inactive_names(self) -> tuple:
@@ -96,6 +101,7 @@ class CalibrationResult:
                 "inactive_compensation": list(self.inactive),
                 "groups": self.groups,
                 "compensation": self.compensation,
+                "bootstrap": self.bootstrap,
             },
             "plain": None
             if self.plain is None
@@ -109,12 +115,19 @@ class CalibrationResult:
         p, se = self.params, self.stderr
         d = self.data
         lines = [
-            f"data: {d.get('frames', '?')} frames, {d.get('pairs_considered', '?')} pairs considered, "
-            f"{len(self.pairs)} used ({self.num_residuals:,} pixel residuals; "
+            f"data: {_count(d.get('frames'), 'frame')}, {_count(d.get('pairs_considered'), 'pair')} considered, "
+            f"{len(self.pairs)} used ({_plural(self.num_residuals, 'pixel residual')}; "
             f"{self.groups.get('saturated', {}).get('pairs', 0)} reached the sensor's bus ceiling)",
             f"fit: {self.method}",
-            "fitted TEDI parameters (± standard error):",
+            "fitted TEDI parameters"
+            + (
+                f" ([{_pct(self.bootstrap['level'])} interval]: a bootstrap over the {self.bootstrap['pairs']} "
+                "frame pairs the thresholds were fitted on; ± standard error otherwise):"
+                if self.bootstrap
+                else " (± standard error):"
+            ),
         ]
+        boot = (self.bootstrap or {}).get("intervals", {})
         for name in PARAM_NAMES:
             unit = " ev/s" if name.startswith("b_") else ""
             v, s = getattr(p, name), se.get(name, math.nan)
@@ -133,15 +146,38 @@ class CalibrationResult:
                 extra = " (not fitted)"
             else:
                 extra = ""
-            lines.append(f"  {name:6s} {v:10.4g}{unit}" + (f" ± {s:.2g}" if math.isfinite(s) else "") + extra)
+            if name in boot and self.bootstrap["effective_pairs"][name] == self.bootstrap["effective_pairs"][name]:
+                n_eff = self.bootstrap["effective_pairs"][name]
+                finite = all(b is not None and math.isfinite(b) for b in boot[name])
+                spread = f"  [{boot[name][0]:.4f}, {boot[name][1]:.4f}]" if finite else "  [not determined]"
+                if n_eff < FEW_PAIRS:
+                    spread += (
+                        f" (rests on {n_eff:.1f} pairs' worth of data: record more lighting changes "
+                        f"{'up' if name == 'c_on' else 'down'} to {'narrow' if finite else 'bound'} it)"
+                    )
+            else:
+                spread = f" ± {s:.2g}" if math.isfinite(s) else ""
+            lines.append(f"  {name:6s} {v:10.4g}{unit}" + spread + extra)
+        unsat, sat = self.groups.get("unsaturated") or {}, self.groups.get("saturated") or {}
+        two_stage = "two stages" in self.method
         lines.append(
-            f"RMS residual (ln units), all pairs: {self.rms_before:.4f} at the start -> {self.rms_after:.4f} fitted"
+            f"RMS residual (ln units), all {len(self.pairs)} pairs: {self.rms_before:.4f} at the start -> "
+            f"{self.rms_after:.4f} fitted"
+            + (
+                f" (it rose: the thresholds are fitted on the {unsat.get('pairs', 0)} pairs below the bus "
+                f"ceiling only, where the event counts are complete)"
+                if two_stage and sat.get("pairs") and self.rms_after > self.rms_before
+                else ""
+            )
         )
-        for key in ("unsaturated", "saturated"):
+        for key, what in (
+            ("unsaturated", "below the bus ceiling" + (" (the thresholds' fit)" if two_stage else "")),
+            ("saturated", "at the bus ceiling (events dropped)"),
+        ):
             g = self.groups.get(key)
             if g and g["pairs"]:
                 lines.append(
-                    f"  {key} pairs ({g['pairs']}): {g['rms_before']:.4f} -> {g['rms_after']:.4f}"
+                    f"  {_plural(g['pairs'], 'pair')} {what}: {g['rms_before']:.4f} -> {g['rms_after']:.4f}"
                     + (f" (without compensation: {g['rms_plain']:.4f})" if g.get("rms_plain") is not None else "")
                 )
         if self.plain is not None:
@@ -155,7 +191,7 @@ class CalibrationResult:
             ho = comp.get("held_out")
             if ho:
                 lines.append(
-                    f"  held out ({comp['split']}; fitted on {comp['fit_pairs']} pairs, tested on "
+                    f"  held out ({comp['split']}; fitted on {_plural(comp['fit_pairs'], 'pair')}, tested on "
                     f"{comp['held_out_pairs']}), RMS residual without -> with compensation:"
                 )
                 for key in ("all", "unsaturated", "saturated"):
@@ -177,6 +213,18 @@ class CalibrationResult:
         else:
             lines.append(f"camera response: {self.crf_info.get('reason', 'kept')}")
         return "\n".join(lines)
+
+
+def _pct(level: float) -> str:
+    return f"{100 * level:g} %"
+
+
+def _plural(n: int, word: str) -> str:
+    return f"{n:,} {word}" + ("" if n == 1 else "s")
+
+
+def _count(n, word: str) -> str:
+    return _plural(n, word) if isinstance(n, int) else f"? {word}s"
 
 
 def _num(v):
@@ -478,6 +526,16 @@ def calibrate_collected(
         method = f"{', '.join(fit)} jointly on all {len(pairs)} pairs{robust}{knee_text}"
         if c_names and comp_names:
             method += f" (only {len(complete)} unsaturated pairs: too few for two stages)"
+    # the thresholds' intervals: a bootstrap over the pairs of the fit that set them, at its optimum
+    if c_names and len(stages) == 2:
+        c_fit, c_pairs = s1, complete
+    else:
+        c_fit, c_pairs = res, pairs
+    label[0] = "bootstrap intervals of the thresholds"
+    _report(progress, f"{label[0]} ({len(c_pairs)} pairs)")
+    bootstrap = (
+        bootstrap_intervals(c_pairs, crf, c_fit.params, c_names, loss=loss, f_scale=f_scale) if c_names else None
+    )
     params = res.params
     compensation = None
     if comp_names:  # does it earn its place? (held-out pairs; .holdout)
@@ -537,6 +595,9 @@ def calibrate_collected(
         else {k: compensation[k] for k in ("kept", "reason", "split", "held_out", "in_sample") if k in compensation},
         "pairs_saturated": int(sum(saturated)),
         "stderr": {k: _num(v) for k, v in stderr.items() if k in fit},
+        "intervals": None
+        if bootstrap is None
+        else {"level": bootstrap["level"], "method": bootstrap["method"], **bootstrap["intervals"]},
         "crf": "fitted (Debevec-Malik)" if crf_fitted else crf_info.get("reason", "kept"),
     }
     profile = CameraProfile(
@@ -566,4 +627,5 @@ def calibrate_collected(
         groups,
         tuple(res.inactive),
         compensation,
+        bootstrap,
     )

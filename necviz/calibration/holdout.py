@@ -30,6 +30,7 @@ import numpy as np
 
 from necviz.core.event_model import TediParams
 from necviz.core.tedi import TediFitOptions, fit_tedi_pairs, pair_residuals
+from necviz.progress import plural
 
 #: Length of the alternating fit / held-out blocks (sensor time, s).
 BLOCK_S = 1.0
@@ -115,16 +116,16 @@ def decide(held_out: dict) -> tuple[bool, str]:
     if a["with"] >= a["without"]:
         return False, (
             f"it does not improve the held-out residual ({a['without']:.4f} ln without, {a['with']:.4f} with, "
-            f"{a['pairs']} pairs)"
+            f"{plural(a['pairs'], 'pair')})"
         )
     if u["pairs"] and u["with"] > u["without"]:
         return False, (
             f"it improves the held-out residual overall ({a['without']:.4f} -> {a['with']:.4f} ln) only by "
-            f"making it worse below the bus ceiling ({u['without']:.4f} -> {u['with']:.4f} ln, {u['pairs']} pairs): "
+            f"making it worse below the bus ceiling ({u['without']:.4f} -> {u['with']:.4f} ln, {plural(u['pairs'], 'pair')}): "
             "it stands in for events lost at the ceiling, not for what TEDI models"
         )
     return True, (
-        f"it improves the held-out residual ({a['without']:.4f} -> {a['with']:.4f} ln over {a['pairs']} pairs"
+        f"it improves the held-out residual ({a['without']:.4f} -> {a['with']:.4f} ln over {plural(a['pairs'], 'pair')}"
         + (f"; below the bus ceiling {u['without']:.4f} -> {u['with']:.4f} ln" if u["pairs"] else "")
         + ")"
     )

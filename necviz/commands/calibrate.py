@@ -99,7 +99,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--json",
         metavar="REPORT.json",
         default=None,
-        help="also write a report: fitted values, standard errors, residuals, per-pair statistics",
+        help="also write a report: fitted values, the thresholds' 95 %% bootstrap intervals, standard errors, "
+        "residuals, per-pair statistics",
     )
     p.add_argument(
         "--profile",

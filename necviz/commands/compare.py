@@ -71,6 +71,49 @@ def run_pipeline(pipe: Pipeline, label: str, expected_s: float, out) -> dict:
     return pipe.finish()
 
 
+#: compare's table: (header, metric, digits, what it means); a column no controller has a value for is left out
+COLUMNS = (
+    ("frames", "frames", 0, "frames each camera recorded"),
+    ("sat>50%", "saturated_frames_50", 1, "frames with more than 50 % of their pixels clipped (>= 250 or <= 9 DN)"),
+    ("sat>10%", "saturated_frames_10", 1, "frames with more than 10 % of their pixels clipped"),
+    ("mean over", "mean_over_exposed_rate", 3, "mean fraction of a frame's pixels at >= 250 DN"),
+    ("mean under", "mean_under_exposed_rate", 3, "mean fraction of a frame's pixels at <= 9 DN"),
+    (
+        "recovery ms",
+        "recovery_ms",
+        1,
+        "mean time from a lighting step until every later frame has under 10 % of its "
+        "pixels clipped (—: some step never recovered)",
+    ),
+    ("SIFT inliers", "sift_inliers_mean", 1, "mean SIFT matches between consecutive frames (--no-sift skips it)"),
+    ("SIFT norm.", "sift_inliers_normalised_mean", 1, "the same on brightness-normalised frames"),
+    (
+        "true valid",
+        "true_valid_fraction_mean",
+        3,
+        "mean fraction of pixels whose true irradiance was recorded within the valid range (simulator truth)",
+    ),
+    (
+        "rank ρ",
+        "rank_correlation_mean",
+        3,
+        "mean Spearman rank correlation of a frame's digits with the true "
+        "irradiance on its valid pixels (1: order kept)",
+    ),
+    (
+        "pedestrian",
+        "pedestrian_valid_fraction",
+        2,
+        "valid fraction of the pedestrian's box on the first frame that shows it (tunnel_exit)",
+    ),
+)
+
+
+def _num(v):
+    """A metric for :func:`_fmt`: counts stay whole, everything else (NumPy scalars too) a float."""
+    return v if isinstance(v, int) and not isinstance(v, bool) else float(v)
+
+
 def _fmt(v, ci=None, digits=1):
     if v is None:
         return "—"
@@ -238,28 +281,26 @@ def print_table(result: dict, out) -> None:
     )
     table = result["controllers"]
     w = max(10, *(len(n) for n in table))  # controller names registered by users may be longer
+    shown = [col for col in COLUMNS if any(r.get(col[1]) is not None for r in table.values())]  # no empty column
+    cells = {
+        n: [
+            _fmt(None if r.get(key) is None else _num(r[key]), r.get(key + "_ci95"), digits)
+            for _, key, digits, _ in shown
+        ]
+        for n, r in table.items()
+    }
+    widths = [max(len(head), *(len(c[i]) for c in cells.values())) for i, (head, *_) in enumerate(shown)]
     print(
-        f"{'controller':{w}s} {'frames':>6s} {'sat>50%':>12s} {'sat>10%':>12s} {'mean over':>14s} "
-        f"{'mean under':>14s} {'recovery ms':>14s} {'SIFT inliers':>14s} {'SIFT norm.':>14s} "
-        f"{'true valid':>14s} {'rank ρ':>14s} {'pedestrian':>14s}",
-        file=out,
+        f"{'controller':{w}s}  " + "  ".join(f"{h:>{wd}s}" for (h, *_), wd in zip(shown, widths, strict=True)), file=out
     )
-    for n, r in table.items():
-        c = lambda k, r=r: r.get(k + "_ci95")  # noqa: E731
-        ped = r.get("pedestrian_valid_fraction")
-        print(
-            f"{n:{w}s} {_fmt(r['frames'], digits=0):>6s} {_fmt(r['saturated_frames_50'], c('saturated_frames_50')):>12s} "
-            f"{_fmt(r['saturated_frames_10'], c('saturated_frames_10')):>12s} "
-            f"{_fmt(r['mean_over_exposed_rate'], c('mean_over_exposed_rate'), 3):>14s} "
-            f"{_fmt(r['mean_under_exposed_rate'], c('mean_under_exposed_rate'), 3):>14s} "
-            f"{_fmt(r['recovery_ms'], c('recovery_ms')):>14s} "
-            f"{_fmt(r['sift_inliers_mean'], c('sift_inliers_mean')):>14s} "
-            f"{_fmt(r.get('sift_inliers_normalised_mean'), c('sift_inliers_normalised_mean')):>14s} "
-            f"{_fmt(r.get('true_valid_fraction_mean'), c('true_valid_fraction_mean'), 3):>14s} "
-            f"{_fmt(r.get('rank_correlation_mean'), c('rank_correlation_mean'), 3):>14s} "
-            f"{_fmt(None if ped is None else float(ped), c('pedestrian_valid_fraction'), 2):>14s}",
-            file=out,
-        )
+    for n, row in cells.items():
+        print(f"{n:{w}s}  " + "  ".join(f"{c:>{wd}s}" for c, wd in zip(row, widths, strict=True)), file=out)
+    hidden = [h for h, key, *_ in COLUMNS if (h, key) not in {(c[0], c[1]) for c in shown}]
+    print("columns:", file=out)
+    for head, _, _, meaning in shown:
+        print(f"  {head:<12s} {meaning}", file=out)
+    if hidden:
+        print(f"  (not measured in this run, left out: {', '.join(hidden)})", file=out)
     if any(r.get("marker_detection_rate") is not None for r in table.values()):
         print(
             "fiducial markers: detection rate (detected / visible, all frames), latency after each lighting change "

@@ -37,6 +37,7 @@ def _scenarios() -> list[str]:
 
 
 def collect_info() -> dict:
+    import necviz.tuned  # noqa: F401 - registers the tuned controllers (navid-tuned, ...), which every command accepts
     from necviz.core.control import CONTROLLERS
     from necviz.drivers import SOURCES
 

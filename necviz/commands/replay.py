@@ -36,7 +36,8 @@ from necviz.layouts.focus import focus_blueprint
 from necviz.options import ReplayOptions, ViewerOptions
 from necviz.outputs import write_json
 from necviz.pipeline import Lane
-from necviz.progress import output
+from necviz.progress import output, plural
+from necviz.wording import diagnosed_causes, saturated_frames
 
 LANE = "camera"
 
@@ -81,7 +82,7 @@ def skill_lines(skill: dict) -> list[str]:
             continue
         sk = "undefined (the reference is exact)" if g["skill"] is None else f"{g['skill']:+.3f}"
         lines.append(
-            f"  against {label} (frames only), {g['frames']} frames: RMSE P-TEDI {g['rmse_ptedi']:.4f} ln, "
+            f"  against {label} (frames only), {plural(g['frames'], 'frame')}: RMSE P-TEDI {g['rmse_ptedi']:.4f} ln, "
             f"{label} {g['rmse_reference']:.4f} ln; skill score 1 - MSE ratio = {sk}"
         )
     return lines
@@ -206,7 +207,7 @@ def _replay(options: ReplayOptions, viewer, out, path: Path, source: Path, profi
         print(f"  warning: {w}", file=out)
     rmse = summary["prediction_error_rmse"]
     print(
-        f"  prediction error (P-TEDI vs frame, ln): RMSE {rmse:.3f} over {summary['prediction_error_frames']} frames"
+        f"  prediction error (P-TEDI vs frame, ln): RMSE {rmse:.3f} over {plural(summary['prediction_error_frames'], 'frame')}"
         if rmse is not None
         else "  prediction error: no frame pair to compare (need two usable frames)",
         file=out,
@@ -215,11 +216,10 @@ def _replay(options: ReplayOptions, viewer, out, path: Path, source: Path, profi
         print(line, file=out)
     sat = [d["sequence"] for d in summary["frames_detail"] if d["saturated"]]
     if sat:
-        shown = ", ".join(map(str, sat[:12])) + (" …" if len(sat) > 12 else "")
-        print(f"  saturated frames (>50 %): {len(sat)}: {shown}", file=out)
-        causes = ", ".join(f"{k} {v}" for k, v in summary["saturation_causes"].items() if v)
+        print(f"  {saturated_frames(sat)}", file=out)
+        causes = diagnosed_causes(summary["saturation_causes"])
         if causes:
-            print(f"  diagnosed causes: {causes}", file=out)
+            print(f"  {causes}" + ("; each frame's explanation is in --json" if options.json is None else ""), file=out)
     if options.json is not None:
         print(f"  wrote {options.json}", file=out)
     return summary

@@ -29,6 +29,7 @@ from necviz.layouts import style_series
 from necviz.memory import bound_heap_retention
 from necviz.options import ShowOptions, TuneOptions, ViewerOptions
 from necviz.outputs import Output, OutputError, low_space
+from necviz.pace import SETTLE_S, PaceWatch, achieved_speed, pace_note
 from necviz.pipeline import Lane, Pipeline, RecorderObserver
 from necviz.progress import LiveLine, output, plural
 from necviz.reaction import reaction_line
@@ -197,6 +198,8 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
     if speed == "auto":
         speed = 1.0 if ss.viewer.watched else None
     observers = _observers(ss, viewer, speed, out)
+    pace = PaceWatch()  # a paced run that cannot keep its speed says so (necviz/pace.py)
+    observers.append(pace)
     pipe = Pipeline(
         ss.source,
         ss.lanes,
@@ -215,7 +218,7 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
         print(f"  P-TEDI follows the {len(pipe.dvs._schedule)} DVS bias change(s) recorded in the file", file=out)
     files = [p for p in (viewer.save_path, ss.recorder.path if ss.recorder is not None else None) if p is not None]
     files += [o.folder for o in observers if o.folder is not None]  # clips fill a disk too
-    stats, disk_full = _watch(ss, pipe, viewer, files, out, stdin)
+    stats, disk_full, pace_wall = _watch(ss, pipe, viewer, files, out, stdin, pace, speed)
     broken = _failed(observers)
     if broken is not None:  # an output that could not be written (a clip on a full disk)
         at = (pipe.now_us or 0) / 1e6 - (pipe.first_us or 0) / 1e6
@@ -229,7 +232,13 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
     source_stats = getattr(ss.source, "stats", None)
     if isinstance(source_stats, dict) and "dropped_events" in source_stats:  # a camera: what the device lost
         stats["source"] = {k: v for k, v in source_stats.items() if isinstance(v, (int, float))}
+    sensor_s = ((pipe.now_us or 0) - (pipe.first_us or 0)) / 1e6
+    stats["speed"] = speed
+    stats["achieved_speed"] = achieved_speed(sensor_s, pace_wall)
     print_summary(out, stats)
+    behind = pace_note(speed, sensor_s, pace_wall)
+    if behind and out is not None:
+        print(f"  {behind}", file=out)
     stats["rrd"] = str(viewer.save_path) if viewer.save_path is not None else None
     stats["telemetry"] = pipe.telemetry
     return stats, viewer
@@ -276,16 +285,24 @@ def _observers(ss: Session, viewer, speed, out) -> list:
     return [sink, *recorders, *(make(ss, ss.layout, out) for make in ss.observers)]
 
 
-def _watch(ss: Session, pipe: Pipeline, viewer, files: list, out, stdin):
+def _watch(ss: Session, pipe: Pipeline, viewer, files: list, out, stdin, pace: PaceWatch, speed):
     """Run ``pipe`` with live tuning (a prompt, a watched file) and a live count until the source ends,
     Ctrl-C, a nearly full disk or a failed output; then finish it and close the viewer. Returns the
-    pipeline's summary and ``(file, bytes free)`` when the disk stopped the run, else None."""
+    pipeline's summary, ``(file, bytes free)`` when the disk stopped the run (else None) and the wall
+    seconds from the first packet to the end of the loop (``pace``: the run's :class:`PaceWatch`)."""
     tune_file = console = None
     t0 = time.perf_counter()
     disk_full = None  # (file, bytes free) when the run was stopped to keep its files whole
+    pace_wall = None  # wall seconds from the first packet to the end of the loop
+
+    def sensor_s() -> float:
+        return ((pipe.now_us or 0) - (pipe.first_us or 0)) / 1e6
 
     def status() -> str:
-        return progress_line(ss.command, pipe, ss.expected_duration_s, time.perf_counter() - t0)
+        wall = pace.wall_s()
+        behind = pace_note(speed, sensor_s(), wall, SETTLE_S) is not None
+        line = progress_line(ss.command, pipe, ss.expected_duration_s, time.perf_counter() - t0)
+        return line + (f" · behind: {achieved_speed(sensor_s(), wall):.2f}x real time" if behind else "")
 
     try:
         if ss.tune is not None and ss.tune.file:
@@ -320,6 +337,7 @@ def _watch(ss: Session, pipe: Pipeline, viewer, files: list, out, stdin):
             pipe.stop()
         if console is not None:
             console.close()
+        pace_wall = pace.wall_s()
         if out is not None:
             line.clear()
             print(status(), file=out, flush=True)
@@ -336,7 +354,7 @@ def _watch(ss: Session, pipe: Pipeline, viewer, files: list, out, stdin):
             except BaseException:
                 if not failed and disk_full is None:
                     raise  # else the run's own error (or the disk guard's, below) is the one reported
-    return stats, disk_full
+    return stats, disk_full, pace_wall
 
 
 def _failed(observers):
@@ -369,14 +387,16 @@ def print_summary(out, stats: dict) -> None:
     if out is None:
         return
     print(
-        f"  {stats['events']:,} events, {stats['frames']} frames over {stats['duration_s']:.2f} s "
+        f"  {plural(stats['events'], 'event')}, {plural(stats['frames'], 'frame')} over {stats['duration_s']:.2f} s "
         f"({stats['event_rate_mev_s']:.2f} Mev/s) in {stats['wall_s']:.1f} s wall",
         file=out,
     )
+    w = max([8, *(len(n) for n in stats["lanes"])])  # nec-frames, user-registered names: every row aligned
     for name, s in stats["lanes"].items():
         print(
-            f"  {name:8s} {s['frames']:4d} frames, {s['saturated_frames_50']:3d} saturated, {s['commands']:5d} "
-            f"commands, processing p50 {_us(s['latency_p50_us'])} p99 {_us(s['latency_p99_us'])}"
+            f"  {name:{w}s} {plural(s['frames'], 'frame'):>11s}, {s['saturated_frames_50']:3d} saturated, "
+            f"{plural(s['commands'], 'command'):>14s}, processing p50 {_us(s['latency_p50_us'])} "
+            f"p99 {_us(s['latency_p99_us'])}"
             + (f", P-TEDI c_on {s['ptedi']['c_on']:.4g} c_off {s['ptedi']['c_off']:.4g}" if "ptedi" in s else ""),
             file=out,
         )
@@ -387,10 +407,10 @@ def print_summary(out, stats: dict) -> None:
     if src:
         lost = src.get("dropped_events", 0)
         print(
-            f"  camera: {lost:,} events dropped by the device"
+            f"  camera: {plural(lost, 'event')} dropped by the device"
             + (" (its FIFO overflowed while the host was not reading, or its bus was saturated)" if lost else "")
-            + f"; {src.get('skipped_words', 0):,} stream "
-            f"words skipped; {src.get('reconnects', 0)} reconnects",
+            + f"; {plural(src.get('skipped_words', 0), 'stream word')} skipped; "
+            f"{plural(src.get('reconnects', 0), 'reconnect')}",
             file=out,
         )
         if "lag_peak_us" in src:
@@ -423,16 +443,16 @@ def print_summary(out, stats: dict) -> None:
     vd = stats.get("video")
     if vd:
         print(
-            f"  video: {vd['path']} ({vd['frames']} frames, {vd['duration_s']:.2f} s at x{vd['speed']:g}, "
+            f"  video: {vd['path']} ({plural(vd['frames'], 'frame')}, {vd['duration_s']:.2f} s at x{vd['speed']:g}, "
             f"{vd['width']}x{vd['height']})",
             file=out,
         )
     sk = stats.get("sink")
     if sk:
         print(
-            f"  viewer: {sk['frames_logged']} frames, {sk['event_images']} event images; dropped "
-            f"{sk['frames_dropped']} frames and {sk['event_batches_dropped']} event batches; "
-            f"{sk['events_decimated']:,} of {sk['events_seen']:,} events not drawn (decimation)",
+            f"  viewer: {plural(sk['frames_logged'], 'frame')}, {plural(sk['event_images'], 'event image')}; dropped "
+            f"{plural(sk['frames_dropped'], 'frame')} and {plural(sk['event_batches_dropped'], 'event batch', 'event batches')}; "
+            f"{sk['events_decimated']:,} of {plural(sk['events_seen'], 'event')} not drawn (decimation)",
             file=out,
         )
 

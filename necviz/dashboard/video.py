@@ -41,6 +41,14 @@ COLUMNS = 4
 OVER, UNDER = 249, 10  # DN: clipped pixels (the telemetry's thresholds)
 
 
+def exposure_text(exposure_us: float) -> str:
+    """An exposure for a frame's label: ``12.50 ms``, ``850 us``, ``4.0 us`` (the label's font has no µ;
+    below 1 ms in microseconds, so 4 µs does not read ``0.00 ms``)."""
+    if exposure_us >= 1000:
+        return f"{exposure_us / 1000:.2f} ms"
+    return f"{exposure_us:.0f} us" if exposure_us >= 10 else f"{exposure_us:.1f} us"
+
+
 def require_av():
     """PyAV, or a one-line error saying how to install it."""
     try:
@@ -263,7 +271,7 @@ class _State:
             shown = self.latest.get(name)
             sat = bool(shown and shown[4])
             canvas[y : y + LABEL_H, x : x + c.w] = (150, 40, 35) if sat else (45, 45, 45)
-            label = name if shown is None else f"{name}  {shown[2] / 1000:.2f} ms  x{shown[3]:.2g}"
+            label = name if shown is None else f"{name}  {exposure_text(shown[2])}  x{shown[3]:.2g}"
             _text(canvas, label, x + 5, y + LABEL_H - 6)
             if shown is not None:
                 canvas[y + LABEL_H : y + LABEL_H + c.h, x : x + c.w] = shown[0][..., None]
