@@ -59,5 +59,5 @@ def test_lane_rows_line_up_whatever_the_names():
     stats["lanes"] = {"nec": lane, "nec-frames": lane, "navid-tuned": lane}
     out = io.StringIO()
     print_summary(out, stats)
-    rows = [ln for ln in out.getvalue().splitlines() if "latency" in ln]
+    rows = [ln for ln in out.getvalue().splitlines() if "processing p50" in ln]
     assert len(rows) == 3 and len({r.index(" frames,") for r in rows}) == 1, rows
