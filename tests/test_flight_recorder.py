@@ -231,3 +231,15 @@ def test_clip_options_are_checked_before_anything_runs(tmp_path):
 
         ClipOptions(tmp_path, before_s=-1)
     assert math.isfinite(5.0)
+
+
+def test_a_clip_shows_the_lane_by_its_controller(tmp_path):
+    """A live lane (entity root ``camera``) is shown in its clip as in the session: curves named by its
+    controller (the session passes :func:`~necviz.dashboard.session.lane_labels`)."""
+    from necviz import schema as S
+
+    fr = _recorder(tmp_path)
+    fr.labels = {"a": "nec"}
+    assert _run(fr, 1.5, 50, saturated_at=(1_000_000,))["clips_written"] == 1
+    view = Rrd(sorted(tmp_path.glob("*.rrd"))[0])
+    assert view.static_values("a/" + S.EXPOSURE_APPLIED, "SeriesLines:names") == ["nec applied"]

@@ -169,12 +169,14 @@ class FlightRecorder(Observer):
         properties: dict | None = None,
         event_window_ms: float = 33.3,
         out=None,
+        labels: dict | None = None,
     ):
         if not isinstance(options, ClipOptions):
             raise ParameterError(f"FlightRecorder takes ClipOptions, got {type(options).__name__}")
         self.folder = Path(options.folder)
         self.sensor = sensor
         self.lanes = dict(lanes)
+        self.labels = dict(labels or {})  # lane -> the name it is shown by (``camera`` as its controller)
         self.drivers = dict(drivers)
         self.layout = layout
         self.before_us = int(options.before_s * 1e6)
@@ -555,7 +557,7 @@ class FlightRecorder(Observer):
             t = self._t(clip.first[0])
             rec.send_recording_name(f"necviz clip: {clip.first[2] or 'saturated'} at {t:.3f} s")
             rec.send_property("run", rr.AnyValues(**{k: str(v) for k, v in props.items()}, layout=self.layout))
-            style_series(rec, names)
+            style_series(rec, names, self.labels)
             options = SinkOptions(
                 event_window_us=self.event_window_us,
                 origin_us=origin,
@@ -572,7 +574,7 @@ class FlightRecorder(Observer):
             sink.close()
             rec.flush()
             rr.disconnect(rec)
-            save_blueprint_apart(layout, self.layout, names, self.sensor.width, self.sensor.height, focus)
+            save_blueprint_apart(layout, self.layout, names, self.sensor.width, self.sensor.height, focus, self.labels)
             from necviz.dashboard.rrd_file import join_segments
 
             join_segments([data, layout], path)  # the clip's data and its layout, one file
@@ -582,7 +584,9 @@ class FlightRecorder(Observer):
             layout.unlink(missing_ok=True)
 
 
-def save_blueprint_apart(path: Path, layout: str, lanes: list, width: int, height: int, focus: tuple) -> None:
+def save_blueprint_apart(
+    path: Path, layout: str, lanes: list, width: int, height: int, focus: tuple, labels: dict | None = None
+) -> None:
     """Write the clip's layout, looping over ``focus``, as a blueprint file (``.rbl``), in a child process.
 
     rerun-sdk 0.41 creates a recording stream for every blueprint it writes and keeps most of its memory
@@ -592,7 +596,9 @@ def save_blueprint_apart(path: Path, layout: str, lanes: list, width: int, heigh
     import subprocess
     import sys
 
-    spec = json.dumps({"path": str(path), "layout": layout, "lanes": lanes, "size": [width, height], "focus": focus})
+    spec = json.dumps(
+        {"path": str(path), "layout": layout, "lanes": lanes, "size": [width, height], "focus": focus, "labels": labels}
+    )
     proc = subprocess.run(
         [sys.executable, "-m", "necviz.dashboard.flight_recorder", spec],
         stdin=subprocess.DEVNULL,
@@ -613,7 +619,7 @@ def _blueprint_child(spec_json: str) -> int:
 
     spec = json.loads(spec_json)
     w, h = spec["size"]
-    bp = focus_blueprint(make_blueprint(spec["layout"], spec["lanes"], w, h), *spec["focus"])
+    bp = focus_blueprint(make_blueprint(spec["layout"], spec["lanes"], w, h, spec.get("labels")), *spec["focus"])
     bp.save("necviz", spec["path"])
     return 0
 
@@ -646,6 +652,8 @@ def clip_observer(options):
     :class:`~necviz.options.ClipOptions`: a :class:`FlightRecorder` on the session's lanes and layout."""
 
     def make(session, layout: str, out):
+        from necviz.dashboard.session import lane_labels
+
         lanes = {ln.name: ln.camera or ln.name for ln in session.lanes}
         drivers = {}
         for ln in session.lanes:
@@ -660,6 +668,7 @@ def clip_observer(options):
             properties=session.properties,
             event_window_ms=session.show.event_window_ms,
             out=out,
+            labels=lane_labels(session.lanes),
         )
 
     return make
