@@ -175,3 +175,8 @@ def test_the_table_explains_its_columns_aligns_its_rows_and_leaves_out_empty_one
     for name in ("sat>50%", "true valid", "rank ρ", "recovery ms"):
         assert f"  {name} " in legend
     assert "left out: SIFT inliers, SIFT norm." in legend  # (and the pedestrian: 0.3 s end before it shows)
+    # the causes of saturated frames in words (necviz.wording), never their JSON keys
+    after = out[out.index("saturated frames by diagnosed cause") :].splitlines()[1:]
+    causes = after[: next(i for i, ln in enumerate(after + ["end"]) if not ln.startswith("  "))]
+    assert len(causes) == 3 and not any("_" in c for c in causes), causes
+    assert any("fixed" in c and ("light changed" in c or "limit" in c or "own choice" in c) for c in causes), causes

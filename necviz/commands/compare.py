@@ -31,6 +31,7 @@ from necviz.pipeline import Pipeline
 from necviz.progress import output
 from necviz.reaction import reaction_line
 from necviz.runs import RunOptions, run_once
+from necviz.wording import CAUSE_WORDS
 
 METRICS = (
     "frames",
@@ -327,7 +328,12 @@ def print_table(result: dict, out) -> None:
     for n, r in table.items():
         causes = r.get("saturation_causes") or {}
         text = (
-            ", ".join(f"{k} {_fmt(float(v), digits=1 if seeds > 1 else 0)}" for k, v in causes.items() if v) or "none"
+            "; ".join(
+                f"{CAUSE_WORDS.get(k, k.replace('_', ' '))} ({_fmt(float(v), digits=1 if seeds > 1 else 0)})"
+                for k, v in sorted(causes.items(), key=lambda kv: -kv[1])
+                if v
+            )
+            or "none"
         )
         print(f"  {n:{w}s} {text}", file=out)
 
