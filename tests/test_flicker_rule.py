@@ -68,6 +68,7 @@ def _run(scenario, **extra):
     return run_spec(spec)["results"]
 
 
+@pytest.mark.slow
 def test_deep_flicker_nec_clips_no_more_than_without_events():
     """120 Hz PWM at depth 0.95 (training): without the rule NEC clips far more frames over 10 % than
     nec-frames (the escape rule fires every half-period); with it, no more than nec-frames."""
@@ -77,6 +78,7 @@ def test_deep_flicker_nec_clips_no_more_than_without_events():
     assert nec <= frames
 
 
+@pytest.mark.slow
 def test_one_way_change_reacts_as_before():
     """A tunnel exit without flickering lamps (the bus at its ceiling one way): NEC with the rule is
     frame for frame NEC without it (same lane name: the simulated camera's noise is drawn per lane)."""
