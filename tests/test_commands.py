@@ -315,7 +315,7 @@ def test_a_run_that_cannot_keep_its_speed_says_so(tmp_path, capsys):
     lines = [ln for ln in out.splitlines() if "not the 1000x asked" in ln]
     assert len(lines) == 1 and "ran at " in lines[0], out
     got = float(lines[0].split("ran at ")[1].split("x")[0])
-    assert 0 < got < 900
+    assert 0 <= got < 900  # (a loaded machine may print 0.00x)
 
 
 def test_pace_note_only_for_a_paced_run_that_fell_behind():

@@ -169,14 +169,13 @@ class FlightRecorder(Observer):
         properties: dict | None = None,
         event_window_ms: float = 33.3,
         out=None,
-        labels: dict | None = None,
     ):
         if not isinstance(options, ClipOptions):
             raise ParameterError(f"FlightRecorder takes ClipOptions, got {type(options).__name__}")
         self.folder = Path(options.folder)
         self.sensor = sensor
         self.lanes = dict(lanes)
-        self.labels = dict(labels or {})  # lane -> the name it is shown by (``camera`` as its controller)
+        self.labels: dict = {}  # lane -> the name it is shown by (``camera`` as its controller; the session's)
         self.drivers = dict(drivers)
         self.layout = layout
         self.before_us = int(options.before_s * 1e6)
@@ -659,7 +658,7 @@ def clip_observer(options):
         for ln in session.lanes:
             if ln.drives:
                 drivers.setdefault(ln.camera or ln.name, ln.name)
-        return FlightRecorder(
+        recorder = FlightRecorder(
             options,
             sensor=session.source.sensor,
             lanes=lanes,
@@ -668,8 +667,9 @@ def clip_observer(options):
             properties=session.properties,
             event_window_ms=session.show.event_window_ms,
             out=out,
-            labels=lane_labels(session.lanes),
         )
+        recorder.labels = lane_labels(session.lanes)
+        return recorder
 
     return make
 
