@@ -414,6 +414,7 @@ def _open_notebook(blueprint, name, messages) -> Viewer:
 
 
 def _open(options: ViewerOptions, blueprint, name, messages, keep_partial: bool = False) -> Viewer:
+    name = text(name)
     if options.notebook:
         return _open_notebook(blueprint, name, messages)
     viewer = bool(options.serve or options.spawn or options.connect)
@@ -452,13 +453,13 @@ def _open(options: ViewerOptions, blueprint, name, messages, keep_partial: bool 
             rec.set_sinks(*sinks)
         else:
             rec.set_sinks(*sinks, default_blueprint=blueprint)
-        rec.send_recording_name(text(name))
+        rec.send_recording_name(name)
     except BaseException:
+        if server is not None:
+            stop_process_group(server)
         if output is not None:
             segments.discard()
             output.discard()
-        if server is not None:
-            stop_process_group(server)
         raise
     return Viewer(
         rec, messages, Path(options.save) if options.save else None, url, server, output, None, segments, others
