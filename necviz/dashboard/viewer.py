@@ -242,8 +242,9 @@ def stop_process_group(proc: subprocess.Popen, timeout_s: float = 5.0) -> None:
             continue
 
 
-def open_viewer(options: ViewerOptions, command: str, blueprint, name: str, *, keep_partial: bool = False) -> Viewer:
-    """Create the recording and attach the sinks ``options`` (already :func:`resolve` d) ask for.
+def open_viewer(options: ViewerOptions, blueprint, name: str, *, keep_partial: bool = False) -> Viewer:
+    """Create the recording ``name`` and attach the sinks ``options`` (already :func:`resolve` d) ask for,
+    the viewers laid out by ``blueprint``.
 
     ``keep_partial``: if the run fails, keep what the ``--save`` file holds (a camera session that
     cannot be produced again) instead of deleting it."""
