@@ -247,7 +247,7 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
 def _open(ss: Session, out, outputs: list):
     """Open the viewer with the command's blueprint (``rr.script_setup``'s part) and log the run's
     properties and series styles; its ``--save`` file joins ``outputs``."""
-    viewer = open_viewer(ss.viewer, ss.command, ss.blueprint, ss.title, keep_partial=ss.keep_partial)
+    viewer = open_viewer(ss.viewer, ss.blueprint, ss.title, keep_partial=ss.keep_partial)
     if viewer.output is not None:  # the --save file: committed or discarded with the run
         outputs.append(viewer)
     for m in viewer.messages:

@@ -242,8 +242,9 @@ def stop_process_group(proc: subprocess.Popen, timeout_s: float = 5.0) -> None:
             continue
 
 
-def open_viewer(options: ViewerOptions, command: str, blueprint, name: str, *, keep_partial: bool = False) -> Viewer:
-    """Create the recording and attach the sinks ``options`` (already :func:`resolve` d) ask for.
+def open_viewer(options: ViewerOptions, blueprint, name: str, *, keep_partial: bool = False) -> Viewer:
+    """Create the recording ``name`` and attach the sinks ``options`` (already :func:`resolve` d) ask for,
+    the viewers laid out by ``blueprint``.
 
     ``keep_partial``: if the run fails, keep what the ``--save`` file holds (a camera session that
     cannot be produced again) instead of deleting it."""
@@ -414,6 +415,7 @@ def _open_notebook(blueprint, name, messages) -> Viewer:
 
 
 def _open(options: ViewerOptions, blueprint, name, messages, keep_partial: bool = False) -> Viewer:
+    name = text(name)
     if options.notebook:
         return _open_notebook(blueprint, name, messages)
     viewer = bool(options.serve or options.spawn or options.connect)
@@ -452,13 +454,13 @@ def _open(options: ViewerOptions, blueprint, name, messages, keep_partial: bool 
             rec.set_sinks(*sinks)
         else:
             rec.set_sinks(*sinks, default_blueprint=blueprint)
-        rec.send_recording_name(text(name))
+        rec.send_recording_name(name)
     except BaseException:
+        if server is not None:
+            stop_process_group(server)
         if output is not None:
             segments.discard()
             output.discard()
-        if server is not None:
-            stop_process_group(server)
         raise
     return Viewer(
         rec, messages, Path(options.save) if options.save else None, url, server, output, None, segments, others
