@@ -228,13 +228,18 @@ class FlightRecorder(Observer):
                     self.stats["dropped_events"] += len(item.args[0])
 
     def _shed(self) -> None:
-        """Over the data budget: let go of the oldest data no writer holds, wherever they are held."""
+        """Over the data budget: let go of the oldest data no writer holds: first the ring's (seconds that
+        may precede a failure), then, only when the ring is empty, the oldest of the clips still waiting for
+        the writer (a failure already seen is worth more than one that may come; a writer slowed by a busy
+        machine must not lose it to the newest data)."""
         while self._held > self.data_budget:
-            holders = [self._ring] if self._ring else []
-            holders += [c.items for c in ([self._clip] if self._clip else []) + list(self._waiting) if c.items]
-            if not holders:
-                return
-            oldest = min(holders, key=lambda d: d[0].t)
+            if self._ring:
+                oldest = self._ring
+            else:
+                holders = [c.items for c in ([self._clip] if self._clip else []) + list(self._waiting) if c.items]
+                if not holders:
+                    return
+                oldest = min(holders, key=lambda d: d[0].t)
             item = oldest.popleft()
             if oldest is not self._ring:
                 clip = self._clip if self._clip is not None and oldest is self._clip.items else None
