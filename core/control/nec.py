@@ -550,10 +550,7 @@ class NECController(Controller):
             if last is None:
                 return None
             h_last = last.exposure_us * last.gain
-            if (
-                abs(math.log(h_last / h_i)) <= self._min_change
-                or abs(math.log(h_opt / h_last)) <= dead_band
-            ):
+            if abs(math.log(h_last / h_i)) <= self._min_change or abs(math.log(h_opt / h_last)) <= dead_band:
                 return None  # nothing outstanding, or what is outstanding is as good as H_i
             return ExposureCommand(self.exposure_us, self.gain, int(t_us), self.name)
         h_set = h_i + w * (h_opt - h_i)
@@ -562,10 +559,7 @@ class NECController(Controller):
         exposure = h_set / gain
         exposure, gain = lim.clamp(exposure, gain)  # a capped gain leaves exposure at T_max (under-exposed)
         last = self.last_command
-        if (
-            last is not None
-            and abs(math.log(last.exposure_us * last.gain / (exposure * gain))) < self._min_change
-        ):
+        if last is not None and abs(math.log(last.exposure_us * last.gain / (exposure * gain))) < self._min_change:
             return None
         return ExposureCommand(exposure, gain, int(t_us), self.name)
 
