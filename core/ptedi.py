@@ -790,14 +790,13 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
     def ready(self) -> bool:
         """True once at least one zone is anchored."""
         if self.num_zones == 1:  # asked on every event batch: skip the array round trip
-            return math.isfinite(self.anchor_log[0])
+            return math.isfinite(self.anchor_log.item(0))
         return bool(np.isfinite(self.anchor_log).any())
 
     def event_totals(self) -> tuple[int, int]:
         """ON and OFF events counted in the region so far (every zone)."""
-        if self.num_zones == 1:
-            on, off = self.counts_on[0], self.counts_off[0]
-            return int(on), int(off)
+        if self.num_zones == 1:  # asked on every event batch (NEC's bus watch): Python ints without numpy scalars
+            return self.counts_on.item(0), self.counts_off.item(0)
         return int(self.counts_on.sum()), int(self.counts_off.sum())
 
     def predict_zones(self, t_us: int | None = None) -> np.ndarray:
@@ -833,13 +832,20 @@ class PeripheralEstimator(FrameSideMixin, PacketHandler):
     def predict(self, t_us: int | None = None) -> float:
         """Mean log irradiance ``ln P(t)`` over the anchored zones, weighted by their pixel counts."""
         if self.num_zones == 1 and not self._comp:  # scalar path: the controller calls this on every batch
-            t, g = self._scalar_times(t_us)
+            # _scalar_times' checks inline, and .item() (Python numbers) rather than numpy scalars: the same values
+            anchor = self.anchor_log.item(0)
+            if not math.isfinite(anchor):
+                raise NotAnchoredError("P-TEDI has no anchor yet: no usable frame has arrived")
+            t = self.last_event_us if t_us is None else int(t_us)
+            g = self.anchor_t.item(0)
+            if t < g:
+                raise ParameterError(f"prediction time {t} µs precedes the anchor at {g} µs")
             inv = self._inv_n0
-            counts = self._counts2.tolist()
-            m_on = (counts[0] - int(self.anchor_on[0])) * inv
-            m_off = (counts[1] - int(self.anchor_off[0])) * inv
+            on, off = self._counts2.tolist()
+            m_on = (on - self.anchor_on.item(0)) * inv
+            m_off = (off - self.anchor_off.item(0)) * inv
             # the kernel's Python form: called from Python, it skips Numba's dispatch
-            return float(self.anchor_log[0]) + _direct_integral_py(1.0, float(t - g), m_on, m_off, *self._kp)
+            return anchor + _direct_integral_py(1.0, float(t - g), m_on, m_off, *self._kp)
         if self.num_zones == 1:  # compensated, scalar: predict_zones' operations without its arrays
             t, g = self._scalar_times(t_us)
             inv = float(self._inv_n[0])

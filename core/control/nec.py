@@ -501,6 +501,14 @@ class NECController(Controller):
         rate = options.bus_event_rate
         self._bus_rate = self.event_rate_max if rate is None else rate
         est = self.estimator
+        # what the hot path (every event batch) asks of the options, worked out once per setting
+        self._watching = options.escape and self._bus_rate is not None
+        self._paper_law = options.metering == "paper" and not options.escape
+        self._dead_band, self._full_band = options.dead_band, options.full_band
+        self._min_change = options.min_command_change
+        crf = est.crf  # fixed when the estimator is built
+        self._aim_up = min(self.goal_log_exposure, float(crf.g[crf.valid_min]) + options.edge_margin)
+        self._aim_down = max(self.goal_log_exposure, float(crf.g[crf.valid_max]) - options.edge_margin)
         est.saturation_bound = options.saturation_bound
         p = est.params
         if not options.compensation and (p.a_on or p.b_on or p.a_off or p.b_off):
@@ -535,16 +543,14 @@ class NECController(Controller):
         goal = self.goal_log_exposure if goal_log_exposure is None else goal_log_exposure
         h_i = self.exposure_us * self.gain
         h_opt = math.exp(goal - log_irradiance) * US_PER_S
-        w = error_weight(math.log(h_opt / h_i), self.options.dead_band, self.options.full_band)
+        dead_band = self._dead_band
+        w = error_weight(math.log(h_opt / h_i), dead_band, self._full_band)
         if w == 0.0:
             last = self.last_command
             if last is None:
                 return None
             h_last = last.exposure_us * last.gain
-            if (
-                abs(math.log(h_last / h_i)) <= self.options.min_command_change
-                or abs(math.log(h_opt / h_last)) <= self.options.dead_band
-            ):
+            if abs(math.log(h_last / h_i)) <= self._min_change or abs(math.log(h_opt / h_last)) <= dead_band:
                 return None  # nothing outstanding, or what is outstanding is as good as H_i
             return ExposureCommand(self.exposure_us, self.gain, int(t_us), self.name)
         h_set = h_i + w * (h_opt - h_i)
@@ -553,10 +559,7 @@ class NECController(Controller):
         exposure = h_set / gain
         exposure, gain = lim.clamp(exposure, gain)  # a capped gain leaves exposure at T_max (under-exposed)
         last = self.last_command
-        if (
-            last is not None
-            and abs(math.log(last.exposure_us * last.gain / (exposure * gain))) < self.options.min_command_change
-        ):
+        if last is not None and abs(math.log(last.exposure_us * last.gain / (exposure * gain))) < self._min_change:
             return None
         return ExposureCommand(exposure, gain, int(t_us), self.name)
 
@@ -744,10 +747,7 @@ class NECController(Controller):
         self.escape_direction = d
         if d == 0:
             return None
-        crf = self.estimator.crf
-        if d > 0:
-            return min(self.goal_log_exposure, crf.g[crf.valid_min] + self.options.edge_margin)
-        return max(self.goal_log_exposure, crf.g[crf.valid_max] - self.options.edge_margin)
+        return self._aim_up if d > 0 else self._aim_down  # worked out in _apply_options
 
     # -- packets ------------------------------------------------------------------------------
     def _command_now(self) -> ExposureCommand | None:
@@ -764,15 +764,36 @@ class NECController(Controller):
         t = est.last_event_us
         if t > self.now_us:
             self.now_us = t
-        if self.options.escape and self._bus_rate is not None and events.size:
+        if self._watching and events.size:
             self._watch_bus(events.size, t)
         if not est.ready:
             return None
         t = self.now_us
-        if self.options.metering == "paper" and not self.options.escape:  # the paper's controller, as it always was
+        if self._paper_law:  # the paper's controller, as it always was
             self.last_log_irradiance = lp = est.predict(t)
             return self.command_for(lp, t)
-        return self._command_now()
+        if self._weights is not None:  # zones metering: the general path
+            return self._command_now()
+        # whole-sensor metering: _command_now's steps (t >= est.last_event_us here) without its calls
+        m = self._metered_whole(t)
+        self.last_metered = m
+        return self.command_for(m, t, self._aim())
+
+    def _metered_whole(self, t: int) -> float:
+        """:meth:`metered` for every mode but ``zones`` (``paper``, ``median``, ``percentile``): the same
+        operations in the same order (bit-identical ``M``), but the credit and the lag's absorbed part are
+        asked for only when they can be non-zero, and without :meth:`metered`'s mode dispatch."""
+        if self.options.flicker_rule and self.last_frame_estimate is not None and self.flicker.active(t):
+            return self.metered(t)  # a flickering light: the last frame's level
+        lp = self.estimator.predict(t)
+        self.last_log_irradiance = lp
+        credit = 0.0 if self.ceiling_credit == 0.0 else self._credit()
+        absorbed = 0.0 if self.lag.owed == 0.0 else self._absorbed(lp)
+        lp = lp + credit - absorbed
+        if self.options.metering == "paper":
+            return lp
+        off = self._offset0
+        return lp + off if off == off else lp  # before the first measured offset: P-TEDI's level
 
     def on_exposure_start(self, t_us: int) -> ExposureCommand | None:
         super().on_exposure_start(t_us)
