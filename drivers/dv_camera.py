@@ -33,6 +33,15 @@ they match it exactly), released up to a watermark:
 Commands: :meth:`DvCamera.set_exposure` calls ``setExposureDuration`` and keeps the command; a frame whose
 exposure (µs) matches it marks it applied (:class:`~necviz.drivers.command_log.CommandLog`) and carries its digital
 gain, as with the pyusb driver. :meth:`DvCamera.set_frame_interval` calls ``setFrameInterval``.
+
+DVS biases (issue 29): :meth:`DvCamera.set_dvs_biases` takes the same libcaer bias words as necviz's driver
+(:mod:`necviz.core.biases`) and sets each through dv-processing's coarse/fine setter
+(``DAVIS.setDavis346BiasCoarseFine`` / ``setDavis240BiasCoarseFine`` with its ``Davis346BiasCF`` /
+``Davis240BiasCF`` member; dv-processing ``include/dv-processing/io/camera/davis.hpp``). Those setters take
+coarse and fine only: the word's flag bits stay as the camera has them (libcaer's defaults for every DVS bias).
+A bias dv-processing has no setter for (``IFREFRBN``, ``IFTHRBN``) is refused in one line and nothing is
+written. The FPGA filters go through ``setBackgroundActivityFilter`` / ``setRefractoryPeriodFilter`` (250 µs
+steps); these setters take a time and cannot switch a filter off, so "off" is refused.
 """
 
 from __future__ import annotations
@@ -43,6 +52,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from necviz.core.biases import BIAS_ADDRESSES, FILTER_STEP_US, CoarseFine, family_of
 from necviz.core.control.controller import CameraLimits
 from necviz.core.errors import ParameterError
 from necviz.core.events import EVENT_DTYPE
@@ -68,6 +78,35 @@ ECHO_TOLERANCE_REL = 5e-3
 #: an announced exposure whose frame has not come after this long (µs of stream) is given up (frame lost)
 ANNOUNCED_TIMEOUT_US = 500_000
 POLL_S = 0.001
+#: necviz's (libcaer's) coarse/fine bias names -> the member of dv-processing's ``Davis346BiasCF`` /
+#: ``Davis240BiasCF`` enum that names the same bias (a name the chip's enum lacks has no setter)
+DV_BIAS_MEMBERS = {
+    "LOCALBUFBN": "LocalBuffer",
+    "PADFOLLBN": "PadFollower",
+    "DIFFBN": "Diff",
+    "ONBN": "On",
+    "OFFBN": "Off",
+    "PIXINVBN": "PixelInverter",
+    "PRBP": "Photoreceptor",
+    "PRSFBP": "PhotoreceptorSourceFollower",
+    "REFRBP": "Refractory",
+    "READOUTBUFBP": "ReadoutBuffer",
+    "APSROSFBN": "ApsReadoutSourceFollower",
+    "ADCCOMPBP": "ADCComparator",
+    "COLSELLOWBN": "COLSelectLow",
+    "DACBUFBP": "DACBuffer",
+    "LCOLTIMEOUTBN": "LCOLTimeout",
+    "AEPDBN": "AERPullDown",
+    "AEPUXBP": "AERPullUpX",
+    "AEPUYBP": "AERPullUpY",
+    "BIASBUFFER": "BiasBuffer",
+    "APSCASEPC": "ApsCascode",
+    "DIFFCASBNC": "DiffCascode",
+    "APSOVERFLOWLEVELBN": "ApsOverflowLevel",
+}
+#: the FPGA filters at libcaer's defaults, as the camera opens (µs; ``None`` = off): background activity 2 ms,
+#: refractory off (``davisCommonSendDefaultFPGAConfig``)
+DEFAULT_FILTERS_US = (8 * FILTER_STEP_US, None)
 
 
 def import_dv():
@@ -215,6 +254,8 @@ class DvCamera(CommandedCamera):
         self._iterating = False
         self.counts = {"events": 0, "frames": 0, "imu_samples": 0, "triggers": 0, "exposures_without_frame": 0}
         self._asm: StreamAssembler | None = None
+        self._filters: tuple[float | None, float | None] = DEFAULT_FILTERS_US
+        self._dvs_applied: int | None = None
         if self.live and hasattr(reader, "setExposureDuration"):
             self._set_device_exposure(self._exposure_us)
             self.set_frame_interval(self.frame_interval_us)
@@ -309,6 +350,73 @@ class DvCamera(CommandedCamera):
 
     def __exit__(self, *exc):
         self.close()
+
+    # -- DVS biases and filters (issue 29) -----------------------------------------------------------
+    @property
+    def dvs_family(self) -> str:
+        """The bias table the chip uses: ``"DAVIS240"`` or ``"DAVIS346"``."""
+        return family_of(self.sensor.name)
+
+    def _dv_setter(self, what: str):
+        """``reader.what`` on a live camera, else a one-line refusal (a recording is replayed as it was)."""
+        fn = getattr(self._reader, what, None) if self.live else None
+        if not callable(fn):
+            raise ParameterError(f"this dv-processing input has no {what} (a recording is replayed as it was)")
+        return fn
+
+    def set_dvs_biases(self, words: dict[int, int]) -> None:
+        """Write DVS bias words (module-5 parameter -> libcaer word, :mod:`necviz.core.biases`) through
+        dv-processing's coarse/fine setter, one call per bias. Every bias is checked before any is written: one
+        without a setter refuses the whole change."""
+        fam = self.dvs_family
+        setter = self._dv_setter(f"set{fam.capitalize()}BiasCoarseFine")
+        enum = getattr(type(self._reader), f"{fam.capitalize()}BiasCF", None) or getattr(
+            self._reader, f"{fam.capitalize()}BiasCF", None
+        )
+        names = {a: n for n, a in BIAS_ADDRESSES[fam].items()}
+        calls = []
+        for addr, word in sorted(words.items()):
+            name = names.get(int(addr), f"bias {addr}")
+            member = getattr(enum, DV_BIAS_MEMBERS.get(name, ""), None) if enum is not None else None
+            if member is None:
+                raise ParameterError(
+                    f"dv-processing has no setter for the {fam}'s bias {name}; nothing was written "
+                    "(necviz's own driver, --device davis, writes every bias)"
+                )
+            cf = CoarseFine.parse(int(word))
+            calls.append((member, cf.coarse, cf.fine))
+        try:
+            for member, coarse, fine in calls:
+                setter(member, coarse, fine)
+        except RuntimeError as e:
+            raise DeviceError(f"dv-processing: setting the biases failed: {e}") from None
+        self._dvs_applied = self._last_t
+
+    def set_dvs_filters(self, background_activity_us: float | None, refractory_us: float | None) -> None:
+        """The FPGA's background-activity and refractory filters (µs, 250 µs steps; ``None`` = off, which
+        dv-processing's setters cannot do: refused). Only a filter that changed is written."""
+        new = (background_activity_us, refractory_us)
+        todo = []
+        for what, old, value in zip(("setBackgroundActivityFilter", "setRefractoryPeriodFilter"), self._filters, new):
+            if value == old:
+                continue
+            if value is None:
+                raise ParameterError(
+                    f"dv-processing's {what} takes a time and cannot switch the filter off; nothing was written"
+                )
+            todo.append((self._dv_setter(what), int(round(float(value) / FILTER_STEP_US))))
+        try:
+            for fn, steps in todo:
+                fn(steps)
+        except RuntimeError as e:
+            raise DeviceError(f"dv-processing: setting the DVS filters failed: {e}") from None
+        self._filters = new
+        self._dvs_applied = self._last_t
+
+    def dvs_applied_us(self) -> int | None:
+        """Stream time from which the last DVS change holds: the last packet delivered when it was written (a
+        lower bound: the data already in flight was produced before)."""
+        return self._dvs_applied
 
     # -- reading ----------------------------------------------------------------------------------------
     def _set_device_exposure(self, us: float) -> None:

@@ -36,6 +36,14 @@ from necviz.layouts.views import (
 LAYOUTS = {"live": blueprints.live, "inspect": blueprints.inspect, "compare": blueprints.compare}
 #: Series a controller holds until it changes them (commands, and each frame's settings): drawn as steps.
 STEPPED = (S.EXPOSURE_COMMANDED, S.EXPOSURE_APPLIED, S.GAIN_COMMANDED, S.GAIN_APPLIED)
+#: The camera's DVS settings (``dvs/KEY``, one per bias change): names and colours (the thresholds in the
+#: reference grey beside P-TEDI's in the lane colour; bandwidth violet beside the grey refractory period).
+DVS_STYLES = {
+    "c_on": ("DVS c_on (biases)", REFERENCE_RGB),
+    "c_off": ("DVS c_off (biases)", REFERENCE_RGB),
+    "refractory_us": ("refractory µs", REFERENCE_RGB),
+    "bandwidth_hz": ("bandwidth Hz", (170, 120, 255)),
+}
 
 
 def make_blueprint(
@@ -96,9 +104,11 @@ def style_series(rec: rr.RecordingStream, lanes: list[str], labels: dict[str, st
             S.PREDICTION_ERROR: (f"{label} P-TEDI error", lane_rgba),
             S.PERSISTENCE_ERROR: (f"{label} same-as-last-frame error", REFERENCE_RGB),
             S.PREDICTION_SKILL: (f"{label} skill vs last frame", lane_rgba),
+            S.PTEDI_C_ON: (f"{label} P-TEDI c_on", lane_rgba),
+            S.PTEDI_C_OFF: (f"{label} P-TEDI c_off", lane_rgba),
         }
         for leaf, (name, col) in lines.items():
-            mode = "StepAfter" if leaf in STEPPED else "Linear"
+            mode = "StepAfter" if leaf in STEPPED or leaf in (S.PTEDI_C_ON, S.PTEDI_C_OFF) else "Linear"
             rec.log(
                 S.path(n, leaf),
                 rr.SeriesLines(colors=[col], names=[name], widths=[width], interpolation_mode=mode),
@@ -118,6 +128,12 @@ def style_series(rec: rr.RecordingStream, lanes: list[str], labels: dict[str, st
             S.path(n, FRAME_SATURATED), rr.Boxes2D.from_fields(colors=[SATURATED_RGB], show_labels=True), static=True
         )
     rec.log(S.EVENT_RATE, rr.SeriesLines(colors=[(200, 200, 200)], names=["events/s"], widths=[1.5]), static=True)
+    for key, (name, col) in DVS_STYLES.items():  # camera settings: held until the next bias change
+        rec.log(
+            f"{S.DVS}/{key}",
+            rr.SeriesLines(colors=[col], names=[name], widths=[1.5], interpolation_mode="StepAfter"),
+            static=True,
+        )
 
 
 __all__ = ["LAYOUTS", "STEPPED", "make_blueprint", "lane_color", "lane_colors", "style_series"]

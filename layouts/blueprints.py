@@ -24,6 +24,23 @@ SKILL_RANGE = (-1.0, 1.0)
 SKILL_TITLE = "skill vs last frame (axis −1…1)"
 #: The inspect layout's irradiance plot (``name``: the lane's controller).
 INSPECT_IRRADIANCE = "{name}: ln irradiance, P-TEDI predicted vs each frame measured (orange)"
+#: The DVS thresholds: the camera's (its biases through the bias model) beside the ones P-TEDI integrates.
+DVS_THRESHOLDS = "{name}: DVS thresholds, ln (grey: set by the biases; colour: P-TEDI's)"
+DVS_TIMING = "DVS refractory (µs, grey) and bandwidth (Hz, violet)"
+
+
+def dvs_views(lane: str, name: str) -> list[rrb.TimeSeriesView]:
+    """The bias timeline: the camera's contrast thresholds (``dvs/c_on``, ``dvs/c_off``) beside the
+    lane's P-TEDI thresholds (``LANE/ptedi/c_on|c_off``), and the refractory period and bandwidth.
+    Logged on each bias change only, so the whole run is shown (a 10 s window would drop a setting made
+    at the start)."""
+    return [
+        series_view(
+            DVS_THRESHOLDS.format(name=name),
+            [f"{S.DVS}/c_on", f"{S.DVS}/c_off", S.path(lane, S.PTEDI_C_ON), S.path(lane, S.PTEDI_C_OFF)],
+        ),
+        series_view(DVS_TIMING, [f"{S.DVS}/refractory_us", f"{S.DVS}/bandwidth_hz"]),
+    ]
 
 
 def _label(lane: str, labels: dict | None) -> str:
@@ -64,6 +81,7 @@ def live(lanes: list[str], width: int, height: int, labels: dict | None = None) 
                 ),
                 series_view("events/s", [S.EVENT_RATE], window_s),
                 series_view("command latency (µs)", [p(S.LATENCY)], window_s),
+                rrb.Vertical(*dvs_views(n, name)),
             ),
             row_shares=[3, 2],
         ),
@@ -118,6 +136,7 @@ def inspect(lanes: list[str], width: int, height: int, labels: dict | None = Non
                         [p(S.PREDICTION_ERROR), p(S.PERSISTENCE_ERROR)],
                     ),
                     series_view(SKILL_TITLE, [p(S.PREDICTION_SKILL)], y_range=SKILL_RANGE),
+                    dvs_views(n, name)[0],
                 ),
                 column_shares=[3, 1],
             ),

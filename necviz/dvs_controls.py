@@ -90,8 +90,8 @@ class DvsControls:
         if self.state is None:
             if not self.available:
                 raise ParameterError(
-                    f"{type(self.source).__name__} takes no DVS bias changes (the simulator, the emulated camera and "
-                    "necviz's USB driver do; a recording is replayed as it was)"
+                    f"{type(self.source).__name__} takes no DVS bias changes (the simulator, the emulated camera, "
+                    "necviz's USB driver and --device dv do; a recording is replayed as it was)"
                 )
             first = _estimator(next(iter(self.lanes.values()))).params
             family = getattr(self.source, "dvs_family", "DAVIS346")

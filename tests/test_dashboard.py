@@ -290,3 +290,21 @@ def test_compare_frames_fill_a_grid_not_one_row():
     bp = make_blueprint("compare", ["nec", "nec-frames", "navid", "shim", "begin", "builtin", "fixed"], 346, 260)
     top = bp.root_container.contents[0]
     assert isinstance(top, rrb.Grid) and len(top.contents) == 8
+
+
+@pytest.mark.parametrize("layout", ["live", "inspect"])
+def test_the_bias_timeline_is_in_the_live_and_inspect_layouts(layout):
+    """Issue 29: a time series of the camera's DVS settings beside the thresholds the lane's P-TEDI uses, named by
+    what it shows; ``live`` also shows the refractory period and bandwidth."""
+    import rerun.blueprint as rrb
+
+    bp = make_blueprint(layout, ["camera"], 346, 260, {"camera": "nec"})
+    plots = [v for v in _blueprint_views(bp.root_container) if isinstance(v, rrb.TimeSeriesView)]
+    shown = {c for v in plots for c in v.contents}
+    thresholds = {"/dvs/c_on", "/dvs/c_off", "/camera/ptedi/c_on", "/camera/ptedi/c_off"}
+    (view,) = [v for v in plots if thresholds <= set(v.contents)]
+    assert "threshold" in str(view.name) and "P-TEDI" in str(view.name) and "nec" in str(view.name)
+    if layout == "live":
+        assert {"/dvs/refractory_us", "/dvs/bandwidth_hz"} <= shown
+        (timing,) = [v for v in plots if "/dvs/bandwidth_hz" in v.contents]
+        assert "refractory" in str(timing.name) and "bandwidth" in str(timing.name)

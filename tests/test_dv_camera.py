@@ -313,3 +313,79 @@ def test_reconnect_is_refused_with_the_dv_backend(tmp_path, capsys):
     code = main(["live", "--device", "dv", "--reconnect", "--save", str(tmp_path / "x.rrd"), "--no-prompt"])
     err = capsys.readouterr().err
     assert code != 0 and "--reconnect works with necviz's driver (--device usb), not with --device dv" in err
+
+
+class BiasedLiveRecording(LiveRecording):
+    """The stand-in camera with dv-processing's bias and filter setters (a ``dv.io.camera.DAVIS`` cannot be opened
+    without hardware): it records each call; its bias enum is dv-processing's own."""
+
+    def __init__(self, dv, announce: str):
+        super().__init__(dv, announce)
+        self.Davis346BiasCF = dv.io.camera.DAVIS.Davis346BiasCF
+        self.bias_calls = []
+        self.filter_calls = []
+
+    def getCameraName(self):
+        return "DAVIS346_00000499"
+
+    def setDavis346BiasCoarseFine(self, bias, coarse, fine):
+        self.bias_calls.append((bias, coarse, fine))
+
+    def setBackgroundActivityFilter(self, steps):
+        self.filter_calls.append(("ba", steps))
+
+    def setRefractoryPeriodFilter(self, steps):
+        self.filter_calls.append(("refr", steps))
+
+
+def _dv_pipeline(dv):
+    from necviz.core.control import make_controller
+    from necviz.drivers.dv_camera import DvCamera
+    from necviz.pipeline import Lane, Pipeline
+
+    fake = BiasedLiveRecording(dv, "every")
+    cam = DvCamera(fake, live=True, options=CameraOptions(frame_interval_us=40_000))
+    lane = Lane("camera", make_controller("nec", sensor=cam.sensor, limits=cam.limits))
+    return fake, Pipeline(cam, [lane], warm_up=False)
+
+
+def test_dvs_controls_reach_dv_processings_bias_setters():
+    """``--device dv``: a DVS control becomes dv-processing coarse/fine setter calls, one per bias word that
+    core/biases.py computes for it (its libcaer encoding decoded to coarse/fine), on the enum member that names
+    that bias; P-TEDI follows; the FPGA filter in 250 µs steps."""
+    dv = dv_module()
+    from necviz.core.biases import BIAS_ADDRESSES, CoarseFine, DvsState
+
+    fake, pipe = _dv_pipeline(dv)
+    assert pipe.dvs.available
+    msg, _ = pipe.dvs.set("c_on", 0.15, None, started=False)
+    E = dv.io.camera.DAVIS.Davis346BiasCF
+    expected = DvsState(pipe.dvs.state.model).request("c_on", 0.15).words()  # from libcaer's defaults
+    assert expected, "a lower ON threshold moves at least one bias"
+    names = {a: n for n, a in BIAS_ADDRESSES["DAVIS346"].items()}
+    members = {"DIFFBN": E.Diff, "ONBN": E.On, "OFFBN": E.Off}
+    cfs = [(names[a], CoarseFine.parse(w)) for a, w in sorted(expected.items())]
+    want = [(members[n], cf.coarse, cf.fine) for n, cf in cfs]
+    assert fake.bias_calls == want
+    assert pipe.dvs.state.settings().c_on == pytest.approx(0.15, rel=0.01)
+    assert pipe.lanes["camera"].estimator.params.c_on == pytest.approx(0.15, rel=0.01)
+    pipe.dvs.set("refractory_us", 50.0, None, started=False)
+    assert fake.bias_calls[-1][0] == E.Refractory
+    assert pipe.dvs.state.settings().refractory_us == pytest.approx(50.0, rel=0.05)
+    pipe.dvs.set("ba_filter_us", 1000, None, started=False)
+    assert fake.filter_calls == [("ba", 4)]  # the refractory filter, unchanged (off), is not written
+
+
+def test_a_dv_control_without_a_setter_is_refused_and_changes_nothing():
+    dv = dv_module()
+    from necviz.core.errors import ParameterError
+
+    fake, pipe = _dv_pipeline(dv)
+    pipe.dvs.set("c_off", 0.2, None, started=False)
+    before = (len(fake.bias_calls), pipe.dvs.state.current, pipe.lanes["camera"].estimator.params)
+    with pytest.raises(ParameterError, match="no setter for the DAVIS346's bias IFTHRBN; nothing was written"):
+        pipe.dvs.set("bias.IfThrBn", "5/100", None, started=False)
+    with pytest.raises(ParameterError, match="cannot switch the filter off"):
+        pipe.dvs.set("ba_filter_us", 0, None, started=False)
+    assert (len(fake.bias_calls), pipe.dvs.state.current, pipe.lanes["camera"].estimator.params) == before
+    assert fake.filter_calls == []

@@ -435,3 +435,31 @@ def test_live_json_states_the_thresholds_ptedi_used(tmp_path):
     assert lane["events"] > 0
     assert lane["ptedi"]["c_on"] == pytest.approx(0.15, rel=0.01)
     assert lane["ptedi"]["c_off"] == pytest.approx(0.15, rel=0.01)
+
+
+def test_live_with_dvs_writes_the_bias_timeline_into_the_rrd(tmp_path):
+    """``live --dvs c_on=0.15 --save``: the .rrd holds the camera's DVS settings and P-TEDI's thresholds as the
+    series the live layout's bias timeline shows, styled (named) for it."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from rrd_read import Rrd
+
+    from necviz import schema as S
+    from necviz.commands.cli import main
+
+    out = tmp_path / "live.rrd"
+    args = ["live", "--device", "emulated", "--scenario", "static_lab", "--duration", "0.3", "--speed", "max"]
+    args += ["--dvs", "c_on=0.15", "--save", str(out), "--no-prompt"]
+    assert main(args) == 0
+    r = Rrd(out)
+    _, v = r.series(f"{S.DVS}/c_on")
+    assert len(v) and v[-1] == pytest.approx(0.15, rel=0.01)
+    _, off = r.series(f"{S.DVS}/c_off")
+    assert len(off) and off[-1] != pytest.approx(0.15, rel=0.01)  # only c_on was asked for
+    for k in ("refractory_us", "bandwidth_hz"):
+        assert len(r.series(f"{S.DVS}/{k}")[1]) and r.series(f"{S.DVS}/{k}")[1][-1] > 0
+    _, p = r.series(S.path("camera", S.PTEDI_C_ON))
+    assert len(p) and p[-1] == pytest.approx(0.15, rel=0.01)
+    assert r.static[f"{S.DVS}/c_on"], "the dvs series carry their names and colours"
