@@ -397,7 +397,9 @@ class DvCamera(CommandedCamera):
         dv-processing's setters cannot do: refused). Only a filter that changed is written."""
         new = (background_activity_us, refractory_us)
         todo = []
-        for what, old, value in zip(("setBackgroundActivityFilter", "setRefractoryPeriodFilter"), self._filters, new):
+        for what, old, value in zip(
+            ("setBackgroundActivityFilter", "setRefractoryPeriodFilter"), self._filters, new, strict=True
+        ):
             if value == old:
                 continue
             if value is None:
