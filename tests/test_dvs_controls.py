@@ -420,6 +420,7 @@ def test_a_replay_follows_the_recorded_bias_changes(tmp_path):
     assert est.params.c_on == pytest.approx(0.13, rel=0.01)  # the recorded model ratio x this lane's own c_on
 
 
+@pytest.mark.slow  # a live run of the emulated camera
 def test_live_json_states_the_thresholds_ptedi_used(tmp_path):
     """``live --dvs c_on=0.15 --dvs c_off=0.15 --json``: each lane's summary says P-TEDI ran at 0.15 (the
     nearest setting the biases reach), beside its events, and the run's DVS settings are in it."""
@@ -437,6 +438,7 @@ def test_live_json_states_the_thresholds_ptedi_used(tmp_path):
     assert lane["ptedi"]["c_off"] == pytest.approx(0.15, rel=0.01)
 
 
+@pytest.mark.slow  # a live run of the emulated camera
 def test_live_with_dvs_writes_the_bias_timeline_into_the_rrd(tmp_path):
     """``live --dvs c_on=0.15 --save``: the .rrd holds the camera's DVS settings and P-TEDI's thresholds as the
     series the live layout's bias timeline shows, styled (named) for it."""
