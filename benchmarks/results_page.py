@@ -175,8 +175,8 @@ def r_live_reaction(d: dict) -> str:
         "\n\n`necviz live --device emulated --scenario static_lab --duration 6` at each speed, one fresh process "
         "each, read from its `--json` summary. *Frames late*: exposures that started between the packet that "
         "caused an exposure change and the first exposure that used it (0: the very next one); *cause → "
-        "exposure*: the same interval in sensor time (a 20 ms frame period bounds it at frames late 0). Target "
-        "(issue 27): at `--speed 1` within 2 saturated frames of `--speed max`, frames late p99 ≤ 1 at every "
+        "exposure*: the same interval in sensor time (a 20 ms frame period bounds it at frames late 0). Target"
+        ": at `--speed 1` within 2 saturated frames of `--speed max`, frames late p99 ≤ 1 at every "
         "speed. The emulated sensor runs on the wall clock scaled by the speed and slips its clock when the "
         "simulation cannot keep up on a loaded machine (*sensor clock slip*: at `--speed 4` it mostly ran at the "
         "simulation's own pace); the reader's queue holds at most one frame interval (20 ms) of sensor time beyond "
@@ -626,7 +626,7 @@ def r_dvs_biases(d: dict) -> str:
         ],
         rows,
     ) + (
-        "\n\nIssue 29 asked for at least 1.5x the events on `static_lab` at c = 0.15: **not met** on the default "
+        "\n\nThe target of at least 1.5x the events on `static_lab` at c = 0.15 is **not met** on the default "
         "scene. Its events come from four light steps with 1 ms ramps; their threshold crossings (x1.7 at the lower "
         "thresholds, as 0.26/0.15 predicts) far exceed what the 100 µs refractory period and the 12 Mev/s event bus "
         "let through, so most of the added crossings are lost there (columns 6-7). With slower light changes "
