@@ -479,6 +479,41 @@ def section_baselines(idx, metric, out: list, data: dict) -> None:
     out.append("")
 
 
+def section_versus(idx, metric, out: list, data: dict) -> None:
+    """NEC against each tuned baseline: the paired difference ``nec - NAME-tuned`` per family and over
+    every scene, clustered by scene, with in how many scenes it lives (the sealed criteria's last one)."""
+    present = [f"{b}-tuned" for b in BASELINES if any(k[0] == f"{b}-tuned" for k in idx)]
+    if not present or not any(k[0] == "nec" for k in idx):
+        return
+    data["versus"] = {}
+    fams = sorted({family(k[1]) for k in idx if k[0] == "nec"})
+    out.append(f"### `nec` against each tuned baseline, {metric} (simulator defaults)\n")
+    out.append(
+        "The paired difference `nec` − baseline per family and over every scene, ± 95 % CI clustered by scene (t over "
+        "the scenes' mean differences); negative: NEC has less of the metric.\n"
+    )
+    out.append("| baseline | " + " | ".join(fams) + " | every scene | scenes lower / higher |")
+    out.append("|---|" + "---|" * (len(fams) + 2))
+    for name in present:
+        cells, rec = [], {}
+        for f in [*fams, "all"]:
+            by = paired(
+                idx, "nec", name, metric, lambda r, f=f: default_condition(r) and (f == "all" or r["family"] == f)
+            )
+            m, ci, n = clustered(by)
+            pairs = [x for items in by.values() for x in items]
+            mean_pairs = float(np.mean([x[1] for x in pairs])) if pairs else math.nan
+            rec[f] = [mean_pairs, ci, n]
+            if f == "all":
+                rec["all_bootstrap"] = list(scene_bootstrap(by))
+                rec["scene_counts"] = scene_counts(by)
+            cells.append(fmt(mean_pairs, ci, n, 2, "scenes") if n else "—")
+        c = rec["scene_counts"]
+        data["versus"][name] = rec
+        out.append(f"| `{name}` | " + " | ".join(cells) + f" | {c['negative']} / {c['positive']} |")
+    out.append("")
+
+
 def build(dirs, metric: str = "saturated_frames_50") -> tuple[str, dict]:
     """The Markdown tables and their numbers for the sweep folders ``dirs``."""
     rows = load_rows(dirs, [metric])
@@ -520,6 +555,7 @@ def build(dirs, metric: str = "saturated_frames_50") -> tuple[str, dict]:
     )
     section_ladder(idx, metric, out, data)
     section_baselines(idx, metric, out, data)
+    section_versus(idx, metric, out, data)
     if not out:
         out.append("(no pairs: the folders hold no nec / nec-frames, ladder or tuned-baseline runs)\n")
     return "\n".join(out), data
@@ -548,6 +584,11 @@ def main(argv=None) -> int:
     metrics = args.metric or ["saturated_frames_50", "saturated_frames_10"]
     try:
         parts, data = [], {}
+        every = load_rows(args.dirs, [])
+        per_controller: dict[str, int] = defaultdict(int)
+        for r in every:
+            per_controller[r["controller"]] += 1
+        data["runs"] = {"total": len(every), "controllers": dict(sorted(per_controller.items()))}
         for metric in metrics:
             text, d = build(args.dirs, metric)
             parts.append(text)

@@ -638,7 +638,87 @@ def r_dvs_biases(d: dict) -> str:
     )
 
 
+def sealed_expected() -> int:
+    """How many runs the sealed sweep file asks for (scenes x seeds x controllers)."""
+    import tomllib
+
+    sweep = tomllib.loads((HERE / "sweeps" / "sealed.toml").read_text(encoding="utf-8"))
+    lo, hi = (int(x) for x in str(sweep["seeds"]).split(".."))
+    return len(sweep["scenarios"]) * (hi - lo + 1) * len(sweep["controllers"])
+
+
+def sealed_verdicts(d: dict) -> list[tuple[str, str, bool]]:
+    """The sealed criteria (docs/evaluation.md, fixed before the run) judged on ``sealed.json``:
+    ``(criterion, what was measured, met)``. "No worse" is a mean paired difference <= 0 in clipped
+    frames (>= 0 in the true-valid fraction); the intervals are clustered by scene."""
+    out = []
+    ev50 = d.get("saturated_frames_50", {}).get("events", {})
+    if ev50.get("all"):
+        _, _, m, ci, n = ev50["all"]
+        out.append(
+            (
+                "NEC − `nec-frames` < 0 at > 50 % clipped, the scene-clustered 95 % CI excluding 0",
+                f"{m:+.2f} ± {ci:.2f} ({n} scenes)",
+                m < 0 and m + ci < 0,
+            )
+        )
+    ev10 = d.get("saturated_frames_10", {}).get("events", {})
+    if ev10.get("families"):
+        worse = {f: v[2] for f, v in ev10["families"].items() if v[2] > 0}
+        cells = ", ".join(f"{f} {v[2]:+.2f} ± {v[3]:.2f}" for f, v in ev10["families"].items())
+        out.append(("at > 10 % clipped, NEC − `nec-frames` ≤ 0 in every family", cells, not worse))
+    for metric, what, better in (
+        ("saturated_frames_10", "frames > 10 % clipped", min),
+        ("true_valid_fraction_mean", "true-valid fraction", max),
+    ):
+        md = d.get(metric, {})
+        base = {k: v["all"][0] for k, v in md.get("baselines", {}).items() if k.endswith("-tuned") and "all" in v}
+        vs = md.get("versus", {})
+        if not base or not vs:
+            continue
+        best = better(base, key=base.get)
+        m, ci, n = vs[best]["all"]
+        ok = m <= 0 if better is min else m >= 0
+        out.append(
+            (
+                f"NEC no worse than the best tuned baseline in {what} (`{best}`)",
+                f"NEC − `{best}` {m:+.3f} ± {ci:.3f} ({n} scenes)"
+                if metric.startswith("true")
+                else f"NEC − `{best}` {m:+.2f} ± {ci:.2f} ({n} scenes)",
+                ok,
+            )
+        )
+    return out
+
+
+def r_sealed(d: dict) -> str:
+    """The sealed evaluation: the criteria first, then the reading (``benchmarks/notes/sealed.md``),
+    then every table events_table.py printed. Shown only for a complete run."""
+    runs = d.get("runs", {}).get("total", 0)
+    want = sealed_expected()
+    if runs != want:
+        return (
+            f"The sealed run holds {runs} of its {want} runs: the criteria are judged on the complete set only, "
+            "so no figure is shown until it is complete."
+        )
+    rows = [[c, m, "met" if ok else "**not met**"] for c, m, ok in sealed_verdicts(d)]
+    out = [
+        f"All {want} runs of `benchmarks/sweeps/sealed.toml` (25 scenes no choice saw, seeds 300..309), on the code "
+        "sealed before the run (`benchmarks/sealed/RUN.md`). The criteria, as docs/evaluation.md fixed them before "
+        "the run:",
+        "",
+        table(["criterion", "measured (95 % CI clustered by scene)", ""], rows),
+        "",
+    ]
+    notes = HERE / "notes" / "sealed.md"
+    if notes.exists():
+        out += [notes.read_text(encoding="utf-8").strip(), ""]
+    out.append(demote_headings(d.get("markdown", "")))
+    return "\n".join(out).rstrip()
+
+
 RENDERERS: dict[str, tuple[str, Callable[[dict], str]]] = {
+    "sealed": ("The sealed evaluation (25 new scenes, seeds 300..309)", r_sealed),
     "dvs_biases": ("DVS biases on the emulated DAVIS346: events at lower thresholds", r_dvs_biases),
     "events": ("What events add (validation scenes, seeds 100..104)", r_events_heldout),
     "estimators": ("Estimator throughput (the paper's Table 1)", r_estimators),
@@ -846,7 +926,9 @@ def render_page(results: dict[str, dict]) -> str:
         "",
     ]
     first = [
-        k for k in ("events", "tuning", "flicker_rule", "flicker_rule_validation", "events_training") if k in results
+        k
+        for k in ("sealed", "events", "tuning", "flicker_rule", "flicker_rule_validation", "events_training")
+        if k in results
     ]  # the evaluation leads
     summary = speed_summary(results)
     rest = [k for k in RENDERERS if k in results and k not in first] + sorted(k for k in results if k not in RENDERERS)
@@ -891,9 +973,42 @@ def _diff_words(m: float, ci: float, n: int, unit: str, counts: dict | None = No
     return f"{abs(m):.2f} ± {ci:.2f} {'fewer' if m < 0 else 'more'} {unit} ({where})"
 
 
+def render_sealed_headline(d: dict) -> str:
+    """The README's block from the sealed rows: NEC against itself without events, against the best tuned
+    baseline, and whether each criterion fixed before the run was met."""
+    ev = d["saturated_frames_50"]["events"]
+    a, b, m, ci, n = ev["all"]
+    lines = [
+        "On the sealed test set (25 scenes and 10 seeds no choice saw, run once on the code sealed before it), NEC "
+        f"saturated (more than half of a frame clipped) {a:.2f} frames per run and the same controller with its events "
+        f"withheld (`nec-frames`) {b:.2f}: the events account for "
+        f"{_diff_words(m, ci, n, 'saturated frames per run', ev.get('scene_counts'))}."
+    ]
+    base = d.get("saturated_frames_10", {}).get("baselines", {})
+    tuned = {k: v["all"][0] for k, v in base.items() if k.endswith("-tuned") and "all" in v}
+    nec10 = base.get("nec", {}).get("all", [math.nan])[0]
+    if tuned:
+        best = min(tuned, key=tuned.get)
+        lines.append(
+            f"Counting frames more than 10 % clipped, NEC {nec10:.2f} per run, the best baseline tuned with NEC's budget "
+            f"(`{best}`) {tuned[best]:.2f}."
+        )
+    verdicts = sealed_verdicts(d)
+    missed = [c for c, _, ok in verdicts if not ok]
+    lines.append(
+        f"{len(verdicts) - len(missed)} of the {len(verdicts)} criteria fixed before the run are met"
+        + (f"; not met: {'; '.join(missed)}." if missed else ".")
+        + " Where NEC loses and why, per family: [docs/results.md](docs/results.md#the-sealed-evaluation-25-new-scenes-seeds-300309)."
+    )
+    return " ".join(lines) + "\n"
+
+
 def render_headline(results: dict[str, dict]) -> str:
     """The README's block: what the evaluation says, with the ablation beside it (from ``events.json``,
     the held-out evaluation; without it, a pointer to the results page)."""
+    sealed = results.get("sealed", {})
+    if sealed and sealed.get("runs", {}).get("total") == sealed_expected():
+        return render_sealed_headline(sealed)
     ev = results.get("events", {}).get("saturated_frames_50", {})
     if not ev.get("events") or not ev.get("baselines"):
         return (

@@ -160,6 +160,29 @@ def test_the_tables_name_each_rung_and_each_tuned_baseline():
     assert data["events"]["families"]["flicker"][2] == pytest.approx(last - 3.0)  # nec - nec-frames
 
 
+def test_nec_against_each_tuned_baseline_is_paired_by_seed_and_clustered_by_scene():
+    rows = []
+    for scene, nec, shim in (
+        ("flicker_5200", [1, 1], [3, 5]),
+        ("flicker_5201", [2, 0], [2, 0]),
+        ("static_lab_5300", [0, 0], [0, 1]),
+    ):
+        for seed in (300, 301):
+            rows += [row("nec", scene, seed, nec[seed - 300]), row("shim-tuned", scene, seed, shim[seed - 300])]
+    rows.append(row("shim-tuned", "flicker_5202", 300, 9))  # no NEC run beside it: no pair
+    out, data = [], {}
+    events_table.section_versus(events_table.index(rows), "saturated_frames_50", out, data)
+    rec = data["versus"]["shim-tuned"]
+    # per scene: flicker_5200 -3, flicker_5201 0, static_lab_5300 -0.5; the flicker family over its 2 scenes
+    m, ci, n = rec["flicker"]
+    assert n == 2 and m == pytest.approx(-1.5)
+    assert ci == pytest.approx(student_t.ppf(0.975, 1) * np.std([-3.0, 0.0], ddof=1) / math.sqrt(2))
+    m, ci, n = rec["all"]
+    assert n == 3 and m == pytest.approx(np.mean([-2, -4, 0, 0, 0, -1]))
+    assert rec["scene_counts"]["negative"] == 2 and rec["scene_counts"]["zero"] == 1
+    assert "| `shim-tuned` |" in "\n".join(out) and "2 / 0 |" in "\n".join(out)
+
+
 def test_a_rows_file_gives_back_the_rows_and_the_same_tables(tmp_path):
     """The committed rows file stands in for the sweep folders: the same rows, so the same numbers."""
     rows = []
@@ -188,3 +211,46 @@ def test_a_rows_file_gives_back_the_rows_and_the_same_tables(tmp_path):
     assert events_table.main([str(bad)]) == 2
     # the script refuses to write its rows over an input
     assert events_table.main([str(path), "--rows", str(path), "--force"]) == 2
+
+
+def test_the_sealed_criteria_are_judged_only_on_a_complete_run_and_say_which_failed(tmp_path, monkeypatch):
+    """results_page's sealed section: no figure until every run is in; then each criterion met or not,
+    as the numbers say (here NEC wins at > 50 %, loses to nec-frames in one family at > 10 %)."""
+    metrics = ["saturated_frames_50", "saturated_frames_10", "true_valid_fraction_mean"]
+    rows = []
+    for scene in ("flicker_5200", "flicker_5201", "static_lab_5300", "static_lab_5301"):
+        for seed in (300, 301):
+            flick = scene.startswith("flicker")
+            vals = {
+                "nec": (0, 3 if flick else 0, 0.9),
+                "nec-frames": (2 + seed % 2, 1 if flick else 2, 0.85),
+                "navid-tuned": (1, 2, 0.8),
+                "shim-tuned": (4, 5, 0.7),
+            }
+            for ctrl, v in vals.items():
+                r = row(ctrl, scene, seed, v[0])
+                r.update(dict(zip(metrics, v, strict=True)))
+                rows.append(r)
+    path = tmp_path / "sealed_rows.csv"
+    events_table.write_rows_csv(path, rows, metrics)
+    out = tmp_path / "sealed.json"
+    args = [str(path), *[x for m in metrics for x in ("--metric", m)], "--json", str(out)]
+    assert events_table.main(args) == 0
+    import json
+
+    page = _load("results_page")
+    d = json.loads(out.read_text())
+    assert d["runs"]["total"] == 32
+    monkeypatch.setattr(page, "sealed_expected", lambda: 33)
+    assert "32 of its 33 runs" in page.r_sealed(d) and "±" not in page.r_sealed(d)
+    monkeypatch.setattr(page, "sealed_expected", lambda: 32)
+    verdicts = {c.split(" (")[0]: ok for c, _, ok in page.sealed_verdicts(d)}
+    assert len(verdicts) == 4
+    assert verdicts["NEC − `nec-frames` < 0 at > 50 % clipped, the scene-clustered 95 % CI excluding 0"]
+    assert not verdicts["at > 10 % clipped, NEC − `nec-frames` ≤ 0 in every family"]  # flicker: +2
+    assert verdicts["NEC no worse than the best tuned baseline in frames > 10 % clipped"]  # against navid-tuned
+    assert verdicts["NEC no worse than the best tuned baseline in true-valid fraction"]
+    text = page.r_sealed(d)
+    assert "**not met**" in text and "`navid-tuned`" in text
+    head = page.render_sealed_headline(d)
+    assert "3 of the 4 criteria" in head and "not met: at > 10 % clipped" in head
