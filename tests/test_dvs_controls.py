@@ -405,6 +405,8 @@ def test_a_replay_follows_the_recorded_bias_changes(tmp_path):
     est = _estimator(lane)
     c0 = est.params.c_on
     assert replay.dvs.follow_recording(rec.annotations) == 1
+    (scheduled,) = replay.dvs.scheduled  # the public view of what is still to follow: (from_us, ratio on, off)
+    assert scheduled[0] == t_live and scheduled[2] == 1.0 and scheduled[1] < 1.0
     seen = []
 
     class Watch(Observer):
@@ -414,6 +416,7 @@ def test_a_replay_follows_the_recorded_bias_changes(tmp_path):
     replay.observers.append(Watch())
     replay.run().finish()
     assert replay.dvs.followed_from_us == t_live
+    assert replay.dvs.scheduled == ()
     old = [last for last, c in seen if c == c0]
     new = [last for last, c in seen if c != c0]
     assert max(old) < t_live <= min(new)
