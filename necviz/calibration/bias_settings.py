@@ -153,8 +153,7 @@ class SplitCollector:
                 if self.timeline.at(start) != self.timeline.at(end) or any(
                     start < c <= end for c in self.timeline.boundaries()
                 ):
-                    self.frames_dropped += 1
-                    self._segment = None  # the next frame starts over
+                    self.frames_dropped += 1  # the collector of the stretch after it has no frame yet: no pair
                     return
                 self._route(start).feed(packet)
 

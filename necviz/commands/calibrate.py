@@ -229,6 +229,12 @@ def run(args: argparse.Namespace) -> int:
         raise ParameterError("give recordings (FILE...) or --sim, not both")
     if not files and not args.sim:
         raise ParameterError("nothing to calibrate on: give recordings (FILE...) or --sim SCENARIO")
+    from necviz.calibration.bias_settings import parse_change, parse_setting
+
+    which = None if args.bias_setting is None else parse_setting(args.bias_setting)
+    changes = tuple(parse_change(c) for c in args.dvs_at or ())
+    if changes and not args.sim:
+        raise ParameterError("--dvs-at schedules bias changes in simulator runs (--sim); a recording holds its own")
     inputs = files + ([args.profile] if args.profile else [])
     out = check_output(args.out, "--out", inputs=inputs, force=args.force, suffixes=(".json",))
     rep = None
@@ -238,12 +244,6 @@ def run(args: argparse.Namespace) -> int:
     for f in files:
         if not Path(f).exists():
             raise ParameterError(f"{f}: no such file or directory")
-    from necviz.calibration.bias_settings import parse_change, parse_setting
-
-    which = None if args.bias_setting is None else parse_setting(args.bias_setting)
-    changes = tuple(parse_change(c) for c in args.dvs_at or ())
-    if changes and not args.sim:
-        raise ParameterError("--dvs-at schedules bias changes in simulator runs (--sim); a recording holds its own")
     base = load_profile(args.profile) if args.profile else None
     init = _parse_init(args.init, (base or CameraProfile()).tedi) if args.init else None
     sim = None
