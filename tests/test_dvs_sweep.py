@@ -78,7 +78,9 @@ def test_the_summary_pairs_each_setting_with_the_default_and_the_page_renders_it
     assert low["events_vs_default"][0] == 2.0
     assert low["per_scene_saturated_frames_10_nec"] == {"static_lab": 3.0, "flicker_deep_100": 5.0}
     assert table[default]["saturated_frames_10"]["nec - nec at default"] == (0.0, 0.0)
-    text = page.r_dvs_sweep({"command": "x", "seeds": [0, 1], "lanes": list(sweep.LANES), "table": table})
-    assert "| c=0.15, refr=default | 0.150 / 0.150 |" in text
+    text = page.r_dvs_sweep(
+        {"command": "x", "seeds": [0, 1], "lanes": list(sweep.LANES), "table": table, "default": default}
+    )
+    assert "| c=0.15, refr=default | 0.150 / 0.150 |" in text and "| 2.00 (x2.00) |" in text
     assert "| flicker_deep_100 |" in text and "5.0 (5.0 M)" in text
     assert "2 scenes" in text and "24 closed-loop runs" in text
