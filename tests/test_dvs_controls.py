@@ -423,6 +423,29 @@ def test_a_replay_follows_the_recorded_bias_changes(tmp_path):
     assert est.params.c_on == pytest.approx(0.13, rel=0.01)  # the recorded model ratio x this lane's own c_on
 
 
+def test_replay_says_how_many_recorded_bias_changes_it_follows(tmp_path, capsys):
+    """``necviz replay`` of a recording with one bias change: the session counts it through
+    ``DvsControls.scheduled`` (the public view) and says so."""
+    from necviz.commands.cli import main
+    from necviz.drivers.recordings import Recorder
+    from necviz.pipeline import Observer, RecorderObserver
+
+    rig, pipe = sim_pipeline(**SLOW)
+    recorder = Recorder(tmp_path / "t.necrec", sensor=SMALL, properties={})
+    n = [0]
+
+    class Change(Observer):
+        def events(self, batch):
+            n[0] += 1
+            if n[0] == 20:
+                pipe.tune_dvs("c_on", 0.13)
+
+    pipe.observers += [RecorderObserver(recorder, "camera"), Change()]
+    pipe.run().finish()
+    assert main(["replay", str(tmp_path / "t.necrec"), "--save", str(tmp_path / "r.rrd")]) == 0
+    assert "P-TEDI follows the 1 DVS bias change(s) recorded in the file" in capsys.readouterr().out
+
+
 @pytest.mark.slow  # a live run of the emulated camera
 def test_live_json_states_the_thresholds_ptedi_used(tmp_path):
     """``live --dvs c_on=0.15 --dvs c_off=0.15 --json``: each lane's summary says P-TEDI ran at 0.15 (the
