@@ -171,6 +171,10 @@ def test_a_recorded_change_gives_the_timeline_the_replay_follows(tmp_path):
     with pytest.raises(ParameterError, match=r"--bias-setting 5: the data hold bias settings 0\.\.1"):
         calibrate_from_recordings([tmp_path / "t.necrec"], bias_setting=5)
 
+    from necviz.commands.calibrate import _bias_changes
+
+    assert _bias_changes(tmp_path / "t.necrec", None) == 1  # calibrate without --bias-setting says so before its fit
+
 
 @pytest.mark.slow  # two 6 s calibration runs and two bootstraps (≈ 30 s)
 def test_each_settings_fit_holds_its_true_thresholds(tmp_path, capsys):

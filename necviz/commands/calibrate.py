@@ -272,6 +272,14 @@ def run(args: argparse.Namespace) -> int:
             max_pairs=args.max_pairs, max_lag=args.max_lag, continuation=not args.no_continuation
         ),
     )
+    if which is None:
+        for f in files:  # data across bias changes holds several thresholds: say so before one fit mixes them
+            n = _bias_changes(f, args.exposure_us) if Path(f).is_file() else 0  # a pipe is read once, by the fit
+            if n:
+                print(
+                    f"note: {Path(f).name} holds {n} DVS bias change(s), so more than one set of thresholds; this fit "
+                    "mixes them (--bias-setting all fits each setting on its own)"
+                )
     live = sys.stderr.isatty()
 
     def progress(text):
@@ -301,6 +309,19 @@ def run(args: argparse.Namespace) -> int:
     print(result.summary())
     print(f"wrote {out}" + (f" and {rep}" if rep is not None else ""))
     return 0
+
+
+def _bias_changes(path, exposure_us) -> int:
+    """How many bias changes a recording's timeline holds (0 for formats that record none)."""
+    from necviz.calibration.bias_settings import BiasTimeline
+    from necviz.drivers.recordings import open_recording
+
+    rec = open_recording(path, exposure_us=exposure_us)
+    try:
+        notes = getattr(rec, "annotations", None)
+        return len(BiasTimeline.from_annotations(notes).changes) if notes else 0
+    finally:
+        rec.close()
 
 
 def _describe_setting(index: int, settings: dict | None) -> str:
