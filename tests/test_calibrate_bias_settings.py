@@ -19,24 +19,28 @@ SMALL = SensorGeometry(48, 36)
 
 
 def test_the_timeline_of_a_recording_takes_each_change_where_it_showed():
-    """A change set before the stream (noted at the first packet, P-TEDI took it at once), one written mid-run whose
-    ``ptedi`` note says when it showed, one that moved no threshold (no ``ptedi`` note: from when it was written),
-    and a return to the first setting (the same setting number)."""
+    """A change set before the stream (noted at the first packet, P-TEDI took it at once), two written mid-run
+    together (c_on, then c_off) whose ``ptedi`` note says when they showed (one setting), one that moved no threshold
+    (no ``ptedi`` note: from when it was written), and a return to the first setting (the same setting number)."""
     low = {"c_on": 0.15, "c_off": 0.15, "refractory_us": 100.0, "bandwidth_hz": 300.0}
+    half = {**low, "c_on": 0.4}
     high = {**low, "c_on": 0.4, "c_off": 0.4}
     slow = {**high, "refractory_us": 400.0}
+    moved = {"ratio": {"c_on": 1.5, "c_off": 1.6}, "ptedi": {"camera": {"c_on": 0.4, "c_off": 0.4}}}
     notes = [
         (10, {"dvs": {"key": "c_on", **low}, "ptedi": {"camera": {"c_on": 0.15, "c_off": 0.15}}}),
-        (1_000, {"dvs": {"key": "c_on", **high}}),
+        (1_000, {"dvs": {"key": "c_on", **half, **moved}}),
+        (1_000, {"dvs": {"key": "c_off", **high, **moved}}),
         (1_500, {"ptedi": {"camera": {"c_on": 0.4, "c_off": 0.4, "from_us": 1_200}}, "ratio": {}}),
         (2_000, {"dvs": {"key": "refractory_us", **slow}}),
-        (3_000, {"dvs": {"key": "c_on", **low}}),
+        (3_000, {"dvs": {"key": "c_on", **low, **moved}}),
         (3_100, {"ptedi": {"camera": {"c_on": 0.15, "c_off": 0.15, "from_us": 3_050}}}),
         (3_200, "not a note"),
     ]
     tl = BiasTimeline.from_annotations(notes)
     assert tl.changes == [(10, 1), (1_200, 2), (2_000, 3), (3_050, 1)]
     assert tl.settings[0] is None and tl.settings[1]["c_on"] == 0.15 and tl.settings[3]["refractory_us"] == 400.0
+    assert tl.settings[2]["c_off"] == 0.4 and len(tl.settings) == 4  # c_on and c_off written together: one setting
     assert [tl.at(t) for t in (0, 10, 1_199, 1_200, 2_500, 9_999)] == [0, 1, 1, 2, 3, 1]
     assert BiasTimeline.from_annotations([]).changes == []  # no change: everything is setting 0
 

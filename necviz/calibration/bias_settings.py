@@ -78,7 +78,7 @@ class BiasTimeline:
         ``ptedi`` note; one set before the first packet is noted at that packet)."""
         tl = cls() if timeline is None else timeline
         tl.restart()
-        pending: tuple[int, dict] | None = None
+        pending: tuple[int, dict] | None = None  # a threshold change written, waiting for the note that it showed
         for t, note in sorted(annotations or (), key=lambda a: a[0]):
             if not isinstance(note, dict):
                 continue
@@ -88,18 +88,20 @@ class BiasTimeline:
                 if isinstance(ptedi, dict)
                 else []
             )
-            if isinstance(dvs, dict) and not starts:  # written now; takes effect at the next ptedi note, if any
-                if pending is not None:
-                    tl.add(*pending)
-                pending = (int(t), dvs)
-                if isinstance(ptedi, dict):  # set before the stream started: P-TEDI took it at once
-                    tl.add(*pending)
-                    pending = None
-            elif starts:
+            if starts:  # a change showed in the stream here (a replay's note carries the recorded settings)
                 settings = dvs if isinstance(dvs, dict) else (pending[1] if pending else None)
                 if settings is not None:
                     tl.add(int(starts[0]), settings)
                 pending = None
+            elif isinstance(dvs, dict):
+                if isinstance(ptedi, dict):  # set before the stream started: P-TEDI took it at once
+                    tl.add(int(t), dvs)
+                elif pending is not None or dvs.get("ptedi") or "ratio" in dvs:
+                    # thresholds moved (now or in a change not yet shown): the note that they showed says when;
+                    # each note holds every setting after it, so the latest stands for both
+                    pending = (pending[0] if pending else int(t), dvs)
+                else:  # the refractory period or bandwidth alone: no such note comes, it holds from now
+                    tl.add(int(t), dvs)
         if pending is not None:
             tl.add(*pending)
         return tl
