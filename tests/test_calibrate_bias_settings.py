@@ -207,3 +207,51 @@ def test_each_settings_fit_holds_its_true_thresholds(tmp_path, capsys):
         profile = json.loads((tmp_path / f"p.setting{f['bias_setting']}.json").read_text())
         assert profile["calibration"]["bias_setting"]["index"] == f["bias_setting"]
     assert not out.exists()  # with all, one file per setting
+
+
+def test_a_recording_across_a_bias_change_gives_each_setting_its_own_thresholds(tmp_path, capsys):
+    """NEC on the simulated calibration scene (48x36, 12 s, mismatch 0.01), recorded; at 6 s the thresholds go
+    from 0.26 / 0.24 to 0.15 / 0.35 (``c_on`` then ``c_off``, one setting). ``calibrate --bias-setting all`` on the
+    ``.necrec``: two profiles, each setting's 95 % intervals holding its own simulated thresholds and not the
+    other's; without ``--bias-setting`` the command says the file holds a change."""
+    from necviz.commands.cli import main
+    from necviz.drivers.recordings import Recorder
+    from necviz.drivers.sim.calibration_scene import CalibrationScene
+    from necviz.drivers.sim.dvs import DvsParams
+    from necviz.drivers.sim.rig import RigOptions, SimRig
+    from necviz.pipeline import Lane, Observer, Pipeline, RecorderObserver
+    from necviz.runs import make_controller
+
+    scene = CalibrationScene(sensor=SMALL, duration_us=12_000_000, seed=0)
+    rig = SimRig(scene, ["camera"], seed=0, dvs=DvsParams(sigma_threshold=0.01), options=RigOptions(threads=False))
+    lane = Lane("camera", make_controller("nec", sensor=SMALL, limits=rig.camera_info.limits))
+    pipe = Pipeline(rig, [lane], warm_up=False)
+    done = []
+
+    class Change(Observer):
+        def events(self, batch):
+            if not done and int(batch["t"][-1]) > 6_000_000:
+                done.append(True)
+                pipe.tune_dvs("c_on", 0.15)
+                pipe.tune_dvs("c_off", 0.35)
+
+    rec = tmp_path / "t.necrec"
+    pipe.observers += [RecorderObserver(Recorder(rec, sensor=SMALL, properties={}), "camera"), Change()]
+    pipe.run().finish()
+    truth = [(0.26, 0.24), (rig.dvs_params.c_on, rig.dvs_params.c_off)]  # the simulated pixel's, before and after
+    assert truth[1] == pytest.approx((0.15, 0.35), rel=0.01)
+
+    out, rep = tmp_path / "p.json", tmp_path / "r.json"
+    argv = ["calibrate", str(rec), "--fit", "c", "--min-pixels", "50", "--bias-setting", "all"]
+    assert main([*argv, "--out", str(out), "--json", str(rep)]) == 0
+    fits = json.loads(rep.read_text())["bias_settings"]
+    assert [f["bias_setting"] for f in fits] == [0, 1] and fits[1]["settings"]["c_off"] == pytest.approx(0.35, rel=0.01)
+    for f, own, other in zip(fits, truth, truth[::-1], strict=True):
+        intervals = f["calibration"]["fit"]["bootstrap"]["intervals"]
+        for k, name in enumerate(("c_on", "c_off")):
+            lo, hi = intervals[name]
+            assert lo <= own[k] <= hi and not lo <= other[k] <= hi, (f["bias_setting"], name, lo, hi)
+        assert (tmp_path / f"p.setting{f['bias_setting']}.json").exists()
+    capsys.readouterr()
+    assert main(["calibrate", str(rec), "--fit", "c", "--min-pixels", "50", "--out", str(tmp_path / "one.json")]) == 0
+    assert "t.necrec holds 1 DVS bias change(s)" in capsys.readouterr().out
