@@ -717,9 +717,96 @@ def r_sealed(d: dict) -> str:
     return "\n".join(out).rstrip()
 
 
+def r_dvs_sweep(d: dict) -> str:
+    """NEC over DVS thresholds and refractory periods on the training scenes (``benchmarks/dvs_sweep.py``): the
+    reading (``benchmarks/notes/dvs_sweep.md``, written after the table was in), the table per setting, then NEC's
+    frames saturated > 10 % per scene and setting."""
+    lanes = d.get("lanes", ["nec", "nec-frames"])
+    tab = d.get("table", {})
+    pm = lambda c: f"{c[0]:+.2f} ± {c[1]:.2f}"  # noqa: E731
+    base = tab.get(d.get("default", ""), {}).get("events", [0])[0]  # the default biases' mean events per run
+    rows = []
+    for lab, row in tab.items():
+        th = row.get("ptedi") or {}
+        rows.append(
+            [
+                lab,
+                f"{num(th.get('c_on'), 3)} / {num(th.get('c_off'), 3)}",
+                " / ".join(f"{row['saturated_frames_50'][ln][0]:.2f}" for ln in lanes),
+                " / ".join(f"{row['saturated_frames_10'][ln][0]:.2f}" for ln in lanes),
+                pm(row["saturated_frames_10"]["nec - nec at default"]),
+                pm(row["saturated_frames_10"]["nec - nec-frames"]),
+                " / ".join(f"{row['true_valid_fraction_mean'][ln][0]:.3f}" for ln in lanes),
+                num(row["prediction_error_rmse"]["nec"][0], 3),
+                f"{row['events'][0] / 1e6:.2f} (x{row['events'][0] / base:.2f})"
+                if base
+                else num(row["events"][0] / 1e6),
+                f"{row['lost_bus_ceiling'][0] / 1e6:.2f}",
+                f"{row['lost_refractory'][0] / 1e6:.2f}",
+            ]
+        )
+    out = [
+        table(
+            [
+                "DVS setting (`--dvs`)",
+                "P-TEDI c_on / c_off",
+                "> 50 %: nec / nec-frames",
+                "> 10 %: nec / nec-frames",
+                "> 10 %: nec − nec at default",
+                "> 10 %: nec − nec-frames",
+                "true valid: nec / nec-frames",
+                "P-TEDI RMSE (ln), nec",
+                "events per run, M (x the default's)",
+                "lost to the bus, M",
+                "lost to refractory, M",
+            ],
+            rows,
+        ),
+        "",
+    ]
+    scenes = list(next(iter(tab.values()), {}).get("per_scene_saturated_frames_10_nec", {}))
+    if scenes:
+        out += [
+            "NEC's frames saturated > 10 % per run, by scene (mean over the seeds) — and the events lost to the bus:",
+            "",
+            table(
+                ["training scene", *tab],
+                [
+                    [
+                        sc,
+                        *(
+                            f"{r['per_scene_saturated_frames_10_nec'][sc]:.1f} "
+                            f"({r['per_scene_lost_bus_ceiling'][sc] / 1e6:.1f} M)"
+                            for r in tab.values()
+                        ),
+                    ]
+                    for sc in scenes
+                ],
+            ),
+            "",
+        ]
+    seeds = d.get("seeds", [])
+    head = (
+        f"Training scenes and seeds only ({len(scenes)} scenes: the five presets and `benchmarks/training/`, seeds "
+        f"{seeds[0]}..{seeds[-1]}, every change at a random phase); {sum(r['runs'] for r in tab.values())} closed-loop "
+        "runs, `nec` and `nec-frames` as lanes of one rig, the biases set at scene start as `--dvs` does (P-TEDI "
+        "following). Mean frames per run; differences paired by scene and seed ± 95 % CI (Student's t over the "
+        "pairs; the scenes differ, so read it as a spread). `nec-frames` reads no events: its column does not move "
+        "with the biases.\n\n"
+        if seeds
+        else ""
+    )
+    notes = HERE / "notes" / "dvs_sweep.md"
+    text = head + "\n".join(out).rstrip()
+    if notes.exists():
+        text = notes.read_text(encoding="utf-8").strip() + "\n\n" + text
+    return text
+
+
 RENDERERS: dict[str, tuple[str, Callable[[dict], str]]] = {
     "sealed": ("The sealed evaluation (25 new scenes, seeds 300..309)", r_sealed),
     "dvs_biases": ("DVS biases on the emulated DAVIS346: events at lower thresholds", r_dvs_biases),
+    "dvs_sweep": ("NEC over DVS thresholds and refractory periods (training scenes)", r_dvs_sweep),
     "events": ("What events add (validation scenes, seeds 100..104)", r_events_heldout),
     "estimators": ("Estimator throughput (the paper's Table 1)", r_estimators),
     "sim": ("Simulator speed", r_sim),

@@ -171,6 +171,12 @@ class DvsControls:
         return msg, data
 
     @property
+    def scheduled(self) -> tuple[tuple[int, float, float], ...]:
+        """A replayed recording's bias changes P-TEDI has still to follow, in time order: ``(from_us, ratio c_on,
+        ratio c_off)`` each (the ratios to the default biases; :meth:`follow_recording` fills it)."""
+        return tuple((t, r_on, r_off) for t, r_on, r_off, _ in self._schedule)
+
+    @property
     def pending(self) -> bool:
         return self._pending is not None or bool(self._schedule)
 

@@ -12,7 +12,12 @@ value (Dask workers)::
 
     {"scenario": "tunnel_exit", "seed": 3, "duration_s": 2.0, "scenario_params": {"step_db": 90},
      "controllers": ["nec"], "controller_params": {"nec": {"goal": 110}},
-     "profile": None, "sim": {"dvs.c_on": 0.3, "aps.latency_us": 2000}, "sift": False, "markers": True}
+     "profile": None, "sim": {"dvs.c_on": 0.3, "aps.latency_us": 2000}, "sift": False, "markers": True,
+     "dvs": [["c_on", "0.15"], ["refractory_us", "400"]]}
+
+``dvs``: DVS bias settings applied at scene start, as ``--dvs KEY=VALUE`` does on ``demo``
+(:mod:`necviz.dvs_controls`: the biases written to the simulated camera, every lane's P-TEDI following them).
+Absent or empty, the run is exactly what it was without the key.
 
 ``sift`` and ``markers`` (fiducial-marker detection, :mod:`necviz.marker_detection`) are per-frame
 measurements that cost time; both default to off in a run spec.
@@ -169,6 +174,9 @@ class RunOptions:
     threads : bool, optional
         The simulator's worker threads (:class:`~necviz.drivers.sim.rig.RigOptions`; ``False`` on a sweep
         worker, one run per core; the same result either way).
+    dvs : tuple of (str, str)
+        DVS controls ``(KEY, VALUE)`` applied before the first packet, as ``--dvs KEY=VALUE``
+        (:meth:`~necviz.dvs_controls.DvsControls.set`; P-TEDI follows). Empty: the default biases.
     """
 
     scene: SceneOptions
@@ -179,6 +187,7 @@ class RunOptions:
     controller_params: dict | None = None
     sim: dict | None = None
     threads: bool | None = None
+    dvs: tuple = ()
 
 
 def run_once(options: RunOptions, observers=(), progress=None) -> dict:
@@ -194,6 +203,8 @@ def run_once(options: RunOptions, observers=(), progress=None) -> dict:
     tel = Telemetry([ln.name for ln in lanes], sift=sift, markers=markers)
     obs = [o(rig, lanes) if callable(o) else o for o in observers]
     pipe = Pipeline(rig, lanes, telemetry=tel, observers=obs)
+    for key, value in options.dvs:  # at scene start: the stream begins at these biases, P-TEDI at their thresholds
+        pipe.dvs.set(key, value, None, started=False)
     if progress is None:
         pipe.run().finish()
     else:
@@ -253,6 +264,7 @@ SPEC_KEYS = {
     "sim",
     "sift",
     "markers",
+    "dvs",
 }
 
 
@@ -279,6 +291,7 @@ def run_spec(spec: dict, threads: bool | None = None) -> dict:
         from necviz.profiles import load_profile
 
         profile = load_profile(profile)
+    from necviz.dvs_controls import check_assignments
     from necviz.options import parse_controllers
 
     return run_once(
@@ -291,6 +304,7 @@ def run_spec(spec: dict, threads: bool | None = None) -> dict:
             controller_params=spec.get("controller_params"),
             sim=spec.get("sim"),
             threads=threads,
+            dvs=check_assignments(f"{k}={v}" for k, v in spec.get("dvs") or ()),
         )
     )
 

@@ -405,6 +405,8 @@ def test_a_replay_follows_the_recorded_bias_changes(tmp_path):
     est = _estimator(lane)
     c0 = est.params.c_on
     assert replay.dvs.follow_recording(rec.annotations) == 1
+    (scheduled,) = replay.dvs.scheduled  # the public view of what is still to follow: (from_us, ratio on, off)
+    assert scheduled[0] == t_live and scheduled[2] == 1.0 and scheduled[1] < 1.0
     seen = []
 
     class Watch(Observer):
@@ -414,10 +416,34 @@ def test_a_replay_follows_the_recorded_bias_changes(tmp_path):
     replay.observers.append(Watch())
     replay.run().finish()
     assert replay.dvs.followed_from_us == t_live
+    assert replay.dvs.scheduled == ()
     old = [last for last, c in seen if c == c0]
     new = [last for last, c in seen if c != c0]
     assert max(old) < t_live <= min(new)
     assert est.params.c_on == pytest.approx(0.13, rel=0.01)  # the recorded model ratio x this lane's own c_on
+
+
+def test_replay_says_how_many_recorded_bias_changes_it_follows(tmp_path, capsys):
+    """``necviz replay`` of a recording with one bias change: the session counts it through
+    ``DvsControls.scheduled`` (the public view) and says so."""
+    from necviz.commands.cli import main
+    from necviz.drivers.recordings import Recorder
+    from necviz.pipeline import Observer, RecorderObserver
+
+    rig, pipe = sim_pipeline(**SLOW)
+    recorder = Recorder(tmp_path / "t.necrec", sensor=SMALL, properties={})
+    n = [0]
+
+    class Change(Observer):
+        def events(self, batch):
+            n[0] += 1
+            if n[0] == 20:
+                pipe.tune_dvs("c_on", 0.13)
+
+    pipe.observers += [RecorderObserver(recorder, "camera"), Change()]
+    pipe.run().finish()
+    assert main(["replay", str(tmp_path / "t.necrec"), "--save", str(tmp_path / "r.rrd")]) == 0
+    assert "P-TEDI follows the 1 DVS bias change(s) recorded in the file" in capsys.readouterr().out
 
 
 @pytest.mark.slow  # a live run of the emulated camera

@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, overload
 
 import numpy as np
 
@@ -21,6 +21,7 @@ from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import DAVIS346, SensorGeometry
 
 if TYPE_CHECKING:  # the simulator is imported on use
+    from necviz.calibration.bias_settings import SettingResult, SplitCollector
     from necviz.drivers.sim.aps import ApsParams
     from necviz.drivers.sim.dvs import DvsParams
 
@@ -59,12 +60,26 @@ class ExposureOracle:
 
 
 def simulate_calibration_stream(
-    scene, *, dvs=None, aps=None, crf: CameraResponse | None = None, seed: int = 0, brackets: bool = True
+    scene,
+    *,
+    dvs=None,
+    aps=None,
+    crf: CameraResponse | None = None,
+    seed: int = 0,
+    brackets: bool = True,
+    dvs_changes=(),
+    timeline=None,
 ):
     """Packets (events, markers, frames) of one simulated camera driven by :class:`ExposureOracle`.
 
     The command for each frame is issued at the previous exposure start (the simulator's latency
     is far shorter than a frame interval), so every frame gets the oracle's exposure.
+
+    ``dvs_changes``: ``(seconds, key, value)`` DVS controls written to the simulated camera's biases at those
+    scene times (as ``--dvs`` does; :mod:`necviz.core.biases` maps a request to bias words, the simulator takes the
+    pixel they give). Each takes effect at the simulator's next DVS step; ``timeline``
+    (:class:`~.bias_settings.BiasTimeline`) is told when, with the settings and the simulated pixel's true
+    thresholds, before any packet after it is yielded.
     """
     from necviz.drivers.sim.aps import ApsParams
     from necviz.drivers.sim.rig import RigOptions, SimRig
@@ -77,13 +92,53 @@ def simulate_calibration_stream(
     rig = SimRig(
         scene, {"cal": (t0, k0)}, dvs=dvs, aps=aps, crf=crf, seed=seed, options=RigOptions(first_start_us=first)
     )
+    changes = sorted(dvs_changes or (), key=lambda c: float(c[0]))
+    state, waiting = (_bias_state(rig.dvs_params) if changes else None), False
     k = 0
     for _, packet in rig.packets():
+        if changes or waiting:
+            t_now = rig.now_us
+            while changes and changes[0][0] * 1e6 <= t_now:  # due: written to the biases together
+                _, key, value = changes.pop(0)
+                assert state is not None
+                change = state.request(key, value)
+                rig.set_dvs_biases(change.words())
+                state.apply(change)
+                waiting = True
+            t_eff = rig.dvs_applied_us() if waiting else None
+            if t_eff is not None:
+                waiting = False
+                if timeline is not None:
+                    timeline.add(t_eff, {**_settings(state), "truth": _truth(rig.dvs_params)})
         if isinstance(packet, ExposureMarker) and packet.kind == "start":
             k += 1
             exp_us, gain = oracle(packet.t_us + aps.frame_interval_us, k)
             rig.set_exposure("cal", exp_us, gain)
         yield packet
+
+
+def _bias_state(pixel):
+    """The bias model for the simulated pixel ``pixel`` at libcaer's default biases: a request for
+    ``c_on = 0.15`` gives the pixel's mean ON threshold 0.15 (the nearest the biases reach)."""
+    from necviz.core.biases import BiasModel, DvsBiases, DvsSettings, DvsState, physical_settings
+
+    phys = physical_settings(DvsBiases.defaults("DAVIS346"))
+    ref = DvsSettings(pixel.c_on, pixel.c_off, pixel.refractory_us, pixel.cutoff_hz or phys.bandwidth_hz)
+    return DvsState(BiasModel("DAVIS346", ref))
+
+
+def _settings(state) -> dict:
+    return state.settings().as_dict()
+
+
+def _truth(pixel) -> dict:
+    """The simulated pixel's true mean thresholds, refractory period and bandwidth."""
+    return {
+        "c_on": pixel.c_on,
+        "c_off": pixel.c_off,
+        "refractory_us": pixel.refractory_us,
+        "cutoff_hz": pixel.cutoff_hz,
+    }
 
 
 def make_sim_scene(name: str, sensor: SensorGeometry, duration_s: float | None, seed: int):
@@ -117,6 +172,9 @@ class CalibrationSimulation:
         The simulated camera's event and frame models (default: the simulated DAVIS346).
     crf : CameraResponse, optional
         The response the simulator renders frames with (default: the DAVIS346-like curve).
+    dvs_changes : sequence of (seconds, key, value)
+        DVS bias controls written during each run at those scene times (``--dvs-at``;
+        :func:`simulate_calibration_stream`): the data of several bias settings, for a fit per setting.
 
     Raises
     ------
@@ -131,6 +189,7 @@ class CalibrationSimulation:
     dvs: DvsParams | None = None
     aps: ApsParams | None = None
     crf: CameraResponse | None = None
+    dvs_changes: tuple = ()
 
     def __post_init__(self) -> None:
         from necviz.drivers.sim.calibration_scene import CALIBRATION_SCENE
@@ -153,13 +212,41 @@ class CalibrationSimulation:
             raise ParameterError(f"--duration must lie in (0, 600] s, got {d!r}")
         if not isinstance(self.sensor, SensorGeometry):
             raise ParameterError(f"sensor must be a SensorGeometry, got {type(self.sensor).__name__}")
+        from necviz.calibration.bias_settings import parse_change
+
+        changes = tuple(parse_change(f"{t}:{k}={v}") for t, k, v in self.dvs_changes or ())
+        object.__setattr__(self, "dvs_changes", changes)
         object.__setattr__(self, "scenarios", scenarios)
         object.__setattr__(self, "seeds", tuple(int(v) for v in seeds))
 
 
+@overload
 def calibrate_from_simulation(
-    simulation: CalibrationSimulation | None = None, options: CalibrationOptions | None = None, *, progress=None
-) -> CalibrationResult:
+    simulation: CalibrationSimulation | None = None,
+    options: CalibrationOptions | None = None,
+    *,
+    progress=None,
+    bias_setting: None = None,
+) -> CalibrationResult: ...
+
+
+@overload
+def calibrate_from_simulation(
+    simulation: CalibrationSimulation | None = None,
+    options: CalibrationOptions | None = None,
+    *,
+    progress=None,
+    bias_setting: int | str,
+) -> list[SettingResult]: ...
+
+
+def calibrate_from_simulation(
+    simulation: CalibrationSimulation | None = None,
+    options: CalibrationOptions | None = None,
+    *,
+    progress=None,
+    bias_setting: int | str | None = None,
+) -> CalibrationResult | list[SettingResult]:
     """Calibrate from simulator runs: every scenario x seed, one camera driven by :class:`ExposureOracle`.
 
     The profile's limits are the simulated camera's.
@@ -175,9 +262,14 @@ def calibrate_from_simulation(
     progress : callable, optional
         ``progress(text)`` gets a status line now and then.
 
+    bias_setting : int or "all", optional
+        Fit one bias setting of ``simulation.dvs_changes`` (0: the simulator's default biases) or each one
+        (:mod:`.bias_settings`); ``None``: all the data in one fit.
+
     Returns
     -------
     CalibrationResult
+        Or, with ``bias_setting``, a list of :class:`~.bias_settings.SettingResult` (one per setting fitted).
 
     Raises
     ------
@@ -199,12 +291,31 @@ def calibrate_from_simulation(
     sim_crf = sim.crf or default_davis346()
     base = opts.profile or CameraProfile(sensor=sensor)
     scenes = [(sc, sd, make_sim_scene(sc, sensor, duration_s, int(sd))) for sc in scenarios for sd in seeds]
+    split = timeline = None
+    if bias_setting is not None:
+        from necviz.calibration.bias_settings import BiasTimeline, SplitCollector
+
+        timeline = BiasTimeline()
+        timeline.settings[0] = {
+            "c_on": dvs.c_on,
+            "c_off": dvs.c_off,
+            "refractory_us": dvs.refractory_us,
+            "bandwidth_hz": dvs.cutoff_hz,
+            "truth": _truth(dvs),
+        }
+        split = SplitCollector(timeline, lambda: PairCollector(base.crf, opts.selection, opts.collection))
     col = PairCollector(base.crf, opts.selection, opts.collection)
+    target: PairCollector | SplitCollector = col if split is None else split
     t_wall, last = time.perf_counter(), 0.0
     for sc, sd, scene in scenes:
-        col.begin(f"sim:{sc}:seed{sd}")
-        for packet in simulate_calibration_stream(scene, dvs=dvs, aps=aps, crf=sim_crf, seed=int(sd)):
-            col.feed(packet)
+        if timeline is not None:
+            timeline.restart()
+        target.begin(f"sim:{sc}:seed{sd}")
+        stream = simulate_calibration_stream(
+            scene, dvs=dvs, aps=aps, crf=sim_crf, seed=int(sd), dvs_changes=sim.dvs_changes, timeline=timeline
+        )
+        for packet in stream:
+            target.feed(packet)
             if isinstance(packet, Frame):
                 now = time.perf_counter()
                 if now - last > 0.5:
@@ -212,9 +323,9 @@ def calibrate_from_simulation(
                     _report(
                         progress,
                         f"simulating {sc} seed {sd}: {packet.exposure_end_us / 1e6:.2f}/"
-                        f"{scene.duration_us / 1e6:g} s, {len(col.pairs)} pairs kept ({now - t_wall:.0f} s)",
+                        f"{scene.duration_us / 1e6:g} s, {_kept(target)} pairs kept ({now - t_wall:.0f} s)",
                     )
-    col.finish()
+    target.finish()
     limits = CameraLimits(float(aps.exposure_min_us), float(aps.exposure_max_us), float(aps.gain_max))
     described = {
         "scenarios": scenarios,
@@ -223,7 +334,20 @@ def calibrate_from_simulation(
         "sensor": f"{sensor.width}x{sensor.height}",
         "dvs": dvs.as_dict(),
         "exposure": "oracle (the scene's mean ln L), brackets in the static opening",
+        **({"dvs_changes": [list(c) for c in sim.dvs_changes]} if sim.dvs_changes else {}),
     }
     rate = dvs.max_event_rate if opts.max_event_rate == "auto" else opts.max_event_rate
     opts = replace(opts, profile=base, max_event_rate=rate)
+    if split is not None:
+        from necviz.calibration.bias_settings import fit_settings
+
+        return fit_settings(
+            split, bias_setting, opts, limits=limits, extra={"simulation": described}, progress=progress
+        )
     return calibrate_collected(col, opts, limits=limits, extra={"simulation": described}, progress=progress)
+
+
+def _kept(col) -> int:
+    """Pairs kept so far by a collector, or by every setting's collector."""
+    cols = getattr(col, "collectors", None)
+    return sum(len(c.pairs) for c in cols.values()) if cols is not None else len(col.pairs)

@@ -193,6 +193,22 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         default=DEFAULT_LOSS,
         help=f"least-squares loss (default {DEFAULT_LOSS}: squared residuals)",
     )
+    p.add_argument(
+        "--bias-setting",
+        default=None,
+        metavar="N|all",
+        help="fit DVS bias setting N of the data's bias timeline (a .necrec's recorded bias changes, or --dvs-at; "
+        "0 = the biases the data start with), or each one (all: a profile per setting, OUT.settingN.json); frames "
+        "never pair across a change",
+    )
+    p.add_argument(
+        "--dvs-at",
+        action="append",
+        default=[],
+        metavar="S:KEY=VALUE",
+        help="with --sim: set a DVS control at S seconds of each run, as --dvs does (c_on, c_off, refractory_us, "
+        "bandwidth_hz; repeatable)",
+    )
     p.add_argument("--name", default=None, help="profile name (default: derived from the inputs)")
     p.set_defaults(func=run)
     return p
@@ -213,6 +229,12 @@ def run(args: argparse.Namespace) -> int:
         raise ParameterError("give recordings (FILE...) or --sim, not both")
     if not files and not args.sim:
         raise ParameterError("nothing to calibrate on: give recordings (FILE...) or --sim SCENARIO")
+    from necviz.calibration.bias_settings import parse_change, parse_setting
+
+    which = None if args.bias_setting is None else parse_setting(args.bias_setting)
+    changes = tuple(parse_change(c) for c in args.dvs_at or ())
+    if changes and not args.sim:
+        raise ParameterError("--dvs-at schedules bias changes in simulator runs (--sim); a recording holds its own")
     inputs = files + ([args.profile] if args.profile else [])
     out = check_output(args.out, "--out", inputs=inputs, force=args.force, suffixes=(".json",))
     rep = None
@@ -230,7 +252,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         sensor = _parse_sensor(args.sensor)
         scenarios = tuple(s.strip() for s in args.sim.split(",") if s.strip())
-        sim = CalibrationSimulation(scenarios, tuple(parse_seeds(args.seeds)), args.duration, sensor=sensor)
+        sim = CalibrationSimulation(
+            scenarios, tuple(parse_seeds(args.seeds)), args.duration, sensor=sensor, dvs_changes=changes
+        )
         name = args.name or f"simulated {sensor.width}x{sensor.height} ({','.join(scenarios)}, seeds {args.seeds})"
         if base is not None and (base.sensor.width, base.sensor.height) != (sensor.width, sensor.height):
             base = CameraProfile(base.name, sensor, base.crf, base.tedi, base.limits)
@@ -248,6 +272,14 @@ def run(args: argparse.Namespace) -> int:
             max_pairs=args.max_pairs, max_lag=args.max_lag, continuation=not args.no_continuation
         ),
     )
+    if which is None:
+        for f in files:  # data across bias changes holds several thresholds: say so before one fit mixes them
+            n = _bias_changes(f, args.exposure_us) if Path(f).is_file() else 0  # a pipe is read once, by the fit
+            if n:
+                print(
+                    f"note: {Path(f).name} holds {n} DVS bias change(s), so more than one set of thresholds; this fit "
+                    "mixes them (--bias-setting all fits each setting on its own)"
+                )
     live = sys.stderr.isatty()
 
     def progress(text):
@@ -255,16 +287,78 @@ def run(args: argparse.Namespace) -> int:
             print("\r  " + text[:100].ljust(100), end="", file=sys.stderr, flush=True)
 
     try:
-        if sim is None:
+        if which is not None:
+            if sim is None:
+                fits = calibrate_from_recordings(
+                    files, options, exposure_us=args.exposure_us, progress=progress, bias_setting=which
+                )
+            else:
+                fits = calibrate_from_simulation(sim, options, progress=progress, bias_setting=which)
+        elif sim is None:
             result = calibrate_from_recordings(files, options, exposure_us=args.exposure_us, progress=progress)
         else:
             result = calibrate_from_simulation(sim, options, progress=progress)
     finally:
         if live:
             print("\r" + " " * 104 + "\r", end="", file=sys.stderr, flush=True)
+    if which is not None:
+        return _write_settings(fits, which, out, rep, args, inputs)
     write_json(out, result.profile.to_dict(), indent=1)
     if rep is not None:
         write_json(rep, result.to_dict())
     print(result.summary())
     print(f"wrote {out}" + (f" and {rep}" if rep is not None else ""))
+    return 0
+
+
+def _bias_changes(path, exposure_us) -> int:
+    """How many bias changes a recording's timeline holds (0 for formats that record none)."""
+    from necviz.calibration.bias_settings import BiasTimeline
+    from necviz.drivers.recordings import open_recording
+
+    rec = open_recording(path, exposure_us=exposure_us)
+    try:
+        notes = getattr(rec, "annotations", None)
+        return len(BiasTimeline.from_annotations(notes).changes) if notes else 0
+    finally:
+        rec.close()
+
+
+def _describe_setting(index: int, settings: dict | None) -> str:
+    if not settings:
+        return f"bias setting {index} (the biases the data start with)"
+    model = ", ".join(
+        f"{k} {settings[k]:.4g}" for k in ("c_on", "c_off", "refractory_us") if settings.get(k) is not None
+    )
+    truth = settings.get("truth")
+    true = f"; simulated c_on {truth['c_on']:.4g}, c_off {truth['c_off']:.4g}" if isinstance(truth, dict) else ""
+    return f"bias setting {index} ({model}{true})"
+
+
+def _write_settings(fits, which, out: Path, rep, args, inputs) -> int:
+    """``--bias-setting``: one profile per setting fitted (``N``: ``--out``; ``all``: ``OUT.settingN.json``)."""
+    from necviz.outputs import check_output, write_json
+
+    written = []
+    for f in fits:
+        print(_describe_setting(f.index, f.settings) + ":")
+        if f.result is None:
+            print(f"  not fitted: {f.error}")
+            continue
+        print("  " + f.result.summary().replace("\n", "\n  "))
+        path = out
+        if which == "all":
+            path = check_output(
+                out.with_name(f"{out.stem}.setting{f.index}{out.suffix}"),
+                "--out",
+                inputs=inputs,
+                force=args.force,
+                suffixes=(".json",),
+            )
+        write_json(path, f.result.profile.to_dict(), indent=1)
+        written.append(str(path))
+    if rep is not None:
+        write_json(rep, {"bias_settings": [f.to_dict() for f in fits]})
+        written.append(str(rep))
+    print(f"wrote {', '.join(written)}")
     return 0

@@ -215,7 +215,7 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
         pipe.submit(lambda p, m=msg, d=data: (m, d))  # noted in the recordings at the first packet
     notes = getattr(ss.source, "annotations", None)  # a native recording: P-TEDI follows its recorded bias changes
     if isinstance(notes, list) and pipe.dvs.follow_recording(notes) and out is not None:
-        print(f"  P-TEDI follows the {len(pipe.dvs._schedule)} DVS bias change(s) recorded in the file", file=out)
+        print(f"  P-TEDI follows the {len(pipe.dvs.scheduled)} DVS bias change(s) recorded in the file", file=out)
     files = [p for p in (viewer.save_path, ss.recorder.path if ss.recorder is not None else None) if p is not None]
     files += [o.folder for o in observers if o.folder is not None]  # clips fill a disk too
     stats, disk_full, pace_wall = _watch(ss, pipe, viewer, files, out, stdin, pace, speed)
