@@ -440,6 +440,23 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
             self.plugged = False
             self._unplugged_at = time.monotonic()
 
+    #: tests: the next :meth:`open_libusb1` handle fires up to this many callbacks in reverse order, and completes
+    #: the transfers submitted under these numbers with these statuses (:mod:`.emulator_libusb1`)
+    libusb1_reorder = 1
+    libusb1_inject: dict[int, int] = {}
+
+    def open_libusb1(self):
+        """``(context, handle)``: stand-ins for the ``libusb1`` package's, served by this device
+        (:mod:`.emulator_libusb1`), so the driver's asynchronous-transfer path runs without the package or a
+        camera; the handle is kept as ``libusb1_handle``."""
+        from necviz.drivers.davis.emulator_libusb1 import EmulatedContext, EmulatedHandle
+
+        with self.lock:
+            self._check_plug()
+        handle = EmulatedHandle(self, self.libusb1_reorder, self.libusb1_inject)
+        self.libusb1_handle = handle
+        return EmulatedContext(handle), handle
+
     # -- register file (what the control transfers of emulator_usb read and write) ------------------
     def _read(self, module: int, param: int) -> int:
         if module == P.MUX.MODULE and param in (P.MUX.STAT_DVS_DROPPED, P.MUX.STAT_DVS_DROPPED + 1):
