@@ -73,7 +73,7 @@ def libusb1_version() -> str | None:
     """The installed ``libusb1`` package's version, None if it is not installed."""
     try:
         import usb1
-    except ImportError:
+    except (ImportError, OSError):  # OSError: the package is there, libusb-1.0 itself is not
         return None
     return str(getattr(usb1, "__version__", "?"))
 
@@ -365,7 +365,9 @@ class Libusb1Ring(_Ring):
         try:
             for i in range(self.transfers):
                 t = handle.getTransfer()
-                t.setBulk(P.DATA_ENDPOINT, self.transfer_size, callback=self._callback, user_data=i, timeout=self.timeout_ms)
+                t.setBulk(
+                    P.DATA_ENDPOINT, self.transfer_size, callback=self._callback, user_data=i, timeout=self.timeout_ms
+                )
                 xfers.append(t)
             for t in xfers:  # all in flight at once, as libcaer's usbAllocateTransfers
                 if not self._submit(t):
