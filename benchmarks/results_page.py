@@ -191,10 +191,17 @@ def r_transfers(d: dict) -> str:
     def ms(v):
         return "—" if v is None else f"{v / 1000:.2f}"
 
+    def reader(r):
+        usb, n = r.get("usb", "single"), r.get("transfers_in_flight", 1)
+        size = f"{r.get('transfer_bytes', 0) // 1024} KiB"
+        if usb == "single":
+            return f"one read of {size} (old)"
+        return f"{usb}: {n} x {size}" + (" in flight" if usb == "libusb1" else " (one read in flight)")
+
     rows = [
         [
             f"{r.get('rate')} ({r.get('rate_ev_s', 0) / 1e6:g} Mev/s)",
-            f"{r.get('transfer_bytes', 0) // 1024} KiB",
+            reader(r),
             num(r.get("transfers_per_s"), 0),
             num((r.get("mean_transfer_bytes") or 0) / 1024, 1),
             f"{ms(r.get('delay_oldest_p50_us'))} / {ms(r.get('delay_oldest_p99_us'))}",
@@ -206,7 +213,7 @@ def r_transfers(d: dict) -> str:
     out = table(
         [
             "rate",
-            "transfer size (one in flight)",
+            "reader",
             "transfers / device s",
             "mean KiB",
             "delay of a transfer's oldest data p50 / p99 ms",

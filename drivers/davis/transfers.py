@@ -9,13 +9,15 @@ transfers, and small transfers end (full) after a fraction of a millisecond at t
 ~10 ms as one 256 KiB read does (``benchmarks/transfers.py``).
 
 Two backends, both delivering transfers in submission order into the queue of :class:`~.device.BulkReader`
-(whose bound in sensor time, backpressure and drop accounting they keep: a reader that has ``transfers``
-transfers waiting for the decoder stops reading, and the device drops and counts whole events):
+(whose bound in sensor time, backpressure and drop accounting they keep: a reader whose queue is full stops
+reading, and the device drops and counts whole events):
 
 * ``libusb1`` (:class:`Libusb1Ring`, the ``libusb1`` package: ``pip install 'necviz[usb]'``): ``transfers``
-  asynchronous transfers of ``transfer_size`` bytes submitted at once and each resubmitted as it completes, on a
-  thread that handles libusb's events; the decoding runs on a second thread. Completions are put back in
-  submission order whatever order the callbacks come in.
+  asynchronous transfers of ``transfer_size`` bytes submitted at once and each resubmitted as it completes, on one
+  thread that handles libusb's events and decodes what completed (as libcaer's USB thread translates in its
+  callback): while it decodes, the other transfers in flight keep the endpoint busy, and a second Python thread
+  would only add waits for the interpreter lock. Completions are put back in submission order whatever order the
+  callbacks come in.
 * ``pyusb`` (:class:`PyusbRing`, when ``libusb1`` is not installed): pyusb has no asynchronous transfers, so one
   thread reads ``transfer_size`` bytes at a time into a ring of ``transfers`` buffers and a second thread decodes
   them; the read loop does nothing else, so the gap between two reads is a few µs of Python.
@@ -137,8 +139,9 @@ def usb_library_line() -> str:
 
 class _Ring(BulkReader):
     """What both rings share: a USB thread puts transfers (``("data", bytes)``, or the item that ends the
-    stream) in submission order into ``_ready`` (at most ``transfers`` waiting), and this reader's own thread
-    takes them, decodes and queues them through :meth:`BulkReader._deliver` (the bound in sensor time)."""
+    stream) in submission order into ``_ready``, and they are decoded and queued through
+    :meth:`BulkReader._deliver` (the bound in sensor time): by this reader's own thread, at most ``transfers``
+    waiting (:class:`PyusbRing`), or by the USB thread itself between event handling (:class:`Libusb1Ring`)."""
 
     library = "?"
 
@@ -196,9 +199,12 @@ class _Ring(BulkReader):
         try:
             self._usb_run()
         except DeviceError as e:  # opening the transfers failed: the stream ends with the reason
-            self._push(("disconnected" if isinstance(e, DeviceDisconnectedError) else "error", e))
+            self._end_with(("disconnected" if isinstance(e, DeviceDisconnectedError) else "error", e))
         except usb.core.USBError as e:
-            self._push(("disconnected" if _is_disconnect(e) else "error", e))
+            self._end_with(("disconnected" if _is_disconnect(e) else "error", e))
+
+    def _end_with(self, item) -> None:
+        self._push(item)
 
     def _usb_run(self) -> None:  # pragma: no cover - each ring has its own
         raise NotImplementedError
@@ -259,11 +265,31 @@ class Libusb1Ring(_Ring):
     and a timed-out transfer is resubmitted (its partial data kept). A stall is cleared once every transfer is
     back, then all are submitted again (``stalls``); no device ends the stream as ``disconnected`` after the data
     of every earlier transfer; another status (error, overflow) as ``error`` with a one-line reason. At stop, the
-    transfers are cancelled and their callbacks awaited (libcaer's ``usbCancelAndDeallocateTransfers``); a full
-    ring (the decoder ``transfers`` behind) leaves completed transfers unsubmitted until there is room.
+    transfers are cancelled and their callbacks awaited (libcaer's ``usbCancelAndDeallocateTransfers``). Decoding runs
+    on the same thread, between event handling; while the queue is full (the consumer ``buffer_s`` behind) it waits
+    and completed transfers stay unsubmitted, so reading stops.
     """
 
     library = "libusb1"
+
+    def start(self) -> None:
+        self.usb_thread.start()  # one thread: the transfers in flight keep the endpoint busy while it decodes
+
+    def _end_with(self, item) -> None:
+        self.queue.put(item)  # no decoding thread to pass it on
+
+    def _drain(self) -> bool:
+        """Decode and queue what completed, in order, on the USB thread (libcaer translates in its USB thread's
+        callback too): while this waits for room in the queue nothing is resubmitted, so reading stops and the
+        device drops and counts. False when the stream has ended or the reader stopped."""
+        while self._ready:
+            item = self._ready.popleft()
+            if item[0] != "data":
+                self.queue.put(item)  # the end of the stream, after everything read before it
+                return False
+            if not self._deliver(item[1], len(item[1])):
+                return False
+        return not self._stop.is_set()
 
     def __init__(self, device: DavisDevice, *args, opener=None, **kw):
         super().__init__(device, *args, **kw)
@@ -372,26 +398,18 @@ class Libusb1Ring(_Ring):
             for t in xfers:  # all in flight at once, as libcaer's usbAllocateTransfers
                 if not self._submit(t):
                     break
-            while not self._stop.is_set() and not self._ended:
+            while self._drain():
                 if self._parked and not (self._stall and self._active):
                     if self._stall:
                         self._clear_stall(handle)
-                    with self._ready_cv:
-                        room = self.transfers - len(self._ready)
-                    while self._parked and room > 0 and not self._ended:
-                        room -= 1
+                    while self._parked and not self._ended:
                         if not self._submit(self._parked.pop(0)):
                             break
+                    continue  # a failed submission ended the stream: drain says so
                 if self._active:
                     context.handleEventsTimeout(tv=0.01)
-                elif not self._parked:
-                    break  # nothing in flight, nothing to submit: the stream has ended
-                else:
-                    with self._ready_cv:  # the ring is full: wait for the decoder
-                        t0 = time.monotonic()
-                        if not self._ring_room() and not self._stop.is_set():
-                            self._ready_cv.wait(0.05)
-                        self.stats["ring_full_s"] += time.monotonic() - t0
+                elif not self._ended:
+                    break  # nothing in flight, nothing to submit
         finally:
             self._cancel_all(context, xfers)
             for closing in (handle, context):
