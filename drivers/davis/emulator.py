@@ -247,6 +247,8 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         self.realtime = o.realtime
         self.time_scale = o.time_scale
         self.fifo_bytes = o.fifo_bytes
+        #: room of the host's transfers submitted and waiting behind the one being read (bytes; see emulator_stream)
+        self.host_buffer_bytes = 0
         self.extra_event_rate = o.extra_event_rate
         self._load_rng = np.random.default_rng([self.seed, 346])
         self.sensor = o.sensor

@@ -9,7 +9,9 @@ without the package or a camera. Only what the ring uses is there: ``handle.getT
 The endpoint fills submitted transfers one after another, in submission order, through the device model's bulk
 read (:mod:`.emulator_stream`: its pacing, FIFO, early packet and faults): a read that times out completes
 the transfer as timed out, a stall (EPIPE) as stalled, an unplug (ENODEV) as no device, any other error as
-error. The callbacks fire from ``handleEventsTimeout`` on the caller's thread, as libusb's do. For tests,
+error. While a transfer is read, the room of the transfers queued behind it (and its own) counts as buffering
+beside the device's FIFO (``host_buffer_bytes``): data produced while the host was away wait in them, as on a
+camera with transfers in flight, instead of overflowing the FIFO. The callbacks fire from ``handleEventsTimeout`` on the caller's thread, as libusb's do. For tests,
 ``reorder=k`` holds up to ``k`` filled transfers and fires their callbacks in reverse order (libusb gives no
 order guarantee across callbacks the ring relies on), and ``inject`` maps a transfer's submission number to
 a status it completes with instead of being read (e.g. an overflow).
@@ -132,6 +134,9 @@ class EmulatedHandle:
         if injected is not None:
             t._status, t._length = injected, 0
             return
+        # the transfers in flight: while the host was away, data flowed into this one and those queued behind it,
+        # not only into the device's FIFO
+        self.device.host_buffer_bytes = len(t._buffer) + sum(len(q._buffer) for q in self._queue)
         try:
             n = self.device.bulk_read(None, t._endpoint, P.INTERFACE, t._buffer, t._timeout_ms or 1000)
             t._status, t._length = TRANSFER_COMPLETED, int(n)
@@ -141,6 +146,8 @@ class EmulatedHandle:
             code = getattr(e, "errno", None)
             status = {errno.EPIPE: TRANSFER_STALL, errno.ENODEV: TRANSFER_NO_DEVICE}.get(code, TRANSFER_ERROR)
             t._status, t._length = status, 0
+        finally:
+            self.device.host_buffer_bytes = 0
 
     def _fire(self, t: EmulatedTransfer) -> None:
         t._submitted = False
