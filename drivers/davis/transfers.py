@@ -262,8 +262,8 @@ class Libusb1Ring(_Ring):
     (``out_of_order`` counts the early ones). As libcaer's ``usbDataTransferCallback`` (``src/usb_utils.c``),
     data a transfer holds is kept whatever its status and a completed transfer is submitted again at once;
     unlike libcaer, transfers carry a timeout (``timeout_ms``) so the reader notices a finished emulated stream,
-    and a timed-out transfer is resubmitted (its partial data kept). A stall is cleared once every transfer is
-    back, then all are submitted again (``stalls``); no device ends the stream as ``disconnected`` after the data
+    and a timed-out transfer is resubmitted (its partial data kept). A stall cancels the transfers behind it,
+    is cleared once every transfer is back, then all are submitted again (``stalls``; libcaer ends the stream); no device ends the stream as ``disconnected`` after the data
     of every earlier transfer; another status (error, overflow) as ``error`` with a one-line reason. At stop, the
     transfers are cancelled and their callbacks awaited (libcaer's ``usbCancelAndDeallocateTransfers``). Decoding runs
     on the same thread, between event handling; while the queue is full (the consumer ``buffer_s`` behind) it waits
@@ -341,7 +341,9 @@ class Libusb1Ring(_Ring):
         elif status == TRANSFER_CANCELLED:
             self.stats["cancelled"] += 1
             result = ("data", data)  # data a cancelled transfer holds are kept (libcaer does)
-            if not self._stop.is_set():
+            if self._stall:  # cancelled to clear a stall: submitted again once it is cleared
+                again = True
+            elif not self._stop.is_set():
                 result = ("error", DeviceError("a transfer was cancelled while streaming"), data)
         elif status == TRANSFER_STALL:
             if not self._stall:
@@ -395,11 +397,16 @@ class Libusb1Ring(_Ring):
                     P.DATA_ENDPOINT, self.transfer_size, callback=self._callback, user_data=i, timeout=self.timeout_ms
                 )
                 xfers.append(t)
+            stall_cancelled = False
             for t in xfers:  # all in flight at once, as libcaer's usbAllocateTransfers
                 if not self._submit(t):
                     break
             while self._drain():
+                if self._stall and self._active and not stall_cancelled:
+                    stall_cancelled = True  # the transfers behind a stalled one: back before the halt is cleared
+                    self._cancel_submitted(xfers)
                 if self._parked and not (self._stall and self._active):
+                    stall_cancelled = False
                     if self._stall:
                         self._clear_stall(handle)
                     while self._parked and not self._ended:
@@ -422,14 +429,18 @@ class Libusb1Ring(_Ring):
         """Cancel every transfer in flight and handle events until all callbacks came back (1 s at most)."""
         deadline = time.monotonic() + 1.0
         while self._active > 0 and time.monotonic() < deadline:
-            for t in xfers:
-                if t.isSubmitted():
-                    try:
-                        t.cancel()
-                    except Exception:  # usb1.USBErrorNotFound: it completed meanwhile
-                        pass
+            self._cancel_submitted(xfers)
             context.handleEventsTimeout(tv=0.01)
         self._parked.clear()
+
+    @staticmethod
+    def _cancel_submitted(xfers) -> None:
+        for t in xfers:
+            if t.isSubmitted():
+                try:
+                    t.cancel()
+                except Exception:  # usb1.USBErrorNotFound: it completed meanwhile
+                    pass
 
 
 def make_reader(device: DavisDevice, usb: str, transfers: int, transfer_size: int, **kw) -> BulkReader:
