@@ -5,6 +5,7 @@ completion, resubmission, cancellation at stop, timeouts, a stall, an unplug and
 import io
 import json
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -38,14 +39,10 @@ def raw_stream(kind, be=None, start=True, limit_s=20.0, **kw):
         dev.start(settle_s=(0, 0, 0))
     reader.start()
     chunks, end = [], None
-    import time
-
-    deadline = time.monotonic() + limit_s
+    deadline = time.monotonic() + (limit_s if start else 0.5)  # a device not started: 0.5 s of timeouts
     while time.monotonic() < deadline:
         item = reader.get(0.2)
         if item is None:
-            if not start and time.monotonic() > deadline - limit_s + 0.5:
-                break
             continue
         if item[0] == "data":
             chunks.append(item[1])
@@ -114,6 +111,7 @@ def test_rings_deliver_the_single_reads_bytes_in_order(kind, reference):
     assert reader.stats["transfers"] > len(data) // 8192  # 8 KiB transfers, not 256 KiB
     if kind == "libusb1":
         h = be.libusb1_handle
+        assert be.host_buffer_bytes == 0  # set for each read only (the room of the transfers in flight)
         assert reader.stats["out_of_order"] == 0
         assert len({u for u, _ in h.completions}) == 8  # eight transfers, each resubmitted as it completed
         assert h.submitted > 8 * 10
@@ -148,7 +146,7 @@ def test_stop_cancels_every_transfer_in_flight():
 
 
 def test_timeouts_resubmit_and_deliver_nothing():
-    data, end, reader, be = raw_stream("libusb1", start=False, timeout_ms=5, limit_s=1.0)
+    data, end, reader, be = raw_stream("libusb1", start=False, timeout_ms=5)
     assert data == b"" and end is None
     assert reader.stats["timeouts"] >= 5
     assert be.libusb1_handle.submitted >= reader.stats["timeouts"]
@@ -158,6 +156,7 @@ def test_a_stall_is_cleared_once_all_transfers_are_back(reference):
     data, end, reader, be = raw_stream("libusb1", backend(Faults(stall_after_s=0.05)))
     assert end == ("finished", None)
     assert reader.stats["stalls"] == 1 and be.stalls == 1
+    assert reader.stats["cancelled"] >= 1  # the transfers behind the stalled one were cancelled, then resubmitted
     assert any(r.direction == "clear_halt" for r in be.transfers)
     assert data == reference  # the emulated device holds its data while halted
 
@@ -192,14 +191,28 @@ def test_the_camera_streams_through_libusb1_with_the_sensor_time_bound():
     cam = open_camera("emulated", backend=backend(duration_s=0.1), options=CameraOptions(usb="libusb1", buffer_s=0.01))
     it = iter(cam)
     first = next(it)
-    import time
-
     time.sleep(0.5)  # the consumer pauses: the reader holds at most buffer_s of sensor time, then stops reading
     rest = list(it)
     st = cam.stats
     assert first is not None and rest and cam.state == "finished"
     assert st["backpressure_events"] >= 1 and st["lag_peak_us"] <= 0.01e6 + 2000
     assert cam.usb_transfers["library"] == "libusb1" and st["out_of_order"] == 0
+
+
+def test_the_emulated_device_counts_the_transfers_in_flight_as_buffer():
+    """While the stand-in reads one transfer, the room of it and of those queued behind it is buffering beside the
+    device's FIFO, as a camera fills waiting transfers while the host is away."""
+    be = backend(duration_s=0.05)
+    seen = []
+    read = be.bulk_read
+
+    def spy(*a):
+        seen.append(be.host_buffer_bytes)
+        return read(*a)
+
+    be.bulk_read = spy
+    raw_stream("libusb1", be, transfers=4, transfer_size=2048)
+    assert seen and max(seen) == 4 * 2048 and be.host_buffer_bytes == 0
 
 
 def test_opening_transfers_on_an_unplugged_device_ends_as_disconnected():
@@ -234,6 +247,18 @@ def test_live_refuses_nonsense_transfers_in_one_line(capsys):
     rc = main(["live", "--device", "emulated", "--no-prompt", "--usb-transfers", "8"])
     err = capsys.readouterr().err.strip()
     assert rc != 0 and "--usb-transfers takes N,BYTES" in err and len(err.splitlines()) == 1
+
+
+def test_live_refuses_libusb1_without_the_package_and_usb_options_with_dv(monkeypatch, capsys):
+    from necviz.commands.cli import main
+    from necviz.options import LiveOptions
+
+    with pytest.raises(ParameterError, match="not --device dv"):
+        LiveOptions("dv", usb="pyusb")
+    monkeypatch.setitem(sys.modules, "usb1", None)
+    rc = main(["live", "--device", "emulated", "--no-prompt", "--usb", "libusb1"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and err == "necviz: error: --usb libusb1 needs the libusb1 package: pip install 'necviz[usb]'"
 
 
 def test_devices_names_the_usb_library():
