@@ -4,16 +4,15 @@
 :class:`DavisDevice` opens one, checks firmware (``bcdDevice & 0xFF``: older than required is refused,
 newer accepted with a note) and logic (SYSINFO 0 == 18, patch >= 1), reads sizes, clocks and
 capabilities, writes configuration (vendor requests 0xBF/0xC2) and runs the documented start/stop sequences (:mod:`.protocol`). :class:`BulkReader` reads the bulk
-endpoint 0x82 on a dedicated thread.
+endpoint 0x82 on a dedicated thread into a queue bounded in sensor time; the driver reads through its
+subclasses in :mod:`.transfers` (8 transfers of 8 KiB in flight through ``libusb1``, as libcaer, or pyusb reads
+on a thread of their own), :class:`BulkReader` itself being the earlier single synchronous read (256 KiB by
+default: at the full rate its oldest data waits ~7 ms before the transfer is full).
 
-Reading at full rate: the DAVIS346 peaks at about 12 Mev/s (~70 MB/s of words with frames). The
-reader thread does nothing but synchronous ``dev.read`` calls with large buffers (256 KiB by
-default, ~4 ms at the peak rate) and hands the bytes to a queue sized from the peak rate (2 s), so
-the time between two transfers is a few tens of µs of Python overhead, which the FX3's on-chip
-buffers absorb, and a consumer that pauses loses nothing; the device's early-packet delay (1 ms)
-ends a transfer early when the rate is low, so latency stays about 1 ms. When the queue is full the
-thread stops reading and the device drops whole DVS events and counts them; those counters (MUX/DVS
-statistics registers) are read by :meth:`DavisDevice.statistics` (see :class:`BulkReader`).
+Reading at full rate: the DAVIS346 peaks at about 12 Mev/s (~70 MB/s of words with frames). The device's
+early-packet delay (1 ms) ends a transfer early when the rate is low, so latency stays about 1 ms. When the
+queue is full the reader stops reading and the device drops whole DVS events and counts them; those counters
+(MUX/DVS statistics registers) are read by :meth:`DavisDevice.statistics` (see :class:`BulkReader`).
 """
 
 from __future__ import annotations
