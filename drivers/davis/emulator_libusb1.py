@@ -52,6 +52,7 @@ class EmulatedTransfer:
         self._submitted = False
         self._status = TRANSFER_COMPLETED
         self._length = 0
+        self._seq = -1  # the number it was last submitted under
         self.submissions = 0
 
     def setBulk(self, endpoint, buffer_or_len, callback=None, user_data=None, timeout=0):  # noqa: N802
@@ -98,7 +99,7 @@ class EmulatedHandle:
         self._done: list[EmulatedTransfer] = []  # filled, callbacks not yet fired
         self._cancelled: list[EmulatedTransfer] = []
         self.submitted = 0  # submission number of the next transfer
-        self.completions: list[tuple[int, int]] = []  # (user data, status) in callback order
+        self.completions: list[tuple[object, int]] = []  # (user data, status) in callback order
         self.closed = False
 
     def getTransfer(self, iso_packets: int = 0) -> EmulatedTransfer:  # noqa: N802
@@ -144,7 +145,7 @@ class EmulatedHandle:
             t._status, t._length = TRANSFER_TIMED_OUT, 0
         except usb.core.USBError as e:
             code = getattr(e, "errno", None)
-            status = {errno.EPIPE: TRANSFER_STALL, errno.ENODEV: TRANSFER_NO_DEVICE}.get(code, TRANSFER_ERROR)
+            status = {errno.EPIPE: TRANSFER_STALL, errno.ENODEV: TRANSFER_NO_DEVICE}.get(code or 0, TRANSFER_ERROR)
             t._status, t._length = status, 0
         finally:
             self.device.host_buffer_bytes = 0
