@@ -191,10 +191,17 @@ def r_transfers(d: dict) -> str:
     def ms(v):
         return "—" if v is None else f"{v / 1000:.2f}"
 
+    def reader(r):
+        usb, n = r.get("usb", "single"), r.get("transfers_in_flight", 1)
+        size = f"{r.get('transfer_bytes', 0) // 1024} KiB"
+        if usb == "single":
+            return f"one read of {size} (old)"
+        return f"{usb}: {n} x {size}" + (" in flight" if usb == "libusb1" else " (one read in flight)")
+
     rows = [
         [
             f"{r.get('rate')} ({r.get('rate_ev_s', 0) / 1e6:g} Mev/s)",
-            f"{r.get('transfer_bytes', 0) // 1024} KiB",
+            reader(r),
             num(r.get("transfers_per_s"), 0),
             num((r.get("mean_transfer_bytes") or 0) / 1024, 1),
             f"{ms(r.get('delay_oldest_p50_us'))} / {ms(r.get('delay_oldest_p99_us'))}",
@@ -206,7 +213,7 @@ def r_transfers(d: dict) -> str:
     out = table(
         [
             "rate",
-            "transfer size (one in flight)",
+            "reader",
             "transfers / device s",
             "mean KiB",
             "delay of a transfer's oldest data p50 / p99 ms",
@@ -218,17 +225,26 @@ def r_transfers(d: dict) -> str:
     return out + (
         f"\n\nThe emulated DAVIS346 (64 x 48, uniformly random DVS events at each rate plus the static_lab scene and "
         f"its frames), realtime with its clock slowed {1 / d.get('scale', 1):g} times, {d.get('seconds')} s of device "
-        "time per row; every time is device time. A transfer ends when full or, holding data, 1 ms after it started "
-        "(the FX3's early packet). At the low and medium rates every size ends at the early packet (about 1 ms, p99); "
-        "at the full rate a 64 or 256 KiB transfer fills slowly enough that its oldest data waits about 7 ms (p99), "
-        "an 8 KiB one under 1 ms — which is why libcaer keeps 8 x 8 KiB in flight (`src/davis.c`, "
-        "`davisOpenInternal`; `src/usb_utils.c`, `usbAllocateTransfers`). At real time the full rate in 8 KiB "
-        "transfers is ~3,500 transfers a second (~9,000 at the DAVIS346's peak of ~70 MB/s with frames), more than "
-        "one Python thread with one synchronous read in flight sustains, so necviz keeps its 256 KiB default until asynchronous transfers (several in flight, libusb1) are in. "
-        "The dropped events are the same for every size at a rate: a start-up stall of the emulator's thread around "
-        "its first frame (device time ~20 ms), not the transfers. *Newest* may be negative: the emulated sensor is "
-        "simulated in scene-sample steps (up to 2 ms), so a transfer's newest data can be up to a step ahead of the "
-        "device clock."
+        f"time per run, each configuration run {d.get('repeat', 1)} times interleaved with the others and the median "
+        "kept (the JSON keeps each run's p99); every time is device time. A transfer ends when full or, holding data, "
+        "1 ms after it started (the FX3's early packet). At the low and medium rates every reader's transfers end at "
+        "the early packet (about 1 ms, p99). At the full rate a 64 or 256 KiB transfer fills slowly enough that its "
+        "oldest data waits about 7 ms (p99); 8 KiB transfers, as libcaer keeps 8 of them in flight (`src/davis.c`, "
+        "`davisOpenInternal`; `src/usb_utils.c`, `usbAllocateTransfers`, `usbDataTransferCallback`), deliver theirs "
+        "within 2–3.5 ms — the libusb1 ring (8 asynchronous transfers, on the emulator's stand-ins of the package's "
+        "objects), the pyusb ring (one read in flight on a thread of its own, a second thread decoding) and one 8 KiB "
+        "read alike. What the transfers in flight change is loss: the emulated device fills the libusb1 ring's "
+        "waiting transfers while the host is away, as a camera does, so the start-up stall of the emulator's thread "
+        "around its first frame (device time ~20 ms), which overflows its 128 KiB FIFO behind a single read in "
+        "flight (the same events dropped for every other reader at a rate), costs no events at the medium rate, and "
+        "about a quarter fewer are dropped at the full rate. This run shared the machine's two cores with another long "
+        "job (load average above 5): an earlier run at lower load measured 0.82 ms for 8 KiB and 7.0 ms for 256 KiB "
+        "at the full rate, and single runs vary (the JSON keeps each). The emulator produces each transfer's data "
+        "inside the read, on the reading thread, so the simulation's Python competes with a decoding thread for the "
+        "interpreter lock (with the decoding on a second thread the libusb1 ring measured 8.3 ms p99 at the full "
+        "rate in a 1 s run, so it decodes on its USB thread, as libcaer translates in its USB thread). *Newest* may "
+        "be negative: the emulated sensor is simulated in scene-sample steps (up to 2 ms), so a transfer's newest "
+        "data can be up to a step ahead of the device clock."
     )
 
 

@@ -610,6 +610,11 @@ class LiveOptions:
         The emulated device's scene.
     emulate_unplug_s : float, optional
         Unplug the emulated device after this many seconds.
+    usb : str
+        How necviz's driver reads the bulk endpoint: ``auto`` (``libusb1`` if installed), ``libusb1`` or ``pyusb``
+        (:mod:`necviz.drivers.davis.transfers`).
+    usb_transfers : (int, int), optional
+        Transfers in flight and bytes each (default libcaer's 8 x 8192).
     record : path, optional
         Keep the session in a native ``.necrec`` recording.
     force : bool
@@ -640,6 +645,8 @@ class LiveOptions:
     duration_s: float | None = None
     scene: SceneOptions = field(default_factory=SceneOptions)  # the emulated device's scene
     emulate_unplug_s: float | None = None
+    usb: str = "auto"
+    usb_transfers: tuple[int, int] | None = None
     record: str | os.PathLike | None = None
     force: bool = False
     profile: str | os.PathLike | None = None
@@ -658,6 +665,17 @@ class LiveOptions:
         if self.emulate_unplug_s is not None:
             object.__setattr__(self, "emulate_unplug_s", check_flag("--emulate-unplug", self.emulate_unplug_s))
         object.__setattr__(self, "history", check_number("history", self.history, 1, integer=True))
+        from necviz.drivers.davis.transfers import check_transfers, resolve_usb
+
+        if self.device == "dv" and (self.usb != "auto" or self.usb_transfers is not None):
+            raise ParameterError(
+                "--usb and --usb-transfers set necviz's driver (--device usb or emulated), not --device dv"
+            )
+        if self.device != "dv":
+            resolve_usb(self.usb)  # libusb1 asked for and not installed: refused here, in one line
+        if self.usb_transfers is not None:
+            n, size = self.usb_transfers
+            object.__setattr__(self, "usb_transfers", check_transfers(n, size))
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """The live DAVIS camera as a :class:`~necviz.drivers.source.Source`: ``open_camera`` and :class:`DavisCamera`.
 
 Iterating a :class:`DavisCamera` runs the start sequence, reads the bulk endpoint on a thread
-(:class:`~.device.BulkReader`), decodes each transfer (:class:`~.decoder.DavisDecoder`) and yields
+(a ring of bulk transfers in flight, :mod:`.transfers`, into the queue of :class:`~.device.BulkReader`), decodes each transfer (:class:`~.decoder.DavisDecoder`) and yields
 packets in stream order: event batches (:class:`~necviz.core.events.EventBatch`, at most 1 ms and
 65,536 events each, so a controller can act between frames), ``ExposureMarker('start')``, ``ExposureMarker('end')``, then the :class:`Frame`,
 plus ``ImuBatch``/``TriggerBatch``.
@@ -49,6 +49,15 @@ from necviz.drivers.davis.color import COLOR_FILTERS
 from necviz.drivers.davis.decoder import DavisDecoder, DecoderOptions
 from necviz.drivers.davis.device import BulkReader, DavisDevice, open_device, usb_backend
 from necviz.drivers.davis.device_errors import DeviceDisconnectedError, DeviceError, DeviceNotFoundError
+from necviz.drivers.davis.transfers import (
+    DEFAULT_TRANSFER_BYTES,
+    DEFAULT_TRANSFERS,
+    SINGLE_TRANSFER_BYTES,
+    USB_CHOICES,
+    check_transfers,
+    make_reader,
+    resolve_usb,
+)
 from necviz.drivers.source import CAMERA, CameraInfo, route
 
 if TYPE_CHECKING:
@@ -84,8 +93,17 @@ class CameraOptions:
         longest exposure is this minus :data:`READOUT_ALLOWANCE_US`.
     batch_us : int
         Event batches are cut at multiples of this many µs (so a controller can act between frames).
-    transfer_size : int
-        Bytes per USB bulk transfer.
+    usb : str
+        How the bulk endpoint is read (:mod:`.transfers`): ``"auto"`` (default: ``libusb1`` if the package is
+        installed, else ``pyusb``), ``"libusb1"`` (asynchronous transfers in flight, as libcaer), ``"pyusb"``
+        (synchronous reads on a thread of their own, a ring of buffers to the decoder) or ``"single"`` (the old
+        one read of 256 KiB at a time; for comparison).
+    transfers : int
+        Transfers kept in flight (libusb1) or buffered between reading and decoding (pyusb), 1..64 (default 8,
+        as libcaer).
+    transfer_size : int, optional
+        Bytes per USB bulk transfer, whole 1024-byte packets (default 8 KiB, as libcaer; 256 KiB for
+        ``"single"``).
     buffer_s : float
         How far (seconds of sensor time, 0..60; default 0.1, five frames at 50 fps) the consumer may fall
         behind before the reader stops reading and the device drops (and counts) events: a consumer that
@@ -101,8 +119,10 @@ class CameraOptions:
     exposure_us: float = 5000.0
     frame_interval_us: float = 20_000.0
     batch_us: int = 1000
-    transfer_size: int = 256 * 1024
+    transfer_size: int | None = None
     buffer_s: float = 0.1
+    usb: str = "auto"
+    transfers: int = DEFAULT_TRANSFERS
 
     def __post_init__(self) -> None:
         fi = self.frame_interval_us
@@ -118,10 +138,16 @@ class CameraOptions:
             ("exposure_us", check_number("exposure_us", self.exposure_us, 0.0, lo_open=True)),
             ("frame_interval_us", float(fi)),
             ("batch_us", check_number("batch_us", self.batch_us, 1, integer=True)),
-            ("transfer_size", check_number("transfer_size", self.transfer_size, 1, integer=True)),
             ("buffer_s", float(b)),
         ):
             object.__setattr__(self, name, value)
+        if self.usb not in USB_CHOICES + ("single",):
+            raise ParameterError(f"usb must be one of {', '.join(USB_CHOICES)}, got {self.usb!r}")
+        size = self.transfer_size
+        if size is None:
+            size = SINGLE_TRANSFER_BYTES if self.usb == "single" else DEFAULT_TRANSFER_BYTES
+        n, size = check_transfers(self.transfers, size)
+        object.__setattr__(self, "transfer_size", size)
 
 
 class DavisCamera(CommandedCamera):
@@ -157,6 +183,10 @@ class DavisCamera(CommandedCamera):
         self.reconnect = options.reconnect
         self.frame_interval_us = options.frame_interval_us
         self.batch_us = options.batch_us
+        #: the USB library the bulk endpoint is read with (``libusb1``, ``pyusb`` or ``single``), the transfers in
+        #: flight (or buffered) and their size
+        self.usb_library = resolve_usb(options.usb)
+        self.transfers = 1 if self.usb_library == "single" else options.transfers
         self.transfer_size = options.transfer_size
         self.buffer_s = options.buffer_s
         w, h = device.dvs_size
@@ -387,7 +417,7 @@ class DavisCamera(CommandedCamera):
         out = dict(self._totals)
         if self._reader is not None:
             for k, v in self._reader.stats.items():
-                out[k] = max(out[k], v) if k in _PEAKS else out[k] + v
+                out[k] = max(out.get(k, 0), v) if k in _PEAKS else out.get(k, 0) + v
         dec = dict(self._decoded)
         if self._decoder is not None:
             for k, v in self._decoder.stats.items():
@@ -414,6 +444,11 @@ class DavisCamera(CommandedCamera):
                 pass
 
     @property
+    def usb_transfers(self) -> dict:
+        """How the bulk endpoint is read: ``{"library", "transfers", "transfer_bytes"}`` (``live --json``)."""
+        return {"library": self.usb_library, "transfers": self.transfers, "transfer_bytes": self.transfer_size}
+
+    @property
     def exposure_us(self) -> float:
         """The last commanded exposure (µs)."""
         return self._exposure_us
@@ -435,7 +470,9 @@ class DavisCamera(CommandedCamera):
         )
         self._decoder = DavisDecoder(fmt, time_offset_us=time_offset_us)
         self._stream_offset_us = time_offset_us
-        self._reader = BulkReader(d, transfer_size=self.transfer_size, buffer_s=self.buffer_s, decode=self._decode)
+        self._reader = make_reader(
+            d, self.usb_library, self.transfers, self.transfer_size, buffer_s=self.buffer_s, decode=self._decode
+        )
         d.start()
         self._reader.start()
         self.state = "streaming"
@@ -450,7 +487,7 @@ class DavisCamera(CommandedCamera):
                     pass
             self._reader.stop()
             for k, v in self._reader.stats.items():
-                self._totals[k] = max(self._totals[k], v) if k in _PEAKS else self._totals[k] + v
+                self._totals[k] = max(self._totals.get(k, 0), v) if k in _PEAKS else self._totals.get(k, 0) + v
             self._reader = None
             self._read_device_stats()  # the last counts of this connection (a replugged device restarts them)
             for k, v in self._device_stats.items():

@@ -4,16 +4,15 @@
 :class:`DavisDevice` opens one, checks firmware (``bcdDevice & 0xFF``: older than required is refused,
 newer accepted with a note) and logic (SYSINFO 0 == 18, patch >= 1), reads sizes, clocks and
 capabilities, writes configuration (vendor requests 0xBF/0xC2) and runs the documented start/stop sequences (:mod:`.protocol`). :class:`BulkReader` reads the bulk
-endpoint 0x82 on a dedicated thread.
+endpoint 0x82 on a dedicated thread into a queue bounded in sensor time; the driver reads through its
+subclasses in :mod:`.transfers` (8 transfers of 8 KiB in flight through ``libusb1``, as libcaer, or pyusb reads
+on a thread of their own), :class:`BulkReader` itself being the earlier single synchronous read (256 KiB by
+default: at the full rate its oldest data waits ~7 ms before the transfer is full).
 
-Reading at full rate: the DAVIS346 peaks at about 12 Mev/s (~70 MB/s of words with frames). The
-reader thread does nothing but synchronous ``dev.read`` calls with large buffers (256 KiB by
-default, ~4 ms at the peak rate) and hands the bytes to a queue sized from the peak rate (2 s), so
-the time between two transfers is a few tens of µs of Python overhead, which the FX3's on-chip
-buffers absorb, and a consumer that pauses loses nothing; the device's early-packet delay (1 ms)
-ends a transfer early when the rate is low, so latency stays about 1 ms. When the queue is full the
-thread stops reading and the device drops whole DVS events and counts them; those counters (MUX/DVS
-statistics registers) are read by :meth:`DavisDevice.statistics` (see :class:`BulkReader`).
+Reading at full rate: the DAVIS346 peaks at about 12 Mev/s (~70 MB/s of words with frames). The device's
+early-packet delay (1 ms) ends a transfer early when the rate is low, so latency stays about 1 ms. When the
+queue is full the reader stops reading and the device drops whole DVS events and counts them; those counters
+(MUX/DVS statistics registers) are read by :meth:`DavisDevice.statistics` (see :class:`BulkReader`).
 """
 
 from __future__ import annotations
@@ -478,6 +477,41 @@ class DavisDevice:
         """One bulk transfer from endpoint 0x82 into ``buffer``; returns the byte count (raises USBError)."""
         return self.dev.read(P.DATA_ENDPOINT, buffer, timeout_ms)
 
+    def open_libusb1(self):
+        """``(context, handle)`` of the ``libusb1`` package on this device, its interface claimed, for the
+        asynchronous transfers of :class:`~.transfers.Libusb1Ring`; an emulated device gives its stand-ins
+        (:mod:`.emulator_libusb1`).
+
+        pyusb keeps the control transfers (they need no claimed interface); the interface, and with it the data
+        endpoint, moves to the libusb1 handle (Linux lets one open file claim an interface at a time)."""
+        if hasattr(self.backend, "open_libusb1"):
+            return self.backend.open_libusb1()
+        import usb1
+
+        context = usb1.USBContext()
+        context.open()
+        try:
+            for d in context.getDeviceIterator(skip_on_error=True):
+                if (d.getBusNumber(), d.getDeviceAddress()) == (self.bus, self.address):
+                    handle = d.open()
+                    break
+            else:
+                raise DeviceDisconnectedError(f"{self._name()} was unplugged (not found by libusb1)")
+            try:
+                usb.util.release_interface(self.dev, P.INTERFACE)
+            except usb.core.USBError:
+                pass
+            handle.claimInterface(P.INTERFACE)
+        except usb1.USBError as e:
+            context.close()
+            if isinstance(e, usb1.USBErrorNoDevice):
+                raise DeviceDisconnectedError(f"{self._name()} was unplugged (opening libusb1 transfers)") from None
+            raise DeviceError(f"{self._name()}: opening libusb1 transfers failed: {e}") from None
+        except BaseException:
+            context.close()
+            raise
+        return context, handle
+
     def warm_up(self) -> None:
         """Before streaming: an emulated device's simulator compiles or loads its kernels (a few ms of its
         scene), so it keeps real time from its first packet; a USB device has nothing to ready."""
@@ -614,7 +648,15 @@ class BulkReader:
     of ms) stops this thread too; the transfer in flight and the device's own buffers then hold only a
     few ms at the peak rate, and what the device drops is reported the same way.
     ``queue_peak_bytes`` is the deepest the queue has been in bytes.
+
+    This is the old single synchronous read (``CameraOptions(usb="single")``); the driver reads through a ring of
+    transfers in flight by default (:mod:`.transfers`: ``libusb1``'s asynchronous transfers, or pyusb reads on a
+    thread of their own), which keeps this class's queue, bound and accounting.
     """
+
+    #: the USB library and the number of transfers in flight (:mod:`.transfers` for the rings)
+    library = "single"
+    transfers = 1
 
     def __init__(
         self,
@@ -700,6 +742,42 @@ class BulkReader:
                 self.stats["lag_peak_us"] = max(self.stats["lag_peak_us"], int(t_us - self.consumed_us))
             return True
 
+    def _read_failed(self, e: usb.core.USBError):
+        """What a failed read means: None to read on (a timeout; a stall, cleared and counted), else the
+        item that ends the stream (``("finished", None)``, ``("disconnected", e)`` or ``("error", e)``)."""
+        dev = self.device
+        if isinstance(e, usb.core.USBTimeoutError) or getattr(e, "errno", None) == _errno.ETIMEDOUT:
+            self.stats["timeouts"] += 1
+            return ("finished", None) if getattr(dev.backend, "stream_finished", False) else None
+        if _is_disconnect(e):
+            return ("disconnected", e)
+        if getattr(e, "errno", None) == _errno.EPIPE or "Pipe error" in str(e):
+            self.stats["stalls"] += 1
+            try:
+                dev.dev.clear_halt(P.DATA_ENDPOINT)
+                return None
+            except usb.core.USBError as e2:
+                return ("disconnected", e2) if _is_disconnect(e2) else ("error", e2)
+        return ("error", e)
+
+    def _deliver(self, data, n: int) -> bool:
+        """Hand one transfer's first ``n`` bytes on (decoded if asked), waiting for room; False if stopped."""
+        self.stats["transfers"] += 1
+        self.stats["bytes"] += n
+        if self.decode is None:
+            raw = bytes(data[:n])
+            if not self._wait_for_room(n):
+                return False
+            self.queue.put(("data", raw))
+            return True
+        packets, t_last, extra = self.decode(data[:n])
+        if self.consumed_us is None:
+            self.consumed_us = t_last  # the stream's first sensor time: the consumer starts there
+        if not self._wait_for_room(n, t_last):
+            return False
+        self.queue.put(("packets", packets, t_last, n, extra))
+        return True
+
     def _run(self) -> None:
         buf = array.array("B", bytes(self.transfer_size))
         view = memoryview(buf)
@@ -707,46 +785,13 @@ class BulkReader:
         while not self._stop.is_set():
             try:
                 n = dev.read(buf, self.timeout_ms)
-            except usb.core.USBTimeoutError:
-                self.stats["timeouts"] += 1
-                if getattr(dev.backend, "stream_finished", False):
-                    self.queue.put(("finished", None))
-                    return
-                continue
             except usb.core.USBError as e:
                 if self._stop.is_set():
                     return
-                if getattr(e, "errno", None) == _errno.ETIMEDOUT:
-                    self.stats["timeouts"] += 1
+                end = self._read_failed(e)
+                if end is None:
                     continue
-                if _is_disconnect(e):
-                    self.queue.put(("disconnected", e))
-                    return
-                if getattr(e, "errno", None) == _errno.EPIPE or "Pipe error" in str(e):
-                    self.stats["stalls"] += 1
-                    try:
-                        dev.dev.clear_halt(P.DATA_ENDPOINT)
-                        continue
-                    except usb.core.USBError as e2:
-                        e = e2
-                        if _is_disconnect(e2):
-                            self.queue.put(("disconnected", e2))
-                            return
-                self.queue.put(("error", e))
+                self.queue.put(end)
                 return
-            if n <= 0:
-                continue
-            self.stats["transfers"] += 1
-            self.stats["bytes"] += n
-            if self.decode is None:
-                data = bytes(view[:n])
-                if not self._wait_for_room(n):
-                    return
-                self.queue.put(("data", data))
-                continue
-            packets, t_last, extra = self.decode(view[:n])
-            if self.consumed_us is None:
-                self.consumed_us = t_last  # the stream's first sensor time: the consumer starts there
-            if not self._wait_for_room(n, t_last):
+            if n > 0 and not self._deliver(view, n):
                 return
-            self.queue.put(("packets", packets, t_last, n, extra))

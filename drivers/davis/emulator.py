@@ -247,6 +247,8 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         self.realtime = o.realtime
         self.time_scale = o.time_scale
         self.fifo_bytes = o.fifo_bytes
+        #: room of the host's transfers submitted and waiting behind the one being read (bytes; see emulator_stream)
+        self.host_buffer_bytes = 0
         self.extra_event_rate = o.extra_event_rate
         self._load_rng = np.random.default_rng([self.seed, 346])
         self.sensor = o.sensor
@@ -439,6 +441,23 @@ class EmulatedDavis346(UsbInterfaceMixin, DataPathMixin, usb.backend.IBackend):
         with self.lock:
             self.plugged = False
             self._unplugged_at = time.monotonic()
+
+    #: tests: the next :meth:`open_libusb1` handle fires up to this many callbacks in reverse order, and completes
+    #: the transfers submitted under these numbers with these statuses (:mod:`.emulator_libusb1`)
+    libusb1_reorder = 1
+    libusb1_inject: dict[int, int] = {}
+
+    def open_libusb1(self):
+        """``(context, handle)``: stand-ins for the ``libusb1`` package's, served by this device
+        (:mod:`.emulator_libusb1`), so the driver's asynchronous-transfer path runs without the package or a
+        camera; the handle is kept as ``libusb1_handle``."""
+        from necviz.drivers.davis.emulator_libusb1 import EmulatedContext, EmulatedHandle
+
+        with self.lock:
+            self._check_plug()
+        handle = EmulatedHandle(self, self.libusb1_reorder, self.libusb1_inject)
+        self.libusb1_handle = handle
+        return EmulatedContext(handle), handle
 
     # -- register file (what the control transfers of emulator_usb read and write) ------------------
     def _read(self, module: int, param: int) -> int:

@@ -16,6 +16,10 @@ models the device's buffering:
 * **Transfers in flight.** While the host is inside a bulk read, data flows into its buffer; the
   transfer ends when the buffer is full or, holding data, 1 ms of device time after it started
   (the early-packet timer: the FX3 sends a short packet).
+* **Transfers waiting.** ``host_buffer_bytes`` (0 unless set by the reader) is the room of the host's other
+  transfers submitted and waiting on the endpoint: with several in flight (``libusb1``, :mod:`.emulator_libusb1`
+  sets it for each read), data produced while the host is away flow into them, so the device drops only when
+  its FIFO *and* those transfers are full — what keeping transfers in flight buys on a camera.
 * **Device FIFO.** Between transfers (the host not reading: a busy reader thread, a full host
   queue) data waits in the device, which holds ``fifo_bytes`` (default :data:`FIFO_BYTES` =
   128 KiB: the FPGA's event FIFOs plus the FX3's DMA buffers, an assumption — the FX3 has 512 KiB
@@ -119,7 +123,9 @@ class DataPathMixin:
     def _room(self) -> int | None:
         """Free bytes in the device FIFO (None: unbounded — not realtime, the device waits for the host;
         or data the emulator is late producing for a time when the host was reading)."""
-        return self.fifo_bytes - self._fill() if self.realtime and not self._unbounded else None
+        return (
+            self.fifo_bytes + self.host_buffer_bytes - self._fill() if self.realtime and not self._unbounded else None
+        )
 
     def _fill(self) -> int:
         """Bytes in the FIFO that occupy it (data produced late, see :meth:`_bulk_read_realtime`, do not)."""
@@ -206,7 +212,12 @@ class DataPathMixin:
                 t = max(t, enc.now_us)
                 if pk.kind == "start":
                     self._frame_open = bool(r(P.APS.MODULE, P.APS.RUN))
-                    if self._frame_open and self.realtime and not self._unbounded and self._fill() >= self.fifo_bytes:
+                    if (
+                        self._frame_open
+                        and self.realtime
+                        and not self._unbounded
+                        and self._fill() >= self.fifo_bytes + self.host_buffer_bytes
+                    ):
                         self._frame_open = False  # the APS waits on the stalled transfer: no frame
                         self.frames_skipped += 1
                     if self._frame_open:

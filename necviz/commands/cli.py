@@ -311,6 +311,17 @@ def _cmd_replay(args) -> int:
     return 0
 
 
+def _usb_transfers(text):
+    """``--usb-transfers N,BYTES``: checked, or a one-line argparse error."""
+    from necviz.core.errors import ParameterError
+    from necviz.drivers.davis.transfers import parse_transfers
+
+    try:
+        return parse_transfers(text)
+    except ParameterError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
 def _cmd_live(args) -> int:
     from necviz.commands.live import run
     from necviz.dashboard.viewer_flags import viewer_options
@@ -325,6 +336,8 @@ def _cmd_live(args) -> int:
             duration_s=args.duration,
             scene=scene_options(args, scene_duration=False),
             emulate_unplug_s=args.emulate_unplug,
+            usb=args.usb,
+            usb_transfers=args.usb_transfers,
             record=args.record,
             force=args.force,
             profile=args.profile,
@@ -581,6 +594,20 @@ def build_parser() -> argparse.ArgumentParser:
     )
     live.add_argument("--serial", default=None, help="which camera when several are attached")
     live.add_argument("--reconnect", action="store_true", help="if the camera is unplugged, wait for it to return")
+    live.add_argument(
+        "--usb",
+        choices=("auto", "libusb1", "pyusb"),
+        default="auto",
+        help="how necviz's driver reads the camera: libusb1 (asynchronous transfers in flight, as libcaer: pip "
+        "install 'necviz[usb]'), pyusb (reads on a thread of their own) or auto (default: libusb1 if installed)",
+    )
+    live.add_argument(
+        "--usb-transfers",
+        type=_usb_transfers,
+        default=None,
+        metavar="N,BYTES",
+        help="transfers in flight and bytes each, whole 1024-byte packets (default 8,8192 as libcaer; e.g. 4,16k)",
+    )
     live.add_argument(
         "--controller", default="nec", choices=controllers, help="the controller that drives the camera (default nec)"
     )

@@ -49,6 +49,9 @@ def run(include_emulated: bool = True, out=...) -> int:
     except ImportError:
         dv_missing = True
     devices = list_devices(include_emulated)
+    from necviz.drivers.davis.transfers import usb_library_line
+
+    print(usb_library_line(), file=out)
     if devices:
         print(f"{'backend':9s} {'kind':10s} {'serial':10s} {'firmware':>8s} {'logic':>6s}  where / status", file=out)
     for d in devices:

@@ -98,7 +98,9 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     if speed == "auto":  # as the session resolves it: real time when a viewer watches
         speed = 1.0 if viewer.watched else None
     backend = None
-    camera_options = CameraOptions(reconnect=options.reconnect, buffer_s=LIVE_LAG_S)
+    n_transfers, transfer_size = options.usb_transfers or (None, None)
+    usb = {"usb": options.usb, "transfer_size": transfer_size, **({"transfers": n_transfers} if n_transfers else {})}
+    camera_options = CameraOptions(reconnect=options.reconnect, buffer_s=LIVE_LAG_S, **usb)
     if options.device == "emulated":
         from necviz.drivers.davis.emulator import EmulatedDavis346, EmulatorOptions, Faults
 
@@ -116,7 +118,7 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
         )
         backend = EmulatedDavis346(emulated, faults)
         if speed is None:
-            camera_options = CameraOptions(reconnect=options.reconnect, buffer_s=MAX_SPEED_LAG_S)
+            camera_options = CameraOptions(reconnect=options.reconnect, buffer_s=MAX_SPEED_LAG_S, **usb)
     if options.device == "dv":
         from necviz.drivers.dv_camera import open_dv_camera
 
@@ -158,7 +160,12 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
 
     def write_summary(stats):  # before the recordings are committed: a file that cannot be written fails the run
         if options.json is not None:
-            write_json(options.json, live_summary(stats, props, backend), indent=1, flag="--json")
+            write_json(
+                options.json,
+                live_summary(stats, props, backend, getattr(camera, "usb_transfers", None)),
+                indent=1,
+                flag="--json",
+            )
 
     layout = viewer.layout or "live"
     settings = Session(
@@ -192,12 +199,13 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     return stats
 
 
-def live_summary(stats: dict, properties: dict | None = None, backend=None) -> dict:
+def live_summary(stats: dict, properties: dict | None = None, backend=None, usb: dict | None = None) -> dict:
     """The JSON of ``live --json``: the run, then per lane its frames, saturated frames (> 50 % clipped),
     events, commands, the processing latency (packet out of the source -> command handed back, wall µs) and
     the reaction in sensor time (:mod:`necviz.reaction`): ``frames_late`` p50/p99/max and
     ``command_to_exposure_us`` p50/p99 over the exposure changes that reached a frame; the reader's deepest
-    backlog and how often it held back; for the emulated camera, how far its clock slipped behind the wall
+    backlog and how often it held back; how necviz's driver read the camera (``usb``: library, transfers in flight
+    and their bytes; absent for ``--device dv``); for the emulated camera, how far its clock slipped behind the wall
     clock and the frames its full FIFO kept from being exposed."""
 
     def num(v):
@@ -230,9 +238,19 @@ def live_summary(stats: dict, properties: dict | None = None, backend=None) -> d
         "wall_s": stats["wall_s"],
         "events": stats["events"],
         "frames": stats["frames"],
+        **({"usb": dict(usb)} if usb else {}),
         "reader": {
             k: src[k]
-            for k in ("lag_peak_us", "backpressure_events", "backpressure_s", "dropped_events", "queue_peak_bytes")
+            for k in (
+                "lag_peak_us",
+                "backpressure_events",
+                "backpressure_s",
+                "dropped_events",
+                "queue_peak_bytes",
+                "transfers",
+                "timeouts",
+                "out_of_order",
+            )
             if k in src
         },
         "lanes": lanes,
