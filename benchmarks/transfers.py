@@ -2,7 +2,7 @@
 """USB transfers: how long data waits between being sensed and reaching the host, per reader, transfer size and rate.
 
 The old reader kept one synchronous bulk read in flight (``CameraOptions(usb="single")``, 8, 64 and 256 KiB here);
-the driver now keeps a ring of 8 x 8 KiB (:mod:`necviz.drivers.davis.transfers`): ``libusb1``'s asynchronous
+the driver now keeps a ring of 32 x 8 KiB (libcaer keeps 8 x 8 KiB; both are measured) (:mod:`necviz.drivers.davis.transfers`): ``libusb1``'s asynchronous
 transfers (on the emulator, its stand-ins of the package's objects) or, without the package, pyusb reads on a
 thread of their own with the decoding on another. libcaer keeps 8 transfers of 8 KiB in flight (``davisOpenInternal`` in ``src/davis.c``: ``usbSetTransfersNumber(8)``,
 ``usbSetTransfersSize(8192)``; ``usbAllocateTransfers`` and ``usbDataTransferCallback`` in ``src/usb_utils.c``
@@ -41,8 +41,9 @@ READERS = (
     ("single", 1, 8 * 1024),
     ("single", 1, 64 * 1024),
     ("single", 1, 256 * 1024),
-    ("libusb1", 8, 8 * 1024),
-    ("pyusb", 8, 8 * 1024),
+    ("libusb1", 8, 8 * 1024),  # libcaer's ring
+    ("libusb1", 32, 8 * 1024),  # the driver's default: libcaer's transfer size, more of them in flight
+    ("pyusb", 32, 8 * 1024),
 )
 
 

@@ -99,8 +99,8 @@ class CameraOptions:
         (synchronous reads on a thread of their own, a ring of buffers to the decoder) or ``"single"`` (the old
         one read of 256 KiB at a time; for comparison).
     transfers : int
-        Transfers kept in flight (libusb1) or buffered between reading and decoding (pyusb), 1..64 (default 8,
-        as libcaer).
+        Transfers kept in flight (libusb1) or buffered between reading and decoding (pyusb), 1..64 (default 32
+        of libcaer's 8 KiB: a Python host pauses longer than libcaer's C thread; see :data:`.transfers.DEFAULT_TRANSFERS`).
     transfer_size : int, optional
         Bytes per USB bulk transfer, whole 1024-byte packets (default 8 KiB, as libcaer; 256 KiB for
         ``"single"``).

@@ -41,8 +41,14 @@ from necviz.drivers.davis.device_errors import DeviceDisconnectedError, DeviceEr
 
 #: the USB library choices of ``necviz live --usb``
 USB_CHOICES = ("auto", "libusb1", "pyusb")
-#: libcaer's transfer ring (``davisOpenInternal`` in ``src/davis.c``)
-DEFAULT_TRANSFERS = 8
+#: transfers kept in flight: libcaer keeps 8 of 8 KiB (``davisOpenInternal`` in ``src/davis.c``; its host config
+#: ``CAER_HOST_CONFIG_USB_BUFFER_NUMBER`` changes the count). necviz keeps 32 of libcaer's 8 KiB: a Python host
+#: pauses for milliseconds (the interpreter lock, the garbage collector, a loaded machine) where libcaer's C thread
+#: does not, and 8 x 8 KiB with the device's 128 KiB FIFO holds only ~4 ms at 12 Mev/s. 32 x 8 KiB buffers as much
+#: as the old single 256 KiB read did while each transfer still ends after 8 KiB (the delay of libcaer's size):
+#: on the emulator, a 50 ms consumer stall at 12 Mev/s on a loaded machine (tests/test_davis_load.py) dropped
+#: events in 3 of 6 runs with 8 transfers, 1 of 3 with 16, 0 of 9 with 32
+DEFAULT_TRANSFERS = 32
 DEFAULT_TRANSFER_BYTES = 8 * 1024
 #: the old single synchronous read (``CameraOptions(usb="single")``; kept for ``benchmarks/transfers.py``)
 SINGLE_TRANSFER_BYTES = 256 * 1024

@@ -606,7 +606,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=_usb_transfers,
         default=None,
         metavar="N,BYTES",
-        help="transfers in flight and bytes each, whole 1024-byte packets (default 8,8192 as libcaer; e.g. 4,16k)",
+        help="transfers in flight and bytes each, whole 1024-byte packets (default 32,8192: libcaer's 8 KiB transfers, more of them in flight; e.g. 8,8k as libcaer)",
     )
     live.add_argument(
         "--controller", default="nec", choices=controllers, help="the controller that drives the camera (default nec)"
