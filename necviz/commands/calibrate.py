@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 # light imports only: the parser is built for every command line (`necviz --help` must not load NumPy)
 from necviz.calibration.settings import DEFAULT_LOSS, DEFAULT_SLOW_RATE, DEFAULTS
+from necviz.commands import Command
 from necviz.core.errors import ParameterError
 
 if TYPE_CHECKING:
@@ -64,17 +65,9 @@ def _parse_sensor(text: str) -> SensorGeometry:
     return SensorGeometry(w, h, f"{w}x{h}")
 
 
-def add_parser(subparsers) -> argparse.ArgumentParser:
-    """Register ``necviz calibrate`` on an ``argparse`` subparsers object; returns the parser."""
+def add_arguments(p) -> None:
     from necviz.flags import number
 
-    p = subparsers.add_parser(
-        "calibrate",
-        help="fit a camera profile (TEDI c±, a±, b± by Eq. 7; response from brackets) from recordings or the simulator",
-        description="Fits the six TEDI parameters by frame-to-frame consistency (Eq. 7) on recordings (any "
-        "supported format) or simulator runs, and the camera response (Debevec-Malik) where the data hold "
-        "exposure brackets of a static scene; writes a camera profile (JSON) for --profile.",
-    )
     p.add_argument(
         "files", nargs="*", metavar="FILE", help="recordings (necviz, AEDAT 4/3.1/2.0, ROS bag, HDF5, RPG text)"
     )
@@ -194,8 +187,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help=f"least-squares loss (default {DEFAULT_LOSS}: squared residuals)",
     )
     p.add_argument("--name", default=None, help="profile name (default: derived from the inputs)")
-    p.set_defaults(func=run)
-    return p
 
 
 def run(args: argparse.Namespace) -> int:
@@ -268,3 +259,14 @@ def run(args: argparse.Namespace) -> int:
     print(result.summary())
     print(f"wrote {out}" + (f" and {rep}" if rep is not None else ""))
     return 0
+
+
+COMMAND = Command(
+    name="calibrate",
+    help="fit a camera profile (TEDI c±, a±, b± by Eq. 7; response from brackets) from recordings or the simulator",
+    description="Fits the six TEDI parameters by frame-to-frame consistency (Eq. 7) on recordings (any "
+    "supported format) or simulator runs, and the camera response (Debevec-Malik) where the data hold "
+    "exposure brackets of a static scene; writes a camera profile (JSON) for --profile.",
+    add_arguments=add_arguments,
+    run=run,
+)

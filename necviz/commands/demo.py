@@ -13,14 +13,26 @@ rendering (the packets are the same). From Python::
 
 from __future__ import annotations
 
-from necviz.dashboard import session as dashboard
-from necviz.dashboard.recorders import open_recorder
-from necviz.dashboard.session import Session, lane_labels, preflight, scene_inputs
-from necviz.drivers.sim.scene_cache import SceneCache
-from necviz.layouts import make_blueprint
-from necviz.options import DemoOptions, ViewerOptions
+from typing import TYPE_CHECKING
+
+from necviz.commands import Command
+from necviz.commands.args import (
+    add_clip_args,
+    add_scene_args,
+    add_show_args,
+    add_video_args,
+    clip_options,
+    controller_choices,
+    controller_list,
+    scene_options,
+    show_options,
+    tune_options,
+    video_options,
+)
 from necviz.progress import output
-from necviz.runs import build_rig
+
+if TYPE_CHECKING:
+    from necviz.options import DemoOptions, ViewerOptions
 
 
 def _observers(options: DemoOptions, video) -> list:
@@ -60,6 +72,14 @@ def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None,
     ParameterError
         Bad options or output files (an output that exists without ``force``, or is an input).
     """
+    from necviz.dashboard import session as dashboard
+    from necviz.dashboard.recorders import open_recorder
+    from necviz.dashboard.session import Session, lane_labels, preflight, scene_inputs
+    from necviz.drivers.sim.scene_cache import SceneCache
+    from necviz.layouts import make_blueprint
+    from necviz.options import DemoOptions
+    from necviz.runs import build_rig
+
     out = output(out)
     options = options or DemoOptions()
     video = options.video.path if options.video is not None else None
@@ -121,3 +141,54 @@ def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None,
         out,
         stdin,
     )
+
+
+def add_arguments(p) -> None:
+    from necviz.names import DEFAULT_CONTROLLERS
+
+    add_scene_args(p)
+    p.add_argument(
+        "--controllers",
+        type=controller_list,
+        default=",".join(DEFAULT_CONTROLLERS),
+        help=f"comma-separated, from {', '.join(controller_choices())} (default: {', '.join(DEFAULT_CONTROLLERS)})",
+    )
+    p.add_argument(
+        "--record",
+        metavar="FILE.necrec",
+        help="also record the first controller's camera (events, frames, commands) to a crash-safe native file",
+    )
+    add_show_args(p)
+    add_clip_args(p)
+    add_video_args(p)
+
+
+def _run(args) -> int:
+    from necviz.dashboard.viewer_flags import viewer_options
+    from necviz.options import DemoOptions
+
+    run(
+        DemoOptions(
+            scene_options(args),
+            args.controllers,
+            record=args.record,
+            force=args.force,
+            profile=args.profile,
+            show=show_options(args),
+            tune=tune_options(args),
+            clips=clip_options(args),
+            video=video_options(args),
+        ),
+        viewer_options(args),
+    )
+    return 0
+
+
+COMMAND = Command(
+    name="demo",
+    help="the dashboard on the simulator: tunnel_exit, NEC versus the baselines side by side",
+    description="A simulated scene (tunnel_exit by default), every controller driving its own "
+    "camera, shown in the compare layout. No hardware or files needed.",
+    add_arguments=add_arguments,
+    run=_run,
+)

@@ -14,17 +14,24 @@ If the camera is unplugged, everything recorded so far is flushed (the ``.rrd`` 
 
 from __future__ import annotations
 
-from necviz.core.control import make_controller
+from typing import TYPE_CHECKING
+
+from necviz.commands import Command
+from necviz.commands.args import (
+    add_clip_args,
+    add_scene_args,
+    add_show_args,
+    clip_options,
+    controller_choices,
+    scene_options,
+    show_options,
+    tune_options,
+)
 from necviz.core.errors import ParameterError
-from necviz.dashboard import session as dashboard
-from necviz.dashboard.flight_recorder import clip_observer
-from necviz.dashboard.recorders import open_recorder
-from necviz.dashboard.session import Session, lane_labels, preflight, scene_inputs
-from necviz.layouts import make_blueprint
-from necviz.options import LiveOptions, ViewerOptions
-from necviz.outputs import write_json
-from necviz.pipeline import Lane
 from necviz.progress import output
+
+if TYPE_CHECKING:
+    from necviz.options import LiveOptions, ViewerOptions
 
 LANE = "camera"
 #: the reader's queue holds at most this much sensor time beyond what the loop has taken: one frame interval (20 ms),
@@ -64,6 +71,16 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     ParameterError
         Bad options or output files.
     """
+    from necviz.core.control import make_controller
+    from necviz.dashboard import session as dashboard
+    from necviz.dashboard.flight_recorder import clip_observer
+    from necviz.dashboard.recorders import open_recorder
+    from necviz.dashboard.session import Session, lane_labels, preflight, scene_inputs
+    from necviz.layouts import make_blueprint
+    from necviz.options import LiveOptions
+    from necviz.outputs import write_json
+    from necviz.pipeline import Lane
+
     out = output(out)
     options = options or LiveOptions()
     if options.device == "emulated":  # the scene's --set values against the run's duration, before anything opens
@@ -243,3 +260,86 @@ def live_summary(stats: dict, properties: dict | None = None, backend=None) -> d
             else {}
         ),
     }
+
+
+def add_arguments(p) -> None:
+    from necviz.flags import number
+
+    p.add_argument(
+        "--device",
+        choices=("usb", "dv", "emulated"),
+        default="usb",
+        help="usb (a real camera, necviz's driver), dv (the same camera through iniVation's dv-processing: "
+        "pip install 'necviz[dv]') or emulated (necviz's driver on a virtual DAVIS346)",
+    )
+    p.add_argument("--serial", default=None, help="which camera when several are attached")
+    p.add_argument("--reconnect", action="store_true", help="if the camera is unplugged, wait for it to return")
+    p.add_argument(
+        "--controller",
+        default="nec",
+        choices=controller_choices(),
+        help="the controller that drives the camera (default nec)",
+    )
+    p.add_argument(
+        "--duration",
+        type=number("--duration", "live"),
+        default=None,
+        metavar="S",
+        help="stop after S seconds of sensor time (emulated: the scene's length)",
+    )
+    p.add_argument(
+        "--emulate-unplug",
+        type=number("--emulate-unplug"),
+        default=None,
+        metavar="S",
+        help="emulated device: unplug it after S seconds (shows what an unplug does)",
+    )
+    p.add_argument(
+        "--record", metavar="FILE.necrec", help="record events, frames and commands to a crash-safe native file"
+    )
+    p.add_argument(
+        "--json",
+        metavar="FILE",
+        help="write the summary per lane as JSON (frames, saturated frames, events, commands, processing latency, "
+        "frames late and command-to-exposure time in sensor time)",
+    )
+    add_scene_args(p, emulated=True)
+    add_show_args(p)
+    add_clip_args(p)
+
+
+def _run(args) -> int:
+    from necviz.dashboard.viewer_flags import viewer_options
+    from necviz.options import LiveOptions
+
+    run(
+        LiveOptions(
+            args.device,
+            serial=args.serial,
+            reconnect=args.reconnect,
+            controller=args.controller,
+            duration_s=args.duration,
+            scene=scene_options(args, scene_duration=False),
+            emulate_unplug_s=args.emulate_unplug,
+            record=args.record,
+            force=args.force,
+            profile=args.profile,
+            show=show_options(args),
+            tune=tune_options(args),
+            clips=clip_options(args),
+            json=args.json,
+        ),
+        viewer_options(args),
+    )
+    return 0
+
+
+COMMAND = Command(
+    name="live",
+    help="a DAVIS camera (USB or emulated) with NEC closing the loop",
+    description="Runs a controller (NEC by default) in closed loop on a DAVIS346/DAVIS240 over "
+    "USB (necviz's driver, or iniVation's dv-processing with --device dv), or on a virtual DAVIS346 "
+    "(--device emulated), in the live layout.",
+    add_arguments=add_arguments,
+    run=_run,
+)
