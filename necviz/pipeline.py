@@ -214,7 +214,7 @@ class Pipeline:
         if missing:
             raise ParameterError(f"the telemetry has no lane {missing[0]!r}")
         self.telemetry.attach(lanes, source)  # what the diagnosis of saturated frames needs to know
-        limits = getattr(getattr(source, "camera_info", None), "limits", None)
+        limits = source.camera_info.limits
         #: each lane's reaction in sensor time (cause -> first exposure that used the command; :mod:`necviz.reaction`)
         self.reactions = {name: ReactionMeter(limits) for name in names}
         self.observers = list(observers)

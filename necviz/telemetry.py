@@ -414,9 +414,8 @@ class LaneTelemetry:
     def _events_delivered(self) -> int:
         """Events the lane's controller has received so far: those its own estimator counted (0 for a
         controller that has none, or that is fed none, like ``nec-frames``)."""
-        ctrl = self._lane.controller if self._lane is not None else None
-        est = getattr(ctrl, "estimator", None)
-        if est is None or not hasattr(est, "event_totals"):
+        est = self._lane.controller.estimator if self._lane is not None else None
+        if est is None:
             return 0
         on, off = est.event_totals()
         return int(on) + int(off)

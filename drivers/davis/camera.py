@@ -49,7 +49,7 @@ from necviz.drivers.davis.color import COLOR_FILTERS
 from necviz.drivers.davis.decoder import DavisDecoder, DecoderOptions
 from necviz.drivers.davis.device import BulkReader, DavisDevice, open_device, usb_backend
 from necviz.drivers.davis.device_errors import DeviceDisconnectedError, DeviceError, DeviceNotFoundError
-from necviz.drivers.source import CAMERA, CameraInfo, route
+from necviz.drivers.source import CAMERA, CameraInfo, Source, route
 
 if TYPE_CHECKING:
     from necviz.drivers.davis.emulator import EmulatorOptions, Faults
@@ -124,7 +124,7 @@ class CameraOptions:
             object.__setattr__(self, name, value)
 
 
-class DavisCamera(CommandedCamera):
+class DavisCamera(CommandedCamera, Source):
     """A DAVIS camera (real or emulated) as a closed-loop source. Build it with :func:`open_camera`.
 
     Attributes: ``sensor`` (from the device's DVS size registers), ``info`` (serial, firmware, logic
@@ -270,6 +270,8 @@ class DavisCamera(CommandedCamera):
             self._commands.issue(t, exp, g, cycles)
 
     # -- DVS biases and filters (issue 29) -----------------------------------------------------------
+    takes_dvs_biases = True
+
     @property
     def dvs_family(self) -> str:
         """The bias table the chip uses: ``"DAVIS240"`` or ``"DAVIS346"``."""

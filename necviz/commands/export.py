@@ -79,14 +79,14 @@ def _export(options, out, file, source: Path, out_path) -> dict:
             properties={
                 "exported_from": Path(file).name,
                 "format": recording.format,
-                **getattr(recording, "properties", {}),
+                **recording.properties,
             },
             progress=progress,
         )
     finally:
         line.clear()
         recording.close()
-    for w in getattr(recording, "warnings", []):
+    for w in recording.warnings:
         print(f"  warning: {w}", file=out)
     c = stats["counts"]
     span = 0.0 if stats["first_us"] is None else (stats["last_us"] - stats["first_us"]) / 1e6

@@ -31,6 +31,7 @@ from necviz.core.errors import ParameterError
 from necviz.progress import output
 
 if TYPE_CHECKING:
+    from necviz.drivers.davis.emulator import EmulatedDavis346
     from necviz.options import LiveOptions, ViewerOptions
 
 LANE = "camera"
@@ -197,7 +198,7 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     )
     blueprint = make_blueprint(layout, [LANE], sensor.width, sensor.height, lane_labels([lane]))
     stats = dashboard.run(camera, [lane], viewer, blueprint, settings, out, stdin)
-    slip = getattr(backend, "clock_slip_us", 0)
+    slip = backend.clock_slip_us if backend is not None else 0
     if slip and out is not None:  # the emulated sensor could not keep up with the wall clock: say how far it slipped
         print(
             f"  emulated sensor: its simulation fell {slip / 1e6:.2f} s behind the wall clock; the sensor's clock "
@@ -209,7 +210,7 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     return stats
 
 
-def live_summary(stats: dict, properties: dict | None = None, backend=None) -> dict:
+def live_summary(stats: dict, properties: dict | None = None, backend: EmulatedDavis346 | None = None) -> dict:
     """The JSON of ``live --json``: the run, then per lane its frames, saturated frames (> 50 % clipped),
     events, commands, the processing latency (packet out of the source -> command handed back, wall µs) and
     the reaction in sensor time (:mod:`necviz.reaction`): ``frames_late`` p50/p99/max and
@@ -256,7 +257,7 @@ def live_summary(stats: dict, properties: dict | None = None, backend=None) -> d
         **({"dvs": stats["dvs"]} if "dvs" in stats else {}),
         **(
             {"emulator": {"clock_slip_s": backend.clock_slip_us / 1e6, "frames_skipped": backend.frames_skipped}}
-            if hasattr(backend, "clock_slip_us")
+            if backend is not None
             else {}
         ),
     }

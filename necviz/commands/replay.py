@@ -166,7 +166,7 @@ def _replay(options: ReplayOptions, viewer, out, path: Path, source: Path, profi
         "controller": options.controller,
         "camera_limits": limits,
         "camera_profile": str(options.profile) if options.profile else "default DAVIS346 response",
-        **{f"recorded.{k}": v for k, v in getattr(recording, "properties", {}).items()},
+        **{f"recorded.{k}": v for k, v in recording.properties.items()},
     }
     print(
         f"  replay: {path} ({recording.format}, {sensor.width}x{sensor.height}, exposure "
@@ -175,7 +175,7 @@ def _replay(options: ReplayOptions, viewer, out, path: Path, source: Path, profi
     )
     from necviz.dashboard.flight_recorder import clip_focus
 
-    focus = clip_focus(getattr(recording, "properties", {}))  # a clip: the session's time axis and window
+    focus = clip_focus(recording.properties)  # a clip: the session's time axis and window
     if focus is not None:
         origin = focus[3]
         print(
@@ -217,7 +217,7 @@ def _replay(options: ReplayOptions, viewer, out, path: Path, source: Path, profi
     )
     dashboard.run(recording, [lane], viewer, blueprint, settings, out)
     summary = result["summary"]
-    for w in getattr(recording, "warnings", []):
+    for w in recording.warnings:
         print(f"  warning: {w}", file=out)
     rmse = summary["prediction_error_rmse"]
     print(

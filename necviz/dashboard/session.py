@@ -184,8 +184,8 @@ def lane_labels(lanes) -> dict[str, str]:
     ``replay`` is shown as ``nec``, ``navid``, …), so the views and curves say which controller they show."""
     out = {}
     for ln in lanes:
-        ctrl = getattr(ln.controller, "name", None)
-        if isinstance(ctrl, str) and ctrl and ctrl != "base" and ctrl != ln.name:
+        ctrl = ln.controller.name
+        if ctrl and ctrl != "base" and ctrl != ln.name:
             out[ln.name] = ctrl
     return out
 
@@ -213,8 +213,8 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
         if out is not None:
             print(f"  {msg}", file=out)
         pipe.submit(lambda p, m=msg, d=data: (m, d))  # noted in the recordings at the first packet
-    notes = getattr(ss.source, "annotations", None)  # a native recording: P-TEDI follows its recorded bias changes
-    if isinstance(notes, list) and pipe.dvs.follow_recording(notes) and out is not None:
+    notes = list(ss.source.annotations)  # a native recording: P-TEDI follows its recorded bias changes
+    if notes and pipe.dvs.follow_recording(notes) and out is not None:
         print(f"  P-TEDI follows the {len(pipe.dvs._schedule)} DVS bias change(s) recorded in the file", file=out)
     files = [p for p in (viewer.save_path, ss.recorder.path if ss.recorder is not None else None) if p is not None]
     files += [o.folder for o in observers if o.folder is not None]  # clips fill a disk too
@@ -229,8 +229,8 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
             f"the disk holding {path} is nearly full ({free >> 20} MB free): the run was stopped at "
             f"{(pipe.now_us or 0) / 1e6 - (pipe.first_us or 0) / 1e6:.1f} s so the files end whole"
         )
-    source_stats = getattr(ss.source, "stats", None)
-    if isinstance(source_stats, dict) and "dropped_events" in source_stats:  # a camera: what the device lost
+    source_stats = ss.source.stats
+    if "dropped_events" in source_stats:  # a camera: what the device lost
         stats["source"] = {k: v for k, v in source_stats.items() if isinstance(v, (int, float))}
     sensor_s = ((pipe.now_us or 0) - (pipe.first_us or 0)) / 1e6
     stats["speed"] = speed
