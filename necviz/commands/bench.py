@@ -115,7 +115,7 @@ def add_arguments(bench) -> None:
     pipe.set_defaults(bench_run=_pipeline)
 
 
-def _run(args) -> int:
+def _command(args) -> int:
     return args.bench_run(args)
 
 
@@ -123,5 +123,5 @@ COMMAND = Command(
     name="bench",
     help="speed benchmarks (print a table, optionally write JSON)",
     add_arguments=add_arguments,
-    run=_run,
+    run=_command,
 )

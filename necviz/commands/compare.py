@@ -454,7 +454,7 @@ def add_arguments(p) -> None:
     p.add_argument("--force", action="store_true", help="replace existing output files")
 
 
-def _run(args) -> int:
+def _command(args) -> int:
     from necviz.options import CompareOptions, parse_params
 
     sim = {f"{model}.{k}": v for model, kv in parse_params(args.sim, "--sim").items() for k, v in kv.items()}
@@ -481,5 +481,5 @@ COMMAND = Command(
     help="NEC versus the baselines in closed loop on one simulated scene",
     description=None,
     add_arguments=add_arguments,
-    run=_run,
+    run=_command,
 )

@@ -163,7 +163,7 @@ def add_arguments(p) -> None:
     add_video_args(p)
 
 
-def _run(args) -> int:
+def _command(args) -> int:
     from necviz.dashboard.viewer_flags import viewer_options
     from necviz.options import DemoOptions
 
@@ -190,5 +190,5 @@ COMMAND = Command(
     description="A simulated scene (tunnel_exit by default), every controller driving its own "
     "camera, shown in the compare layout. No hardware or files needed.",
     add_arguments=add_arguments,
-    run=_run,
+    run=_command,
 )

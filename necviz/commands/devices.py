@@ -181,7 +181,7 @@ def add_arguments(p) -> None:
     )
 
 
-def _run(args) -> int:
+def _command(args) -> int:
 
     if args.check:
         return check(args.device, args.serial, args.capture, args.seconds)
@@ -199,5 +199,5 @@ COMMAND = Command(
     "emulated one. --check records a camera's raw stream for a few seconds and says what it held "
     "(events, frames, exposure echoes, the first frame's words, transfer timing) with a verdict.",
     add_arguments=add_arguments,
-    run=_run,
+    run=_command,
 )

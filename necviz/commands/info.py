@@ -59,7 +59,7 @@ def collect_info() -> dict:
     }
 
 
-def _run(args) -> int:
+def _command(args) -> int:
     if args.file:
         return _info_file(args)
     import platform
@@ -123,5 +123,5 @@ COMMAND = Command(
     name="info",
     help="versions and capabilities; with FILE, what a recording holds",
     add_arguments=add_arguments,
-    run=_run,
+    run=_command,
 )

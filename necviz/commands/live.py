@@ -309,7 +309,7 @@ def add_arguments(p) -> None:
     add_clip_args(p)
 
 
-def _run(args) -> int:
+def _command(args) -> int:
     from necviz.dashboard.viewer_flags import viewer_options
     from necviz.options import LiveOptions
 
@@ -342,5 +342,5 @@ COMMAND = Command(
     "USB (necviz's driver, or iniVation's dv-processing with --device dv), or on a virtual DAVIS346 "
     "(--device emulated), in the live layout.",
     add_arguments=add_arguments,
-    run=_run,
+    run=_command,
 )

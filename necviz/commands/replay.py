@@ -268,7 +268,7 @@ def add_arguments(p) -> None:
     add_video_args(p)
 
 
-def _run(args) -> int:
+def _command(args) -> int:
     from necviz.dashboard.viewer_flags import viewer_options
     from necviz.options import ReplayOptions
 
@@ -299,5 +299,5 @@ COMMAND = Command(
     "and a controller in open loop, in the inspect layout, and reports the per-frame "
     "prediction error and saturated frames.",
     add_arguments=add_arguments,
-    run=_run,
+    run=_command,
 )

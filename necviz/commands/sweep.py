@@ -251,7 +251,7 @@ def add_arguments(p) -> None:
     sh.set_defaults(sweep_run=_cmd_show)
 
 
-def _run(args) -> int:
+def _command(args) -> int:
     return args.sweep_run(args)
 
 
@@ -262,7 +262,7 @@ COMMAND = Command(
     "one), writes one Parquet row per run into OUT/runs/ and reports means with 95 % confidence "
     "intervals per cell.",
     add_arguments=add_arguments,
-    run=_run,
+    run=_command,
 )
 
 __all__ = ["COMMAND"]
