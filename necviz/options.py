@@ -17,8 +17,15 @@ from dataclasses import KW_ONLY, dataclass, field
 import necviz.tuned  # noqa: F401 - registers the tuned controllers (navid-tuned, ...) with CONTROLLERS
 from necviz.core.checks import check_number
 from necviz.core.control import CONTROLLERS
-from necviz.core.errors import ParameterError
-from necviz.flags import NUMBER_FLAGS, NumberRule, check_flag, number, parse_memory_limit  # noqa: F401 - re-exported
+from necviz.core.errors import OptionError, ParameterError
+from necviz.flags import (  # noqa: F401 - re-exported
+    NUMBER_FLAGS,
+    NumberRule,
+    check_field,
+    check_flag,
+    number,
+    parse_memory_limit,
+)
 from necviz.names import (  # noqa: F401 - re-exported
     BASELINES,
     COMPARE_CONTROLLERS,
@@ -34,8 +41,9 @@ def controller_kind(name: str) -> str:
     return str(name).split("@", 1)[0]
 
 
-def parse_controllers(text) -> tuple[str, ...]:
-    """``"nec,navid"`` (or a sequence of names) -> checked names, each registered and given once.
+def parse_controllers(text, field: str = "controllers") -> tuple[str, ...]:
+    """``"nec,navid"`` (or a sequence of names) -> checked names, each registered and given once
+    (refused with an :class:`OptionError` naming ``field``).
 
     A name may carry a label, ``KIND@LABEL`` (``nec@median``), to run several variants of one
     controller side by side (each configured with ``--param nec@median.metering=median``).
@@ -48,16 +56,17 @@ def parse_controllers(text) -> tuple[str, ...]:
         or ("@" in n and not n.split("@", 1)[1].replace("-", "_").isidentifier())
     ]
     if not names or unknown:
-        raise ParameterError(
+        raise OptionError(
+            field,
             f"unknown controller(s) {', '.join(unknown) or '(none given)'}; "
-            f"available: {', '.join(sorted(CONTROLLERS))} (a variant: KIND@LABEL)"
+            f"available: {', '.join(sorted(CONTROLLERS))} (a variant: KIND@LABEL)",
         )
     if len(set(names)) != len(names):
-        raise ParameterError("each controller may appear once in --controllers")
+        raise OptionError(field, f"each controller may appear once in {field}")
     return tuple(names)
 
 
-def check_param_lanes(controller_params: dict | None, controllers) -> None:
+def check_param_lanes(controller_params: dict | None, controllers, field: str = "controller_params") -> None:
     """Every controller that parameters are given for runs (``--param NAME.KEY=VALUE``, a run spec).
 
     Raises
@@ -67,15 +76,17 @@ def check_param_lanes(controller_params: dict | None, controllers) -> None:
     """
     unknown = set(controller_params or {}) - set(controllers)
     if unknown:
-        raise ParameterError(
-            f"--param names {', '.join(sorted(unknown))}, which is not among the controllers ({', '.join(controllers)})"
+        raise OptionError(
+            field,
+            f"{field} names {', '.join(sorted(unknown))}, which is not among the controllers ({', '.join(controllers)})",
         )
 
 
-def parse_speed(text) -> float | None:
+def parse_speed(text, field: str = "speed") -> float | None:
     """``max`` (as fast as possible) -> None; ``1`` / ``x1`` real time; ``x4`` or ``4`` four times.
 
-    Zero, negative, NaN and infinite factors are refused (``0`` is no speed: ``max`` is)."""
+    Zero, negative, NaN and infinite factors are refused (``0`` is no speed: ``max`` is), with an
+    :class:`OptionError` naming ``field``."""
     if text is None or str(text).strip().lower() in ("max", "fast"):
         return None
     if isinstance(text, (int, float)) and not isinstance(text, bool):
@@ -84,12 +95,12 @@ def parse_speed(text) -> float | None:
         try:
             v = float(str(text).strip().lower().removeprefix("x"))
         except ValueError:
-            raise ParameterError(f"--speed must be 'max', a factor like 1 or x4, got {text!r}") from None
+            raise OptionError(field, f"{field} must be 'max', a factor like 1 or x4, got {text!r}") from None
     r = NUMBER_FLAGS["--speed"]
     assert r.lo is not None and r.hi is not None  # the table bounds --speed at both ends
     if not (math.isfinite(v) and r.lo <= v <= r.hi):
-        raise ParameterError(
-            f"--speed must be 'max' (as fast as possible) or a factor between x0.001 and x10000, got {text!r}"
+        raise OptionError(
+            field, f"{field} must be 'max' (as fast as possible) or a factor between x0.001 and x10000, got {text!r}"
         )
     return v
 
@@ -145,6 +156,7 @@ class SceneOptions:
     """
 
     scenario: str = "tunnel_exit"
+    _: KW_ONLY
     seed: int | None = None
     duration_s: float | None = None
     params: dict = field(default_factory=dict)
@@ -154,14 +166,15 @@ class SceneOptions:
 
         object.__setattr__(self, "scenario", str(self.scenario))
         if self.scenario not in SCENARIOS and not self.is_file:
-            raise ParameterError(
-                f"--scenario: {self.scenario!r} is neither a preset ({', '.join(sorted(SCENARIOS))}) "
-                "nor a .toml scenario file"
+            raise OptionError(
+                "SceneOptions.scenario",
+                f"SceneOptions.scenario: {self.scenario!r} is neither a preset ({', '.join(sorted(SCENARIOS))}) "
+                "nor a .toml scenario file",
             )
         if self.seed is not None:
-            object.__setattr__(self, "seed", check_flag("--seed", self.seed))
+            object.__setattr__(self, "seed", check_field("SceneOptions.seed", self.seed))
         if self.duration_s is not None:
-            object.__setattr__(self, "duration_s", check_flag("--duration", self.duration_s))
+            object.__setattr__(self, "duration_s", check_field("SceneOptions.duration_s", self.duration_s))
         object.__setattr__(self, "params", dict(self.params))
 
     @property
@@ -265,16 +278,28 @@ class ViewerOptions:
 
     def __post_init__(self):
         if self.notebook and (self.spawn or self.serve or self.connect or self.save):
-            raise ParameterError(
-                "notebook=True shows the viewer in the notebook; do not combine it with spawn, serve, connect or save"
+            raise OptionError(
+                "ViewerOptions.notebook",
+                "ViewerOptions.notebook=True shows the viewer in the notebook; do not combine it with spawn, serve, "
+                "connect or save",
             )
         if self.layout is not None and self.layout not in LAYOUT_NAMES:
-            raise ParameterError(f"unknown layout {self.layout!r}; available: {', '.join(LAYOUT_NAMES)}")
-        for label in ("grpc_port", "web_port"):
-            object.__setattr__(self, label, check_flag("--" + label.replace("_", "-"), getattr(self, label)))
-        object.__setattr__(self, "memory_limit", parse_memory_limit(self.memory_limit))
+            raise OptionError(
+                "ViewerOptions.layout", f"unknown layout {self.layout!r}; available: {', '.join(LAYOUT_NAMES)}"
+            )
+        object.__setattr__(self, "grpc_port", check_field("ViewerOptions.grpc_port", self.grpc_port))
+        object.__setattr__(self, "web_port", check_field("ViewerOptions.web_port", self.web_port))
+        try:
+            object.__setattr__(
+                self, "memory_limit", parse_memory_limit(self.memory_limit, "ViewerOptions.memory_limit")
+            )
+        except ParameterError as e:
+            raise OptionError("ViewerOptions.memory_limit", str(e)) from None
         if self.serve and self.grpc_port == self.web_port:
-            raise ParameterError(f"--grpc-port and --web-port are both {self.grpc_port}; they must differ")
+            raise OptionError(
+                "ViewerOptions.web_port",
+                f"ViewerOptions.grpc_port and ViewerOptions.web_port are both {self.grpc_port}; they must differ",
+            )
 
     @property
     def watched(self) -> bool:
@@ -312,11 +337,11 @@ class ShowOptions:
 
     def __post_init__(self):
         if self.speed != "auto":
-            object.__setattr__(self, "speed", parse_speed(self.speed))
-        object.__setattr__(self, "event_window_ms", check_flag("--event-window-ms", self.event_window_ms))
-        object.__setattr__(self, "event_points", check_flag("--event-points", self.event_points))
+            object.__setattr__(self, "speed", parse_speed(self.speed, "ShowOptions.speed"))
+        object.__setattr__(self, "event_window_ms", check_field("ShowOptions.event_window_ms", self.event_window_ms))
+        object.__setattr__(self, "event_points", check_field("ShowOptions.event_points", self.event_points))
         if self.image_rate_hz is not None:
-            object.__setattr__(self, "image_rate_hz", check_flag("--image-rate", self.image_rate_hz))
+            object.__setattr__(self, "image_rate_hz", check_field("ShowOptions.image_rate_hz", self.image_rate_hz))
 
 
 @dataclass(frozen=True)
@@ -369,18 +394,21 @@ class ClipOptions:
 
     def __post_init__(self):
         if not str(self.folder):
-            raise ParameterError("--clips needs a folder")
-        object.__setattr__(self, "before_s", check_flag("--clip-before", self.before_s))
-        object.__setattr__(self, "after_s", check_flag("--clip-after", self.after_s))
-        object.__setattr__(self, "memory_mb", check_flag("--clip-memory", self.memory_mb))
+            raise OptionError("ClipOptions.folder", "ClipOptions.folder needs a folder")
+        object.__setattr__(self, "before_s", check_field("ClipOptions.before_s", self.before_s))
+        object.__setattr__(self, "after_s", check_field("ClipOptions.after_s", self.after_s))
+        object.__setattr__(self, "memory_mb", check_field("ClipOptions.memory_mb", self.memory_mb))
 
     def check(self) -> None:
         """The folder exists (created when missing, said in one line) and is writable; before anything starts."""
         from necviz.outputs import make_folder
 
-        folder = os.fspath(make_folder(self.folder, "--clips"))
+        try:
+            folder = os.fspath(make_folder(self.folder, "ClipOptions.folder"))
+        except ParameterError as e:
+            raise OptionError("ClipOptions.folder", str(e)) from None
         if not os.access(folder, os.W_OK):
-            raise ParameterError(f"--clips: folder {folder!r} is not writable")
+            raise OptionError("ClipOptions.folder", f"ClipOptions.folder: folder {folder!r} is not writable")
 
 
 @dataclass(frozen=True)
@@ -413,12 +441,15 @@ class VideoOptions:
 
     def __post_init__(self):
         if not str(self.path):
-            raise ParameterError("--video needs a file name")
+            raise OptionError("VideoOptions.path", "VideoOptions.path needs a file name")
         if self.speed is not None:
-            object.__setattr__(self, "speed", parse_speed(self.speed))
+            object.__setattr__(self, "speed", parse_speed(self.speed, "VideoOptions.speed"))
             if self.speed is None:
-                raise ParameterError("--speed for a video must be a number (0.1 is ten times slower than real time)")
-        object.__setattr__(self, "fps", check_flag("--video-fps", self.fps))
+                raise OptionError(
+                    "VideoOptions.speed",
+                    "VideoOptions.speed for a video must be a number (0.1 is ten times slower than real time)",
+                )
+        object.__setattr__(self, "fps", check_field("VideoOptions.fps", self.fps))
 
 
 @dataclass(frozen=True)
@@ -462,7 +493,7 @@ class DemoOptions:
     video: VideoOptions | None = None
 
     def __post_init__(self):
-        object.__setattr__(self, "controllers", parse_controllers(self.controllers))
+        object.__setattr__(self, "controllers", parse_controllers(self.controllers, "DemoOptions.controllers"))
 
 
 @dataclass(frozen=True)
@@ -516,24 +547,23 @@ class ReplayOptions:
 
     def __post_init__(self):
         if not str(self.file):
-            raise ParameterError("replay needs a recording file")
-        object.__setattr__(self, "controller", parse_controllers([self.controller])[0])
-        start_s, end_s, exposure_us = _check_reading(self.start_s, self.end_s, self.exposure_us)
-        object.__setattr__(self, "start_s", start_s)
-        object.__setattr__(self, "end_s", end_s)
-        object.__setattr__(self, "exposure_us", exposure_us)
+            raise OptionError("ReplayOptions.file", "replay needs a recording file (ReplayOptions.file)")
+        object.__setattr__(self, "controller", parse_controllers([self.controller], "ReplayOptions.controller")[0])
+        _check_reading(self, "ReplayOptions")
         if self.pipe_timeout_s is not None:
-            object.__setattr__(self, "pipe_timeout_s", check_flag("--pipe-timeout", self.pipe_timeout_s))
+            object.__setattr__(self, "pipe_timeout_s", check_field("ReplayOptions.pipe_timeout_s", self.pipe_timeout_s))
 
 
-def _check_reading(start_s, end_s, exposure_us) -> tuple[float | None, float | None, float | None]:
-    """``--start``/``--end``/``--exposure-us``, read the same way by replay and export (the flag table's rules)."""
-    start_s = None if start_s is None else check_flag("--start", start_s)
-    end_s = None if end_s is None else check_flag("--end", end_s)
+def _check_reading(options, owner: str) -> None:
+    """``start_s``/``end_s``/``exposure_us``, read the same way by replay and export (the flag table's rules)."""
+    start_s = None if options.start_s is None else check_field(f"{owner}.start_s", options.start_s)
+    end_s = None if options.end_s is None else check_field(f"{owner}.end_s", options.end_s)
     if start_s is not None and end_s is not None and end_s <= start_s:
-        raise ParameterError(f"--end ({end_s} s) must come after --start ({start_s} s)")
-    exposure_us = None if exposure_us is None else check_flag("--exposure-us", exposure_us)
-    return start_s, end_s, exposure_us
+        raise OptionError(f"{owner}.end_s", f"{owner}.end_s ({end_s} s) must come after {owner}.start_s ({start_s} s)")
+    exposure_us = None if options.exposure_us is None else check_field(f"{owner}.exposure_us", options.exposure_us)
+    object.__setattr__(options, "start_s", start_s)
+    object.__setattr__(options, "end_s", end_s)
+    object.__setattr__(options, "exposure_us", exposure_us)
 
 
 @dataclass(frozen=True)
@@ -568,6 +598,7 @@ class ExportOptions:
 
     file: str | os.PathLike = ""
     out_path: str | os.PathLike = ""
+    _: KW_ONLY
     start_s: float | None = None
     end_s: float | None = None
     exposure_us: float | None = None
@@ -578,15 +609,16 @@ class ExportOptions:
 
     def __post_init__(self):
         if self.pipe_timeout_s is not None:
-            object.__setattr__(self, "pipe_timeout_s", check_flag("--pipe-timeout", self.pipe_timeout_s))
+            object.__setattr__(self, "pipe_timeout_s", check_field("ExportOptions.pipe_timeout_s", self.pipe_timeout_s))
         if self.compression is not None and self.compression not in ("lz4", "zstd", "none"):
-            raise ParameterError(f"--compression must be lz4, zstd or none, got {self.compression!r}")
+            raise OptionError(
+                "ExportOptions.compression",
+                f"ExportOptions.compression must be lz4, zstd or none, got {self.compression!r}",
+            )
         if not str(self.file) or not str(self.out_path):
-            raise ParameterError("export needs a recording and an output file")
-        start_s, end_s, exposure_us = _check_reading(self.start_s, self.end_s, self.exposure_us)
-        object.__setattr__(self, "start_s", start_s)
-        object.__setattr__(self, "end_s", end_s)
-        object.__setattr__(self, "exposure_us", exposure_us)
+            field = "ExportOptions.file" if not str(self.file) else "ExportOptions.out_path"
+            raise OptionError(field, "export needs a recording and an output file (ExportOptions.file, .out_path)")
+        _check_reading(self, "ExportOptions")
 
 
 @dataclass(frozen=True)
@@ -651,13 +683,20 @@ class LiveOptions:
 
     def __post_init__(self):
         if self.device not in ("usb", "dv", "emulated"):
-            raise ParameterError(f"--device must be usb, dv or emulated, got {self.device!r}")
-        object.__setattr__(self, "controller", parse_controllers([self.controller])[0])
+            raise OptionError(
+                "LiveOptions.device", f"LiveOptions.device must be usb, dv or emulated, got {self.device!r}"
+            )
+        object.__setattr__(self, "controller", parse_controllers([self.controller], "LiveOptions.controller")[0])
         if self.duration_s is not None:
-            object.__setattr__(self, "duration_s", check_flag("--duration", self.duration_s, "live"))
+            object.__setattr__(self, "duration_s", check_field("LiveOptions.duration_s", self.duration_s, "live"))
         if self.emulate_unplug_s is not None:
-            object.__setattr__(self, "emulate_unplug_s", check_flag("--emulate-unplug", self.emulate_unplug_s))
-        object.__setattr__(self, "history", check_number("history", self.history, 1, integer=True))
+            object.__setattr__(
+                self, "emulate_unplug_s", check_field("LiveOptions.emulate_unplug_s", self.emulate_unplug_s)
+            )
+        try:
+            object.__setattr__(self, "history", check_number("LiveOptions.history", self.history, 1, integer=True))
+        except ParameterError as e:
+            raise OptionError("LiveOptions.history", str(e)) from None
 
 
 @dataclass(frozen=True)
@@ -707,10 +746,10 @@ class CompareOptions:
     markers: bool = False  # detect the scene's fiducial markers on every frame (--markers)
 
     def __post_init__(self):
-        object.__setattr__(self, "controllers", parse_controllers(self.controllers))
-        object.__setattr__(self, "seeds", check_flag("--seeds", self.seeds))
+        object.__setattr__(self, "controllers", parse_controllers(self.controllers, "CompareOptions.controllers"))
+        object.__setattr__(self, "seeds", check_field("CompareOptions.seeds", self.seeds))
         object.__setattr__(self, "controller_params", {k: dict(v) for k, v in (self.controller_params or {}).items()})
-        check_param_lanes(self.controller_params, self.controllers)
+        check_param_lanes(self.controller_params, self.controllers, "CompareOptions.controller_params")
         object.__setattr__(self, "sim", dict(self.sim or {}))
 
 

@@ -266,9 +266,9 @@ def run_spec(spec: dict, threads: bool | None = None) -> dict:
         raise ParameterError(f"unknown run key(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(SPEC_KEYS))}")
     scene = SceneOptions(
         spec.get("scenario", "tunnel_exit"),
-        spec.get("seed"),
-        spec.get("duration_s"),
-        dict(spec.get("scenario_params") or {}),
+        seed=spec.get("seed"),
+        duration_s=spec.get("duration_s"),
+        params=dict(spec.get("scenario_params") or {}),
     )
     profile = spec.get("profile")
     if isinstance(profile, dict):

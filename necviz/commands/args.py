@@ -73,7 +73,7 @@ def scene_options(args, duration_s=None, *, scene_duration: bool = True):
 
     params = dict(parse_setting(s) for s in args.set)
     duration = getattr(args, "duration", duration_s) if scene_duration else None
-    return SceneOptions(args.scenario, args.seed, duration, params)
+    return SceneOptions(args.scenario, seed=args.seed, duration_s=duration, params=params)
 
 
 def add_show_args(parser, tuning: bool = True) -> None:

@@ -101,8 +101,10 @@ def _main(argv: list[str] | None = None) -> int:
     _terminate_as_interrupt()
     try:
         return int(args.func(args) or 0)
-    except NecvizError as e:
-        print(f"necviz: error: {_one_line(e)}", file=sys.stderr)
+    except NecvizError as e:  # an option object names its field; the user sees the flag (necviz.flags)
+        from necviz.flags import in_flag_terms
+
+        print(f"necviz: error: {' '.join(in_flag_terms(e).split()) or type(e).__name__}", file=sys.stderr)
         return EXIT_USER
     except KeyboardInterrupt:
         print("necviz: interrupted", file=sys.stderr)

@@ -76,7 +76,9 @@ def show(out, run: str, viewer=None, speed="auto", stream=...) -> dict:
         from necviz.profiles import load_profile
 
         profile = load_profile(profile)
-    sc = SceneOptions(scen, spec.get("seed"), spec.get("duration_s"), dict(spec.get("scenario_params") or {}))
+    sc = SceneOptions(
+        scen, seed=spec.get("seed"), duration_s=spec.get("duration_s"), params=dict(spec.get("scenario_params") or {})
+    )
     names = list(spec["controllers"])
     scene, rig, lanes, limits = build_rig(sc, names, profile, spec.get("controller_params"), spec.get("sim"))
     props = {
