@@ -58,7 +58,7 @@ def parse_controllers(text, field: str = "controllers") -> tuple[str, ...]:
     if not names or unknown:
         raise OptionError(
             field,
-            f"unknown controller(s) {', '.join(unknown) or '(none given)'}; "
+            f"{field}: unknown controller(s) {', '.join(unknown) or '(none given)'}; "
             f"available: {', '.join(sorted(CONTROLLERS))} (a variant: KIND@LABEL)",
         )
     if len(set(names)) != len(names):
@@ -285,7 +285,8 @@ class ViewerOptions:
             )
         if self.layout is not None and self.layout not in LAYOUT_NAMES:
             raise OptionError(
-                "ViewerOptions.layout", f"unknown layout {self.layout!r}; available: {', '.join(LAYOUT_NAMES)}"
+                "ViewerOptions.layout",
+                f"ViewerOptions.layout: unknown layout {self.layout!r}; available: {', '.join(LAYOUT_NAMES)}",
             )
         object.__setattr__(self, "grpc_port", check_field("ViewerOptions.grpc_port", self.grpc_port))
         object.__setattr__(self, "web_port", check_field("ViewerOptions.web_port", self.web_port))
@@ -362,6 +363,14 @@ class TuneOptions:
     prompt: bool = True
     file: str | os.PathLike | None = None
     dvs: tuple = ()
+
+    def __post_init__(self):
+        from necviz.dvs_controls import check_assignments
+
+        try:  # nonsense is refused here; whether the camera can reach a value, when it is applied
+            check_assignments(f"{k}={v}" for k, v in self.dvs)
+        except (ParameterError, TypeError, ValueError) as e:
+            raise OptionError("TuneOptions.dvs", f"TuneOptions.dvs: {e}") from None
 
 
 @dataclass(frozen=True)
@@ -547,7 +556,7 @@ class ReplayOptions:
 
     def __post_init__(self):
         if not str(self.file):
-            raise OptionError("ReplayOptions.file", "replay needs a recording file (ReplayOptions.file)")
+            raise OptionError("ReplayOptions.file", "ReplayOptions.file is empty: replay needs a recording file")
         object.__setattr__(self, "controller", parse_controllers([self.controller], "ReplayOptions.controller")[0])
         _check_reading(self, "ReplayOptions")
         if self.pipe_timeout_s is not None:
@@ -617,7 +626,7 @@ class ExportOptions:
             )
         if not str(self.file) or not str(self.out_path):
             field = "ExportOptions.file" if not str(self.file) else "ExportOptions.out_path"
-            raise OptionError(field, "export needs a recording and an output file (ExportOptions.file, .out_path)")
+            raise OptionError(field, f"{field} is empty: export needs a recording and an output file")
         _check_reading(self, "ExportOptions")
 
 

@@ -205,9 +205,10 @@ def tune_options(args):
 
     if args.tune_file and not Path(args.tune_file).is_file():
         raise ParameterError(f"--tune-file: {args.tune_file!r} is not a file")
-    from necviz.dvs_controls import check_assignments
+    from necviz.dvs_controls import parse_assignment
 
-    return TuneOptions(prompt=not args.no_prompt, file=args.tune_file, dvs=check_assignments(args.dvs))
+    dvs = tuple(parse_assignment(item) for item in args.dvs)  # TuneOptions checks the values
+    return TuneOptions(prompt=not args.no_prompt, file=args.tune_file, dvs=dvs)
 
 
 def add_output_args(parser, json_help: str = "write the results as JSON", force_help="replace an existing --json file"):
