@@ -35,19 +35,6 @@ if TYPE_CHECKING:
     from necviz.options import DemoOptions, ViewerOptions
 
 
-def _observers(options: DemoOptions, video) -> list:
-    out = []
-    if options.clips is not None:
-        from necviz.dashboard.flight_recorder import clip_observer
-
-        out.append(clip_observer(options.clips))
-    if video is not None:
-        from necviz.dashboard.video import video_observer
-
-        out.append(video_observer(video))
-    return out
-
-
 def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None, out=..., stdin=None) -> dict:
     """Run the demo: every controller drives its own simulated camera through one scene, side by side.
 
@@ -92,13 +79,17 @@ def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None,
         profile=options.profile,
     )  # before anything starts
     show = options.show
-    video_options = options.video
-    if video_options is not None:  # only files: the run goes as fast as it can, the video keeps its own pace
-        from necviz.dashboard.video import plan
+    observers = []  # the command's own: the video writer, the flight recorder (made when the run starts)
+    if options.video is not None:  # only files: the run goes as fast as it can, the video keeps its own pace
+        from necviz.dashboard.video import plan, video_observer
 
-        show, video_options = plan(show, video_options, viewer)
+        show, video_options = plan(show, options.video, viewer)
+        observers.append(video_observer(video_options))
     if options.clips is not None:
+        from necviz.dashboard.flight_recorder import clip_observer
+
         options.clips.check()
+        observers.insert(0, clip_observer(options.clips))
     sc = options.scene
     # a demo is replayed: its scene and events come from the scene cache from the second run on
     scene, rig, lanes, limits = build_rig(sc, options.controllers, profile, cache=SceneCache.default())
@@ -136,7 +127,7 @@ def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None,
             record_camera=lanes[0].camera or lanes[0].name,
             lossless=True,
             expected_duration_s=props["duration_s"],
-            observers=_observers(options, video_options),
+            observers=observers,
         ),
         out,
         stdin,
