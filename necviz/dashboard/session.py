@@ -29,11 +29,56 @@ from necviz.layouts import style_series
 from necviz.memory import bound_heap_retention
 from necviz.options import ShowOptions, TuneOptions, ViewerOptions
 from necviz.outputs import Output, OutputError, low_space
-from necviz.pace import SETTLE_S, PaceWatch, achieved_speed, pace_note
-from necviz.pipeline import Lane, Pipeline, RecorderObserver
+from necviz.pipeline import Lane, Observer, Pipeline, RecorderObserver
 from necviz.progress import LiveLine, output, plural
 from necviz.reaction import reaction_line
 from necviz.telemetry import Telemetry
+
+# -- pace: did a paced run keep the speed it was asked for? ------------------------------------------
+# A run asked for ``--speed 1`` (or watched in a viewer) feeds packets at real-time pace; on a busy machine
+# it may not keep up, and then its latency and recovery times are not real-time figures. PaceWatch notes
+# the wall time of the first packet (when the pipeline's pacing clock starts; compilation before it does
+# not count), and pace_note says, in one phrase, how fast the run actually went when that was below what
+# was asked.
+
+#: Below this fraction of the asked speed a run is said to have fallen behind.
+BEHIND = 0.9
+#: Wall seconds before a running figure is shown (the first second is mostly start-up jitter).
+SETTLE_S = 2.0
+
+
+class PaceWatch(Observer):
+    """Wall time since the run's first packet (``started``); ``None`` before it."""
+
+    name = "pace"
+
+    def __init__(self) -> None:
+        self.wall0: float | None = None
+
+    def started(self, t_us: int, initial: dict) -> None:
+        self.wall0 = time.perf_counter()
+
+    def wall_s(self) -> float | None:
+        return None if self.wall0 is None else time.perf_counter() - self.wall0
+
+
+def achieved_speed(sensor_s: float, wall_s: float | None, settle_s: float = 0.0) -> float | None:
+    """Sensor seconds per wall second (1 = real time); None before ``settle_s`` of wall time or any sensor time."""
+    if wall_s is None or wall_s <= settle_s or wall_s <= 0 or sensor_s <= 0:
+        return None
+    return sensor_s / wall_s
+
+
+def pace_note(asked: float | None, sensor_s: float, wall_s: float | None, settle_s: float = 0.0) -> str | None:
+    """``"ran at 0.63x real time: latency and recovery are not real-time figures"`` when a paced
+    run (``asked``: its speed, None = as fast as possible) went below :data:`BEHIND` of it; else None
+    (also before ``settle_s`` wall seconds: a running line waits :data:`SETTLE_S`)."""
+    got = achieved_speed(sensor_s, wall_s, settle_s)
+    if asked is None or got is None or got >= BEHIND * asked:
+        return None
+    if asked == 1:
+        return f"ran at {got:.2f}x real time: latency and recovery are not real-time figures"
+    return f"ran at {got:.2f}x real time, not the {asked:g}x asked: latency and recovery are not paced figures"
 
 
 @dataclass(kw_only=True)
@@ -198,7 +243,7 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
     if speed == "auto":
         speed = 1.0 if ss.viewer.watched else None
     observers = _observers(ss, viewer, speed, out)
-    pace = PaceWatch()  # a paced run that cannot keep its speed says so (necviz/pace.py)
+    pace = PaceWatch()  # a paced run that cannot keep its speed says so (pace_note)
     observers.append(pace)
     pipe = Pipeline(
         ss.source,
@@ -235,8 +280,8 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
     sensor_s = ((pipe.now_us or 0) - (pipe.first_us or 0)) / 1e6
     stats["speed"] = speed
     stats["achieved_speed"] = achieved_speed(sensor_s, pace_wall)
-    print_summary(out, stats)
     behind = pace_note(speed, sensor_s, pace_wall)
+    print_summary(out, stats)
     if behind and out is not None:
         print(f"  {behind}", file=out)
     stats["rrd"] = str(viewer.save_path) if viewer.save_path is not None else None
