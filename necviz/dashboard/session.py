@@ -32,7 +32,6 @@ from necviz.outputs import Output, OutputError, low_space
 from necviz.pipeline import Lane, Observer, Pipeline, RecorderObserver
 from necviz.progress import LiveLine, output, plural
 from necviz.reaction import reaction_line
-from necviz.telemetry import Telemetry
 
 # -- pace: did a paced run keep the speed it was asked for? ------------------------------------------
 # A run asked for ``--speed 1`` (or watched in a viewer) feeds packets at real-time pace; on a busy machine
@@ -248,7 +247,7 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
     pipe = Pipeline(
         ss.source,
         ss.lanes,
-        telemetry=Telemetry([lane.name for lane in ss.lanes], history=ss.history),
+        history=ss.history,
         observers=observers,
         speed=speed,
         stop_after_s=ss.stop_after_s,
