@@ -237,11 +237,16 @@ def lane_labels(lanes) -> dict[str, str]:
 def _run(ss: Session, out, stdin, outputs: list) -> dict:
     """Open the viewer, run the loop with its observers until the source ends (or Ctrl-C, a full disk, a
     failed output), and summarise."""
-    viewer = _open(ss, out, outputs)
     speed = ss.show.speed
     if speed == "auto":
         speed = 1.0 if ss.viewer.watched else None
-    observers = _observers(ss, viewer, speed, out)
+    viewer, sink = _open(ss, out, outputs, speed)
+    observers = [sink]  # then the native recorder (--record), the command's own, the pace watch
+    if ss.recorder is not None:
+        cam = ss.record_camera or ss.lanes[0].camera or ss.lanes[0].name
+        driver = next((ln.name for ln in ss.lanes if ln.drives and (ln.camera or ln.name) == cam), cam)
+        observers.append(RecorderObserver(ss.recorder, cam, driver))
+    observers += [make(ss, ss.layout, out) for make in ss.observers]
     pace = PaceWatch()  # a paced run that cannot keep its speed says so (pace_note)
     observers.append(pace)
     pipe = Pipeline(
@@ -288,25 +293,13 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
     return stats, viewer
 
 
-def _open(ss: Session, out, outputs: list):
-    """Open the viewer with the command's blueprint (``rr.script_setup``'s part) and log the run's
-    properties and series styles; its ``--save`` file joins ``outputs``."""
-    viewer = open_viewer(ss.viewer, ss.blueprint, ss.title, keep_partial=ss.keep_partial)
-    if viewer.output is not None:  # the --save file: committed or discarded with the run
-        outputs.append(viewer)
-    for m in viewer.messages:
-        print(f"  {m}", file=out)
-    rec = viewer.rec
-    rec.send_property("run", rr.AnyValues(**{k: text(val) for k, val in ss.properties.items()}, layout=ss.layout))
-    style_series(rec, [lane.name for lane in ss.lanes], lane_labels(ss.lanes))
-    return viewer
-
-
-def _observers(ss: Session, viewer, speed, out) -> list:
-    """The run's observers: the Rerun sink, the native recorder (``--record``), the command's own."""
+def _open(ss: Session, out, outputs: list, speed):
+    """Open the viewer with the command's blueprint (``rr.script_setup``'s part), log the run's properties
+    and series styles, and make the Rerun sink that logs the run into it; the ``--save`` file joins
+    ``outputs``. Returns ``(viewer, sink)``."""
     v = ss.viewer
     names = [lane.name for lane in ss.lanes]
-    sensor = ss.source.sensor
+    labels = lane_labels(ss.lanes)
     lossless = ss.lossless and speed is None and not v.watched
     # a live session only saved to a file: series in 2 s chunks (Rerun's file sink indexes every chunk)
     flush = FILE_FLUSH_S if not (lossless or v.watched) else None
@@ -318,15 +311,19 @@ def _observers(ss: Session, viewer, speed, out) -> list:
         flush_period_s=flush,
         image_period_us=0 if ss.show.image_rate_hz is None else int(round(1e6 / ss.show.image_rate_hz)),
     )
-    sink = RerunSink(viewer.rec, names, sensor.height, sensor.width, sink_options)
+    viewer = open_viewer(v, ss.blueprint, ss.title, keep_partial=ss.keep_partial)
+    if viewer.output is not None:  # the --save file: committed or discarded with the run
+        outputs.append(viewer)
+    for m in viewer.messages:
+        print(f"  {m}", file=out)
+    rec = viewer.rec
+    rec.send_property("run", rr.AnyValues(**{k: text(val) for k, val in ss.properties.items()}, layout=ss.layout))
+    style_series(rec, names, labels)
+    sensor = ss.source.sensor
+    sink = RerunSink(rec, names, sensor.height, sensor.width, sink_options)
     sink.files = viewer.files
     sink.rotate = viewer.rotate
-    recorders = []
-    if ss.recorder is not None:
-        cam = ss.record_camera or ss.lanes[0].camera or ss.lanes[0].name
-        driver = next((ln.name for ln in ss.lanes if ln.drives and (ln.camera or ln.name) == cam), cam)
-        recorders = [RecorderObserver(ss.recorder, cam, driver)]
-    return [sink, *recorders, *(make(ss, ss.layout, out) for make in ss.observers)]
+    return viewer, sink
 
 
 def _watch(ss: Session, pipe: Pipeline, viewer, files: list, out, stdin, pace: PaceWatch, speed):
