@@ -23,6 +23,7 @@ growing and fails with one line instead.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import socket
 import subprocess
@@ -425,43 +426,40 @@ def _open(options: ViewerOptions, blueprint, name, messages, keep_partial: bool 
     sinks = []
     url = server = None
     port = options.grpc_port
-    if options.serve:
-        server, uri, url = start_web_server(options)
-        sinks.append(rr.GrpcSink(uri))
-        port = options.grpc_port + 1  # a spawned native viewer takes the next port
-        if options.bind not in LOOPBACK:
-            messages.append(f"warning: serving on {options.bind}: anyone who can reach this machine can watch")
-        messages.append(f"web viewer: {url}")
-    if options.spawn:
-        rr.spawn(port=port, connect=False, memory_limit=options.memory_limit, hide_welcome_screen=True)
-        sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{port}/proxy"))
-        messages.append("streaming to a native viewer")
-    if options.connect:
-        sinks.append(rr.GrpcSink(options.connect))
-        messages.append(f"streaming to {options.connect}")
-    output = segments = None
-    others = list(sinks)
-    if options.save:
-        output = StreamedOutput(options.save, keep_partial=keep_partial, flag="--save")
-        segments = SegmentedFile(output.target, blueprint, "necviz")  # the blueprint beside, joined in at the end
-        if others:  # the viewers get the blueprint; the file, never (rrd_file's docstring)
-            rec.set_sinks(*others, default_blueprint=blueprint)
-        sinks.append(segments.sink())
-        if not any(m.startswith("saving to") for m in messages):
-            messages.append(f"saving to {options.save} (open it with: rerun {options.save})")
-    try:
+    with contextlib.ExitStack() as undo:  # if the viewer cannot be opened: the server stopped, the file removed
+        if options.serve:
+            server, uri, url = start_web_server(options)
+            undo.callback(stop_process_group, server)
+            sinks.append(rr.GrpcSink(uri))
+            port = options.grpc_port + 1  # a spawned native viewer takes the next port
+            if options.bind not in LOOPBACK:
+                messages.append(f"warning: serving on {options.bind}: anyone who can reach this machine can watch")
+            messages.append(f"web viewer: {url}")
+        if options.spawn:
+            rr.spawn(port=port, connect=False, memory_limit=options.memory_limit, hide_welcome_screen=True)
+            sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{port}/proxy"))
+            messages.append("streaming to a native viewer")
+        if options.connect:
+            sinks.append(rr.GrpcSink(options.connect))
+            messages.append(f"streaming to {options.connect}")
+        output = segments = None
+        others = list(sinks)
+        if options.save:
+            output = StreamedOutput(options.save, keep_partial=keep_partial, flag="--save")
+            undo.callback(output.discard)
+            segments = SegmentedFile(output.target, blueprint, "necviz")  # the blueprint beside, joined in at the end
+            undo.callback(segments.discard)
+            if others:  # the viewers get the blueprint; the file, never (rrd_file's docstring)
+                rec.set_sinks(*others, default_blueprint=blueprint)
+            sinks.append(segments.sink())
+            if not any(m.startswith("saving to") for m in messages):
+                messages.append(f"saving to {options.save} (open it with: rerun {options.save})")
         if segments is not None:
             rec.set_sinks(*sinks)
         else:
             rec.set_sinks(*sinks, default_blueprint=blueprint)
         rec.send_recording_name(name)
-    except BaseException:
-        if server is not None:
-            stop_process_group(server)
-        if output is not None:
-            segments.discard()
-            output.discard()
-        raise
+        undo.pop_all()  # opened: the run owns the server and the file from here
     return Viewer(
         rec, messages, Path(options.save) if options.save else None, url, server, output, None, segments, others
     )
