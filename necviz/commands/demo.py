@@ -92,7 +92,8 @@ def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None,
         observers.insert(0, clip_observer(options.clips))
     sc = options.scene
     # a demo is replayed: its scene and events come from the scene cache from the second run on
-    scene, rig, lanes, limits = build_rig(sc, options.controllers, profile, cache=SceneCache.default())
+    scene = sc.build()
+    scene, rig, lanes, limits = build_rig(scene, options.controllers, profile, cache=SceneCache.default())
     props = {
         "command": "demo",
         "scenario": sc.name,

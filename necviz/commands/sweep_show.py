@@ -53,7 +53,7 @@ def show(out, run: str, viewer=None, speed="auto", stream=...) -> dict:
     from necviz.dashboard import session as dashboard
     from necviz.dashboard.session import Session, lane_labels, preflight
     from necviz.layouts import make_blueprint
-    from necviz.options import SceneOptions, ShowOptions, ViewerOptions
+    from necviz.options import SceneOptions, ShowOptions, ViewerOptions, check_param_lanes
     from necviz.runs import build_rig
 
     stream = sys.stdout if stream is ... else stream
@@ -80,7 +80,8 @@ def show(out, run: str, viewer=None, speed="auto", stream=...) -> dict:
         scen, seed=spec.get("seed"), duration_s=spec.get("duration_s"), params=dict(spec.get("scenario_params") or {})
     )
     names = list(spec["controllers"])
-    scene, rig, lanes, limits = build_rig(sc, names, profile, spec.get("controller_params"), spec.get("sim"))
+    check_param_lanes(spec.get("controller_params"), names)
+    scene, rig, lanes, limits = build_rig(sc.build(), names, profile, spec.get("controller_params"), spec.get("sim"))
     props = {
         "command": "sweep show",
         "run": h,
