@@ -135,6 +135,7 @@ class StderrTrap:
     _lock = threading.Lock()
 
     def __init__(self):
+        self._file = None  # the temporary file where memfd_create is missing
         try:
             self._fd = os.memfd_create("necviz-stderr", 0)
         except (AttributeError, OSError):
@@ -181,7 +182,7 @@ class StderrTrap:
         """Release the trap's file (idempotent); later calls run untrapped."""
         if self._fd is None:
             return
-        if getattr(self, "_file", None) is not None:
+        if self._file is not None:
             self._file.close()
         else:
             os.close(self._fd)
