@@ -66,13 +66,13 @@ def add_scene_args(parser, emulated: bool = False) -> None:
     )
 
 
-def scene_options(args, duration_s=None, *, scene_duration: bool = True):
+def scene_options(args, *, scene_duration: bool = True):
     """The scene flags as :class:`SceneOptions`; ``scene_duration=False`` (``live``): ``--duration`` is the
     session's length, not the simulated scene's (an emulated camera streams as long as the session)."""
     from necviz.options import SceneOptions, parse_setting
 
     params = dict(parse_setting(s) for s in args.set)
-    duration = getattr(args, "duration", duration_s) if scene_duration else None
+    duration = args.duration if scene_duration else None
     return SceneOptions(args.scenario, seed=args.seed, duration_s=duration, params=params)
 
 
@@ -148,8 +148,8 @@ def add_clip_args(parser) -> None:
 
 def clip_options(args):
     bounds = {"--clip-before": "clip_before", "--clip-after": "clip_after", "--clip-memory": "clip_memory"}
-    given = {flag: getattr(args, k, None) for flag, k in bounds.items() if getattr(args, k, None) is not None}
-    if not getattr(args, "clips", None):
+    given = {flag: vars(args)[k] for flag, k in bounds.items() if vars(args)[k] is not None}
+    if not args.clips:
         if given:
             from necviz.core.errors import ParameterError
 
@@ -178,7 +178,7 @@ def add_video_args(parser) -> None:
 
 
 def video_options(args):
-    if not getattr(args, "video", None):
+    if not args.video:
         return None
     from necviz.options import VideoOptions
 
@@ -193,7 +193,7 @@ def show_options(args):
         args.speed,
         event_window_ms=args.event_window_ms,
         event_points=args.event_points,
-        image_rate_hz=getattr(args, "image_rate", None),
+        image_rate_hz=args.image_rate,
     )
 
 
