@@ -60,7 +60,6 @@ def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None,
         Bad options or output files (an output that exists without ``force``, or is an input).
     """
     from necviz.dashboard import session as dashboard
-    from necviz.dashboard.recorders import open_recorder
     from necviz.dashboard.session import Session, lane_labels, preflight, scene_inputs
     from necviz.drivers.sim.scene_cache import SceneCache
     from necviz.layouts import make_blueprint
@@ -104,9 +103,6 @@ def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None,
         "camera_limits": limits,
         "camera_profile": str(options.profile) if options.profile else "default DAVIS346 response",
     }
-    recorder = None
-    if options.record is not None:
-        recorder = open_recorder(options.record, rig.sensor, {**props, "recorded_lane": lanes[0].name})
     print(f"  demo: {sc.name}, {', '.join(ln.name for ln in lanes)} ({props['duration_s']:g} s simulated)", file=out)
     layout = viewer.layout or "compare"
     blueprint = make_blueprint(
@@ -124,7 +120,8 @@ def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None,
             properties=props,
             show=show,
             tune=options.tune,
-            recorder=recorder,
+            record=options.record,
+            record_properties={**props, "recorded_lane": lanes[0].name},
             record_camera=lanes[0].camera or lanes[0].name,
             lossless=True,
             expected_duration_s=props["duration_s"],

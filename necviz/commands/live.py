@@ -75,7 +75,6 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     from necviz.core.control import make_controller
     from necviz.dashboard import session as dashboard
     from necviz.dashboard.flight_recorder import clip_observer
-    from necviz.dashboard.recorders import open_recorder
     from necviz.dashboard.session import Session, lane_labels, preflight, scene_inputs
     from necviz.layouts import make_blueprint
     from necviz.options import LiveOptions
@@ -159,19 +158,13 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
         "camera_profile": str(options.profile) if options.profile else "default DAVIS346 response",
         **({"scenario": options.scene.name} if options.device == "emulated" else {}),
     }
-    recorder = None
-    try:
-        if options.record is not None:  # a camera session cannot be recorded again: kept if it fails
-            recorder = open_recorder(options.record, sensor, props, keep_partial=True)
-    except BaseException:
-        camera.close()
-        raise
     print(
         f"  live: {sensor.name or 'DAVIS'} {info.get('serial', '')} ({options.device}), {options.controller} drives "
         f"the exposure ({limits.exposure_min_us:g}..{limits.exposure_max_us:g} µs, digital gain ≤ "
         f"{limits.gain_max:g})",
         file=out,
     )
+    record_props = dict(props)  # the recording's properties, as the camera was opened
     props["speed"] = "max" if speed is None else speed
 
     def write_summary(stats):  # before the recordings are committed: a file that cannot be written fails the run
@@ -186,7 +179,8 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
         properties=props,
         show=options.show,
         tune=options.tune,
-        recorder=recorder,
+        record=options.record,  # a camera session cannot be recorded again: kept if it fails (keep_partial)
+        record_properties=record_props,
         record_camera=LANE,
         lossless=False,
         history=options.history,

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 import rerun as rr
 import rerun.blueprint as rrb
 
-from necviz.dashboard.recorders import RecordingFile
+from necviz.dashboard.recorders import RecordingFile, open_recorder
 from necviz.dashboard.sink import RerunSink, SinkOptions
 from necviz.dashboard.tuning import TuningConsole, TuningFile
 from necviz.dashboard.viewer import FILE_FLUSH_S, open_viewer, text
@@ -28,7 +28,7 @@ from necviz.drivers.source import Source
 from necviz.layouts import style_series
 from necviz.memory import bound_heap_retention
 from necviz.options import ShowOptions, TuneOptions, ViewerOptions
-from necviz.outputs import Output, OutputError, low_space
+from necviz.outputs import Output, OutputError, StreamedOutput, low_space
 from necviz.pipeline import Lane, Observer, Pipeline, RecorderObserver
 from necviz.progress import LiveLine, output, plural
 from necviz.reaction import reaction_line
@@ -85,8 +85,10 @@ class Session:
     """One dashboard run: a source, its lanes and how to show them.
 
     ``layout``: the name of ``blueprint``'s layout (the run's properties, a clip's own layout).
-    ``recorder``: a native :class:`~necviz.drivers.recordings.native.Recorder` keeping ``record_camera``
-    (default: the first lane's camera). ``lossless``: keep every frame and event image when the
+    ``record``: a native recording (``.necrec``, :class:`~necviz.dashboard.recorders.RecordingFile`) of
+    ``record_camera`` (default: the first lane's camera) storing ``record_properties`` (default:
+    ``properties``); the run opens it beside the viewer's ``--save`` file (``recorder``) and commits or
+    discards both with the run. ``lossless``: keep every frame and event image when the
     run is not paced (a simulation or replay into a file). ``history``: frames of per-frame
     telemetry kept per lane (``None``: all). ``origin_us``: sensor time shown as 0.
     ``keep_partial``: if the run fails, keep what the output files hold (a camera session, which
@@ -104,7 +106,8 @@ class Session:
     blueprint: rrb.Blueprint | None = None
     show: ShowOptions = field(default_factory=ShowOptions)
     tune: TuneOptions | None = None
-    recorder: RecordingFile | None = None  # the native recorder (--record)
+    record: str | os.PathLike | None = None  # the native recording (--record)
+    record_properties: dict | None = None
     record_camera: str | None = None
     lossless: bool = True
     history: int | None = None
@@ -115,6 +118,8 @@ class Session:
     observers: list = field(default_factory=list)
     keep_partial: bool = False
     before_commit: object = None  # callable(stats): last step of a run (e.g. write --json); raising fails it
+    #: the native recorder of ``record``, opened by the run with the other outputs (:func:`run_session`)
+    recorder: RecordingFile | None = field(default=None, init=False)
 
 
 def scene_inputs(scene, tune=None) -> list:
@@ -179,9 +184,7 @@ def run_session(session: Session, out=..., stdin=None) -> dict:
 
     out = output(out)
     bound_heap_retention()  # a burst of events must not stay resident for the rest of a long session
-    outputs: list[Output] = []  # what to commit or discard: the recorder, the viewer's --save file
-    if session.recorder is not None:
-        outputs.append(session.recorder)
+    outputs: list[Output] = []  # what to commit or discard: the recorder, the viewer's --save file (_open)
     try:
         stats, viewer = _run(session, out, stdin, outputs)
         if session.before_commit is not None:
@@ -311,7 +314,14 @@ def _open(ss: Session, out, outputs: list, speed):
         flush_period_s=flush,
         image_period_us=0 if ss.show.image_rate_hz is None else int(round(1e6 / ss.show.image_rate_hz)),
     )
-    viewer = open_viewer(v, ss.blueprint, ss.title, keep_partial=ss.keep_partial)
+    # the outputs, made together: the native recording (--record), then the viewer's --save file; each is
+    # committed or discarded with the run from the moment it exists
+    if ss.record is not None:
+        props = ss.record_properties if ss.record_properties is not None else ss.properties
+        ss.recorder = open_recorder(ss.record, ss.source.sensor, props, keep_partial=ss.keep_partial)
+        outputs.append(ss.recorder)
+    save = StreamedOutput(v.save, keep_partial=ss.keep_partial, flag="--save") if v.save else None
+    viewer = open_viewer(v, ss.blueprint, ss.title, output=save)
     if viewer.output is not None:  # the --save file: committed or discarded with the run
         outputs.append(viewer)
     for m in viewer.messages:

@@ -243,17 +243,19 @@ def stop_process_group(proc: subprocess.Popen, timeout_s: float = 5.0) -> None:
             continue
 
 
-def open_viewer(options: ViewerOptions, blueprint, name: str, *, keep_partial: bool = False) -> Viewer:
+def open_viewer(options: ViewerOptions, blueprint, name: str, *, output: StreamedOutput | None = None) -> Viewer:
     """Create the recording ``name`` and attach the sinks ``options`` (already :func:`resolve` d) ask for,
     the viewers laid out by ``blueprint``.
 
-    ``keep_partial``: if the run fails, keep what the ``--save`` file holds (a camera session that
-    cannot be produced again) instead of deleting it."""
+    ``output``: the ``--save`` file the caller made for ``options.save`` (a
+    :class:`~necviz.outputs.StreamedOutput`, whose ``keep_partial`` says whether a failed run keeps what it
+    holds); discarded here if the viewer cannot be opened."""
+    assert (output is not None) == bool(options.save and not options.notebook), "open_viewer: output is options.save's"
     messages: list[str] = []
     if options.save is not None and not options.watched and not has_display():
         messages.append(f"saving to {options.save} (open it with: rerun {options.save})")
     try:
-        return _open(options, blueprint, name, messages, keep_partial)
+        return _open(options, blueprint, name, messages, output)
     except RuntimeError as e:  # Rerun reports bad URLs, ports and memory limits this way
         raise ParameterError(f"viewer: {e}") from None
 
@@ -415,7 +417,7 @@ def _open_notebook(blueprint, name, messages) -> Viewer:
     return Viewer(rec, messages, notebook=widget)
 
 
-def _open(options: ViewerOptions, blueprint, name, messages, keep_partial: bool = False) -> Viewer:
+def _open(options: ViewerOptions, blueprint, name, messages, output: StreamedOutput | None = None) -> Viewer:
     name = text(name)
     if options.notebook:
         return _open_notebook(blueprint, name, messages)
@@ -427,6 +429,8 @@ def _open(options: ViewerOptions, blueprint, name, messages, keep_partial: bool 
     url = server = None
     port = options.grpc_port
     with contextlib.ExitStack() as undo:  # if the viewer cannot be opened: the server stopped, the file removed
+        if output is not None:
+            undo.callback(output.discard)
         if options.serve:
             server, uri, url = start_web_server(options)
             undo.callback(stop_process_group, server)
@@ -442,11 +446,9 @@ def _open(options: ViewerOptions, blueprint, name, messages, keep_partial: bool 
         if options.connect:
             sinks.append(rr.GrpcSink(options.connect))
             messages.append(f"streaming to {options.connect}")
-        output = segments = None
+        segments = None
         others = list(sinks)
-        if options.save:
-            output = StreamedOutput(options.save, keep_partial=keep_partial, flag="--save")
-            undo.callback(output.discard)
+        if output is not None:
             segments = SegmentedFile(output.target, blueprint, "necviz")  # the blueprint beside, joined in at the end
             undo.callback(segments.discard)
             if others:  # the viewers get the blueprint; the file, never (rrd_file's docstring)
