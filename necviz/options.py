@@ -2,8 +2,11 @@
 
 A script or notebook builds one of these and calls a function (``necviz.run_demo(DemoOptions(...),
 ViewerOptions(save="demo.rrd"))``); the command line only maps its flags onto them. Every object
-checks its values when it is made (one-line :class:`~necviz.core.errors.ParameterError`); files
-are checked when a run starts, before anything is opened.
+is frozen, keyword-only beyond its subject, and checks its values when it is made: a value is refused
+with a one-line :class:`~necviz.core.errors.OptionError` (a :class:`~necviz.core.errors.ParameterError`)
+naming the field, ``ClipOptions.before_s = -1 is out of range [0, 600]``; the command line shows the
+flag instead (:data:`necviz.flags.FIELD_FLAGS`). Files are checked when a run starts, before anything
+is opened.
 """
 
 from __future__ import annotations
