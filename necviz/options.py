@@ -136,6 +136,11 @@ def parse_params(items, flag: str = "--param") -> dict:
     return out
 
 
+def _scene_inputs(scene: SceneOptions, tune: TuneOptions | None) -> list:
+    """The files a scene and live tuning read: a scenario file, a tuning file."""
+    return [scene.scenario if scene.is_file else None, tune.file if tune is not None else None]
+
+
 @dataclass(frozen=True)
 class SceneOptions:
     """A simulated scene: a preset name or a TOML scenario file, a seed, a duration, overrides.
@@ -507,6 +512,18 @@ class DemoOptions:
     def __post_init__(self):
         object.__setattr__(self, "controllers", parse_controllers(self.controllers, "DemoOptions.controllers"))
 
+    def inputs(self) -> list:
+        """The files the demo reads: a scenario file, a tuning file, a camera profile."""
+        return [*_scene_inputs(self.scene, self.tune), self.profile]
+
+    def check_outputs(self, viewer: ViewerOptions) -> None:
+        """The files the demo writes (``record``, ``video``, the viewer's ``save``), checked before anything
+        starts (:func:`necviz.outputs.check_run_files`); ``viewer``: resolved."""
+        from necviz.outputs import check_run_files
+
+        video = self.video.path if self.video is not None else None
+        check_run_files({"--record": self.record, "--video": video}, viewer, self.inputs(), self.force)
+
 
 @dataclass(frozen=True)
 class ReplayOptions:
@@ -564,6 +581,18 @@ class ReplayOptions:
         _check_reading(self, "ReplayOptions")
         if self.pipe_timeout_s is not None:
             object.__setattr__(self, "pipe_timeout_s", check_field("ReplayOptions.pipe_timeout_s", self.pipe_timeout_s))
+
+    def inputs(self) -> list:
+        """The files the replay reads: the recording, a camera profile."""
+        return [self.file, self.profile]
+
+    def check_outputs(self, viewer: ViewerOptions) -> None:
+        """The files the replay writes (``json``, ``video``, the viewer's ``save``), checked before anything
+        is opened (:func:`necviz.outputs.check_run_files`); ``viewer``: resolved."""
+        from necviz.outputs import check_run_files
+
+        video = self.video.path if self.video is not None else None
+        check_run_files({"--json": self.json, "--video": video}, viewer, self.inputs(), self.force)
 
 
 def _check_reading(options, owner: str) -> None:
@@ -709,6 +738,17 @@ class LiveOptions:
             object.__setattr__(self, "history", check_number("LiveOptions.history", self.history, 1, integer=True))
         except ParameterError as e:
             raise OptionError("LiveOptions.history", str(e)) from None
+
+    def inputs(self) -> list:
+        """The files the session reads: the emulated scene's scenario file, a tuning file, a camera profile."""
+        return [*_scene_inputs(self.scene, self.tune), self.profile]
+
+    def check_outputs(self, viewer: ViewerOptions) -> None:
+        """The files the session writes (``record``, ``json``, the viewer's ``save``), checked before the
+        camera is opened (:func:`necviz.outputs.check_run_files`); ``viewer``: resolved."""
+        from necviz.outputs import check_run_files
+
+        check_run_files({"--record": self.record, "--json": self.json}, viewer, self.inputs(), self.force)
 
 
 @dataclass(frozen=True)

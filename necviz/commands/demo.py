@@ -60,23 +60,21 @@ def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None,
         Bad options or output files (an output that exists without ``force``, or is an input).
     """
     from necviz.dashboard import session as dashboard
-    from necviz.dashboard.session import Session, lane_labels, preflight, scene_inputs
+    from necviz.dashboard.session import Session, lane_labels
+    from necviz.dashboard.viewer import resolve
     from necviz.drivers.sim.scene_cache import SceneCache
     from necviz.layouts import make_blueprint
-    from necviz.options import DemoOptions
+    from necviz.options import DemoOptions, ViewerOptions
+    from necviz.profiles import load_profile
     from necviz.runs import build_rig
 
     out = output(out)
     options = options or DemoOptions()
-    video = options.video.path if options.video is not None else None
-    viewer, profile = preflight(
-        "demo",
-        viewer,
-        {"--record": options.record, "--video": video},
-        options.force,
-        inputs=scene_inputs(options.scene, options.tune),
-        profile=options.profile,
-    )  # before anything starts
+    viewer = resolve(viewer or ViewerOptions(), "demo")  # the headless default filled in
+    sc = options.scene
+    scene = sc.build()  # a bad scene parameter is refused before any file is looked at
+    options.check_outputs(viewer)  # before anything starts
+    profile = load_profile(options.profile) if options.profile is not None else None
     show = options.show
     observers = []  # the command's own: the video writer, the flight recorder (made when the run starts)
     if options.video is not None:  # only files: the run goes as fast as it can, the video keeps its own pace
@@ -89,9 +87,7 @@ def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None,
 
         options.clips.check()
         observers.insert(0, clip_observer(options.clips))
-    sc = options.scene
     # a demo is replayed: its scene and events come from the scene cache from the second run on
-    scene = sc.build()
     scene, rig, lanes, limits = build_rig(scene, options.controllers, profile, cache=SceneCache.default())
     props = {
         "command": "demo",

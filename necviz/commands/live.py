@@ -75,11 +75,13 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     from necviz.core.control import make_controller
     from necviz.dashboard import session as dashboard
     from necviz.dashboard.flight_recorder import clip_observer
-    from necviz.dashboard.session import Session, lane_labels, preflight, scene_inputs
+    from necviz.dashboard.session import Session, lane_labels
+    from necviz.dashboard.viewer import resolve
     from necviz.layouts import make_blueprint
-    from necviz.options import LiveOptions
+    from necviz.options import LiveOptions, ViewerOptions
     from necviz.outputs import write_json
     from necviz.pipeline import Lane
+    from necviz.profiles import load_profile
 
     out = output(out)
     options = options or LiveOptions()
@@ -93,14 +95,9 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
             seed=options.scene.resolved_seed,
             **{**spec["params"], **options.scene.params},
         )
-    viewer, profile = preflight(
-        "live",
-        viewer,
-        {"--record": options.record, "--json": options.json},
-        options.force,
-        inputs=scene_inputs(options.scene, options.tune),
-        profile=options.profile,
-    )  # before the camera is opened
+    viewer = resolve(viewer or ViewerOptions(), "live")  # the headless default filled in
+    options.check_outputs(viewer)  # before the camera is opened
+    profile = load_profile(options.profile) if options.profile is not None else None
     if options.clips is not None:
         options.clips.check()
     from necviz.drivers.davis import CameraOptions, open_camera

@@ -115,19 +115,15 @@ def run(options: ReplayOptions, viewer: ViewerOptions | None = None, out=...) ->
     ParameterError
         Bad options or output files, or an empty range.
     """
-    from necviz.dashboard.session import preflight
+    from necviz.dashboard.viewer import resolve
+    from necviz.options import ViewerOptions
+    from necviz.profiles import load_profile
 
     out = output(out)
     path = Path(options.file)
-    video = options.video.path if options.video is not None else None
-    viewer, profile = preflight(
-        "replay",
-        viewer,
-        {"--json": options.json, "--video": video},
-        options.force,
-        inputs=[path],
-        profile=options.profile,
-    )  # before anything is opened
+    viewer = resolve(viewer or ViewerOptions(), "replay")  # the headless default filled in
+    options.check_outputs(viewer)  # before anything is opened
+    profile = load_profile(options.profile) if options.profile is not None else None
     from necviz.drivers.recordings import readable_copy
 
     with readable_copy(path, options.pipe_timeout_s) as source:

@@ -122,38 +122,6 @@ class Session:
     recorder: RecordingFile | None = field(default=None, init=False)
 
 
-def scene_inputs(scene, tune=None) -> list:
-    """The files a dashboard command reads besides its profile: a scenario file, a tuning file."""
-    return [scene.scenario if scene.is_file else None, tune.file if tune is not None else None]
-
-
-def preflight(command: str, viewer: ViewerOptions | None, outputs: dict, force: bool, inputs=(), profile=None):
-    """Everything a dashboard command checks before it opens a camera, a file or a viewer.
-
-    ``outputs`` maps flags to paths (``{"--record": ..., "--json": ...}``); returns the resolved
-    viewer options (the headless default filled in, ``--save`` checked) and the camera profile.
-    """
-    from necviz.dashboard.viewer import resolve
-    from necviz.outputs import check_distinct, check_not_input, check_output, check_space
-
-    inputs = [i for i in inputs if i is not None] + ([profile] if profile is not None else [])
-    viewer = resolve(viewer or ViewerOptions(), command, inputs=inputs)
-    check_distinct({**outputs, "--save": viewer.save})
-    suffixes = {"--record": (".necrec",), "--json": (".json",), "--video": (".mp4",)}
-    for flag, path in outputs.items():
-        if path is not None:
-            check_output(path, flag, inputs=inputs, force=force, suffixes=suffixes.get(flag))
-    check_not_input({**outputs, "--save": viewer.save}, inputs)
-    for flag, path in (("--record", outputs.get("--record")), ("--save", viewer.save)):
-        if path is not None:  # a recording grows for the whole run: refuse to start on a full disk
-            check_space(path, flag)
-    if profile is not None:
-        from necviz.profiles import load_profile
-
-        profile = load_profile(profile)
-    return viewer, profile
-
-
 def run(
     source: Source,
     lanes: list[Lane],

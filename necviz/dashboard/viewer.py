@@ -45,7 +45,7 @@ from necviz.dashboard.viewer_flags import (  # noqa: F401 - re-exported: the fla
     viewer_options,
 )
 from necviz.options import ViewerOptions
-from necviz.outputs import OutputError, StreamedOutput, check_output, free_bytes
+from necviz.outputs import OutputError, StreamedOutput, free_bytes
 
 LOOPBACK = ("127.0.0.1", "::1", "localhost")
 
@@ -67,8 +67,10 @@ def in_notebook() -> bool:
     return shell is not None and getattr(shell, "kernel", None) is not None
 
 
-def resolve(options: ViewerOptions, command: str, inputs=()) -> ViewerOptions:
-    """Fill in the headless default (a file) and check the save path before anything starts."""
+def resolve(options: ViewerOptions, command: str) -> ViewerOptions:
+    """Fill in the headless default (a file) before anything starts, and check that a notebook viewer is in a
+    notebook and that the ports to serve on are free. The ``--save`` file is checked with the command's other
+    outputs (:func:`necviz.outputs.check_run_files`)."""
     from dataclasses import replace
 
     if options.notebook and not in_notebook():
@@ -81,8 +83,6 @@ def resolve(options: ViewerOptions, command: str, inputs=()) -> ViewerOptions:
             options = replace(options, spawn=True)
         else:
             options = replace(options, save=Path(f"necviz-{command}-{time.strftime('%Y%m%d-%H%M%S')}.rrd"))
-    if options.save is not None:
-        check_output(options.save, "--save", inputs=inputs, force=options.force, suffixes=(".rrd",))
     if options.serve:
         check_ports(options)  # before anything starts: a taken port is one line, not a stall
     return options
