@@ -206,39 +206,12 @@ def lane_labels(lanes) -> dict[str, str]:
 
 
 def _run(ss: Session, out, stdin, outputs: list) -> dict:
-    """Open the viewer, run the loop with its observers until the source ends (or Ctrl-C, a full disk, a
-    failed output), and summarise."""
+    """Stream the session (:func:`_stream`: the viewer, the pipeline and its observers, the loop until the
+    source ends, Ctrl-C, a full disk or a failed output), then say how it went."""
     speed = ss.show.speed
     if speed == "auto":
         speed = 1.0 if ss.viewer.watched else None
-    viewer, sink = _open(ss, out, outputs, speed)
-    observers = [sink]  # then the native recorder (--record), the command's own, the pace watch
-    if ss.recorder is not None:
-        cam = ss.record_camera or ss.lanes[0].camera or ss.lanes[0].name
-        driver = next((ln.name for ln in ss.lanes if ln.drives and (ln.camera or ln.name) == cam), cam)
-        observers.append(RecorderObserver(ss.recorder, cam, driver))
-    observers += [make(ss, ss.layout, out) for make in ss.observers]
-    pace = PaceWatch()  # a paced run that cannot keep its speed says so (pace_note)
-    observers.append(pace)
-    pipe = Pipeline(
-        ss.source,
-        ss.lanes,
-        history=ss.history,
-        observers=observers,
-        speed=speed,
-        stop_after_s=ss.stop_after_s,
-    )
-    for key, value in ss.tune.dvs if ss.tune is not None else ():  # --dvs: on the camera before its first packet
-        msg, data = pipe.dvs.set(key, value, None, started=False)
-        if out is not None:
-            print(f"  {msg}", file=out)
-        pipe.submit(lambda p, m=msg, d=data: (m, d))  # noted in the recordings at the first packet
-    notes = list(ss.source.annotations)  # a native recording: P-TEDI follows its recorded bias changes
-    if notes and pipe.dvs.follow_recording(notes) and out is not None:
-        print(f"  P-TEDI follows the {len(pipe.dvs._schedule)} DVS bias change(s) recorded in the file", file=out)
-    files = [p for p in (viewer.save_path, ss.recorder.path if ss.recorder is not None else None) if p is not None]
-    files += [o.folder for o in observers if o.folder is not None]  # clips fill a disk too
-    stats, disk_full, pace_wall = _watch(ss, pipe, viewer, files, out, stdin, pace, speed)
+    stats, viewer, pipe, observers, disk_full, pace_wall = _stream(ss, out, stdin, outputs, speed)
     broken = _failed(observers)
     if broken is not None:  # an output that could not be written (a clip on a full disk)
         at = (pipe.now_us or 0) / 1e6 - (pipe.first_us or 0) / 1e6
@@ -264,65 +237,56 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
     return stats, viewer
 
 
-def _open(ss: Session, out, outputs: list, speed):
-    """Open the viewer with the command's blueprint (``rr.script_setup``'s part), log the run's properties
-    and series styles, and make the Rerun sink that logs the run into it; the ``--save`` file joins
-    ``outputs``. Returns ``(viewer, sink)``."""
-    v = ss.viewer
-    names = [lane.name for lane in ss.lanes]
-    labels = lane_labels(ss.lanes)
-    lossless = ss.lossless and speed is None and not v.watched
-    # a live session only saved to a file: series in 2 s chunks (Rerun's file sink indexes every chunk)
-    flush = FILE_FLUSH_S if not (lossless or v.watched) else None
-    sink_options = SinkOptions(
-        event_window_us=int(ss.show.event_window_ms * 1000),
-        raw_points=ss.show.event_points,
-        origin_us=ss.origin_us,
-        lossless=lossless,
-        flush_period_s=flush,
-        image_period_us=0 if ss.show.image_rate_hz is None else int(round(1e6 / ss.show.image_rate_hz)),
-    )
-    # the outputs, made together: the native recording (--record), then the viewer's --save file; each is
-    # committed or discarded with the run from the moment it exists
-    if ss.record is not None:
-        props = ss.record_properties if ss.record_properties is not None else ss.properties
-        ss.recorder = open_recorder(ss.record, ss.source.sensor, props, keep_partial=ss.keep_partial)
-        outputs.append(ss.recorder)
-    save = StreamedOutput(v.save, keep_partial=ss.keep_partial, flag="--save") if v.save else None
-    viewer = open_viewer(v, ss.blueprint, ss.title, output=save)
-    if viewer.output is not None:  # the --save file: committed or discarded with the run
-        outputs.append(viewer)
-    for m in viewer.messages:
-        print(f"  {m}", file=out)
-    rec = viewer.rec
-    rec.send_property("run", rr.AnyValues(**{k: text(val) for k, val in ss.properties.items()}, layout=ss.layout))
-    style_series(rec, names, labels)
-    sensor = ss.source.sensor
-    sink = RerunSink(rec, names, sensor.height, sensor.width, sink_options)
-    sink.files = viewer.files
-    sink.rotate = viewer.rotate
-    return viewer, sink
-
-
-def _watch(ss: Session, pipe: Pipeline, viewer, files: list, out, stdin, pace: PaceWatch, speed):
-    """Run ``pipe`` with live tuning (a prompt, a watched file) and a live count until the source ends,
-    Ctrl-C, a nearly full disk or a failed output; then finish it and close the viewer. Returns the
-    pipeline's summary, ``(file, bytes free)`` when the disk stopped the run (else None) and the wall
-    seconds from the first packet to the end of the loop (``pace``: the run's :class:`PaceWatch`)."""
-    tune_file = console = None
-    t0 = time.perf_counter()
-    disk_full = None  # (file, bytes free) when the run was stopped to keep its files whole
-    pace_wall = None  # wall seconds from the first packet to the end of the loop
+def _stream(ss: Session, out, stdin, outputs: list, speed):
+    """Open the viewer and its sink (:func:`_open`), build the pipeline over the session's source and lanes
+    with its observers (the sink, the native recorder, the command's own, a pace watch; the camera's DVS
+    set as ``--dvs`` asks, P-TEDI following a recording's bias changes), run it with live tuning (a
+    prompt, a watched file) and a live count until the source ends, Ctrl-C, a nearly full disk or a failed
+    output; then finish it and close the viewer. Returns the pipeline's summary, the viewer, the pipeline,
+    its observers, ``(file, bytes free)`` when the disk stopped the run (else None) and the wall seconds
+    from the first packet to the end of the loop."""
+    pace = PaceWatch()  # a paced run that cannot keep its speed says so (pace_note)
+    t0 = time.perf_counter()  # set again when the loop starts
 
     def sensor_s() -> float:
         return ((pipe.now_us or 0) - (pipe.first_us or 0)) / 1e6
 
-    def status() -> str:
+    def status() -> str:  # the live count (or the prompt's status bar)
         wall = pace.wall_s()
         behind = pace_note(speed, sensor_s(), wall, SETTLE_S) is not None
         line = progress_line(ss.command, pipe, ss.expected_duration_s, time.perf_counter() - t0)
         return line + (f" · behind: {achieved_speed(sensor_s(), wall):.2f}x real time" if behind else "")
 
+    viewer, sink = _open(ss, out, outputs, speed)
+    observers = [sink]  # then the native recorder (--record), the command's own, the pace watch
+    if ss.recorder is not None:
+        cam = ss.record_camera or ss.lanes[0].camera or ss.lanes[0].name
+        driver = next((ln.name for ln in ss.lanes if ln.drives and (ln.camera or ln.name) == cam), cam)
+        observers.append(RecorderObserver(ss.recorder, cam, driver))
+    observers += [make(ss, ss.layout, out) for make in ss.observers]
+    observers.append(pace)
+    pipe = Pipeline(
+        ss.source,
+        ss.lanes,
+        history=ss.history,
+        observers=observers,
+        speed=speed,
+        stop_after_s=ss.stop_after_s,
+    )
+    for key, value in ss.tune.dvs if ss.tune is not None else ():  # --dvs: on the camera before its first packet
+        msg, data = pipe.dvs.set(key, value, None, started=False)
+        if out is not None:
+            print(f"  {msg}", file=out)
+        pipe.submit(lambda p, m=msg, d=data: (m, d))  # noted in the recordings at the first packet
+    notes = list(ss.source.annotations)  # a native recording: P-TEDI follows its recorded bias changes
+    if notes and pipe.dvs.follow_recording(notes) and out is not None:
+        print(f"  P-TEDI follows the {len(pipe.dvs._schedule)} DVS bias change(s) recorded in the file", file=out)
+    files = [p for p in (viewer.save_path, ss.recorder.path if ss.recorder is not None else None) if p is not None]
+    files += [o.folder for o in observers if o.folder is not None]  # clips fill a disk too
+    tune_file = console = None
+    t0 = time.perf_counter()
+    disk_full = None  # (file, bytes free) when the run was stopped to keep its files whole
+    pace_wall = None  # wall seconds from the first packet to the end of the loop
     try:
         if ss.tune is not None and ss.tune.file:
             tune_file = TuningFile(pipe, ss.tune.file, out=out)
@@ -373,7 +337,47 @@ def _watch(ss: Session, pipe: Pipeline, viewer, files: list, out, stdin, pace: P
             except BaseException:
                 if not failed and disk_full is None:
                     raise  # else the run's own error (or the disk guard's, below) is the one reported
-    return stats, disk_full, pace_wall
+    return stats, viewer, pipe, observers, disk_full, pace_wall
+
+
+def _open(ss: Session, out, outputs: list, speed):
+    """Open the viewer with the command's blueprint (``rr.script_setup``'s part), log the run's properties
+    and series styles, and make the Rerun sink that logs the run into it; the ``--save`` file joins
+    ``outputs``. Returns ``(viewer, sink)``."""
+    v = ss.viewer
+    names = [lane.name for lane in ss.lanes]
+    labels = lane_labels(ss.lanes)
+    lossless = ss.lossless and speed is None and not v.watched
+    # a live session only saved to a file: series in 2 s chunks (Rerun's file sink indexes every chunk)
+    flush = FILE_FLUSH_S if not (lossless or v.watched) else None
+    sink_options = SinkOptions(
+        event_window_us=int(ss.show.event_window_ms * 1000),
+        raw_points=ss.show.event_points,
+        origin_us=ss.origin_us,
+        lossless=lossless,
+        flush_period_s=flush,
+        image_period_us=0 if ss.show.image_rate_hz is None else int(round(1e6 / ss.show.image_rate_hz)),
+    )
+    # the outputs, made together: the native recording (--record), then the viewer's --save file; each is
+    # committed or discarded with the run from the moment it exists
+    if ss.record is not None:
+        props = ss.record_properties if ss.record_properties is not None else ss.properties
+        ss.recorder = open_recorder(ss.record, ss.source.sensor, props, keep_partial=ss.keep_partial)
+        outputs.append(ss.recorder)
+    save = StreamedOutput(v.save, keep_partial=ss.keep_partial, flag="--save") if v.save else None
+    viewer = open_viewer(v, ss.blueprint, ss.title, output=save)
+    if viewer.output is not None:  # the --save file: committed or discarded with the run
+        outputs.append(viewer)
+    for m in viewer.messages:
+        print(f"  {m}", file=out)
+    rec = viewer.rec
+    rec.send_property("run", rr.AnyValues(**{k: text(val) for k, val in ss.properties.items()}, layout=ss.layout))
+    style_series(rec, names, labels)
+    sensor = ss.source.sensor
+    sink = RerunSink(rec, names, sensor.height, sensor.width, sink_options)
+    sink.files = viewer.files
+    sink.rotate = viewer.rotate
+    return viewer, sink
 
 
 def _failed(observers):
