@@ -75,7 +75,7 @@ def run(scenario: str, seed: int, dvs, duration_s: float | None) -> dict:
     def drive(pipe, label, expected_s):
         stats.update(pipe.run().finish())
 
-    scene = SceneOptions(scenario, seed, duration_s, {"change_jitter_ms": CHANGE_JITTER_MS})
+    scene = SceneOptions(scenario, seed=seed, duration_s=duration_s, params={"change_jitter_ms": CHANGE_JITTER_MS})
     opts = RunOptions(scene, LANES, sift=False, threads=False, dvs=tuple(dvs))
     t0 = time.perf_counter()
     res = run_once(opts, (lambda rig, lanes: Count(rig),), progress=drive)["results"]

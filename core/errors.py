@@ -22,6 +22,17 @@ class ParameterError(NecvizError):
     """A parameter is NaN, out of range or inconsistent with another."""
 
 
+class OptionError(ParameterError):
+    """An option object refused a value: ``field`` names it as the library does (``"ClipOptions.before_s"``),
+    and the message says why in the same terms. The command line shows its flag instead
+    (:func:`necviz.flags.in_flag_terms`)."""
+
+    def __init__(self, field: str, message: str):
+        super().__init__(message)
+        self.field = field
+        self.message = message
+
+
 class ProfileError(NecvizError):
     """A camera profile file is missing, unreadable or inconsistent."""
 

@@ -66,7 +66,7 @@ from necviz.drivers.davis.camera import DIGITAL_GAIN_MAX, READOUT_ALLOWANCE_US, 
 from necviz.drivers.davis.device import DeviceInfo
 from necviz.drivers.davis.device_errors import DeviceDisconnectedError, DeviceError, DeviceNotFoundError
 from necviz.drivers.recordings.reader import StreamAssembler, sensor_from_chip, to_gray8
-from necviz.drivers.source import CAMERA, CameraInfo, route
+from necviz.drivers.source import CAMERA, CameraInfo, Source, route
 
 #: the one line that says how to get this backend
 DV_INSTALL = "--device dv needs iniVation's dv-processing: pip install 'necviz[dv]'"
@@ -197,7 +197,7 @@ def _imu(samples) -> np.ndarray:
     return out
 
 
-class DvCamera(CommandedCamera):
+class DvCamera(CommandedCamera, Source):
     """A DAVIS camera (or a dv-processing recording reader) as a :class:`~necviz.drivers.source.Source`.
 
     Parameters
@@ -363,6 +363,8 @@ class DvCamera(CommandedCamera):
         if not callable(fn):
             raise ParameterError(f"this dv-processing input has no {what} (a recording is replayed as it was)")
         return fn
+
+    takes_dvs_biases = True
 
     def set_dvs_biases(self, words: dict[int, int]) -> None:
         """Write DVS bias words (module-5 parameter -> libcaer word, :mod:`necviz.core.biases`) through

@@ -20,14 +20,17 @@ loop). The pipeline never needs to know whether a source is simulated, live or r
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 from necviz.core.control.controller import CameraLimits
 from necviz.core.events import EventBatch
 from necviz.core.sensor import SensorGeometry
 from necviz.core.stream import Packet
+
+if TYPE_CHECKING:
+    from necviz.drivers.sim.dvs import DvsParams
 
 #: The name of the only camera of a single-camera source.
 CAMERA = "camera"
@@ -76,11 +79,35 @@ class Source(Protocol):
     ``camera_info`` says what the source knows about its cameras (limits, command latency, event bus
     ceiling); ``warm_up`` readies its kernels before the first packet (start-up is never latency);
     ``close`` releases it (a device, a file) and may be called more than once.
+
+    The members with defaults below are what a source may add; a source states it by subclassing
+    :class:`Source` (the defaults then hold for what it does not override): ``stats``, what a camera lost
+    (``dropped_events`` ...) for the run's summary; ``annotations``, notes stored beside the packets (a
+    native recording's DVS bias changes, ``[(t_us, dict), ...]``); the DVS members, for a source that takes
+    bias changes (``takes_dvs_biases``; :mod:`necviz.dvs_controls`).
     """
 
     sensor: SensorGeometry
     cameras: tuple[str, ...]
     camera_info: CameraInfo
+    #: notes recorded beside the packets, ``[(t_us, dict), ...]`` (a native recording); empty elsewhere
+    annotations: Sequence = ()
+    #: the bias table of the DVS chip: ``"DAVIS346"`` or ``"DAVIS240"``
+    dvs_family: str = "DAVIS346"
+    #: :meth:`set_dvs_biases` writes bias words (the simulator, the cameras); ``False``: no bias changes
+    takes_dvs_biases: bool = False
+
+    @property
+    def stats(self) -> dict:
+        """What the device lost and how the host kept up (a camera: ``dropped_events``, ``skipped_words``,
+        ``reconnects`` ...); empty for a source that loses nothing."""
+        return {}
+
+    @property
+    def dvs_pixel(self) -> DvsParams | None:
+        """The simulated pixel at libcaer's default biases where there is one (the simulator, the emulated
+        camera); ``None``: a real camera (the bias model then estimates it)."""
+        return None
 
     def packets(self) -> Iterator[tuple[str | None, Packet]]: ...
 
@@ -92,6 +119,15 @@ class Source(Protocol):
 
     def warm_up(self) -> None:
         """Compile or load what the source's own kernels need, before its first packet (may do nothing)."""
+
+    def set_dvs_biases(self, words: dict[int, int]) -> None:
+        """Write DVS bias words (module-5 parameter -> word, :mod:`necviz.core.biases`); only where
+        ``takes_dvs_biases``."""
+        raise NotImplementedError(f"{type(self).__name__} takes no DVS bias changes")
+
+    def dvs_applied_us(self) -> int | None:
+        """Stream time from which the last DVS bias change holds (``None``: not yet, or no change)."""
+        return None
 
 
 def route(camera: str, packets: Iterable[Packet]) -> Iterator[tuple[str | None, Packet]]:

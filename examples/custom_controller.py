@@ -76,7 +76,9 @@ def main() -> None:
             lambda ctx, options: MeanIntensityController(ctx.limits, ctx.exposure_us, ctx.gain, crf=ctx.crf, k=args.k),
         )
         necviz.run_compare(
-            necviz.CompareOptions(necviz.SceneOptions("tunnel_exit", args.seed, args.duration_s), names, sift=False)
+            necviz.CompareOptions(
+                necviz.SceneOptions("tunnel_exit", seed=args.seed, duration_s=args.duration_s), names, sift=False
+            )
         )
         return
 

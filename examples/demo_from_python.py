@@ -13,6 +13,7 @@ import argparse
 
 import necviz
 from necviz.core.errors import NecvizError
+from necviz.flags import in_flag_terms
 
 
 def main() -> None:
@@ -30,8 +31,8 @@ def main() -> None:
             necviz.ViewerOptions(save=args.out, force=True),
             out=None,
         )
-    except NecvizError as e:  # bad options: one line, like the command
-        raise SystemExit(f"error: {e}") from None
+    except NecvizError as e:  # bad options: one line naming the flag, like the command
+        raise SystemExit(f"error: {in_flag_terms(e)}") from None
     print(f"{args.scenario}: {stats['duration_s']:.2f} s simulated, {stats['events']:,} events")
     for lane, s in stats["lanes"].items():
         sat = stats["telemetry"][lane].table.column("over_exposed_rate") > 0.5

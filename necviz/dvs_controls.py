@@ -84,7 +84,7 @@ class DvsControls:
 
     @property
     def available(self) -> bool:
-        return callable(getattr(self.source, "set_dvs_biases", None))
+        return self.source.takes_dvs_biases
 
     def _ensure_state(self) -> DvsState:
         if self.state is None:
@@ -94,16 +94,16 @@ class DvsControls:
                     "necviz's USB driver and --device dv do; a recording is replayed as it was)"
                 )
             first = _estimator(next(iter(self.lanes.values()))).params
-            family = getattr(self.source, "dvs_family", "DAVIS346")
+            family = self.source.dvs_family
             # refractory period and bandwidth at the default biases: the simulator's own pixel where there is one
             # (the simulator, the emulated camera), else the model's estimate (jAER's constants)
-            base = getattr(self.source, "dvs_base", None) or getattr(self.source, "dvs_pixel", None)
+            base = self.source.dvs_pixel
             phys = physical_settings(DvsBiases.defaults(family))
             ref = DvsSettings(
                 first.c_on,
                 first.c_off,
-                getattr(base, "refractory_us", phys.refractory_us),
-                getattr(base, "cutoff_hz", None) or phys.bandwidth_hz,
+                base.refractory_us if base is not None else phys.refractory_us,
+                (base.cutoff_hz if base is not None else None) or phys.bandwidth_hz,
             )
             self.state = DvsState(BiasModel(family, ref))
             self._capture_base()
@@ -213,7 +213,7 @@ class DvsControls:
             self._follow({n: (b_on * r_on, b_off * r_off) for n, (b_on, b_off) in self._base.items()})
             self.followed_from_us = int(t)
             return t
-        t = self.source.dvs_applied_us() if callable(getattr(self.source, "dvs_applied_us", None)) else None
+        t = self.source.dvs_applied_us()
         if t is None or last_event_us < t:
             return None
         self._follow(self._pending)

@@ -1,8 +1,10 @@
-"""The command line's numeric flags: every rule in one table, checked in one place.
+"""The command line's flags: every numeric rule in one table, and which option field each flag sets.
 
 Kept in a module of its own that imports nothing heavy, so the parser (``necviz --help``, a
 mistyped flag) can use it without loading NumPy; :mod:`necviz.options` checks the option objects
-against the same table.
+against the same table (:func:`check_field`), and refuses a value with an
+:class:`~necviz.core.errors.OptionError` naming the field (``ClipOptions.before_s``). The command line
+shows the flag instead (:data:`FIELD_FLAGS`, :func:`in_flag_terms`): the one place fields map to flags.
 """
 
 from __future__ import annotations
@@ -10,7 +12,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from necviz.core.errors import ParameterError
+from necviz.core.errors import OptionError, ParameterError
 from necviz.core.limits import MAX_DURATION_S, MAX_SEED
 
 
@@ -77,6 +79,82 @@ NUMBER_FLAGS: dict[str, NumberRule] = {
 }
 
 
+#: The flag that sets each option field (``"Class.field"``): how the command line names a refused value.
+#: :func:`check_field` also reads a numeric field's rule here (the flag's, in :data:`NUMBER_FLAGS`).
+FIELD_FLAGS: dict[str, str] = {
+    "SceneOptions.scenario": "--scenario",
+    "SceneOptions.seed": "--seed",
+    "SceneOptions.duration_s": "--duration",
+    "SceneOptions.params": "--set",
+    "ViewerOptions.layout": "--layout",
+    "ViewerOptions.grpc_port": "--grpc-port",
+    "ViewerOptions.web_port": "--web-port",
+    "ViewerOptions.memory_limit": "--memory-limit",
+    "ShowOptions.speed": "--speed",
+    "ShowOptions.event_window_ms": "--event-window-ms",
+    "ShowOptions.event_points": "--event-points",
+    "ShowOptions.image_rate_hz": "--image-rate",
+    "TuneOptions.file": "--tune-file",
+    "TuneOptions.dvs": "--dvs",
+    "ClipOptions.folder": "--clips",
+    "ClipOptions.before_s": "--clip-before",
+    "ClipOptions.after_s": "--clip-after",
+    "ClipOptions.memory_mb": "--clip-memory",
+    "VideoOptions.path": "--video",
+    "VideoOptions.speed": "--speed",
+    "VideoOptions.fps": "--video-fps",
+    "DemoOptions.controllers": "--controllers",
+    "ReplayOptions.file": "FILE",
+    "ReplayOptions.controller": "--controller",
+    "ReplayOptions.start_s": "--start",
+    "ReplayOptions.end_s": "--end",
+    "ReplayOptions.exposure_us": "--exposure-us",
+    "ReplayOptions.pipe_timeout_s": "--pipe-timeout",
+    "ExportOptions.file": "IN",
+    "ExportOptions.out_path": "OUT",
+    "ExportOptions.start_s": "--start",
+    "ExportOptions.end_s": "--end",
+    "ExportOptions.exposure_us": "--exposure-us",
+    "ExportOptions.compression": "--compression",
+    "ExportOptions.pipe_timeout_s": "--pipe-timeout",
+    "LiveOptions.device": "--device",
+    "LiveOptions.controller": "--controller",
+    "LiveOptions.duration_s": "--duration",
+    "LiveOptions.emulate_unplug_s": "--emulate-unplug",
+    "LiveOptions.usb": "--usb",
+    "LiveOptions.usb_transfers": "--usb-transfers",
+    "CompareOptions.controllers": "--controllers",
+    "CompareOptions.seeds": "--seeds",
+    "CompareOptions.controller_params": "--param",
+}
+
+
+def check_field(field: str, value, command: str | None = None):
+    """``value`` of the option field ``field`` (``"ClipOptions.before_s"``), checked against its flag's rule
+    in :data:`NUMBER_FLAGS`; returns it as a float (an int for whole-number fields). Raises a one-line
+    :class:`OptionError` naming the field."""
+    from necviz.core.checks import parse_number
+
+    r = _rule(FIELD_FLAGS[field], command)
+    try:
+        return parse_number(field, value, r.lo, r.hi, lo_open=r.lo_open, integer=r.integer)
+    except OptionError:
+        raise
+    except ParameterError as e:
+        raise OptionError(field, str(e)) from None
+
+
+def in_flag_terms(error: BaseException) -> str:
+    """The message of ``error`` as the command line shows it: every option field an :class:`OptionError`
+    names replaced by its flag (:data:`FIELD_FLAGS`); any other error's message as it is."""
+    text = str(error)
+    if isinstance(error, OptionError):
+        fields = sorted((f for f in FIELD_FLAGS if f in text), key=len, reverse=True)
+        for f in fields:
+            text = re.sub(rf"(?<![\w.]){re.escape(f)}(?!\w)", FIELD_FLAGS[f], text)
+    return text
+
+
 def _rule(flag: str, command: str | None) -> NumberRule:
     if command is not None and f"{command} {flag}" in NUMBER_FLAGS:
         return NUMBER_FLAGS[f"{command} {flag}"]
@@ -114,15 +192,24 @@ def number(flag: str, command: str | None = None):
 _MEMORY = re.compile(r"^\s*(\d+(?:\.\d*)?|\.\d+)\s*(%|b|kb|mb|gb|tb|kib|mib|gib|tib)?\s*$", re.IGNORECASE)
 
 
-def parse_memory_limit(text) -> str:
+def parse_memory_limit(text, label: str = "--memory-limit") -> str:
     """A viewer memory limit as Rerun takes it (``1GB``, ``500MiB``, ``75%``), checked: a positive
     amount with a unit (B, kB, MB, GB, TB, KiB, MiB, GiB, TiB) or a percentage up to 100."""
     m = _MEMORY.match(str(text))
     value = float(m.group(1)) if m else 0.0
     unit = (m.group(2) or "B").lower() if m else ""
     if not m or not value > 0 or (unit == "%" and value > 100) or (unit == "b" and value < 1 << 20):
-        raise ParameterError(f"--memory-limit expects an amount like 1GB, 500MiB or 50% (at least 1 MB), got {text!r}")
+        raise ParameterError(f"{label} expects an amount like 1GB, 500MiB or 50% (at least 1 MB), got {text!r}")
     return str(text).strip().replace(" ", "")
 
 
-__all__ = ["NUMBER_FLAGS", "NumberRule", "check_flag", "number", "parse_memory_limit"]
+__all__ = [
+    "FIELD_FLAGS",
+    "NUMBER_FLAGS",
+    "NumberRule",
+    "check_field",
+    "check_flag",
+    "in_flag_terms",
+    "number",
+    "parse_memory_limit",
+]

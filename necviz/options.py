@@ -2,8 +2,11 @@
 
 A script or notebook builds one of these and calls a function (``necviz.run_demo(DemoOptions(...),
 ViewerOptions(save="demo.rrd"))``); the command line only maps its flags onto them. Every object
-checks its values when it is made (one-line :class:`~necviz.core.errors.ParameterError`); files
-are checked when a run starts, before anything is opened.
+is frozen, keyword-only beyond its subject, and checks its values when it is made: a value is refused
+with a one-line :class:`~necviz.core.errors.OptionError` (a :class:`~necviz.core.errors.ParameterError`)
+naming the field, ``ClipOptions.before_s = -1 is out of range [0, 600]``; the command line shows the
+flag instead (:data:`necviz.flags.FIELD_FLAGS`). Files are checked when a run starts, before anything
+is opened.
 """
 
 from __future__ import annotations
@@ -17,8 +20,15 @@ from dataclasses import KW_ONLY, dataclass, field
 import necviz.tuned  # noqa: F401 - registers the tuned controllers (navid-tuned, ...) with CONTROLLERS
 from necviz.core.checks import check_number
 from necviz.core.control import CONTROLLERS
-from necviz.core.errors import ParameterError
-from necviz.flags import NUMBER_FLAGS, NumberRule, check_flag, number, parse_memory_limit  # noqa: F401 - re-exported
+from necviz.core.errors import OptionError, ParameterError
+from necviz.flags import (  # noqa: F401 - re-exported
+    NUMBER_FLAGS,
+    NumberRule,
+    check_field,
+    check_flag,
+    number,
+    parse_memory_limit,
+)
 from necviz.names import (  # noqa: F401 - re-exported
     BASELINES,
     COMPARE_CONTROLLERS,
@@ -34,8 +44,9 @@ def controller_kind(name: str) -> str:
     return str(name).split("@", 1)[0]
 
 
-def parse_controllers(text) -> tuple[str, ...]:
-    """``"nec,navid"`` (or a sequence of names) -> checked names, each registered and given once.
+def parse_controllers(text, field: str = "controllers") -> tuple[str, ...]:
+    """``"nec,navid"`` (or a sequence of names) -> checked names, each registered and given once
+    (refused with an :class:`OptionError` naming ``field``).
 
     A name may carry a label, ``KIND@LABEL`` (``nec@median``), to run several variants of one
     controller side by side (each configured with ``--param nec@median.metering=median``).
@@ -48,16 +59,17 @@ def parse_controllers(text) -> tuple[str, ...]:
         or ("@" in n and not n.split("@", 1)[1].replace("-", "_").isidentifier())
     ]
     if not names or unknown:
-        raise ParameterError(
-            f"unknown controller(s) {', '.join(unknown) or '(none given)'}; "
-            f"available: {', '.join(sorted(CONTROLLERS))} (a variant: KIND@LABEL)"
+        raise OptionError(
+            field,
+            f"{field}: unknown controller(s) {', '.join(unknown) or '(none given)'}; "
+            f"available: {', '.join(sorted(CONTROLLERS))} (a variant: KIND@LABEL)",
         )
     if len(set(names)) != len(names):
-        raise ParameterError("each controller may appear once in --controllers")
+        raise OptionError(field, f"each controller may appear once in {field}")
     return tuple(names)
 
 
-def check_param_lanes(controller_params: dict | None, controllers) -> None:
+def check_param_lanes(controller_params: dict | None, controllers, field: str = "controller_params") -> None:
     """Every controller that parameters are given for runs (``--param NAME.KEY=VALUE``, a run spec).
 
     Raises
@@ -67,15 +79,17 @@ def check_param_lanes(controller_params: dict | None, controllers) -> None:
     """
     unknown = set(controller_params or {}) - set(controllers)
     if unknown:
-        raise ParameterError(
-            f"--param names {', '.join(sorted(unknown))}, which is not among the controllers ({', '.join(controllers)})"
+        raise OptionError(
+            field,
+            f"{field} names {', '.join(sorted(unknown))}, which is not among the controllers ({', '.join(controllers)})",
         )
 
 
-def parse_speed(text) -> float | None:
+def parse_speed(text, field: str = "speed") -> float | None:
     """``max`` (as fast as possible) -> None; ``1`` / ``x1`` real time; ``x4`` or ``4`` four times.
 
-    Zero, negative, NaN and infinite factors are refused (``0`` is no speed: ``max`` is)."""
+    Zero, negative, NaN and infinite factors are refused (``0`` is no speed: ``max`` is), with an
+    :class:`OptionError` naming ``field``."""
     if text is None or str(text).strip().lower() in ("max", "fast"):
         return None
     if isinstance(text, (int, float)) and not isinstance(text, bool):
@@ -84,12 +98,12 @@ def parse_speed(text) -> float | None:
         try:
             v = float(str(text).strip().lower().removeprefix("x"))
         except ValueError:
-            raise ParameterError(f"--speed must be 'max', a factor like 1 or x4, got {text!r}") from None
+            raise OptionError(field, f"{field} must be 'max', a factor like 1 or x4, got {text!r}") from None
     r = NUMBER_FLAGS["--speed"]
     assert r.lo is not None and r.hi is not None  # the table bounds --speed at both ends
     if not (math.isfinite(v) and r.lo <= v <= r.hi):
-        raise ParameterError(
-            f"--speed must be 'max' (as fast as possible) or a factor between x0.001 and x10000, got {text!r}"
+        raise OptionError(
+            field, f"{field} must be 'max' (as fast as possible) or a factor between x0.001 and x10000, got {text!r}"
         )
     return v
 
@@ -122,6 +136,11 @@ def parse_params(items, flag: str = "--param") -> dict:
     return out
 
 
+def _scene_inputs(scene: SceneOptions, tune: TuneOptions | None) -> list:
+    """The files a scene and live tuning read: a scenario file, a tuning file."""
+    return [scene.scenario if scene.is_file else None, tune.file if tune is not None else None]
+
+
 @dataclass(frozen=True)
 class SceneOptions:
     """A simulated scene: a preset name or a TOML scenario file, a seed, a duration, overrides.
@@ -145,6 +164,7 @@ class SceneOptions:
     """
 
     scenario: str = "tunnel_exit"
+    _: KW_ONLY
     seed: int | None = None
     duration_s: float | None = None
     params: dict = field(default_factory=dict)
@@ -154,14 +174,15 @@ class SceneOptions:
 
         object.__setattr__(self, "scenario", str(self.scenario))
         if self.scenario not in SCENARIOS and not self.is_file:
-            raise ParameterError(
-                f"--scenario: {self.scenario!r} is neither a preset ({', '.join(sorted(SCENARIOS))}) "
-                "nor a .toml scenario file"
+            raise OptionError(
+                "SceneOptions.scenario",
+                f"SceneOptions.scenario: {self.scenario!r} is neither a preset ({', '.join(sorted(SCENARIOS))}) "
+                "nor a .toml scenario file",
             )
         if self.seed is not None:
-            object.__setattr__(self, "seed", check_flag("--seed", self.seed))
+            object.__setattr__(self, "seed", check_field("SceneOptions.seed", self.seed))
         if self.duration_s is not None:
-            object.__setattr__(self, "duration_s", check_flag("--duration", self.duration_s))
+            object.__setattr__(self, "duration_s", check_field("SceneOptions.duration_s", self.duration_s))
         object.__setattr__(self, "params", dict(self.params))
 
     @property
@@ -265,16 +286,29 @@ class ViewerOptions:
 
     def __post_init__(self):
         if self.notebook and (self.spawn or self.serve or self.connect or self.save):
-            raise ParameterError(
-                "notebook=True shows the viewer in the notebook; do not combine it with spawn, serve, connect or save"
+            raise OptionError(
+                "ViewerOptions.notebook",
+                "ViewerOptions.notebook=True shows the viewer in the notebook; do not combine it with spawn, serve, "
+                "connect or save",
             )
         if self.layout is not None and self.layout not in LAYOUT_NAMES:
-            raise ParameterError(f"unknown layout {self.layout!r}; available: {', '.join(LAYOUT_NAMES)}")
-        for label in ("grpc_port", "web_port"):
-            object.__setattr__(self, label, check_flag("--" + label.replace("_", "-"), getattr(self, label)))
-        object.__setattr__(self, "memory_limit", parse_memory_limit(self.memory_limit))
+            raise OptionError(
+                "ViewerOptions.layout",
+                f"ViewerOptions.layout: unknown layout {self.layout!r}; available: {', '.join(LAYOUT_NAMES)}",
+            )
+        object.__setattr__(self, "grpc_port", check_field("ViewerOptions.grpc_port", self.grpc_port))
+        object.__setattr__(self, "web_port", check_field("ViewerOptions.web_port", self.web_port))
+        try:
+            object.__setattr__(
+                self, "memory_limit", parse_memory_limit(self.memory_limit, "ViewerOptions.memory_limit")
+            )
+        except ParameterError as e:
+            raise OptionError("ViewerOptions.memory_limit", str(e)) from None
         if self.serve and self.grpc_port == self.web_port:
-            raise ParameterError(f"--grpc-port and --web-port are both {self.grpc_port}; they must differ")
+            raise OptionError(
+                "ViewerOptions.web_port",
+                f"ViewerOptions.grpc_port and ViewerOptions.web_port are both {self.grpc_port}; they must differ",
+            )
 
     @property
     def watched(self) -> bool:
@@ -312,11 +346,11 @@ class ShowOptions:
 
     def __post_init__(self):
         if self.speed != "auto":
-            object.__setattr__(self, "speed", parse_speed(self.speed))
-        object.__setattr__(self, "event_window_ms", check_flag("--event-window-ms", self.event_window_ms))
-        object.__setattr__(self, "event_points", check_flag("--event-points", self.event_points))
+            object.__setattr__(self, "speed", parse_speed(self.speed, "ShowOptions.speed"))
+        object.__setattr__(self, "event_window_ms", check_field("ShowOptions.event_window_ms", self.event_window_ms))
+        object.__setattr__(self, "event_points", check_field("ShowOptions.event_points", self.event_points))
         if self.image_rate_hz is not None:
-            object.__setattr__(self, "image_rate_hz", check_flag("--image-rate", self.image_rate_hz))
+            object.__setattr__(self, "image_rate_hz", check_field("ShowOptions.image_rate_hz", self.image_rate_hz))
 
 
 @dataclass(frozen=True)
@@ -337,6 +371,14 @@ class TuneOptions:
     prompt: bool = True
     file: str | os.PathLike | None = None
     dvs: tuple = ()
+
+    def __post_init__(self):
+        from necviz.dvs_controls import check_assignments
+
+        try:  # nonsense is refused here; whether the camera can reach a value, when it is applied
+            check_assignments(f"{k}={v}" for k, v in self.dvs)
+        except (ParameterError, TypeError, ValueError) as e:
+            raise OptionError("TuneOptions.dvs", f"TuneOptions.dvs: {e}") from None
 
 
 @dataclass(frozen=True)
@@ -369,18 +411,21 @@ class ClipOptions:
 
     def __post_init__(self):
         if not str(self.folder):
-            raise ParameterError("--clips needs a folder")
-        object.__setattr__(self, "before_s", check_flag("--clip-before", self.before_s))
-        object.__setattr__(self, "after_s", check_flag("--clip-after", self.after_s))
-        object.__setattr__(self, "memory_mb", check_flag("--clip-memory", self.memory_mb))
+            raise OptionError("ClipOptions.folder", "ClipOptions.folder needs a folder")
+        object.__setattr__(self, "before_s", check_field("ClipOptions.before_s", self.before_s))
+        object.__setattr__(self, "after_s", check_field("ClipOptions.after_s", self.after_s))
+        object.__setattr__(self, "memory_mb", check_field("ClipOptions.memory_mb", self.memory_mb))
 
     def check(self) -> None:
         """The folder exists (created when missing, said in one line) and is writable; before anything starts."""
         from necviz.outputs import make_folder
 
-        folder = os.fspath(make_folder(self.folder, "--clips"))
+        try:
+            folder = os.fspath(make_folder(self.folder, "ClipOptions.folder"))
+        except ParameterError as e:
+            raise OptionError("ClipOptions.folder", str(e)) from None
         if not os.access(folder, os.W_OK):
-            raise ParameterError(f"--clips: folder {folder!r} is not writable")
+            raise OptionError("ClipOptions.folder", f"ClipOptions.folder: folder {folder!r} is not writable")
 
 
 @dataclass(frozen=True)
@@ -413,12 +458,15 @@ class VideoOptions:
 
     def __post_init__(self):
         if not str(self.path):
-            raise ParameterError("--video needs a file name")
+            raise OptionError("VideoOptions.path", "VideoOptions.path needs a file name")
         if self.speed is not None:
-            object.__setattr__(self, "speed", parse_speed(self.speed))
+            object.__setattr__(self, "speed", parse_speed(self.speed, "VideoOptions.speed"))
             if self.speed is None:
-                raise ParameterError("--speed for a video must be a number (0.1 is ten times slower than real time)")
-        object.__setattr__(self, "fps", check_flag("--video-fps", self.fps))
+                raise OptionError(
+                    "VideoOptions.speed",
+                    "VideoOptions.speed for a video must be a number (0.1 is ten times slower than real time)",
+                )
+        object.__setattr__(self, "fps", check_field("VideoOptions.fps", self.fps))
 
 
 @dataclass(frozen=True)
@@ -462,7 +510,19 @@ class DemoOptions:
     video: VideoOptions | None = None
 
     def __post_init__(self):
-        object.__setattr__(self, "controllers", parse_controllers(self.controllers))
+        object.__setattr__(self, "controllers", parse_controllers(self.controllers, "DemoOptions.controllers"))
+
+    def inputs(self) -> list:
+        """The files the demo reads: a scenario file, a tuning file, a camera profile."""
+        return [*_scene_inputs(self.scene, self.tune), self.profile]
+
+    def check_outputs(self, viewer: ViewerOptions) -> None:
+        """The files the demo writes (``record``, ``video``, the viewer's ``save``), checked before anything
+        starts (:func:`necviz.outputs.check_run_files`); ``viewer``: resolved."""
+        from necviz.outputs import check_run_files
+
+        video = self.video.path if self.video is not None else None
+        check_run_files({"--record": self.record, "--video": video}, viewer, self.inputs(), self.force)
 
 
 @dataclass(frozen=True)
@@ -516,24 +576,35 @@ class ReplayOptions:
 
     def __post_init__(self):
         if not str(self.file):
-            raise ParameterError("replay needs a recording file")
-        object.__setattr__(self, "controller", parse_controllers([self.controller])[0])
-        start_s, end_s, exposure_us = _check_reading(self.start_s, self.end_s, self.exposure_us)
-        object.__setattr__(self, "start_s", start_s)
-        object.__setattr__(self, "end_s", end_s)
-        object.__setattr__(self, "exposure_us", exposure_us)
+            raise OptionError("ReplayOptions.file", "ReplayOptions.file is empty: replay needs a recording file")
+        object.__setattr__(self, "controller", parse_controllers([self.controller], "ReplayOptions.controller")[0])
+        _check_reading(self, "ReplayOptions")
         if self.pipe_timeout_s is not None:
-            object.__setattr__(self, "pipe_timeout_s", check_flag("--pipe-timeout", self.pipe_timeout_s))
+            object.__setattr__(self, "pipe_timeout_s", check_field("ReplayOptions.pipe_timeout_s", self.pipe_timeout_s))
+
+    def inputs(self) -> list:
+        """The files the replay reads: the recording, a camera profile."""
+        return [self.file, self.profile]
+
+    def check_outputs(self, viewer: ViewerOptions) -> None:
+        """The files the replay writes (``json``, ``video``, the viewer's ``save``), checked before anything
+        is opened (:func:`necviz.outputs.check_run_files`); ``viewer``: resolved."""
+        from necviz.outputs import check_run_files
+
+        video = self.video.path if self.video is not None else None
+        check_run_files({"--json": self.json, "--video": video}, viewer, self.inputs(), self.force)
 
 
-def _check_reading(start_s, end_s, exposure_us) -> tuple[float | None, float | None, float | None]:
-    """``--start``/``--end``/``--exposure-us``, read the same way by replay and export (the flag table's rules)."""
-    start_s = None if start_s is None else check_flag("--start", start_s)
-    end_s = None if end_s is None else check_flag("--end", end_s)
+def _check_reading(options, owner: str) -> None:
+    """``start_s``/``end_s``/``exposure_us``, read the same way by replay and export (the flag table's rules)."""
+    start_s = None if options.start_s is None else check_field(f"{owner}.start_s", options.start_s)
+    end_s = None if options.end_s is None else check_field(f"{owner}.end_s", options.end_s)
     if start_s is not None and end_s is not None and end_s <= start_s:
-        raise ParameterError(f"--end ({end_s} s) must come after --start ({start_s} s)")
-    exposure_us = None if exposure_us is None else check_flag("--exposure-us", exposure_us)
-    return start_s, end_s, exposure_us
+        raise OptionError(f"{owner}.end_s", f"{owner}.end_s ({end_s} s) must come after {owner}.start_s ({start_s} s)")
+    exposure_us = None if options.exposure_us is None else check_field(f"{owner}.exposure_us", options.exposure_us)
+    object.__setattr__(options, "start_s", start_s)
+    object.__setattr__(options, "end_s", end_s)
+    object.__setattr__(options, "exposure_us", exposure_us)
 
 
 @dataclass(frozen=True)
@@ -568,6 +639,7 @@ class ExportOptions:
 
     file: str | os.PathLike = ""
     out_path: str | os.PathLike = ""
+    _: KW_ONLY
     start_s: float | None = None
     end_s: float | None = None
     exposure_us: float | None = None
@@ -578,15 +650,16 @@ class ExportOptions:
 
     def __post_init__(self):
         if self.pipe_timeout_s is not None:
-            object.__setattr__(self, "pipe_timeout_s", check_flag("--pipe-timeout", self.pipe_timeout_s))
+            object.__setattr__(self, "pipe_timeout_s", check_field("ExportOptions.pipe_timeout_s", self.pipe_timeout_s))
         if self.compression is not None and self.compression not in ("lz4", "zstd", "none"):
-            raise ParameterError(f"--compression must be lz4, zstd or none, got {self.compression!r}")
+            raise OptionError(
+                "ExportOptions.compression",
+                f"ExportOptions.compression must be lz4, zstd or none, got {self.compression!r}",
+            )
         if not str(self.file) or not str(self.out_path):
-            raise ParameterError("export needs a recording and an output file")
-        start_s, end_s, exposure_us = _check_reading(self.start_s, self.end_s, self.exposure_us)
-        object.__setattr__(self, "start_s", start_s)
-        object.__setattr__(self, "end_s", end_s)
-        object.__setattr__(self, "exposure_us", exposure_us)
+            field = "ExportOptions.file" if not str(self.file) else "ExportOptions.out_path"
+            raise OptionError(field, f"{field} is empty: export needs a recording and an output file")
+        _check_reading(self, "ExportOptions")
 
 
 @dataclass(frozen=True)
@@ -658,24 +731,51 @@ class LiveOptions:
 
     def __post_init__(self):
         if self.device not in ("usb", "dv", "emulated"):
-            raise ParameterError(f"--device must be usb, dv or emulated, got {self.device!r}")
-        object.__setattr__(self, "controller", parse_controllers([self.controller])[0])
+            raise OptionError(
+                "LiveOptions.device", f"LiveOptions.device must be usb, dv or emulated, got {self.device!r}"
+            )
+        object.__setattr__(self, "controller", parse_controllers([self.controller], "LiveOptions.controller")[0])
         if self.duration_s is not None:
-            object.__setattr__(self, "duration_s", check_flag("--duration", self.duration_s, "live"))
+            object.__setattr__(self, "duration_s", check_field("LiveOptions.duration_s", self.duration_s, "live"))
         if self.emulate_unplug_s is not None:
-            object.__setattr__(self, "emulate_unplug_s", check_flag("--emulate-unplug", self.emulate_unplug_s))
-        object.__setattr__(self, "history", check_number("history", self.history, 1, integer=True))
+            object.__setattr__(
+                self, "emulate_unplug_s", check_field("LiveOptions.emulate_unplug_s", self.emulate_unplug_s)
+            )
+        try:
+            object.__setattr__(self, "history", check_number("LiveOptions.history", self.history, 1, integer=True))
+        except ParameterError as e:
+            raise OptionError("LiveOptions.history", str(e)) from None
         from necviz.drivers.davis.transfers import check_transfers, resolve_usb
 
         if self.device == "dv" and (self.usb != "auto" or self.usb_transfers is not None):
-            raise ParameterError(
-                "--usb and --usb-transfers set necviz's driver (--device usb or emulated), not --device dv"
+            raise OptionError(
+                "LiveOptions.usb",
+                "LiveOptions.usb and LiveOptions.usb_transfers set necviz's driver (LiveOptions.device usb or "
+                "emulated), not LiveOptions.device dv",
             )
-        if self.device != "dv":
-            resolve_usb(self.usb)  # libusb1 asked for and not installed: refused here, in one line
-        if self.usb_transfers is not None:
-            n, size = self.usb_transfers
-            object.__setattr__(self, "usb_transfers", check_transfers(n, size))
+        try:
+            if self.device != "dv":
+                resolve_usb(self.usb)  # libusb1 asked for and not installed: refused here, in one line
+            if self.usb_transfers is not None:
+                n, size = self.usb_transfers
+                object.__setattr__(self, "usb_transfers", check_transfers(n, size))
+        except OptionError:
+            raise
+        except ParameterError as e:
+            raise OptionError(
+                "LiveOptions.usb_transfers" if self.usb_transfers is not None else "LiveOptions.usb", str(e)
+            ) from None
+
+    def inputs(self) -> list:
+        """The files the session reads: the emulated scene's scenario file, a tuning file, a camera profile."""
+        return [*_scene_inputs(self.scene, self.tune), self.profile]
+
+    def check_outputs(self, viewer: ViewerOptions) -> None:
+        """The files the session writes (``record``, ``json``, the viewer's ``save``), checked before the
+        camera is opened (:func:`necviz.outputs.check_run_files`); ``viewer``: resolved."""
+        from necviz.outputs import check_run_files
+
+        check_run_files({"--record": self.record, "--json": self.json}, viewer, self.inputs(), self.force)
 
 
 @dataclass(frozen=True)
@@ -725,10 +825,10 @@ class CompareOptions:
     markers: bool = False  # detect the scene's fiducial markers on every frame (--markers)
 
     def __post_init__(self):
-        object.__setattr__(self, "controllers", parse_controllers(self.controllers))
-        object.__setattr__(self, "seeds", check_flag("--seeds", self.seeds))
+        object.__setattr__(self, "controllers", parse_controllers(self.controllers, "CompareOptions.controllers"))
+        object.__setattr__(self, "seeds", check_field("CompareOptions.seeds", self.seeds))
         object.__setattr__(self, "controller_params", {k: dict(v) for k, v in (self.controller_params or {}).items()})
-        check_param_lanes(self.controller_params, self.controllers)
+        check_param_lanes(self.controller_params, self.controllers, "CompareOptions.controller_params")
         object.__setattr__(self, "sim", dict(self.sim or {}))
 
 

@@ -506,7 +506,35 @@ def failure_note(exc: BaseException, notes: list[str]) -> BaseException:
     return new
 
 
+#: the suffix each output flag's file must have
+OUTPUT_SUFFIXES = {"--record": (".necrec",), "--json": (".json",), "--video": (".mp4",), "--save": (".rrd",)}
+
+
+def check_run_files(outputs: dict, viewer, inputs, force: bool) -> None:
+    """Everything a dashboard run checks about its files before it opens a camera, a file or a viewer.
+
+    ``outputs`` maps flags to the files the command writes (``{"--record": ..., "--json": ...}``; ``None``:
+    not written), ``viewer`` (resolved :class:`~necviz.options.ViewerOptions`) adds its ``--save`` file;
+    ``inputs``: the files the run reads. Each output is new (or replaced with ``force``; the ``--save``
+    file with the viewer's own ``force``) and has its suffix, no two are one file, none is an input, and
+    the disk of a recording that grows for the whole run has room."""
+    inputs = [i for i in inputs if i is not None]
+    save = viewer.save
+    if save is not None:
+        check_output(save, "--save", inputs=inputs, force=viewer.force, suffixes=OUTPUT_SUFFIXES["--save"])
+    check_distinct({**outputs, "--save": save})
+    for flag, path in outputs.items():
+        if path is not None:
+            check_output(path, flag, inputs=inputs, force=force, suffixes=OUTPUT_SUFFIXES.get(flag))
+    check_not_input({**outputs, "--save": save}, inputs)
+    for flag, path in (("--record", outputs.get("--record")), ("--save", save)):
+        if path is not None:  # a recording grows for the whole run: refuse to start on a full disk
+            check_space(path, flag)
+
+
 __all__ = [
+    "OUTPUT_SUFFIXES",
+    "check_run_files",
     "Output",
     "OutputError",
     "RECORDING_RESERVE",

@@ -162,7 +162,8 @@ class Pipeline:
     ----------
     source : a :class:`~necviz.drivers.source.Source`.
     lanes : the lanes (at most one driving lane per camera).
-    telemetry : where per-frame metrics go (default: a :class:`Telemetry` keeping every frame).
+    telemetry : where per-frame metrics go (default: a :class:`Telemetry` keeping ``history`` frames per lane).
+    history : frames of per-frame telemetry kept per lane by the default telemetry (``None``: all).
     observers : :class:`Observer` s (the Rerun sink, a recorder).
     speed : ``None`` as fast as possible; ``1.0`` real time; ``N`` N times real time.
     sample_period_us : predictions go to observers at most this often (sensor time).
@@ -177,6 +178,7 @@ class Pipeline:
         lanes: list[Lane],
         *,
         telemetry: Telemetry | None = None,
+        history: int | None = None,
         observers=(),
         speed: float | None = None,
         sample_period_us: int = 2_000,
@@ -209,12 +211,12 @@ class Pipeline:
         self.source = source
         self.lanes = {lane.name: lane for lane in lanes}
         self._watchers: dict[str, list[Lane]] = {c: [ln for ln in lanes if ln.camera == c] for c in cameras}
-        self.telemetry = telemetry if telemetry is not None else Telemetry(names)
+        self.telemetry = telemetry if telemetry is not None else Telemetry(names, history=history)
         missing = [n for n in names if n not in self.telemetry.lanes]
         if missing:
             raise ParameterError(f"the telemetry has no lane {missing[0]!r}")
         self.telemetry.attach(lanes, source)  # what the diagnosis of saturated frames needs to know
-        limits = getattr(getattr(source, "camera_info", None), "limits", None)
+        limits = source.camera_info.limits
         #: each lane's reaction in sensor time (cause -> first exposure that used the command; :mod:`necviz.reaction`)
         self.reactions = {name: ReactionMeter(limits) for name in names}
         self.observers = list(observers)

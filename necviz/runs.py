@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields, replace
+from typing import TYPE_CHECKING
 
 from necviz.core.control import CONTROLLERS, CameraLimits, Controller, make_controller
 from necviz.core.errors import ParameterError
@@ -35,6 +36,9 @@ from necviz.core.metrics import summarise, summarise_details
 from necviz.options import SceneOptions, check_param_lanes
 from necviz.pipeline import Lane, Pipeline
 from necviz.telemetry import Telemetry
+
+if TYPE_CHECKING:
+    from necviz.drivers.sim.scene import Scene
 
 
 def sim_models(sim: dict | None):
@@ -91,7 +95,7 @@ def build_controller(
 
 
 def build_rig(
-    scene_options: SceneOptions,
+    scene: Scene,
     controllers,
     profile=None,
     controller_params: dict | None = None,
@@ -99,7 +103,9 @@ def build_rig(
     cache=None,
     threads: bool | None = None,
 ):
-    """The scene, the rig (one camera per controller) and one driving lane per controller.
+    """The rig (one camera per controller) on ``scene`` (:meth:`SceneOptions.build`), and one driving lane
+    per controller; returns ``(scene, rig, lanes, limits)``. ``controller_params``: checked by the caller
+    (:func:`~necviz.options.check_param_lanes`).
 
     ``cache``: a :class:`~necviz.drivers.sim.scene_cache.SceneCache` the rig reads the rendered scene from,
     or writes it to (a replayed demo; the packets are the same either way). ``threads``: the rig's
@@ -109,19 +115,17 @@ def build_rig(
     from necviz.core.ptedi_shared import share_event_side
     from necviz.drivers.sim.rig import RigOptions, SimRig
 
-    scene = scene_options.build()
     dvs, aps = sim_models(sim)
     rig = SimRig(
         scene,
         list(controllers),
         dvs=dvs,
         aps=aps,
-        seed=scene_options.resolved_seed,
+        seed=scene.seed,
         options=RigOptions(threads=threads),
         cache=cache,
     )
     limits = CameraLimits(aps.exposure_min_us, aps.exposure_max_us, aps.gain_max)
-    check_param_lanes(controller_params, controllers)
     profile = profile if profile is not None else simulator_profile()
     lanes = []
     for n in controllers:
@@ -197,8 +201,14 @@ def run_once(options: RunOptions, observers=(), progress=None) -> dict:
     ``progress(pipe, label, expected_s)`` runs the pipeline (default: on this thread, silently).
     """
     scene_options, controllers, sift, markers = options.scene, options.controllers, options.sift, options.markers
+    check_param_lanes(options.controller_params, controllers)
     scene, rig, lanes, _ = build_rig(
-        scene_options, controllers, options.profile, options.controller_params, options.sim, threads=options.threads
+        scene_options.build(),
+        controllers,
+        options.profile,
+        options.controller_params,
+        options.sim,
+        threads=options.threads,
     )
     tel = Telemetry([ln.name for ln in lanes], sift=sift, markers=markers)
     obs = [o(rig, lanes) if callable(o) else o for o in observers]
@@ -278,9 +288,9 @@ def run_spec(spec: dict, threads: bool | None = None) -> dict:
         raise ParameterError(f"unknown run key(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(SPEC_KEYS))}")
     scene = SceneOptions(
         spec.get("scenario", "tunnel_exit"),
-        spec.get("seed"),
-        spec.get("duration_s"),
-        dict(spec.get("scenario_params") or {}),
+        seed=spec.get("seed"),
+        duration_s=spec.get("duration_s"),
+        params=dict(spec.get("scenario_params") or {}),
     )
     profile = spec.get("profile")
     if isinstance(profile, dict):

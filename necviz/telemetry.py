@@ -151,7 +151,8 @@ class FrameTable:
     def nbytes(self) -> int:
         return sum(c.nbytes for c in self._cols.values())
 
-    def append(self, rec: FrameRecord) -> None:
+    def add_row(self, rec: FrameRecord) -> None:
+        """Keep ``rec`` (a ring drops its oldest row when full)."""
         values = [getattr(rec, k) for k in _FIELDS]  # not dataclasses.astuple: it deep-copies every field
         if self.capacity is None:
             i = self._n
@@ -382,7 +383,7 @@ class LaneTelemetry:
         self.frames += 1
         self.saturated_50 += worst > SATURATED
         self.saturated_10 += worst > SLIGHTLY
-        self.table.append(rec)
+        self.table.add_row(rec)
         return rec
 
     def _truth_metrics(self, rec: FrameRecord, frame: Frame, truth: GroundTruth) -> None:
@@ -414,9 +415,8 @@ class LaneTelemetry:
     def _events_delivered(self) -> int:
         """Events the lane's controller has received so far: those its own estimator counted (0 for a
         controller that has none, or that is fed none, like ``nec-frames``)."""
-        ctrl = self._lane.controller if self._lane is not None else None
-        est = getattr(ctrl, "estimator", None)
-        if est is None or not hasattr(est, "event_totals"):
+        est = self._lane.controller.estimator if self._lane is not None else None
+        if est is None:
             return 0
         on, off = est.event_totals()
         return int(on) + int(off)

@@ -199,11 +199,11 @@ def test_lanes_read_the_event_ceiling_from_the_simulator_configuration():
     from necviz.runs import build_rig
 
     for sim, want in (({"dvs.max_event_rate": 6e6}, 6e6), ({}, 12e6), ({"dvs.max_event_rate": None}, None)):
-        _, _, lanes, _ = build_rig(SceneOptions("tunnel_exit", duration_s=0.05), ["nec", "nec-frames"], sim=sim)
+        _, _, lanes, _ = build_rig(SceneOptions("tunnel_exit", duration_s=0.05).build(), ["nec", "nec-frames"], sim=sim)
         assert [ln.controller.bus_event_rate for ln in lanes] == [want, want]
     # an explicit option still wins over the source
     _, _, lanes, _ = build_rig(
-        SceneOptions("tunnel_exit", duration_s=0.05),
+        SceneOptions("tunnel_exit", duration_s=0.05).build(),
         ["nec"],
         controller_params={"nec": {"bus_event_rate": 1e7}},
         sim={"dvs.max_event_rate": 6e6},
@@ -230,7 +230,7 @@ def test_a_controller_switched_to_on_the_dashboard_gets_the_source_s_ceiling():
     from necviz.runs import build_rig
 
     _, rig, lanes, _ = build_rig(
-        SceneOptions("tunnel_exit", duration_s=0.05), ["navid"], sim={"dvs.max_event_rate": 6e6}
+        SceneOptions("tunnel_exit", duration_s=0.05).build(), ["navid"], sim={"dvs.max_event_rate": 6e6}
     )
     pipe = Pipeline(rig, lanes)
     pipe._drive("nec", "navid")

@@ -24,7 +24,7 @@ from necviz.calibration import (
     calibrate_from_recordings,
     calibrate_from_simulation,
 )
-from necviz.commands.calibrate import add_parser, parse_seeds
+from necviz.commands.calibrate import COMMAND, parse_seeds
 from necviz.core.camera_profile import CameraProfile
 from necviz.core.crf import default_davis346
 from necviz.core.errors import ParameterError, ProfileError
@@ -44,7 +44,7 @@ TRUE_ON, TRUE_OFF = 0.31, 0.19  # not the defaults (0.26 / 0.24), and ON != OFF
 def cli(argv):
     p = argparse.ArgumentParser(prog="necviz")
     sub = p.add_subparsers(dest="command")
-    add_parser(sub)
+    COMMAND.register(sub)
     args = p.parse_args(["calibrate", *argv])
     return args.func(args)
 

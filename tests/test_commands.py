@@ -319,7 +319,7 @@ def test_a_run_that_cannot_keep_its_speed_says_so(tmp_path, capsys):
 
 
 def test_pace_note_only_for_a_paced_run_that_fell_behind():
-    from necviz.pace import pace_note
+    from necviz.dashboard.session import pace_note
 
     assert pace_note(None, 30.0, 47.8) is None  # --speed max: no pace was asked
     assert pace_note(1.0, 30.0, 31.0) is None  # within 10 % of real time

@@ -255,8 +255,14 @@ def test_live_refuses_libusb1_without_the_package_and_usb_options_with_dv(monkey
     from necviz.commands.cli import main
     from necviz.options import LiveOptions
 
-    with pytest.raises(ParameterError, match="not --device dv"):
+    with pytest.raises(ParameterError, match="not LiveOptions.device dv"):  # the library names its fields
         LiveOptions("dv", usb="pyusb")
+    rc = main(["live", "--device", "dv", "--no-prompt", "--usb", "pyusb"])
+    err = capsys.readouterr().err.strip()  # the command line names the flags
+    assert (
+        rc == 2 and "--usb and --usb-transfers set necviz's driver (--device usb or emulated), not --device dv" in err
+    )
+    assert len(err.splitlines()) == 1
     monkeypatch.setitem(sys.modules, "usb1", None)
     rc = main(["live", "--device", "emulated", "--no-prompt", "--usb", "libusb1"])
     err = capsys.readouterr().err.strip()

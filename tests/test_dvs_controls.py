@@ -137,7 +137,9 @@ def test_help_lists_the_dvs_controls_only_where_the_source_has_them():
     assert {"dvs.c_on", "dvs.refractory_us", "dvs.ba_filter_us", "bias.NAME"} <= set(keys(pipe))
     assert "dvs.bandwidth_hz" in help_text(pipe)
 
-    class Replay:  # a recording: no DVS to set
+    from necviz.drivers.source import Source
+
+    class Replay(Source):  # a recording: no DVS to set
         from necviz.drivers.source import CameraInfo
 
         cameras = ("camera",)

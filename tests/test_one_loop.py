@@ -102,8 +102,8 @@ def test_frame_table_ring_and_growth():
     ring, full = FrameTable(3), FrameTable(None)
     for i in range(10):
         rec = FrameRecord(i, i * 10, i * 10 + 5, 5.0, 1.0, 0.0, 0.0)
-        ring.append(rec)
-        full.append(rec)
+        ring.add_row(rec)
+        full.add_row(rec)
     assert ring.column("sequence").tolist() == [7, 8, 9] and ring.total == 10 and len(ring) == 3
     assert full.column("sequence").tolist() == list(range(10))
     assert [r["sequence"] for r in ring.rows()] == [7, 8, 9] and ring.rows()[0]["measured_log_irradiance"] is None

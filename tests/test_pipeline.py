@@ -21,7 +21,7 @@ from necviz.core.sensor import SensorGeometry
 from necviz.core.stream import packet_time_us
 from necviz.dashboard.sink import RerunSink, SinkOptions
 from necviz.drivers.recordings import Recorder, open_recording
-from necviz.drivers.source import CameraInfo, route
+from necviz.drivers.source import CameraInfo, Source, route
 from necviz.pipeline import Lane, Pipeline, RecorderObserver
 
 pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
@@ -29,7 +29,7 @@ pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 
 SENSOR = SensorGeometry(32, 24, "test")
 
 
-class ListSource:
+class ListSource(Source):
     """A single-camera source over a packet list; records commands; may fail after ``fail_after`` packets."""
 
     cameras = ("camera",)

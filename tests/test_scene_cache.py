@@ -16,7 +16,7 @@ pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 
 
 
 def _rig(cache, duration_s=0.2, threads=True, seed=0, **params):
-    scene = SceneOptions("tunnel_exit", seed, duration_s, params).build()
+    scene = SceneOptions("tunnel_exit", seed=seed, duration_s=duration_s, params=params).build()
     cams = {f"cam{i}": (float(e), 1.0) for i, e in enumerate(np.geomspace(20, 15_000, 4))}
     return SimRig(scene, cams, seed=seed, options=RigOptions(threads=threads), cache=cache)
 

@@ -46,7 +46,7 @@ REFERENCE = Path(__file__).parent / "data" / "sim_reference.json"
 
 
 def _rig(threads, duration_s: float = 0.3) -> SimRig:
-    scene = SceneOptions("tunnel_exit", 0, duration_s, dict(NOMINAL)).build()
+    scene = SceneOptions("tunnel_exit", seed=0, duration_s=duration_s, params=dict(NOMINAL)).build()
     exposures = np.geomspace(20, 15_000, 6)
     return SimRig(
         scene,

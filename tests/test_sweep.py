@@ -180,7 +180,10 @@ def test_report_matches_compare(first, tmp_path):
     assert len((tmp_path / "rep" / "runs.csv").read_text().splitlines()) == 9
     assert rep["plots"] and all(Path(p).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in rep["plots"])
     cmp_ = run(
-        CompareOptions(SceneOptions("tunnel_exit", 0, 0.2, {"exit_s": 0.1}), ("nec",), seeds=2, sift=False), out=None
+        CompareOptions(
+            SceneOptions("tunnel_exit", seed=0, duration_s=0.2, params={"exit_s": 0.1}), ("nec",), seeds=2, sift=False
+        ),
+        out=None,
     )["controllers"]["nec"]
     cell = next(
         c for c in rep["table"] if c["columns"]["controller"] == "nec" and c["columns"]["scenario_params.exit_s"] == 0.1

@@ -312,7 +312,8 @@ class NECOptions(ControllerOptions):
             0.0,
             lo_open=True,
         ),
-        Tunable("goal", "DN", "goal intensity I_opt: the digit the metered statistic aims at", 0.0, 255.0, True, True),
+        # its range depends on the camera response and the metering: checked in NECController._check_goal alone
+        Tunable("goal", "DN", "goal intensity I_opt: the digit the metered statistic aims at"),
         Tunable("min_command_change", "ln", "a new command must differ from the last by more than this", 0.0),
         Tunable(
             "edge_margin",
@@ -476,23 +477,29 @@ class NECController(Controller):
             )
         if self.options is not None and options.metering != self.options.metering:
             raise ParameterError("the metering mode is chosen when NEC is built; it cannot change while running")
-        goal = float(crf.intensity(self._goal_log_exposure(options)))
-        if not crf.valid_min < goal < crf.valid_max:
-            raise ParameterError(
-                f"goal must lie inside the valid range {crf.valid_min}..{crf.valid_max} DN, got {goal:g}"
+        if options.metering == "percentile":  # percentile, highlight and floor are percentile metering's alone
+            for label, v in (("highlight", options.highlight), ("floor", options.floor)):
+                if not crf.valid_min < v < crf.valid_max:
+                    raise ParameterError(
+                        f"percentile metering needs {crf.valid_min} < {label} < {crf.valid_max} DN, got {v:g}"
+                    )
+        self._check_goal(options)
+
+    def _check_goal(self, options: NECOptions) -> None:
+        """NEC's goal range, checked here and nowhere else: the goal digit (``goal``, else the goal mode's)
+        lies strictly inside the camera response's valid range and, with percentile metering, strictly
+        between ``floor`` and ``highlight``."""
+        crf = self.estimator.crf
+        lo, hi = float(crf.valid_min), float(crf.valid_max)
+        where = f"the valid range {crf.valid_min}..{crf.valid_max} DN"
+        if options.metering == "percentile":
+            lo, hi = max(lo, options.floor), min(hi, options.highlight)
+            where += (
+                f" and, for percentile metering, floor < goal < highlight ({options.floor:g}..{options.highlight:g} DN)"
             )
-        if options.metering != "percentile":
-            return  # percentile, highlight and floor are percentile metering's alone
-        for label, v in (("highlight", options.highlight), ("floor", options.floor)):
-            if not crf.valid_min < v < crf.valid_max:
-                raise ParameterError(
-                    f"percentile metering needs {crf.valid_min} < {label} < {crf.valid_max} DN, got {v:g}"
-                )
-        if not options.floor < goal < options.highlight:
-            raise ParameterError(
-                f"percentile metering needs floor < goal < highlight, got {options.floor:g}, "
-                f"{goal:.1f}, {options.highlight:g} DN"
-            )
+        goal = options.goal if options.goal is not None else float(crf.intensity(self._goal_log_exposure(options)))
+        if not lo < goal < hi:
+            raise ParameterError(f"goal = {goal:g} is out of range: it must lie inside {where}")
 
     def _apply_options(self, options: ControllerOptions) -> None:
         assert isinstance(options, NECOptions)  # Controller checks it; replace() keeps the class

@@ -58,7 +58,7 @@ from necviz.drivers.davis.transfers import (
     make_reader,
     resolve_usb,
 )
-from necviz.drivers.source import CAMERA, CameraInfo, route
+from necviz.drivers.source import CAMERA, CameraInfo, Source, route
 
 if TYPE_CHECKING:
     from necviz.drivers.davis.emulator import EmulatorOptions, Faults
@@ -150,7 +150,7 @@ class CameraOptions:
         object.__setattr__(self, "transfer_size", size)
 
 
-class DavisCamera(CommandedCamera):
+class DavisCamera(CommandedCamera, Source):
     """A DAVIS camera (real or emulated) as a closed-loop source. Build it with :func:`open_camera`.
 
     Attributes: ``sensor`` (from the device's DVS size registers), ``info`` (serial, firmware, logic
@@ -300,6 +300,8 @@ class DavisCamera(CommandedCamera):
             self._commands.issue(t, exp, g, cycles)
 
     # -- DVS biases and filters (issue 29) -----------------------------------------------------------
+    takes_dvs_biases = True
+
     @property
     def dvs_family(self) -> str:
         """The bias table the chip uses: ``"DAVIS240"`` or ``"DAVIS346"``."""

@@ -36,7 +36,7 @@ from necviz.core.events import EVENT_DTYPE, EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.imu import IMU_DTYPE, TRIGGER_DTYPE, ImuBatch, TriggerBatch
 from necviz.core.sensor import DAVIS240, DAVIS346, SensorGeometry, known_event_rate_max
-from necviz.drivers.source import CAMERA, CameraInfo, route
+from necviz.drivers.source import CAMERA, CameraInfo, Source, route
 
 #: Batch bounds of every reader (sensor time per event batch, events per batch).
 BATCH_US = 1000
@@ -135,6 +135,7 @@ class StderrTrap:
     _lock = threading.Lock()
 
     def __init__(self):
+        self._file = None  # the temporary file where memfd_create is missing
         try:
             self._fd = os.memfd_create("necviz-stderr", 0)
         except (AttributeError, OSError):
@@ -181,7 +182,7 @@ class StderrTrap:
         """Release the trap's file (idempotent); later calls run untrapped."""
         if self._fd is None:
             return
-        if getattr(self, "_file", None) is not None:
+        if self._file is not None:
             self._file.close()
         else:
             os.close(self._fd)
@@ -286,7 +287,7 @@ def imu_from_si(t_us, accel_ms2, gyro_rad_s) -> np.ndarray:
     return imu
 
 
-class Recording:
+class Recording(Source):
     """A recorded file replayed as a :class:`~necviz.drivers.source.Source`.
 
     Iterating yields packets in stream order, restricted to ``[start_us, end_us)`` (events, IMU

@@ -52,7 +52,7 @@ from necviz.core.ground_truth import TRACE_STEP, GroundTruth
 from necviz.drivers.sim.aps import ApsParams, expose, integrate_samples
 from necviz.drivers.sim.dvs import DvsParams, EventSimulator
 from necviz.drivers.sim.scene import Scene
-from necviz.drivers.source import CameraInfo, CommandRecord
+from necviz.drivers.source import CameraInfo, CommandRecord, Source
 
 #: commands kept per camera once applied or superseded (``SimRig.commands``); older ones are forgotten
 COMMAND_HISTORY = 4096
@@ -136,7 +136,7 @@ class RigOptions:
         object.__setattr__(self, "threads", None if self.threads is None else bool(self.threads))
 
 
-class SimRig:
+class SimRig(Source):
     """Several simulated cameras sharing one scene and one event stream.
 
     Parameters
@@ -226,8 +226,8 @@ class SimRig:
         # events lost at the bus ceiling, for ground truth: (DVS step time, cumulative ON, cumulative OFF)
         self._lost: deque = deque()
         self._changes = tuple(scene.changes)
-        self._pedestrian = getattr(scene, "pedestrian_box", None)
-        self._markers = getattr(scene, "marker_truth", None)
+        self._pedestrian = scene.pedestrian_box
+        self._markers = scene.marker_truth
         self.cams: dict[str, _CamState] = {}
         for i, (name, init) in enumerate(cameras.items()):
             exp_us, gain = init if init is not None else (self._default_exposure(), 1.0)
@@ -276,6 +276,13 @@ class SimRig:
         self.cams[name].pending.append(CommandRecord(t, float(exposure_us), float(gain)))
 
     # -- DVS biases (issue 29) ----------------------------------------------------------------------
+    takes_dvs_biases = True
+
+    @property
+    def dvs_pixel(self) -> DvsParams:
+        """The simulated pixel at libcaer's default biases (:attr:`dvs_base`)."""
+        return self.dvs_base
+
     def set_dvs_biases(self, words: dict[int, int]) -> None:
         """Write DVS bias words (module-5 parameter -> word, as to a DAVIS346): the event model takes the
         thresholds, refractory period and bandwidth they give (:func:`~necviz.drivers.sim.dvs.params_for_biases`)."""

@@ -8,12 +8,17 @@ A scene is deterministic: the same parameters and seed give the same field at ev
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from necviz.core.errors import ParameterError
 from necviz.core.sensor import DAVIS346, SensorGeometry
+
+if TYPE_CHECKING:
+    from necviz.core.markers import MarkerTruth
 
 
 @dataclass(frozen=True)
@@ -30,9 +35,18 @@ class Scene:
 
     Attributes: ``name``, ``sensor``, ``duration_us``, ``seed``, ``params`` (the documented
     parameters as a plain dict), ``changes`` (list of :class:`LightingChange`).
+
+    Ground truth a scene may give (``None`` where it has none): ``pedestrian_box(t_us)``, the box of a
+    pedestrian seen at ``t_us`` (``tunnel_exit``), ``marker_truth(t_us)``, its fiducial markers
+    (:class:`~necviz.core.markers.MarkerTruth`), ``mean_log(t_us)``, its exact mean ``ln L``; and
+    ``bracket_us``, the length of a static opening made for exposure brackets (0: none).
     """
 
     name = "scene"
+    pedestrian_box: Callable[..., tuple[int, int, int, int] | None] | None = None
+    marker_truth: Callable[[float], MarkerTruth | None] | None = None
+    mean_log: Callable[[float], float] | None = None
+    bracket_us: int = 0
 
     def __init__(
         self,

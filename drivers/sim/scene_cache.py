@@ -92,7 +92,7 @@ class SceneCache:
             return None  # a user's own scene class: its code is not in the fingerprint
         desc = {
             "scene": f"{cls.__module__}.{cls.__qualname__}",
-            "name": getattr(scene, "name", None),
+            "name": scene.name,
             "sensor": [scene.sensor.width, scene.sensor.height],
             "duration_us": int(scene.duration_us),
             "seed": int(scene.seed),

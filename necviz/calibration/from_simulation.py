@@ -39,8 +39,8 @@ class ExposureOracle:
 
     def __init__(self, scene, crf: CameraResponse, aps, brackets: bool = True):
         self.scene, self.crf, self.aps = scene, crf, aps
-        self.bracket_us = int(getattr(scene, "bracket_us", 0) or 0) if brackets else 0
-        self._mean = getattr(scene, "mean_log", None) or (lambda t: float(np.mean(scene.log_irradiance(t))))
+        self.bracket_us = int(scene.bracket_us or 0) if brackets else 0
+        self._mean = scene.mean_log or (lambda t: float(np.mean(scene.log_irradiance(t))))
 
     def __call__(self, start_us: int, k: int) -> tuple[float, float]:
         aps = self.aps

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 # light imports only: the parser is built for every command line (`necviz --help` must not load NumPy)
 from necviz.calibration.settings import DEFAULT_LOSS, DEFAULT_SLOW_RATE, DEFAULTS
+from necviz.commands import Command
 from necviz.core.errors import ParameterError
 
 if TYPE_CHECKING:
@@ -64,17 +65,9 @@ def _parse_sensor(text: str) -> SensorGeometry:
     return SensorGeometry(w, h, f"{w}x{h}")
 
 
-def add_parser(subparsers) -> argparse.ArgumentParser:
-    """Register ``necviz calibrate`` on an ``argparse`` subparsers object; returns the parser."""
+def add_arguments(p) -> None:
     from necviz.flags import number
 
-    p = subparsers.add_parser(
-        "calibrate",
-        help="fit a camera profile (TEDI c±, a±, b± by Eq. 7; response from brackets) from recordings or the simulator",
-        description="Fits the six TEDI parameters by frame-to-frame consistency (Eq. 7) on recordings (any "
-        "supported format) or simulator runs, and the camera response (Debevec-Malik) where the data hold "
-        "exposure brackets of a static scene; writes a camera profile (JSON) for --profile.",
-    )
     p.add_argument(
         "files", nargs="*", metavar="FILE", help="recordings (necviz, AEDAT 4/3.1/2.0, ROS bag, HDF5, RPG text)"
     )
@@ -210,8 +203,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "bandwidth_hz; repeatable)",
     )
     p.add_argument("--name", default=None, help="profile name (default: derived from the inputs)")
-    p.set_defaults(func=run)
-    return p
 
 
 def run(args: argparse.Namespace) -> int:
@@ -318,7 +309,7 @@ def _bias_changes(path, exposure_us) -> int:
 
     rec = open_recording(path, exposure_us=exposure_us)
     try:
-        notes = getattr(rec, "annotations", None)
+        notes = rec.annotations
         return len(BiasTimeline.from_annotations(notes).changes) if notes else 0
     finally:
         rec.close()
@@ -362,3 +353,14 @@ def _write_settings(fits, which, out: Path, rep, args, inputs) -> int:
         written.append(str(rep))
     print(f"wrote {', '.join(written)}")
     return 0
+
+
+COMMAND = Command(
+    name="calibrate",
+    help="fit a camera profile (TEDI c±, a±, b± by Eq. 7; response from brackets) from recordings or the simulator",
+    description="Fits the six TEDI parameters by frame-to-frame consistency (Eq. 7) on recordings (any "
+    "supported format) or simulator runs, and the camera response (Debevec-Malik) where the data hold "
+    "exposure brackets of a static scene; writes a camera profile (JSON) for --profile.",
+    add_arguments=add_arguments,
+    run=run,
+)

@@ -21,17 +21,20 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
-import numpy as np
-
-from necviz.core.metrics import confidence_interval
-from necviz.options import CompareOptions
-from necviz.outputs import check_distinct, check_output, check_space, failure_note, write_json
-from necviz.pipeline import Pipeline
+from necviz.commands import Command
+from necviz.commands.args import (
+    add_scene_args,
+    controller_choices,
+    controller_list,
+    scene_options,
+)
 from necviz.progress import output
-from necviz.reaction import reaction_line
-from necviz.runs import RunOptions, run_once
-from necviz.wording import CAUSE_WORDS
+
+if TYPE_CHECKING:
+    from necviz.options import CompareOptions
+    from necviz.pipeline import Pipeline
 
 METRICS = (
     "frames",
@@ -146,6 +149,9 @@ def run(options: CompareOptions | None = None, out=...) -> dict:
     ParameterError
         Bad options or output files.
     """
+    from necviz.options import CompareOptions
+    from necviz.outputs import check_distinct, check_output, check_space, failure_note
+
     out = output(out)
     options = options or CompareOptions()
     outputs = {"--json": options.json, "--save": options.save}
@@ -184,6 +190,12 @@ def run(options: CompareOptions | None = None, out=...) -> dict:
 
 
 def _run(options: CompareOptions, names, sc, seed0, profile, file_sink, out) -> dict:
+    import numpy as np
+
+    from necviz.core.metrics import confidence_interval
+    from necviz.outputs import write_json
+    from necviz.runs import RunOptions, run_once
+
     runs = []
     reactions = []  # per run: each lane's reaction in sensor time (necviz.reaction)
 
@@ -274,6 +286,9 @@ def _run(options: CompareOptions, names, sc, seed0, profile, file_sink, out) -> 
 
 
 def print_table(result: dict, out) -> None:
+    from necviz.reaction import reaction_line
+    from necviz.wording import CAUSE_WORDS
+
     seeds = result["seeds"]
     print(
         f"\n{result['scenario']}, {result['duration_s']:g} s, seed {result['seed']}"
@@ -345,6 +360,8 @@ EVENT_METRICS = ("saturated_frames_50", "saturated_frames_10", "true_valid_fract
 def events_added(runs: list[dict], names) -> dict | None:
     """``nec`` − ``nec-frames`` per metric, paired by seed (both saw the same scene and events):
     ``{metric: {"mean", "ci95", "per_seed"}}``; ``None`` unless both lanes ran."""
+    from necviz.core.metrics import confidence_interval
+
     if "nec" not in names or "nec-frames" not in names:
         return None
     out = {}
@@ -396,3 +413,73 @@ def _file_sink(options: CompareOptions, rig, lanes):
     return open_file_sink(
         options.save, [ln.name for ln in lanes], rig.sensor, "compare", f"necviz compare: {sc.name}", props
     )
+
+
+def add_arguments(p) -> None:
+    from necviz.flags import number
+    from necviz.names import COMPARE_CONTROLLERS
+
+    add_scene_args(p)
+    p.add_argument(
+        "--controllers",
+        type=controller_list,
+        default=",".join(COMPARE_CONTROLLERS),
+        help=f"comma-separated, from {', '.join(controller_choices())} (default: {', '.join(COMPARE_CONTROLLERS)})",
+    )
+    p.add_argument("--seeds", type=number("--seeds"), default=1, help="repeat over this many seeds: mean ± 95 %% CI")
+    p.add_argument("--json", metavar="FILE", help="write the results as JSON")
+    p.add_argument("--save", metavar="FILE.rrd", help="write a Rerun recording (the demo's schema and layout)")
+    p.add_argument("--no-sift", action="store_true", help="skip the SIFT inlier metric (the slowest part)")
+    p.add_argument(
+        "--markers",
+        action="store_true",
+        help="detect the scene's fiducial markers on every frame: detection rate, latency after each "
+        "lighting change, corner error (about 2 ms a frame)",
+    )
+    p.add_argument("--profile", metavar="FILE.json", help="camera profile (CRF, TEDI thresholds and compensation)")
+    p.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME.KEY=VALUE",
+        help="a controller parameter (repeatable), e.g. --param nec.goal=110 --param navid.target_msv=3",
+    )
+    p.add_argument(
+        "--sim",
+        action="append",
+        default=[],
+        metavar="MODEL.KEY=VALUE",
+        help="a simulator model parameter (repeatable), e.g. --sim dvs.max_event_rate=1e9",
+    )
+    p.add_argument("--force", action="store_true", help="replace existing output files")
+
+
+def _command(args) -> int:
+    from necviz.options import CompareOptions, parse_params
+
+    sim = {f"{model}.{k}": v for model, kv in parse_params(args.sim, "--sim").items() for k, v in kv.items()}
+    run(
+        CompareOptions(
+            scene_options(args),
+            args.controllers,
+            seeds=args.seeds,
+            sift=not args.no_sift,
+            json=args.json,
+            save=args.save,
+            force=args.force,
+            profile=args.profile,
+            controller_params=parse_params(args.param),
+            sim=sim,
+            markers=args.markers,
+        )
+    )
+    return 0
+
+
+COMMAND = Command(
+    name="compare",
+    help="NEC versus the baselines in closed loop on one simulated scene",
+    description=None,
+    add_arguments=add_arguments,
+    run=_command,
+)

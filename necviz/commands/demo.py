@@ -13,27 +13,26 @@ rendering (the packets are the same). From Python::
 
 from __future__ import annotations
 
-from necviz.dashboard import session as dashboard
-from necviz.dashboard.recorders import open_recorder
-from necviz.dashboard.session import Session, lane_labels, preflight, scene_inputs
-from necviz.drivers.sim.scene_cache import SceneCache
-from necviz.layouts import make_blueprint
-from necviz.options import DemoOptions, ViewerOptions
+from typing import TYPE_CHECKING
+
+from necviz.commands import Command
+from necviz.commands.args import (
+    add_clip_args,
+    add_scene_args,
+    add_show_args,
+    add_video_args,
+    clip_options,
+    controller_choices,
+    controller_list,
+    scene_options,
+    show_options,
+    tune_options,
+    video_options,
+)
 from necviz.progress import output
-from necviz.runs import build_rig
 
-
-def _observers(options: DemoOptions, video) -> list:
-    out = []
-    if options.clips is not None:
-        from necviz.dashboard.flight_recorder import clip_observer
-
-        out.append(clip_observer(options.clips))
-    if video is not None:
-        from necviz.dashboard.video import video_observer
-
-        out.append(video_observer(video))
-    return out
+if TYPE_CHECKING:
+    from necviz.options import DemoOptions, ViewerOptions
 
 
 def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None, out=..., stdin=None) -> dict:
@@ -60,28 +59,36 @@ def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None,
     ParameterError
         Bad options or output files (an output that exists without ``force``, or is an input).
     """
+    from necviz.dashboard import session as dashboard
+    from necviz.dashboard.session import Session, lane_labels
+    from necviz.dashboard.viewer import resolve
+    from necviz.drivers.sim.scene_cache import SceneCache
+    from necviz.layouts import make_blueprint
+    from necviz.options import DemoOptions, ViewerOptions
+    from necviz.profiles import load_profile
+    from necviz.runs import build_rig
+
     out = output(out)
     options = options or DemoOptions()
-    video = options.video.path if options.video is not None else None
-    viewer, profile = preflight(
-        "demo",
-        viewer,
-        {"--record": options.record, "--video": video},
-        options.force,
-        inputs=scene_inputs(options.scene, options.tune),
-        profile=options.profile,
-    )  # before anything starts
-    show = options.show
-    video_options = options.video
-    if video_options is not None:  # only files: the run goes as fast as it can, the video keeps its own pace
-        from necviz.dashboard.video import plan
-
-        show, video_options = plan(show, video_options, viewer)
-    if options.clips is not None:
-        options.clips.check()
+    viewer = resolve(viewer or ViewerOptions(), "demo")  # the headless default filled in
     sc = options.scene
+    scene = sc.build()  # a bad scene parameter is refused before any file is looked at
+    options.check_outputs(viewer)  # before anything starts
+    profile = load_profile(options.profile) if options.profile is not None else None
+    show = options.show
+    observers = []  # the command's own: the video writer, the flight recorder (made when the run starts)
+    if options.video is not None:  # only files: the run goes as fast as it can, the video keeps its own pace
+        from necviz.dashboard.video import plan, video_observer
+
+        show, video_options = plan(show, options.video, viewer)
+        observers.append(video_observer(video_options))
+    if options.clips is not None:
+        from necviz.dashboard.flight_recorder import clip_observer
+
+        options.clips.check()
+        observers.insert(0, clip_observer(options.clips))
     # a demo is replayed: its scene and events come from the scene cache from the second run on
-    scene, rig, lanes, limits = build_rig(sc, options.controllers, profile, cache=SceneCache.default())
+    scene, rig, lanes, limits = build_rig(scene, options.controllers, profile, cache=SceneCache.default())
     props = {
         "command": "demo",
         "scenario": sc.name,
@@ -92,9 +99,6 @@ def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None,
         "camera_limits": limits,
         "camera_profile": str(options.profile) if options.profile else "default DAVIS346 response",
     }
-    recorder = None
-    if options.record is not None:
-        recorder = open_recorder(options.record, rig.sensor, {**props, "recorded_lane": lanes[0].name})
     print(f"  demo: {sc.name}, {', '.join(ln.name for ln in lanes)} ({props['duration_s']:g} s simulated)", file=out)
     layout = viewer.layout or "compare"
     blueprint = make_blueprint(
@@ -112,12 +116,64 @@ def run(options: DemoOptions | None = None, viewer: ViewerOptions | None = None,
             properties=props,
             show=show,
             tune=options.tune,
-            recorder=recorder,
+            record=options.record,
+            record_properties={**props, "recorded_lane": lanes[0].name},
             record_camera=lanes[0].camera or lanes[0].name,
             lossless=True,
             expected_duration_s=props["duration_s"],
-            observers=_observers(options, video_options),
+            observers=observers,
         ),
         out,
         stdin,
     )
+
+
+def add_arguments(p) -> None:
+    from necviz.names import DEFAULT_CONTROLLERS
+
+    add_scene_args(p)
+    p.add_argument(
+        "--controllers",
+        type=controller_list,
+        default=",".join(DEFAULT_CONTROLLERS),
+        help=f"comma-separated, from {', '.join(controller_choices())} (default: {', '.join(DEFAULT_CONTROLLERS)})",
+    )
+    p.add_argument(
+        "--record",
+        metavar="FILE.necrec",
+        help="also record the first controller's camera (events, frames, commands) to a crash-safe native file",
+    )
+    add_show_args(p)
+    add_clip_args(p)
+    add_video_args(p)
+
+
+def _command(args) -> int:
+    from necviz.dashboard.viewer_flags import viewer_options
+    from necviz.options import DemoOptions
+
+    run(
+        DemoOptions(
+            scene_options(args),
+            args.controllers,
+            record=args.record,
+            force=args.force,
+            profile=args.profile,
+            show=show_options(args),
+            tune=tune_options(args),
+            clips=clip_options(args),
+            video=video_options(args),
+        ),
+        viewer_options(args),
+    )
+    return 0
+
+
+COMMAND = Command(
+    name="demo",
+    help="the dashboard on the simulator: tunnel_exit, NEC versus the baselines side by side",
+    description="A simulated scene (tunnel_exit by default), every controller driving its own "
+    "camera, shown in the compare layout. No hardware or files needed.",
+    add_arguments=add_arguments,
+    run=_command,
+)

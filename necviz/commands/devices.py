@@ -3,10 +3,14 @@ the emulated one; ``--check``: what one camera actually sends (:mod:`necviz.driv
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+from necviz.commands import Command
 from necviz.core.errors import NecvizError, ParameterError
-from necviz.drivers.davis import protocol as P
-from necviz.drivers.davis.device import DeviceInfo, describe, usb_backend
 from necviz.progress import output
+
+if TYPE_CHECKING:
+    from necviz.drivers.davis.device import DeviceInfo
 
 #: the commands a listed camera is used with, by backend
 _USE = {"usb": "--device usb", "dv": "--device dv", "emulated": "--device emulated"}
@@ -19,6 +23,7 @@ def list_devices(include_emulated: bool = True) -> list[DeviceInfo]:
     Cameras that cannot be opened (permission denied, old firmware) are listed with ``error`` set.
     If libusb itself is missing, no camera is listed through it.
     """
+    from necviz.drivers.davis.device import describe, usb_backend
     from necviz.drivers.dv_camera import find_dv_cameras
 
     out: list[DeviceInfo] = []
@@ -36,6 +41,9 @@ def list_devices(include_emulated: bool = True) -> list[DeviceInfo]:
 
 def run(include_emulated: bool = True, out=...) -> int:
     """Print the cameras found and what to do with them; 0 if a usable camera was listed, else 1."""
+    from necviz.drivers.davis import protocol as P
+    from necviz.drivers.davis.device import usb_backend
+
     out = output(out)
     try:
         usb_backend()
@@ -122,7 +130,7 @@ def check(
     from pathlib import Path
 
     from necviz.drivers.davis.check import CHECK_SECONDS, analyse, capture, report_lines
-    from necviz.drivers.davis.device import open_device
+    from necviz.drivers.davis.device import open_device, usb_backend
 
     out = output(out)
     if device not in ("usb", "emulated"):
@@ -150,3 +158,49 @@ def check(
     for line in report_lines(report, capture_path):
         print(line, file=out)
     return 1 if report.level == "FAIL" else 0
+
+
+def add_arguments(p) -> None:
+    from necviz.flags import number
+
+    p.add_argument("--no-emulated", action="store_true", help="list real cameras only")
+    p.add_argument("--check", action="store_true", help="record and judge one camera's stream")
+    p.add_argument(
+        "--device",
+        choices=("usb", "emulated"),
+        default="usb",
+        help="with --check: usb (default, a real camera) or emulated",
+    )
+    p.add_argument("--serial", default=None, help="with --check: which camera when several are attached")
+    p.add_argument(
+        "--capture", metavar="FILE", default=None, help="with --check: keep the raw stream in FILE (a new file)"
+    )
+    p.add_argument(
+        "--seconds",
+        type=number("--seconds", "devices"),
+        default=None,
+        metavar="S",
+        help="with --check: how long to record (default 2)",
+    )
+
+
+def _command(args) -> int:
+
+    if args.check:
+        return check(args.device, args.serial, args.capture, args.seconds)
+    if args.capture is not None or args.seconds is not None:
+        from necviz.core.errors import ParameterError
+
+        raise ParameterError("--capture and --seconds go with --check")
+    return run(include_emulated=not args.no_emulated)
+
+
+COMMAND = Command(
+    name="devices",
+    help="attached (and emulated) DAVIS cameras: serial, firmware, logic version; --check: what one sends",
+    description="Lists the DAVIS cameras found through necviz's driver and through dv-processing, and the "
+    "emulated one. --check records a camera's raw stream for a few seconds and says what it held "
+    "(events, frames, exposure echoes, the first frame's words, transfer timing) with a verdict.",
+    add_arguments=add_arguments,
+    run=_command,
+)

@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from necviz.commands import Command
 from necviz.names import FORMATS
 from necviz.progress import LiveLine, output, plural
 
@@ -78,14 +79,14 @@ def _export(options, out, file, source: Path, out_path) -> dict:
             properties={
                 "exported_from": Path(file).name,
                 "format": recording.format,
-                **getattr(recording, "properties", {}),
+                **recording.properties,
             },
             progress=progress,
         )
     finally:
         line.clear()
         recording.close()
-    for w in getattr(recording, "warnings", []):
+    for w in recording.warnings:
         print(f"  warning: {w}", file=out)
     c = stats["counts"]
     span = 0.0 if stats["first_us"] is None else (stats["last_us"] - stats["first_us"]) / 1e6
@@ -98,14 +99,9 @@ def _export(options, out, file, source: Path, out_path) -> dict:
     return stats
 
 
-def add_parser(sub) -> None:
+def add_arguments(p) -> None:
     from necviz.flags import number
 
-    p = sub.add_parser(
-        "export",
-        help="convert a recording to AEDAT 4 (DV), HDF5 (DSEC layout), NumPy .npz or a native clip",
-        description=__doc__.split("\n\n")[0].replace("``", "") + " " + __doc__.split("\n\n")[1].replace("``", ""),
-    )
     p.add_argument("file", metavar="IN", help="the recording (any format necviz replay reads)")
     p.add_argument("out", metavar="OUT", help="the output: .aedat4, .h5/.hdf5, .npz or .necrec")
     p.add_argument(
@@ -133,7 +129,6 @@ def add_parser(sub) -> None:
         choices=("lz4", "zstd", "none"),
         help="packet compression of .aedat4 (default lz4) and .necrec (default zstd)",
     )
-    p.set_defaults(func=_cmd)
 
 
 def _cmd(args) -> int:
@@ -153,6 +148,15 @@ def _cmd(args) -> int:
         )
     )
     return 0
+
+
+COMMAND = Command(
+    name="export",
+    help="convert a recording to AEDAT 4 (DV), HDF5 (DSEC layout), NumPy .npz or a native clip",
+    description=__doc__.split("\n\n")[0].replace("``", "") + " " + __doc__.split("\n\n")[1].replace("``", ""),
+    add_arguments=add_arguments,
+    run=_cmd,
+)
 
 
 if __name__ == "__main__":  # pragma: no cover

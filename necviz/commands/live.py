@@ -14,17 +14,25 @@ If the camera is unplugged, everything recorded so far is flushed (the ``.rrd`` 
 
 from __future__ import annotations
 
-from necviz.core.control import make_controller
+from typing import TYPE_CHECKING
+
+from necviz.commands import Command
+from necviz.commands.args import (
+    add_clip_args,
+    add_scene_args,
+    add_show_args,
+    clip_options,
+    controller_choices,
+    scene_options,
+    show_options,
+    tune_options,
+)
 from necviz.core.errors import ParameterError
-from necviz.dashboard import session as dashboard
-from necviz.dashboard.flight_recorder import clip_observer
-from necviz.dashboard.recorders import open_recorder
-from necviz.dashboard.session import Session, lane_labels, preflight, scene_inputs
-from necviz.layouts import make_blueprint
-from necviz.options import LiveOptions, ViewerOptions
-from necviz.outputs import write_json
-from necviz.pipeline import Lane
 from necviz.progress import output
+
+if TYPE_CHECKING:
+    from necviz.drivers.davis.emulator import EmulatedDavis346
+    from necviz.options import LiveOptions, ViewerOptions
 
 LANE = "camera"
 #: the reader's queue holds at most this much sensor time beyond what the loop has taken: one frame interval (20 ms),
@@ -64,6 +72,17 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     ParameterError
         Bad options or output files.
     """
+    from necviz.core.control import make_controller
+    from necviz.dashboard import session as dashboard
+    from necviz.dashboard.flight_recorder import clip_observer
+    from necviz.dashboard.session import Session, lane_labels
+    from necviz.dashboard.viewer import resolve
+    from necviz.layouts import make_blueprint
+    from necviz.options import LiveOptions, ViewerOptions
+    from necviz.outputs import write_json
+    from necviz.pipeline import Lane
+    from necviz.profiles import load_profile
+
     out = output(out)
     options = options or LiveOptions()
     if options.device == "emulated":  # the scene's --set values against the run's duration, before anything opens
@@ -76,14 +95,9 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
             seed=options.scene.resolved_seed,
             **{**spec["params"], **options.scene.params},
         )
-    viewer, profile = preflight(
-        "live",
-        viewer,
-        {"--record": options.record, "--json": options.json},
-        options.force,
-        inputs=scene_inputs(options.scene, options.tune),
-        profile=options.profile,
-    )  # before the camera is opened
+    viewer = resolve(viewer or ViewerOptions(), "live")  # the headless default filled in
+    options.check_outputs(viewer)  # before the camera is opened
+    profile = load_profile(options.profile) if options.profile is not None else None
     if options.clips is not None:
         options.clips.check()
     from necviz.drivers.davis import CameraOptions, open_camera
@@ -143,19 +157,13 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
         "camera_profile": str(options.profile) if options.profile else "default DAVIS346 response",
         **({"scenario": options.scene.name} if options.device == "emulated" else {}),
     }
-    recorder = None
-    try:
-        if options.record is not None:  # a camera session cannot be recorded again: kept if it fails
-            recorder = open_recorder(options.record, sensor, props, keep_partial=True)
-    except BaseException:
-        camera.close()
-        raise
     print(
         f"  live: {sensor.name or 'DAVIS'} {info.get('serial', '')} ({options.device}), {options.controller} drives "
         f"the exposure ({limits.exposure_min_us:g}..{limits.exposure_max_us:g} µs, digital gain ≤ "
         f"{limits.gain_max:g})",
         file=out,
     )
+    record_props = dict(props)  # the recording's properties, as the camera was opened
     props["speed"] = "max" if speed is None else speed
 
     def write_summary(stats):  # before the recordings are committed: a file that cannot be written fails the run
@@ -175,7 +183,8 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
         properties=props,
         show=options.show,
         tune=options.tune,
-        recorder=recorder,
+        record=options.record,  # a camera session cannot be recorded again: kept if it fails (keep_partial)
+        record_properties=record_props,
         record_camera=LANE,
         lossless=False,
         history=options.history,
@@ -187,7 +196,7 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     )
     blueprint = make_blueprint(layout, [LANE], sensor.width, sensor.height, lane_labels([lane]))
     stats = dashboard.run(camera, [lane], viewer, blueprint, settings, out, stdin)
-    slip = getattr(backend, "clock_slip_us", 0)
+    slip = backend.clock_slip_us if backend is not None else 0
     if slip and out is not None:  # the emulated sensor could not keep up with the wall clock: say how far it slipped
         print(
             f"  emulated sensor: its simulation fell {slip / 1e6:.2f} s behind the wall clock; the sensor's clock "
@@ -199,7 +208,9 @@ def run(options: LiveOptions | None = None, viewer: ViewerOptions | None = None,
     return stats
 
 
-def live_summary(stats: dict, properties: dict | None = None, backend=None, usb: dict | None = None) -> dict:
+def live_summary(
+    stats: dict, properties: dict | None = None, backend: EmulatedDavis346 | None = None, usb: dict | None = None
+) -> dict:
     """The JSON of ``live --json``: the run, then per lane its frames, saturated frames (> 50 % clipped),
     events, commands, the processing latency (packet out of the source -> command handed back, wall µs) and
     the reaction in sensor time (:mod:`necviz.reaction`): ``frames_late`` p50/p99/max and
@@ -257,7 +268,120 @@ def live_summary(stats: dict, properties: dict | None = None, backend=None, usb:
         **({"dvs": stats["dvs"]} if "dvs" in stats else {}),
         **(
             {"emulator": {"clock_slip_s": backend.clock_slip_us / 1e6, "frames_skipped": backend.frames_skipped}}
-            if hasattr(backend, "clock_slip_us")
+            if backend is not None
             else {}
         ),
     }
+
+
+def _usb_transfers(text):
+    """``--usb-transfers N,BYTES``: checked, or a one-line argparse error."""
+    import argparse
+
+    from necviz.core.errors import ParameterError
+    from necviz.drivers.davis.transfers import parse_transfers
+
+    try:
+        return parse_transfers(text)
+    except ParameterError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
+def add_arguments(p) -> None:
+    from necviz.flags import number
+
+    p.add_argument(
+        "--device",
+        choices=("usb", "dv", "emulated"),
+        default="usb",
+        help="usb (a real camera, necviz's driver), dv (the same camera through iniVation's dv-processing: "
+        "pip install 'necviz[dv]') or emulated (necviz's driver on a virtual DAVIS346)",
+    )
+    p.add_argument("--serial", default=None, help="which camera when several are attached")
+    p.add_argument("--reconnect", action="store_true", help="if the camera is unplugged, wait for it to return")
+    p.add_argument(
+        "--usb",
+        choices=("auto", "libusb1", "pyusb"),
+        default="auto",
+        help="how necviz's driver reads the camera: libusb1 (asynchronous transfers in flight, as libcaer: pip "
+        "install 'necviz[usb]'), pyusb (reads on a thread of their own) or auto (default: libusb1 if installed)",
+    )
+    p.add_argument(
+        "--usb-transfers",
+        type=_usb_transfers,
+        default=None,
+        metavar="N,BYTES",
+        help="transfers in flight and bytes each, whole 1024-byte packets (default 32,8192: libcaer's 8 KiB "
+        "transfers, more of them in flight; e.g. 8,8k as libcaer)",
+    )
+    p.add_argument(
+        "--controller",
+        default="nec",
+        choices=controller_choices(),
+        help="the controller that drives the camera (default nec)",
+    )
+    p.add_argument(
+        "--duration",
+        type=number("--duration", "live"),
+        default=None,
+        metavar="S",
+        help="stop after S seconds of sensor time (emulated: the scene's length)",
+    )
+    p.add_argument(
+        "--emulate-unplug",
+        type=number("--emulate-unplug"),
+        default=None,
+        metavar="S",
+        help="emulated device: unplug it after S seconds (shows what an unplug does)",
+    )
+    p.add_argument(
+        "--record", metavar="FILE.necrec", help="record events, frames and commands to a crash-safe native file"
+    )
+    p.add_argument(
+        "--json",
+        metavar="FILE",
+        help="write the summary per lane as JSON (frames, saturated frames, events, commands, processing latency, "
+        "frames late and command-to-exposure time in sensor time)",
+    )
+    add_scene_args(p, emulated=True)
+    add_show_args(p)
+    add_clip_args(p)
+
+
+def _command(args) -> int:
+    from necviz.dashboard.viewer_flags import viewer_options
+    from necviz.options import LiveOptions
+
+    run(
+        LiveOptions(
+            args.device,
+            serial=args.serial,
+            reconnect=args.reconnect,
+            controller=args.controller,
+            duration_s=args.duration,
+            scene=scene_options(args, scene_duration=False),
+            emulate_unplug_s=args.emulate_unplug,
+            usb=args.usb,
+            usb_transfers=args.usb_transfers,
+            record=args.record,
+            force=args.force,
+            profile=args.profile,
+            show=show_options(args),
+            tune=tune_options(args),
+            clips=clip_options(args),
+            json=args.json,
+        ),
+        viewer_options(args),
+    )
+    return 0
+
+
+COMMAND = Command(
+    name="live",
+    help="a DAVIS camera (USB or emulated) with NEC closing the loop",
+    description="Runs a controller (NEC by default) in closed loop on a DAVIS346/DAVIS240 over "
+    "USB (necviz's driver, or iniVation's dv-processing with --device dv), or on a virtual DAVIS346 "
+    "(--device emulated), in the live layout.",
+    add_arguments=add_arguments,
+    run=_command,
+)

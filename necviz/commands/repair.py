@@ -17,6 +17,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from necviz.commands import Command
 from necviz.core.errors import ParameterError
 from necviz.outputs import atomic_write, check_output
 
@@ -48,22 +49,25 @@ def repair(path, out=None, force: bool = False) -> Path:
     return dst
 
 
-def add_parser(sub) -> None:
-    p = sub.add_parser(
-        "repair",
-        help="make an .rrd cut short by a crash whole again (a repaired copy)",
-        description=__doc__.split("\n\n")[1],
-    )
+def add_arguments(p) -> None:
     p.add_argument("file", metavar="FILE.rrd", help="the recording cut short")
     p.add_argument("--out", metavar="OUT.rrd", help="where the repaired copy goes (default FILE.repaired.rrd)")
     p.add_argument("--force", action="store_true", help="replace an existing --out file")
-    p.set_defaults(func=_cmd)
 
 
 def _cmd(args) -> int:
     dst = repair(args.file, args.out, args.force)
     print(f"wrote {dst} (open it with: rerun {dst})")
     return 0
+
+
+COMMAND = Command(
+    name="repair",
+    help="make an .rrd cut short by a crash whole again (a repaired copy)",
+    description=__doc__.split("\n\n")[1],
+    add_arguments=add_arguments,
+    run=_cmd,
+)
 
 
 if __name__ == "__main__":  # pragma: no cover

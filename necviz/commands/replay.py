@@ -25,19 +25,21 @@ each saturated frame in ``frames_detail`` carries its diagnosed ``saturation_cau
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from necviz.core.control import CameraLimits, make_controller
+from necviz.commands import Command
+from necviz.commands.args import (
+    add_show_args,
+    add_video_args,
+    controller_choices,
+    show_options,
+    video_options,
+)
 from necviz.core.errors import ParameterError
-from necviz.dashboard import session as dashboard
-from necviz.dashboard.session import Session, lane_labels, preflight
-from necviz.dashboard.video import video_observer
-from necviz.layouts import make_blueprint
-from necviz.layouts.focus import focus_blueprint
-from necviz.options import ReplayOptions, ViewerOptions
-from necviz.outputs import write_json
-from necviz.pipeline import Lane
 from necviz.progress import output, plural
-from necviz.wording import diagnosed_causes, saturated_frames
+
+if TYPE_CHECKING:
+    from necviz.options import ReplayOptions, ViewerOptions
 
 LANE = "camera"
 
@@ -113,17 +115,15 @@ def run(options: ReplayOptions, viewer: ViewerOptions | None = None, out=...) ->
     ParameterError
         Bad options or output files, or an empty range.
     """
+    from necviz.dashboard.viewer import resolve
+    from necviz.options import ViewerOptions
+    from necviz.profiles import load_profile
+
     out = output(out)
     path = Path(options.file)
-    video = options.video.path if options.video is not None else None
-    viewer, profile = preflight(
-        "replay",
-        viewer,
-        {"--json": options.json, "--video": video},
-        options.force,
-        inputs=[path],
-        profile=options.profile,
-    )  # before anything is opened
+    viewer = resolve(viewer or ViewerOptions(), "replay")  # the headless default filled in
+    options.check_outputs(viewer)  # before anything is opened
+    profile = load_profile(options.profile) if options.profile is not None else None
     from necviz.drivers.recordings import readable_copy
 
     with readable_copy(path, options.pipe_timeout_s) as source:
@@ -131,6 +131,16 @@ def run(options: ReplayOptions, viewer: ViewerOptions | None = None, out=...) ->
 
 
 def _replay(options: ReplayOptions, viewer, out, path: Path, source: Path, profile) -> dict:
+    from necviz.core.control import CameraLimits, make_controller
+    from necviz.dashboard import session as dashboard
+    from necviz.dashboard.session import Session, lane_labels
+    from necviz.dashboard.video import video_observer
+    from necviz.layouts import make_blueprint
+    from necviz.layouts.focus import focus_blueprint
+    from necviz.outputs import write_json
+    from necviz.pipeline import Lane
+    from necviz.wording import diagnosed_causes, saturated_frames
+
     show = options.show
     video_options = options.video
     if video_options is not None:  # only files: the run goes as fast as it can, the video keeps its own pace
@@ -152,7 +162,7 @@ def _replay(options: ReplayOptions, viewer, out, path: Path, source: Path, profi
         "controller": options.controller,
         "camera_limits": limits,
         "camera_profile": str(options.profile) if options.profile else "default DAVIS346 response",
-        **{f"recorded.{k}": v for k, v in getattr(recording, "properties", {}).items()},
+        **{f"recorded.{k}": v for k, v in recording.properties.items()},
     }
     print(
         f"  replay: {path} ({recording.format}, {sensor.width}x{sensor.height}, exposure "
@@ -161,7 +171,7 @@ def _replay(options: ReplayOptions, viewer, out, path: Path, source: Path, profi
     )
     from necviz.dashboard.flight_recorder import clip_focus
 
-    focus = clip_focus(getattr(recording, "properties", {}))  # a clip: the session's time axis and window
+    focus = clip_focus(recording.properties)  # a clip: the session's time axis and window
     if focus is not None:
         origin = focus[3]
         print(
@@ -203,7 +213,7 @@ def _replay(options: ReplayOptions, viewer, out, path: Path, source: Path, profi
     )
     dashboard.run(recording, [lane], viewer, blueprint, settings, out)
     summary = result["summary"]
-    for w in getattr(recording, "warnings", []):
+    for w in recording.warnings:
         print(f"  warning: {w}", file=out)
     rmse = summary["prediction_error_rmse"]
     print(
@@ -223,3 +233,67 @@ def _replay(options: ReplayOptions, viewer, out, path: Path, source: Path, profi
     if options.json is not None:
         print(f"  wrote {options.json}", file=out)
     return summary
+
+
+def add_arguments(p) -> None:
+    from necviz.flags import number
+    from necviz.names import FORMATS
+
+    p.add_argument("file", metavar="FILE", help="the recording")
+    p.add_argument(
+        "--start", type=number("--start"), default=None, metavar="S", help="start S seconds into the recording"
+    )
+    p.add_argument("--end", type=number("--end"), default=None, metavar="S", help="stop S seconds into the recording")
+    p.add_argument(
+        "--exposure-us",
+        type=number("--exposure-us"),
+        default=None,
+        help="exposure for formats that do not store it (AEDAT 2.0 estimates it from frame timing)",
+    )
+    p.add_argument("--format", default=None, choices=FORMATS, help="skip detection")
+    p.add_argument("--controller", default="nec", choices=controller_choices(), help="shown in open loop (default nec)")
+    p.add_argument("--json", metavar="OUT", help="write the summary (per-frame detail included) as JSON")
+    p.add_argument(
+        "--pipe-timeout",
+        type=number("--pipe-timeout"),
+        default=None,
+        metavar="S",
+        help="accept FILE as a named pipe: copy what it delivers, waiting at most S seconds for data",
+    )
+    add_show_args(p, tuning=False)
+    add_video_args(p)
+
+
+def _command(args) -> int:
+    from necviz.dashboard.viewer_flags import viewer_options
+    from necviz.options import ReplayOptions
+
+    run(
+        ReplayOptions(
+            args.file,
+            start_s=args.start,
+            end_s=args.end,
+            exposure_us=args.exposure_us,
+            format=args.format,
+            controller=args.controller,
+            json=args.json,
+            force=args.force,
+            profile=args.profile,
+            show=show_options(args),
+            video=video_options(args),
+            pipe_timeout_s=args.pipe_timeout,
+        ),
+        viewer_options(args),
+    )
+    return 0
+
+
+COMMAND = Command(
+    name="replay",
+    help="a recording in open loop: frames, events, P-TEDI vs frames, what NEC would do",
+    description="Replays FILE (necviz, AEDAT 4/3.1/2.0, ROS bag, RPG text, HDF5) through P-TEDI "
+    "and a controller in open loop, in the inspect layout, and reports the per-frame "
+    "prediction error and saturated frames.",
+    add_arguments=add_arguments,
+    run=_command,
+)

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
+
+from necviz.commands import Command
 
 
 def _clock(s) -> str:
@@ -156,17 +157,9 @@ def _cmd_show(args) -> int:
     return 0
 
 
-def add_parser(subparsers) -> argparse.ArgumentParser:
-    """Register ``necviz sweep`` and its subcommands on an ``argparse`` subparsers object."""
+def add_arguments(p) -> None:
     from necviz.flags import number
 
-    p = subparsers.add_parser(
-        "sweep",
-        help="grids of closed-loop simulator runs (scenario × parameters × controller × seed) on Dask",
-        description="Expands a TOML sweep file into runs, runs them on an embedded local Dask cluster (or an existing "
-        "one), writes one Parquet row per run into OUT/runs/ and reports means with 95 % confidence "
-        "intervals per cell.",
-    )
     sub = p.add_subparsers(dest="sweep_command", metavar="SUBCOMMAND", required=True)
 
     pl = sub.add_parser("plan", help="the expanded grid's size and an estimated time (from a short calibration run)")
@@ -180,7 +173,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     pl.add_argument("--no-estimate", action="store_true", help="skip the calibration run")
     pl.add_argument("--json", action="store_true", help="print machine-readable counts (JSON) instead")
-    pl.set_defaults(func=_cmd_plan)
+    pl.set_defaults(sweep_run=_cmd_plan)
 
     run = sub.add_parser("run", help="run the grid; finished runs are kept, --resume completes an interrupted sweep")
     run.add_argument("file", metavar="FILE.toml", help="the sweep file")
@@ -218,12 +211,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="the embedded cluster's Dask dashboard (default 127.0.0.1:8787; needs bokeh)",
     )
     run.add_argument("--json", action="store_true", help="print machine-readable counts (JSON) at the end")
-    run.set_defaults(func=_cmd_run)
+    run.set_defaults(sweep_run=_cmd_run)
 
     st = sub.add_parser("status", help="runs in the grid, finished, failed and missing")
     st.add_argument("out", metavar="DIR", help="the sweep folder")
     st.add_argument("--json", action="store_true", help="print JSON")
-    st.set_defaults(func=_cmd_status)
+    st.set_defaults(sweep_run=_cmd_status)
 
     rp = sub.add_parser("report", help="Markdown table, CSV and PNG plots: mean ± 95 %% CI per cell over seeds")
     rp.add_argument("out", metavar="DIR", help="the sweep folder")
@@ -241,7 +234,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     rp.add_argument("--out", dest="report_dir", default=None, metavar="DIR", help="where to write (default DIR/report)")
     rp.add_argument("--force", action="store_true", help="replace an existing report")
-    rp.set_defaults(func=_cmd_report)
+    rp.set_defaults(sweep_run=_cmd_report)
 
     sh = sub.add_parser("show", help="re-run one run deterministically in the Rerun dashboard (or --save)")
     sh.add_argument("out", metavar="DIR", help="the sweep folder")
@@ -255,8 +248,21 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="'max', 1 (real time) or xN; default: real time when a viewer watches, max when only saving",
     )
     sh.add_argument("--force", action="store_true", help="replace an existing --save file")
-    sh.set_defaults(func=_cmd_show)
-    return p
+    sh.set_defaults(sweep_run=_cmd_show)
 
 
-__all__ = ["add_parser"]
+def _command(args) -> int:
+    return args.sweep_run(args)
+
+
+COMMAND = Command(
+    name="sweep",
+    help="grids of closed-loop simulator runs (scenario × parameters × controller × seed) on Dask",
+    description="Expands a TOML sweep file into runs, runs them on an embedded local Dask cluster (or an existing "
+    "one), writes one Parquet row per run into OUT/runs/ and reports means with 95 % confidence "
+    "intervals per cell.",
+    add_arguments=add_arguments,
+    run=_command,
+)
+
+__all__ = ["COMMAND"]

@@ -51,9 +51,11 @@ def show(out, run: str, viewer=None, speed="auto", stream=...) -> dict:
     Returns ``{"hash", "spec", "metrics", "row", "matches", "rrd"}``.
     """
     from necviz.dashboard import session as dashboard
-    from necviz.dashboard.session import Session, lane_labels, preflight
+    from necviz.dashboard.session import Session, lane_labels
+    from necviz.dashboard.viewer import resolve
     from necviz.layouts import make_blueprint
-    from necviz.options import SceneOptions, ShowOptions, ViewerOptions
+    from necviz.options import SceneOptions, ShowOptions, ViewerOptions, check_param_lanes
+    from necviz.outputs import check_run_files
     from necviz.runs import build_rig
 
     stream = sys.stdout if stream is ... else stream
@@ -63,7 +65,8 @@ def show(out, run: str, viewer=None, speed="auto", stream=...) -> dict:
     row = store.read_row(h)
     spec = json.loads(row["spec_json"])
     show_opts = ShowOptions(speed)  # checked before anything opens
-    viewer, _ = preflight("sweep-show", viewer or ViewerOptions(), {}, bool(viewer and viewer.force))
+    viewer = resolve(viewer or ViewerOptions(), "sweep-show")  # the headless default filled in
+    check_run_files({}, viewer, (), False)  # its --save file, before anything opens
     scen = spec.get("scenario", "tunnel_exit")
     if (scen.endswith(".toml") or "/" in scen) and not Path(scen).is_file():
         raise ParameterError(f"run {h} used the scenario file {scen}, which no longer exists")
@@ -76,9 +79,12 @@ def show(out, run: str, viewer=None, speed="auto", stream=...) -> dict:
         from necviz.profiles import load_profile
 
         profile = load_profile(profile)
-    sc = SceneOptions(scen, spec.get("seed"), spec.get("duration_s"), dict(spec.get("scenario_params") or {}))
+    sc = SceneOptions(
+        scen, seed=spec.get("seed"), duration_s=spec.get("duration_s"), params=dict(spec.get("scenario_params") or {})
+    )
     names = list(spec["controllers"])
-    scene, rig, lanes, limits = build_rig(sc, names, profile, spec.get("controller_params"), spec.get("sim"))
+    check_param_lanes(spec.get("controller_params"), names)
+    scene, rig, lanes, limits = build_rig(sc.build(), names, profile, spec.get("controller_params"), spec.get("sim"))
     props = {
         "command": "sweep show",
         "run": h,

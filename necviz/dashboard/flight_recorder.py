@@ -209,6 +209,7 @@ class FlightRecorder(Observer):
         }
         self._queue: queue.Queue = queue.Queue()
         self._lock = threading.Lock()
+        self._rec = None  # the writer's Rerun stream, made for the first clip (_stream)
         self._writer = threading.Thread(target=self._write_loop, name="necviz-flight-recorder", daemon=True)
         self._writer.start()
 
@@ -535,7 +536,7 @@ class FlightRecorder(Observer):
         other: rerun-sdk 0.41 keeps most of what a stream logged resident after it is disconnected
         (measured: +5 MB per 6 MB clip with a new stream per clip, flat with one reused), so a new stream
         per clip would grow the writer by every clip. The clips share its recording id."""
-        if getattr(self, "_rec", None) is None:
+        if self._rec is None:
             import uuid
 
             import rerun as rr

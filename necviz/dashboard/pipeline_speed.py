@@ -31,7 +31,7 @@ from necviz.core.errors import ParameterError
 from necviz.core.events import EVENT_DTYPE, EventBatch
 from necviz.core.frames import ExposureMarker, Frame
 from necviz.core.sensor import DAVIS346, DAVIS_EVENT_RATE_MAX
-from necviz.drivers.source import CameraInfo, route
+from necviz.drivers.source import CameraInfo, Source, route
 from necviz.progress import output
 
 C_ON, C_OFF = 0.26, 0.24
@@ -63,7 +63,7 @@ def make_events(duration_s: float, rate_mev_s: float, seed: int = 0) -> np.ndarr
     return ev
 
 
-class SyntheticStream:
+class SyntheticStream(Source):
     """A closed-loop source over pre-generated events: 1 ms batches, frames at ``fps``.
 
     Exposure commands apply at the next exposure start (at most the frame period minus 1 ms).

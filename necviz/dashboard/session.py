@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 import rerun as rr
 import rerun.blueprint as rrb
 
-from necviz.dashboard.recorders import RecordingFile
+from necviz.dashboard.recorders import RecordingFile, open_recorder
 from necviz.dashboard.sink import RerunSink, SinkOptions
 from necviz.dashboard.tuning import TuningConsole, TuningFile
 from necviz.dashboard.viewer import FILE_FLUSH_S, open_viewer, text
@@ -28,12 +28,56 @@ from necviz.drivers.source import Source
 from necviz.layouts import style_series
 from necviz.memory import bound_heap_retention
 from necviz.options import ShowOptions, TuneOptions, ViewerOptions
-from necviz.outputs import Output, OutputError, low_space
-from necviz.pace import SETTLE_S, PaceWatch, achieved_speed, pace_note
-from necviz.pipeline import Lane, Pipeline, RecorderObserver
+from necviz.outputs import Output, OutputError, StreamedOutput, low_space
+from necviz.pipeline import Lane, Observer, Pipeline, RecorderObserver
 from necviz.progress import LiveLine, output, plural
 from necviz.reaction import reaction_line
-from necviz.telemetry import Telemetry
+
+# -- pace: did a paced run keep the speed it was asked for? ------------------------------------------
+# A run asked for ``--speed 1`` (or watched in a viewer) feeds packets at real-time pace; on a busy machine
+# it may not keep up, and then its latency and recovery times are not real-time figures. PaceWatch notes
+# the wall time of the first packet (when the pipeline's pacing clock starts; compilation before it does
+# not count), and pace_note says, in one phrase, how fast the run actually went when that was below what
+# was asked.
+
+#: Below this fraction of the asked speed a run is said to have fallen behind.
+BEHIND = 0.9
+#: Wall seconds before a running figure is shown (the first second is mostly start-up jitter).
+SETTLE_S = 2.0
+
+
+class PaceWatch(Observer):
+    """Wall time since the run's first packet (``started``); ``None`` before it."""
+
+    name = "pace"
+
+    def __init__(self) -> None:
+        self.wall0: float | None = None
+
+    def started(self, t_us: int, initial: dict) -> None:
+        self.wall0 = time.perf_counter()
+
+    def wall_s(self) -> float | None:
+        return None if self.wall0 is None else time.perf_counter() - self.wall0
+
+
+def achieved_speed(sensor_s: float, wall_s: float | None, settle_s: float = 0.0) -> float | None:
+    """Sensor seconds per wall second (1 = real time); None before ``settle_s`` of wall time or any sensor time."""
+    if wall_s is None or wall_s <= settle_s or wall_s <= 0 or sensor_s <= 0:
+        return None
+    return sensor_s / wall_s
+
+
+def pace_note(asked: float | None, sensor_s: float, wall_s: float | None, settle_s: float = 0.0) -> str | None:
+    """``"ran at 0.63x real time: latency and recovery are not real-time figures"`` when a paced
+    run (``asked``: its speed, None = as fast as possible) went below :data:`BEHIND` of it; else None
+    (also before ``settle_s`` wall seconds: a running line waits :data:`SETTLE_S`)."""
+    got = achieved_speed(sensor_s, wall_s, settle_s)
+    if asked is None or got is None or got >= BEHIND * asked:
+        return None
+    if asked == 1:
+        return f"ran at {got:.2f}x real time: latency and recovery are not real-time figures"
+    return f"ran at {got:.2f}x real time, not the {asked:g}x asked: latency and recovery are not paced figures"
 
 
 @dataclass(kw_only=True)
@@ -41,8 +85,10 @@ class Session:
     """One dashboard run: a source, its lanes and how to show them.
 
     ``layout``: the name of ``blueprint``'s layout (the run's properties, a clip's own layout).
-    ``recorder``: a native :class:`~necviz.drivers.recordings.native.Recorder` keeping ``record_camera``
-    (default: the first lane's camera). ``lossless``: keep every frame and event image when the
+    ``record``: a native recording (``.necrec``, :class:`~necviz.dashboard.recorders.RecordingFile`) of
+    ``record_camera`` (default: the first lane's camera) storing ``record_properties`` (default:
+    ``properties``); the run opens it beside the viewer's ``--save`` file (``recorder``) and commits or
+    discards both with the run. ``lossless``: keep every frame and event image when the
     run is not paced (a simulation or replay into a file). ``history``: frames of per-frame
     telemetry kept per lane (``None``: all). ``origin_us``: sensor time shown as 0.
     ``keep_partial``: if the run fails, keep what the output files hold (a camera session, which
@@ -60,7 +106,8 @@ class Session:
     blueprint: rrb.Blueprint | None = None
     show: ShowOptions = field(default_factory=ShowOptions)
     tune: TuneOptions | None = None
-    recorder: RecordingFile | None = None  # the native recorder (--record)
+    record: str | os.PathLike | None = None  # the native recording (--record)
+    record_properties: dict | None = None
     record_camera: str | None = None
     lossless: bool = True
     history: int | None = None
@@ -71,38 +118,8 @@ class Session:
     observers: list = field(default_factory=list)
     keep_partial: bool = False
     before_commit: object = None  # callable(stats): last step of a run (e.g. write --json); raising fails it
-
-
-def scene_inputs(scene, tune=None) -> list:
-    """The files a dashboard command reads besides its profile: a scenario file, a tuning file."""
-    return [scene.scenario if scene.is_file else None, tune.file if tune is not None else None]
-
-
-def preflight(command: str, viewer: ViewerOptions | None, outputs: dict, force: bool, inputs=(), profile=None):
-    """Everything a dashboard command checks before it opens a camera, a file or a viewer.
-
-    ``outputs`` maps flags to paths (``{"--record": ..., "--json": ...}``); returns the resolved
-    viewer options (the headless default filled in, ``--save`` checked) and the camera profile.
-    """
-    from necviz.dashboard.viewer import resolve
-    from necviz.outputs import check_distinct, check_not_input, check_output, check_space
-
-    inputs = [i for i in inputs if i is not None] + ([profile] if profile is not None else [])
-    viewer = resolve(viewer or ViewerOptions(), command, inputs=inputs)
-    check_distinct({**outputs, "--save": viewer.save})
-    suffixes = {"--record": (".necrec",), "--json": (".json",), "--video": (".mp4",)}
-    for flag, path in outputs.items():
-        if path is not None:
-            check_output(path, flag, inputs=inputs, force=force, suffixes=suffixes.get(flag))
-    check_not_input({**outputs, "--save": viewer.save}, inputs)
-    for flag, path in (("--record", outputs.get("--record")), ("--save", viewer.save)):
-        if path is not None:  # a recording grows for the whole run: refuse to start on a full disk
-            check_space(path, flag)
-    if profile is not None:
-        from necviz.profiles import load_profile
-
-        profile = load_profile(profile)
-    return viewer, profile
+    #: the native recorder of ``record``, opened by the run with the other outputs (:func:`run_session`)
+    recorder: RecordingFile | None = field(default=None, init=False)
 
 
 def run(
@@ -135,9 +152,7 @@ def run_session(session: Session, out=..., stdin=None) -> dict:
 
     out = output(out)
     bound_heap_retention()  # a burst of events must not stay resident for the rest of a long session
-    outputs: list[Output] = []  # what to commit or discard: the recorder, the viewer's --save file
-    if session.recorder is not None:
-        outputs.append(session.recorder)
+    outputs: list[Output] = []  # what to commit or discard: the recorder, the viewer's --save file (_open)
     try:
         stats, viewer = _run(session, out, stdin, outputs)
         if session.before_commit is not None:
@@ -184,41 +199,19 @@ def lane_labels(lanes) -> dict[str, str]:
     ``replay`` is shown as ``nec``, ``navid``, …), so the views and curves say which controller they show."""
     out = {}
     for ln in lanes:
-        ctrl = getattr(ln.controller, "name", None)
-        if isinstance(ctrl, str) and ctrl and ctrl != "base" and ctrl != ln.name:
+        ctrl = ln.controller.name
+        if ctrl and ctrl != "base" and ctrl != ln.name:
             out[ln.name] = ctrl
     return out
 
 
 def _run(ss: Session, out, stdin, outputs: list) -> dict:
-    """Open the viewer, run the loop with its observers until the source ends (or Ctrl-C, a full disk, a
-    failed output), and summarise."""
-    viewer = _open(ss, out, outputs)
+    """Stream the session (:func:`_stream`: the viewer, the pipeline and its observers, the loop until the
+    source ends, Ctrl-C, a full disk or a failed output), then say how it went."""
     speed = ss.show.speed
     if speed == "auto":
         speed = 1.0 if ss.viewer.watched else None
-    observers = _observers(ss, viewer, speed, out)
-    pace = PaceWatch()  # a paced run that cannot keep its speed says so (necviz/pace.py)
-    observers.append(pace)
-    pipe = Pipeline(
-        ss.source,
-        ss.lanes,
-        telemetry=Telemetry([lane.name for lane in ss.lanes], history=ss.history),
-        observers=observers,
-        speed=speed,
-        stop_after_s=ss.stop_after_s,
-    )
-    for key, value in ss.tune.dvs if ss.tune is not None else ():  # --dvs: on the camera before its first packet
-        msg, data = pipe.dvs.set(key, value, None, started=False)
-        if out is not None:
-            print(f"  {msg}", file=out)
-        pipe.submit(lambda p, m=msg, d=data: (m, d))  # noted in the recordings at the first packet
-    notes = getattr(ss.source, "annotations", None)  # a native recording: P-TEDI follows its recorded bias changes
-    if isinstance(notes, list) and pipe.dvs.follow_recording(notes) and out is not None:
-        print(f"  P-TEDI follows the {len(pipe.dvs.scheduled)} DVS bias change(s) recorded in the file", file=out)
-    files = [p for p in (viewer.save_path, ss.recorder.path if ss.recorder is not None else None) if p is not None]
-    files += [o.folder for o in observers if o.folder is not None]  # clips fill a disk too
-    stats, disk_full, pace_wall = _watch(ss, pipe, viewer, files, out, stdin, pace, speed)
+    stats, viewer, pipe, observers, disk_full, pace_wall = _stream(ss, out, stdin, outputs, speed)
     broken = _failed(observers)
     if broken is not None:  # an output that could not be written (a clip on a full disk)
         at = (pipe.now_us or 0) / 1e6 - (pipe.first_us or 0) / 1e6
@@ -229,14 +222,14 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
             f"the disk holding {path} is nearly full ({free >> 20} MB free): the run was stopped at "
             f"{(pipe.now_us or 0) / 1e6 - (pipe.first_us or 0) / 1e6:.1f} s so the files end whole"
         )
-    source_stats = getattr(ss.source, "stats", None)
-    if isinstance(source_stats, dict) and "dropped_events" in source_stats:  # a camera: what the device lost
+    source_stats = ss.source.stats
+    if "dropped_events" in source_stats:  # a camera: what the device lost
         stats["source"] = {k: v for k, v in source_stats.items() if isinstance(v, (int, float))}
     sensor_s = ((pipe.now_us or 0) - (pipe.first_us or 0)) / 1e6
     stats["speed"] = speed
     stats["achieved_speed"] = achieved_speed(sensor_s, pace_wall)
-    print_summary(out, stats)
     behind = pace_note(speed, sensor_s, pace_wall)
+    print_summary(out, stats)
     if behind and out is not None:
         print(f"  {behind}", file=out)
     stats["rrd"] = str(viewer.save_path) if viewer.save_path is not None else None
@@ -244,66 +237,56 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
     return stats, viewer
 
 
-def _open(ss: Session, out, outputs: list):
-    """Open the viewer with the command's blueprint (``rr.script_setup``'s part) and log the run's
-    properties and series styles; its ``--save`` file joins ``outputs``."""
-    viewer = open_viewer(ss.viewer, ss.blueprint, ss.title, keep_partial=ss.keep_partial)
-    if viewer.output is not None:  # the --save file: committed or discarded with the run
-        outputs.append(viewer)
-    for m in viewer.messages:
-        print(f"  {m}", file=out)
-    rec = viewer.rec
-    rec.send_property("run", rr.AnyValues(**{k: text(val) for k, val in ss.properties.items()}, layout=ss.layout))
-    style_series(rec, [lane.name for lane in ss.lanes], lane_labels(ss.lanes))
-    return viewer
-
-
-def _observers(ss: Session, viewer, speed, out) -> list:
-    """The run's observers: the Rerun sink, the native recorder (``--record``), the command's own."""
-    v = ss.viewer
-    names = [lane.name for lane in ss.lanes]
-    sensor = ss.source.sensor
-    lossless = ss.lossless and speed is None and not v.watched
-    # a live session only saved to a file: series in 2 s chunks (Rerun's file sink indexes every chunk)
-    flush = FILE_FLUSH_S if not (lossless or v.watched) else None
-    sink_options = SinkOptions(
-        event_window_us=int(ss.show.event_window_ms * 1000),
-        raw_points=ss.show.event_points,
-        origin_us=ss.origin_us,
-        lossless=lossless,
-        flush_period_s=flush,
-        image_period_us=0 if ss.show.image_rate_hz is None else int(round(1e6 / ss.show.image_rate_hz)),
-    )
-    sink = RerunSink(viewer.rec, names, sensor.height, sensor.width, sink_options)
-    sink.files = viewer.files
-    sink.rotate = viewer.rotate
-    recorders = []
-    if ss.recorder is not None:
-        cam = ss.record_camera or ss.lanes[0].camera or ss.lanes[0].name
-        driver = next((ln.name for ln in ss.lanes if ln.drives and (ln.camera or ln.name) == cam), cam)
-        recorders = [RecorderObserver(ss.recorder, cam, driver)]
-    return [sink, *recorders, *(make(ss, ss.layout, out) for make in ss.observers)]
-
-
-def _watch(ss: Session, pipe: Pipeline, viewer, files: list, out, stdin, pace: PaceWatch, speed):
-    """Run ``pipe`` with live tuning (a prompt, a watched file) and a live count until the source ends,
-    Ctrl-C, a nearly full disk or a failed output; then finish it and close the viewer. Returns the
-    pipeline's summary, ``(file, bytes free)`` when the disk stopped the run (else None) and the wall
-    seconds from the first packet to the end of the loop (``pace``: the run's :class:`PaceWatch`)."""
-    tune_file = console = None
-    t0 = time.perf_counter()
-    disk_full = None  # (file, bytes free) when the run was stopped to keep its files whole
-    pace_wall = None  # wall seconds from the first packet to the end of the loop
+def _stream(ss: Session, out, stdin, outputs: list, speed):
+    """Open the viewer and its sink (:func:`_open`), build the pipeline over the session's source and lanes
+    with its observers (the sink, the native recorder, the command's own, a pace watch; the camera's DVS
+    set as ``--dvs`` asks, P-TEDI following a recording's bias changes), run it with live tuning (a
+    prompt, a watched file) and a live count until the source ends, Ctrl-C, a nearly full disk or a failed
+    output; then finish it and close the viewer. Returns the pipeline's summary, the viewer, the pipeline,
+    its observers, ``(file, bytes free)`` when the disk stopped the run (else None) and the wall seconds
+    from the first packet to the end of the loop."""
+    pace = PaceWatch()  # a paced run that cannot keep its speed says so (pace_note)
+    t0 = time.perf_counter()  # set again when the loop starts
 
     def sensor_s() -> float:
         return ((pipe.now_us or 0) - (pipe.first_us or 0)) / 1e6
 
-    def status() -> str:
+    def status() -> str:  # the live count (or the prompt's status bar)
         wall = pace.wall_s()
         behind = pace_note(speed, sensor_s(), wall, SETTLE_S) is not None
         line = progress_line(ss.command, pipe, ss.expected_duration_s, time.perf_counter() - t0)
         return line + (f" · behind: {achieved_speed(sensor_s(), wall):.2f}x real time" if behind else "")
 
+    viewer, sink = _open(ss, out, outputs, speed)
+    observers = [sink]  # then the native recorder (--record), the command's own, the pace watch
+    if ss.recorder is not None:
+        cam = ss.record_camera or ss.lanes[0].camera or ss.lanes[0].name
+        driver = next((ln.name for ln in ss.lanes if ln.drives and (ln.camera or ln.name) == cam), cam)
+        observers.append(RecorderObserver(ss.recorder, cam, driver))
+    observers += [make(ss, ss.layout, out) for make in ss.observers]
+    observers.append(pace)
+    pipe = Pipeline(
+        ss.source,
+        ss.lanes,
+        history=ss.history,
+        observers=observers,
+        speed=speed,
+        stop_after_s=ss.stop_after_s,
+    )
+    for key, value in ss.tune.dvs if ss.tune is not None else ():  # --dvs: on the camera before its first packet
+        msg, data = pipe.dvs.set(key, value, None, started=False)
+        if out is not None:
+            print(f"  {msg}", file=out)
+        pipe.submit(lambda p, m=msg, d=data: (m, d))  # noted in the recordings at the first packet
+    notes = list(ss.source.annotations)  # a native recording: P-TEDI follows its recorded bias changes
+    if notes and pipe.dvs.follow_recording(notes) and out is not None:
+        print(f"  P-TEDI follows the {len(pipe.dvs.scheduled)} DVS bias change(s) recorded in the file", file=out)
+    files = [p for p in (viewer.save_path, ss.recorder.path if ss.recorder is not None else None) if p is not None]
+    files += [o.folder for o in observers if o.folder is not None]  # clips fill a disk too
+    tune_file = console = None
+    t0 = time.perf_counter()
+    disk_full = None  # (file, bytes free) when the run was stopped to keep its files whole
+    pace_wall = None  # wall seconds from the first packet to the end of the loop
     try:
         if ss.tune is not None and ss.tune.file:
             tune_file = TuningFile(pipe, ss.tune.file, out=out)
@@ -354,7 +337,47 @@ def _watch(ss: Session, pipe: Pipeline, viewer, files: list, out, stdin, pace: P
             except BaseException:
                 if not failed and disk_full is None:
                     raise  # else the run's own error (or the disk guard's, below) is the one reported
-    return stats, disk_full, pace_wall
+    return stats, viewer, pipe, observers, disk_full, pace_wall
+
+
+def _open(ss: Session, out, outputs: list, speed):
+    """Open the viewer with the command's blueprint (``rr.script_setup``'s part), log the run's properties
+    and series styles, and make the Rerun sink that logs the run into it; the ``--save`` file joins
+    ``outputs``. Returns ``(viewer, sink)``."""
+    v = ss.viewer
+    names = [lane.name for lane in ss.lanes]
+    labels = lane_labels(ss.lanes)
+    lossless = ss.lossless and speed is None and not v.watched
+    # a live session only saved to a file: series in 2 s chunks (Rerun's file sink indexes every chunk)
+    flush = FILE_FLUSH_S if not (lossless or v.watched) else None
+    sink_options = SinkOptions(
+        event_window_us=int(ss.show.event_window_ms * 1000),
+        raw_points=ss.show.event_points,
+        origin_us=ss.origin_us,
+        lossless=lossless,
+        flush_period_s=flush,
+        image_period_us=0 if ss.show.image_rate_hz is None else int(round(1e6 / ss.show.image_rate_hz)),
+    )
+    # the outputs, made together: the native recording (--record), then the viewer's --save file; each is
+    # committed or discarded with the run from the moment it exists
+    if ss.record is not None:
+        props = ss.record_properties if ss.record_properties is not None else ss.properties
+        ss.recorder = open_recorder(ss.record, ss.source.sensor, props, keep_partial=ss.keep_partial)
+        outputs.append(ss.recorder)
+    save = StreamedOutput(v.save, keep_partial=ss.keep_partial, flag="--save") if v.save else None
+    viewer = open_viewer(v, ss.blueprint, ss.title, output=save)
+    if viewer.output is not None:  # the --save file: committed or discarded with the run
+        outputs.append(viewer)
+    for m in viewer.messages:
+        print(f"  {m}", file=out)
+    rec = viewer.rec
+    rec.send_property("run", rr.AnyValues(**{k: text(val) for k, val in ss.properties.items()}, layout=ss.layout))
+    style_series(rec, names, labels)
+    sensor = ss.source.sensor
+    sink = RerunSink(rec, names, sensor.height, sensor.width, sink_options)
+    sink.files = viewer.files
+    sink.rotate = viewer.rotate
+    return viewer, sink
 
 
 def _failed(observers):

@@ -97,8 +97,7 @@ def keys(pipeline) -> dict[str, str]:
     for lane in pipeline.lanes.values():
         for name, t in lane.controller.tunables().items():
             out.setdefault(name, f"{t.unit}: {t.doc}")
-    dvs = getattr(pipeline, "dvs", None)
-    if dvs is not None and dvs.available:  # the camera's DVS biases
+    if pipeline.dvs.available:  # the camera's DVS biases
         from necviz.core.biases import CONTROLS
 
         out.update({f"dvs.{k}": v for k, v in CONTROLS.items()})
@@ -241,11 +240,10 @@ class TuningConsole:
         words = ["help", "status", "set", "drive", "mark", *sorted(CONTROLLERS), *keys(self.pipeline)]
         words += [f"{lane}.{k}" for lane, ln in self.pipeline.lanes.items() for k in ln.tunables()]
         words += list(self.pipeline.lanes)
-        dvs = getattr(self.pipeline, "dvs", None)
-        if dvs is not None and dvs.available:  # the camera's bias names (bias.DIFFBN = 4/39)
+        if self.pipeline.dvs.available:  # the camera's bias names (bias.DIFFBN = 4/39)
             from necviz.core.biases import BIAS_ADDRESSES, family_of
 
-            family = family_of(getattr(self.pipeline.source, "dvs_family", "DAVIS346"))
+            family = family_of(self.pipeline.source.dvs_family)
             words += [f"bias.{n}" for n in BIAS_ADDRESSES[family]]
         return WordCompleter(sorted(set(words), key=words.index), WORD=True)
 

@@ -23,6 +23,7 @@ growing and fails with one line instead.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import socket
 import subprocess
@@ -44,7 +45,7 @@ from necviz.dashboard.viewer_flags import (  # noqa: F401 - re-exported: the fla
     viewer_options,
 )
 from necviz.options import ViewerOptions
-from necviz.outputs import OutputError, StreamedOutput, check_output, free_bytes
+from necviz.outputs import OutputError, StreamedOutput, free_bytes
 
 LOOPBACK = ("127.0.0.1", "::1", "localhost")
 
@@ -66,8 +67,10 @@ def in_notebook() -> bool:
     return shell is not None and getattr(shell, "kernel", None) is not None
 
 
-def resolve(options: ViewerOptions, command: str, inputs=()) -> ViewerOptions:
-    """Fill in the headless default (a file) and check the save path before anything starts."""
+def resolve(options: ViewerOptions, command: str) -> ViewerOptions:
+    """Fill in the headless default (a file) before anything starts, and check that a notebook viewer is in a
+    notebook and that the ports to serve on are free. The ``--save`` file is checked with the command's other
+    outputs (:func:`necviz.outputs.check_run_files`)."""
     from dataclasses import replace
 
     if options.notebook and not in_notebook():
@@ -80,8 +83,6 @@ def resolve(options: ViewerOptions, command: str, inputs=()) -> ViewerOptions:
             options = replace(options, spawn=True)
         else:
             options = replace(options, save=Path(f"necviz-{command}-{time.strftime('%Y%m%d-%H%M%S')}.rrd"))
-    if options.save is not None:
-        check_output(options.save, "--save", inputs=inputs, force=options.force, suffixes=(".rrd",))
     if options.serve:
         check_ports(options)  # before anything starts: a taken port is one line, not a stall
     return options
@@ -242,17 +243,19 @@ def stop_process_group(proc: subprocess.Popen, timeout_s: float = 5.0) -> None:
             continue
 
 
-def open_viewer(options: ViewerOptions, blueprint, name: str, *, keep_partial: bool = False) -> Viewer:
+def open_viewer(options: ViewerOptions, blueprint, name: str, *, output: StreamedOutput | None = None) -> Viewer:
     """Create the recording ``name`` and attach the sinks ``options`` (already :func:`resolve` d) ask for,
     the viewers laid out by ``blueprint``.
 
-    ``keep_partial``: if the run fails, keep what the ``--save`` file holds (a camera session that
-    cannot be produced again) instead of deleting it."""
+    ``output``: the ``--save`` file the caller made for ``options.save`` (a
+    :class:`~necviz.outputs.StreamedOutput`, whose ``keep_partial`` says whether a failed run keeps what it
+    holds); discarded here if the viewer cannot be opened."""
+    assert (output is not None) == bool(options.save and not options.notebook), "open_viewer: output is options.save's"
     messages: list[str] = []
     if options.save is not None and not options.watched and not has_display():
         messages.append(f"saving to {options.save} (open it with: rerun {options.save})")
     try:
-        return _open(options, blueprint, name, messages, keep_partial)
+        return _open(options, blueprint, name, messages, output)
     except RuntimeError as e:  # Rerun reports bad URLs, ports and memory limits this way
         raise ParameterError(f"viewer: {e}") from None
 
@@ -414,7 +417,7 @@ def _open_notebook(blueprint, name, messages) -> Viewer:
     return Viewer(rec, messages, notebook=widget)
 
 
-def _open(options: ViewerOptions, blueprint, name, messages, keep_partial: bool = False) -> Viewer:
+def _open(options: ViewerOptions, blueprint, name, messages, output: StreamedOutput | None = None) -> Viewer:
     name = text(name)
     if options.notebook:
         return _open_notebook(blueprint, name, messages)
@@ -425,43 +428,40 @@ def _open(options: ViewerOptions, blueprint, name, messages, keep_partial: bool 
     sinks = []
     url = server = None
     port = options.grpc_port
-    if options.serve:
-        server, uri, url = start_web_server(options)
-        sinks.append(rr.GrpcSink(uri))
-        port = options.grpc_port + 1  # a spawned native viewer takes the next port
-        if options.bind not in LOOPBACK:
-            messages.append(f"warning: serving on {options.bind}: anyone who can reach this machine can watch")
-        messages.append(f"web viewer: {url}")
-    if options.spawn:
-        rr.spawn(port=port, connect=False, memory_limit=options.memory_limit, hide_welcome_screen=True)
-        sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{port}/proxy"))
-        messages.append("streaming to a native viewer")
-    if options.connect:
-        sinks.append(rr.GrpcSink(options.connect))
-        messages.append(f"streaming to {options.connect}")
-    output = segments = None
-    others = list(sinks)
-    if options.save:
-        output = StreamedOutput(options.save, keep_partial=keep_partial, flag="--save")
-        segments = SegmentedFile(output.target, blueprint, "necviz")  # the blueprint beside, joined in at the end
-        if others:  # the viewers get the blueprint; the file, never (rrd_file's docstring)
-            rec.set_sinks(*others, default_blueprint=blueprint)
-        sinks.append(segments.sink())
-        if not any(m.startswith("saving to") for m in messages):
-            messages.append(f"saving to {options.save} (open it with: rerun {options.save})")
-    try:
+    with contextlib.ExitStack() as undo:  # if the viewer cannot be opened: the server stopped, the file removed
+        if output is not None:
+            undo.callback(output.discard)
+        if options.serve:
+            server, uri, url = start_web_server(options)
+            undo.callback(stop_process_group, server)
+            sinks.append(rr.GrpcSink(uri))
+            port = options.grpc_port + 1  # a spawned native viewer takes the next port
+            if options.bind not in LOOPBACK:
+                messages.append(f"warning: serving on {options.bind}: anyone who can reach this machine can watch")
+            messages.append(f"web viewer: {url}")
+        if options.spawn:
+            rr.spawn(port=port, connect=False, memory_limit=options.memory_limit, hide_welcome_screen=True)
+            sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{port}/proxy"))
+            messages.append("streaming to a native viewer")
+        if options.connect:
+            sinks.append(rr.GrpcSink(options.connect))
+            messages.append(f"streaming to {options.connect}")
+        segments = None
+        others = list(sinks)
+        if output is not None:
+            segments = SegmentedFile(output.target, blueprint, "necviz")  # the blueprint beside, joined in at the end
+            undo.callback(segments.discard)
+            if others:  # the viewers get the blueprint; the file, never (rrd_file's docstring)
+                rec.set_sinks(*others, default_blueprint=blueprint)
+            sinks.append(segments.sink())
+            if not any(m.startswith("saving to") for m in messages):
+                messages.append(f"saving to {options.save} (open it with: rerun {options.save})")
         if segments is not None:
             rec.set_sinks(*sinks)
         else:
             rec.set_sinks(*sinks, default_blueprint=blueprint)
         rec.send_recording_name(name)
-    except BaseException:
-        if server is not None:
-            stop_process_group(server)
-        if output is not None:
-            segments.discard()
-            output.discard()
-        raise
+        undo.pop_all()  # opened: the run owns the server and the file from here
     return Viewer(
         rec, messages, Path(options.save) if options.save else None, url, server, output, None, segments, others
     )

@@ -24,7 +24,9 @@ def run_duration_s(spec: dict) -> float:
     from necviz.drivers.sim.scenes import SCENARIOS
     from necviz.options import SceneOptions
 
-    sc = SceneOptions(spec["scenario"], spec.get("seed"), None, dict(spec.get("scenario_params") or {}))
+    sc = SceneOptions(
+        spec["scenario"], seed=spec.get("seed"), duration_s=None, params=dict(spec.get("scenario_params") or {})
+    )
     s = sc.spec()
     if s.get("duration_us"):
         return s["duration_us"] / 1e6

@@ -51,6 +51,7 @@ class Store:
     def __init__(self, root):
         self.root = Path(root)
         self.runs = self.root / "runs"
+        self.unreadable: dict[str, str] = {}  # hash -> why, of the rows the last read_rows left out
 
     @property
     def manifest_path(self) -> Path:
@@ -149,7 +150,7 @@ class Store:
         ``skip_bad``: leave out damaged rows and list them in ``self.unreadable`` (``{hash: why}``)
         instead of raising."""
         hashes = sorted(self.done()) if hashes is None else [h for h in hashes if self.row_path(h).is_file()]
-        self.unreadable: dict[str, str] = {}
+        self.unreadable = {}
         if not skip_bad:
             return [self.read_row(h, columns) for h in hashes]
         bad = self.check_rows(hashes)
@@ -166,7 +167,7 @@ class Store:
 
     def unreadable_note(self, sweep_file: str | None = None) -> str | None:
         """One line about the rows :meth:`read_rows` left out, or None."""
-        bad = getattr(self, "unreadable", {})
+        bad = self.unreadable
         if not bad:
             return None
         h, why = next(iter(bad.items()))

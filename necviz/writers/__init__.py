@@ -226,7 +226,7 @@ def export_recording(
     first = last = None
     existed = os.path.lexists(out)
     with written(out) as tmp:
-        camera = getattr(recording, "camera_name", None)
+        camera = recording.camera_name
         props = {**(properties or {}), **({"camera_name": camera} if camera else {})}
         writer = open_writer(fmt, tmp, recording.sensor, properties=props, compression=compression, camera_name=camera)
         try:
@@ -242,10 +242,10 @@ def export_recording(
                     c = writer.counts
                     progress(c["events"], c["frames"], 0.0 if first is None else (last - first) / 1e6)
             if fmt == "necviz":  # a native input's commands and annotations, within the range
-                for rec in getattr(recording, "commands", None) or ():
+                for rec in recording.commands:
                     if recording.in_range(int(rec.issue_time_us)):
                         writer.command(rec)
-                for t_us, data in getattr(recording, "annotations", None) or ():
+                for t_us, data in recording.annotations:
                     if recording.in_range(int(t_us)):
                         writer.annotate(int(t_us), data)
             writer.close()
