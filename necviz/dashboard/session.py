@@ -20,7 +20,6 @@ from dataclasses import dataclass, field, replace
 import rerun as rr
 import rerun.blueprint as rrb
 
-from necviz.dashboard.recorders import RecordingFile, open_recorder
 from necviz.dashboard.sink import RerunSink, SinkOptions
 from necviz.dashboard.tuning import TuningConsole, TuningFile
 from necviz.dashboard.viewer import FILE_FLUSH_S, open_viewer, text
@@ -28,7 +27,7 @@ from necviz.drivers.source import Source
 from necviz.layouts import style_series
 from necviz.memory import bound_heap_retention
 from necviz.options import ShowOptions, TuneOptions, ViewerOptions
-from necviz.outputs import Output, OutputError, StreamedOutput, low_space
+from necviz.outputs import Output, OutputError, RecordingFile, StreamedOutput, low_space
 from necviz.pipeline import Lane, Observer, Pipeline, RecorderObserver
 from necviz.progress import LiveLine, output, plural
 from necviz.reaction import reaction_line
@@ -85,7 +84,7 @@ class Session:
     """One dashboard run: a source, its lanes and how to show them.
 
     ``layout``: the name of ``blueprint``'s layout (the run's properties, a clip's own layout).
-    ``record``: a native recording (``.necrec``, :class:`~necviz.dashboard.recorders.RecordingFile`) of
+    ``record``: a native recording (``.necrec``, :class:`~necviz.outputs.RecordingFile`) of
     ``record_camera`` (default: the first lane's camera) storing ``record_properties`` (default:
     ``properties``); the run opens it beside the viewer's ``--save`` file (``recorder``) and commits or
     discards both with the run. ``lossless``: keep every frame and event image when the
@@ -362,7 +361,7 @@ def _open(ss: Session, out, outputs: list, speed):
     # committed or discarded with the run from the moment it exists
     if ss.record is not None:
         props = ss.record_properties if ss.record_properties is not None else ss.properties
-        ss.recorder = open_recorder(ss.record, ss.source.sensor, props, keep_partial=ss.keep_partial)
+        ss.recorder = RecordingFile(ss.record, ss.source.sensor, props, keep_partial=ss.keep_partial)
         outputs.append(ss.recorder)
     save = StreamedOutput(v.save, keep_partial=ss.keep_partial, flag="--save") if v.save else None
     viewer = open_viewer(v, ss.blueprint, ss.title, output=save)
