@@ -27,8 +27,8 @@ from necviz.drivers.source import Source
 from necviz.layouts import style_series
 from necviz.memory import bound_heap_retention
 from necviz.options import ShowOptions, TuneOptions, ViewerOptions
-from necviz.outputs import Output, OutputError, RecordingFile, StreamedOutput, low_space
-from necviz.pipeline import Lane, Observer, Pipeline, RecorderObserver
+from necviz.outputs import Output, OutputError, RecordingFile, StreamedOutput
+from necviz.pipeline import DiskWatch, Lane, Observer, Pipeline, RecorderObserver
 from necviz.progress import LiveLine, output, plural
 from necviz.reaction import reaction_line
 
@@ -257,13 +257,16 @@ def _stream(ss: Session, out, stdin, outputs: list, speed):
         return line + (f" · behind: {achieved_speed(sensor_s(), wall):.2f}x real time" if behind else "")
 
     viewer, sink = _open(ss, out, outputs, speed)
-    observers = [sink]  # then the native recorder (--record), the command's own, the pace watch
+    observers = [sink]  # then the native recorder (--record), the command's own, the pace and disk watches
     if ss.recorder is not None:
         cam = ss.record_camera or ss.lanes[0].camera or ss.lanes[0].name
         driver = next((ln.name for ln in ss.lanes if ln.drives and (ln.camera or ln.name) == cam), cam)
         observers.append(RecorderObserver(ss.recorder, cam, driver))
     observers += [make(ss, ss.layout, out) for make in ss.observers]
-    observers.append(pace)
+    files = [f for f in (viewer.save_path, ss.recorder.path if ss.recorder is not None else None) if f is not None]
+    files += [o.folder for o in observers if o.folder is not None]  # clips fill a disk too
+    disk = DiskWatch(files, viewer.segments)
+    observers += [pace, disk]
     pipe = Pipeline(
         ss.source,
         ss.lanes,
@@ -280,8 +283,6 @@ def _stream(ss: Session, out, stdin, outputs: list, speed):
     notes = list(ss.source.annotations)  # a native recording: P-TEDI follows its recorded bias changes
     if notes and pipe.dvs.follow_recording(notes) and out is not None:
         print(f"  P-TEDI follows the {len(pipe.dvs.scheduled)} DVS bias change(s) recorded in the file", file=out)
-    files = [p for p in (viewer.save_path, ss.recorder.path if ss.recorder is not None else None) if p is not None]
-    files += [o.folder for o in observers if o.folder is not None]  # clips fill a disk too
     tune_file = console = None
     t0 = time.perf_counter()
     disk_full = None  # (file, bytes free) when the run was stopped to keep its files whole
@@ -308,8 +309,7 @@ def _stream(ss: Session, out, stdin, outputs: list, speed):
         try:
             while not pipe.wait(0.5):
                 line.show(status())
-                joining = viewer.segments.size() if viewer.segments is not None else 0  # the join copies the file
-                disk_full = low_space(files, extra=joining)
+                disk_full = disk.full
                 broken = _failed(pipe.observers)
                 if disk_full is not None or broken is not None:  # stop while the files can still be completed
                     pipe.stop()
