@@ -15,7 +15,8 @@ sweep results, reports) goes through this module. The rules (``docs/robustness.m
   when writing succeeded, with the permissions a new file gets (``0o666`` less the umask). On any
   failure (a full disk included) the temporary file is deleted and the error
   (:class:`OutputError`) says that nothing was written; an existing file is left as it was.
-* **Recordings** stream for minutes (:class:`StreamedOutput`): a new file is written under its own
+* **Recordings** stream for minutes (:class:`StreamedOutput`; ``--record``'s native file:
+  :class:`RecordingFile`): a new file is written under its own
   name from the first byte on (a crash leaves it readable up to its last flush); replacing an
   existing file writes beside it and renames over it only when the run has ended. When the run
   fails, what was written is deleted — unless the recording holds data that cannot be produced
@@ -385,7 +386,7 @@ def write_json(path, data, indent: int | None = 2, flag: str | None = None) -> N
 
 class Output(Protocol):
     """A file a run writes and commits only when the run succeeded: the native recorder
-    (:class:`~necviz.dashboard.recorders.RecordingFile`), the viewer's ``--save`` file. ``path`` is
+    (:class:`RecordingFile`), the viewer's ``--save`` file. ``path`` is
     where it ends up; ``discard`` deletes it (or keeps it, readable, when asked) and returns a note."""
 
     path: Path
@@ -460,6 +461,61 @@ class StreamedOutput:
         except OSError:
             pass
         return f"{self.path} is unchanged" if self.replacing else f"{_LOST}{self.path}"
+
+
+class RecordingFile:
+    """The native recorder behind ``--record``: a :class:`~necviz.drivers.recordings.native.Recorder`
+    streaming to ``path`` (checked beforehand with :func:`check_output`) through a :class:`StreamedOutput`,
+    so a new file is readable up to its last flush after a crash and an existing one (``--force``) is
+    replaced only when the run has succeeded. :meth:`close` completes the file, the run then
+    :meth:`commit` s or :meth:`discard` s it (deleting it, unless ``keep_partial``: a camera session,
+    which cannot be recorded again)."""
+
+    def __init__(self, path, sensor, properties: dict, keep_partial: bool = False):
+        from necviz.drivers.recordings.native import Recorder
+
+        self.path = Path(path)
+        self.output = StreamedOutput(path, keep_partial=keep_partial, flag="--record")
+        try:
+            self.recorder = Recorder(
+                self.output.target, sensor=sensor, properties={k: str(v) for k, v in properties.items()}
+            )
+        except BaseException:
+            self.output.discard()
+            raise
+        self.closed = False
+
+    @property
+    def target(self) -> Path:
+        return self.output.target
+
+    def write(self, packet) -> None:
+        self.recorder.write(packet)
+
+    def command(self, record) -> None:
+        self.recorder.command(record)
+
+    def annotate(self, t_us: int, data: dict) -> None:
+        self.recorder.annotate(t_us, data)
+
+    def close(self) -> None:
+        """End the file (END chunk, fsync). Raises what writing it raised (a full disk)."""
+        if not self.closed:
+            self.closed = True
+            self.recorder.close()
+
+    def commit(self) -> None:
+        """The run succeeded: the file takes its final name."""
+        self.close()
+        self.output.commit()
+
+    def discard(self) -> str:
+        """The run failed: delete (or keep, when ``keep_partial``) the file; returns what happened."""
+        try:
+            self.close()
+        except BaseException:  # noqa: BLE001 - the run's own error is the one reported
+            pass
+        return self.output.discard()
 
 
 _LOST = "nothing was written to "
@@ -538,6 +594,7 @@ __all__ = [
     "Output",
     "OutputError",
     "RECORDING_RESERVE",
+    "RecordingFile",
     "StreamedOutput",
     "atomic_output",
     "atomic_write",

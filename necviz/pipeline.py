@@ -50,6 +50,7 @@ from necviz.core.imu import ImuBatch, TriggerBatch
 from necviz.core.ptedi import PeripheralEstimator
 from necviz.core.stream import packet_time_us
 from necviz.dvs_controls import DvsControls
+from necviz.outputs import low_space
 from necviz.reaction import ReactionMeter
 from necviz.telemetry import FrameRecord, Telemetry
 
@@ -109,8 +110,9 @@ def _estimator(lane: Lane) -> PeripheralEstimator:
 
 
 class Observer:
-    """Something that watches a run (the Rerun sink, the native recorder). Every method is called
-    on the streaming thread and must only append to memory; the defaults ignore everything.
+    """Something that watches a run (the Rerun sink, the native recorder, the disk watch). Every method
+    is called on the streaming thread and must only append to memory (or, rarely, ask the system: the
+    disk watch's ``statvfs`` every half second); the defaults ignore everything.
 
     ``name`` keys what :meth:`close` returns in the run's summary (default: the class's name);
     ``folder``, a folder the observer writes into while the run goes (the session watches its disk);
@@ -635,4 +637,36 @@ class RecorderObserver(Observer):
         return None
 
 
-__all__ = ["Lane", "Observer", "Pipeline", "RecorderObserver", "THRESHOLD_KEYS", "packet_time_us"]
+class DiskWatch(Observer):
+    """The disks of a run's files (``files``: a session's ``--save`` file, native recording, clips' folder):
+    every ``period_s`` of wall time while packets stream, whether one has less than half of
+    :data:`~necviz.outputs.RECORDING_RESERVE` free plus what joining ``segments`` (a segmented ``--save``
+    file, if any) will still write: its size (:func:`~necviz.outputs.low_space`). ``full``: ``(file, bytes free)``
+    once one has, else None; the session's loop then stops the run while the files can still be completed.
+    Checked after the lanes have acted on a packet (:meth:`events`, :meth:`frame`), beside the observers
+    that write those files."""
+
+    name = "disk"
+
+    def __init__(self, files: list, segments=None, period_s: float = 0.5) -> None:
+        self.files = files
+        self.segments = segments
+        self.period_s = period_s
+        self.full: tuple[str, int] | None = None
+        self._next = 0.0
+
+    def _check(self) -> None:
+        now = time.monotonic()
+        if self.full is None and now >= self._next:
+            self._next = now + self.period_s
+            joining = self.segments.size() if self.segments is not None else 0  # the join copies the file
+            self.full = low_space(self.files, extra=joining)
+
+    def events(self, batch) -> None:
+        self._check()
+
+    def frame(self, lane, frame, record) -> None:
+        self._check()
+
+
+__all__ = ["DiskWatch", "Lane", "Observer", "Pipeline", "RecorderObserver", "THRESHOLD_KEYS", "packet_time_us"]

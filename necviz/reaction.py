@@ -172,29 +172,4 @@ class ReactionMeter:
         }
 
 
-def reaction_line(r: dict | None) -> str:
-    """The reaction in sensor time, one line (:mod:`necviz.reaction`); '' when nothing was measured."""
-    if r and r.get("open_loop") and not r.get("changes"):
-        return (
-            f"reaction: open loop ({r['commands']} commands computed; the recorded frames do not follow them, "
-            "so no reaction is measured)"
-        )
-    if not r or not r.get("changes"):
-        return ""
-    late, lag = r["frames_late"], r["command_to_exposure_us"]
-    if not r["applied"]:
-        return (
-            f"reaction: none of {r['changes']} exposure changes reached a frame (open loop, or the run was too short)"
-        )
-
-    def ms(v):
-        return "—" if v is None else f"{v / 1000:.1f} ms"
-
-    return (
-        f"reaction (sensor time): {r['applied']} of {r['changes']} changes reached a frame "
-        f"({r['superseded']} superseded); frames late p50 {late['p50']:.0f} p99 {late['p99']:.0f} max {late['max']}; "
-        f"cause to exposure p50 {ms(lag['p50'])} p99 {ms(lag['p99'])}"
-    )
-
-
-__all__ = ["reaction_line", "PENDING", "STARTS", "TOLERANCE_REL", "TOLERANCE_US", "ReactionMeter"]
+__all__ = ["PENDING", "STARTS", "TOLERANCE_REL", "TOLERANCE_US", "ReactionMeter"]

@@ -319,10 +319,14 @@ def test_a_run_that_cannot_keep_its_speed_says_so(tmp_path, capsys):
 
 
 def test_pace_note_only_for_a_paced_run_that_fell_behind():
-    from necviz.dashboard.session import pace_note
+    from necviz.dashboard.session import achieved_speed
+    from necviz.wording import pace_note
 
-    assert pace_note(None, 30.0, 47.8) is None  # --speed max: no pace was asked
-    assert pace_note(1.0, 30.0, 31.0) is None  # within 10 % of real time
-    assert pace_note(1.0, 30.0, 47.8) == "ran at 0.63x real time: latency and recovery are not real-time figures"
-    assert pace_note(1.0, 3.0, 1.5, settle_s=2.0) is None  # a running line waits for the start-up to pass
-    assert "not the 4x asked" in pace_note(4.0, 30.0, 15.0)
+    def note(asked, sensor_s, wall_s, settle_s=0.0):  # what the run's summary says (or the live count shows)
+        return pace_note(asked, achieved_speed(sensor_s, wall_s, settle_s))
+
+    assert note(None, 30.0, 47.8) is None  # --speed max: no pace was asked
+    assert note(1.0, 30.0, 31.0) is None  # within 10 % of real time
+    assert note(1.0, 30.0, 47.8) == "ran at 0.63x real time: latency and recovery are not real-time figures"
+    assert note(1.0, 3.0, 1.5, settle_s=2.0) is None  # a running line waits for the start-up to pass
+    assert "not the 4x asked" in note(4.0, 30.0, 15.0)

@@ -43,7 +43,7 @@ def test_an_open_loop_frame_that_never_follows_leaves_the_change_pending():
 
 
 def test_an_open_loop_lane_counts_its_commands_and_says_so():
-    from necviz.reaction import reaction_line
+    from necviz.wording import reaction_line
 
     m = ReactionMeter()
     m.command(0, 1234.0, 1.0, applies=False)

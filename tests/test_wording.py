@@ -6,8 +6,7 @@ import io
 import re
 
 from necviz.core.diagnosis import CAUSES
-from necviz.dashboard.session import print_summary
-from necviz.wording import CAUSE_WORDS, diagnosed_causes, saturated_frames
+from necviz.wording import CAUSE_WORDS, diagnosed_causes, print_summary, saturated_frames
 
 
 def test_saturated_frames_in_words():

@@ -286,8 +286,7 @@ def _run(options: CompareOptions, names, sc, seed0, profile, file_sink, out) -> 
 
 
 def print_table(result: dict, out) -> None:
-    from necviz.reaction import reaction_line
-    from necviz.wording import CAUSE_WORDS
+    from necviz.wording import CAUSE_WORDS, reaction_line
 
     seeds = result["seeds"]
     print(

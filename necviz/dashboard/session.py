@@ -20,7 +20,6 @@ from dataclasses import dataclass, field, replace
 import rerun as rr
 import rerun.blueprint as rrb
 
-from necviz.dashboard.recorders import RecordingFile, open_recorder
 from necviz.dashboard.sink import RerunSink, SinkOptions
 from necviz.dashboard.tuning import TuningConsole, TuningFile
 from necviz.dashboard.viewer import FILE_FLUSH_S, open_viewer, text
@@ -28,20 +27,18 @@ from necviz.drivers.source import Source
 from necviz.layouts import style_series
 from necviz.memory import bound_heap_retention
 from necviz.options import ShowOptions, TuneOptions, ViewerOptions
-from necviz.outputs import Output, OutputError, StreamedOutput, low_space
-from necviz.pipeline import Lane, Observer, Pipeline, RecorderObserver
-from necviz.progress import LiveLine, output, plural
-from necviz.reaction import reaction_line
+from necviz.outputs import Output, OutputError, RecordingFile, StreamedOutput
+from necviz.pipeline import DiskWatch, Lane, Observer, Pipeline, RecorderObserver
+from necviz.progress import LiveLine, output
+from necviz.wording import BEHIND, print_summary
 
 # -- pace: did a paced run keep the speed it was asked for? ------------------------------------------
 # A run asked for ``--speed 1`` (or watched in a viewer) feeds packets at real-time pace; on a busy machine
 # it may not keep up, and then its latency and recovery times are not real-time figures. PaceWatch notes
 # the wall time of the first packet (when the pipeline's pacing clock starts; compilation before it does
-# not count), and pace_note says, in one phrase, how fast the run actually went when that was below what
-# was asked.
+# not count); the live count shows the speed achieved when it falls below necviz.wording.BEHIND of the
+# speed asked, and the summary says it in one phrase (necviz.wording.pace_note).
 
-#: Below this fraction of the asked speed a run is said to have fallen behind.
-BEHIND = 0.9
 #: Wall seconds before a running figure is shown (the first second is mostly start-up jitter).
 SETTLE_S = 2.0
 
@@ -68,24 +65,12 @@ def achieved_speed(sensor_s: float, wall_s: float | None, settle_s: float = 0.0)
     return sensor_s / wall_s
 
 
-def pace_note(asked: float | None, sensor_s: float, wall_s: float | None, settle_s: float = 0.0) -> str | None:
-    """``"ran at 0.63x real time: latency and recovery are not real-time figures"`` when a paced
-    run (``asked``: its speed, None = as fast as possible) went below :data:`BEHIND` of it; else None
-    (also before ``settle_s`` wall seconds: a running line waits :data:`SETTLE_S`)."""
-    got = achieved_speed(sensor_s, wall_s, settle_s)
-    if asked is None or got is None or got >= BEHIND * asked:
-        return None
-    if asked == 1:
-        return f"ran at {got:.2f}x real time: latency and recovery are not real-time figures"
-    return f"ran at {got:.2f}x real time, not the {asked:g}x asked: latency and recovery are not paced figures"
-
-
 @dataclass(kw_only=True)
 class Session:
     """One dashboard run: a source, its lanes and how to show them.
 
     ``layout``: the name of ``blueprint``'s layout (the run's properties, a clip's own layout).
-    ``record``: a native recording (``.necrec``, :class:`~necviz.dashboard.recorders.RecordingFile`) of
+    ``record``: a native recording (``.necrec``, :class:`~necviz.outputs.RecordingFile`) of
     ``record_camera`` (default: the first lane's camera) storing ``record_properties`` (default:
     ``properties``); the run opens it beside the viewer's ``--save`` file (``recorder``) and commits or
     discards both with the run. ``lossless``: keep every frame and event image when the
@@ -228,10 +213,7 @@ def _run(ss: Session, out, stdin, outputs: list) -> dict:
     sensor_s = ((pipe.now_us or 0) - (pipe.first_us or 0)) / 1e6
     stats["speed"] = speed
     stats["achieved_speed"] = achieved_speed(sensor_s, pace_wall)
-    behind = pace_note(speed, sensor_s, pace_wall)
-    print_summary(out, stats)
-    if behind and out is not None:
-        print(f"  {behind}", file=out)
+    print_summary(out, stats)  # with a note when the run fell behind the speed asked
     stats["rrd"] = str(viewer.save_path) if viewer.save_path is not None else None
     stats["telemetry"] = pipe.telemetry
     return stats, viewer
@@ -245,26 +227,29 @@ def _stream(ss: Session, out, stdin, outputs: list, speed):
     output; then finish it and close the viewer. Returns the pipeline's summary, the viewer, the pipeline,
     its observers, ``(file, bytes free)`` when the disk stopped the run (else None) and the wall seconds
     from the first packet to the end of the loop."""
-    pace = PaceWatch()  # a paced run that cannot keep its speed says so (pace_note)
+    pace = PaceWatch()  # a paced run that cannot keep its speed says so (status, the summary)
     t0 = time.perf_counter()  # set again when the loop starts
 
     def sensor_s() -> float:
         return ((pipe.now_us or 0) - (pipe.first_us or 0)) / 1e6
 
     def status() -> str:  # the live count (or the prompt's status bar)
-        wall = pace.wall_s()
-        behind = pace_note(speed, sensor_s(), wall, SETTLE_S) is not None
+        got = achieved_speed(sensor_s(), pace.wall_s(), SETTLE_S)
+        behind = speed is not None and got is not None and got < BEHIND * speed  # as the summary's pace_note
         line = progress_line(ss.command, pipe, ss.expected_duration_s, time.perf_counter() - t0)
-        return line + (f" · behind: {achieved_speed(sensor_s(), wall):.2f}x real time" if behind else "")
+        return line + (f" · behind: {got:.2f}x real time" if behind else "")
 
     viewer, sink = _open(ss, out, outputs, speed)
-    observers = [sink]  # then the native recorder (--record), the command's own, the pace watch
+    observers = [sink]  # then the native recorder (--record), the command's own, the pace and disk watches
     if ss.recorder is not None:
         cam = ss.record_camera or ss.lanes[0].camera or ss.lanes[0].name
         driver = next((ln.name for ln in ss.lanes if ln.drives and (ln.camera or ln.name) == cam), cam)
         observers.append(RecorderObserver(ss.recorder, cam, driver))
     observers += [make(ss, ss.layout, out) for make in ss.observers]
-    observers.append(pace)
+    files = [f for f in (viewer.save_path, ss.recorder.path if ss.recorder is not None else None) if f is not None]
+    files += [o.folder for o in observers if o.folder is not None]  # clips fill a disk too
+    disk = DiskWatch(files, viewer.segments)
+    observers += [pace, disk]
     pipe = Pipeline(
         ss.source,
         ss.lanes,
@@ -281,8 +266,6 @@ def _stream(ss: Session, out, stdin, outputs: list, speed):
     notes = list(ss.source.annotations)  # a native recording: P-TEDI follows its recorded bias changes
     if notes and pipe.dvs.follow_recording(notes) and out is not None:
         print(f"  P-TEDI follows the {len(pipe.dvs.scheduled)} DVS bias change(s) recorded in the file", file=out)
-    files = [p for p in (viewer.save_path, ss.recorder.path if ss.recorder is not None else None) if p is not None]
-    files += [o.folder for o in observers if o.folder is not None]  # clips fill a disk too
     tune_file = console = None
     t0 = time.perf_counter()
     disk_full = None  # (file, bytes free) when the run was stopped to keep its files whole
@@ -309,8 +292,7 @@ def _stream(ss: Session, out, stdin, outputs: list, speed):
         try:
             while not pipe.wait(0.5):
                 line.show(status())
-                joining = viewer.segments.size() if viewer.segments is not None else 0  # the join copies the file
-                disk_full = low_space(files, extra=joining)
+                disk_full = disk.full
                 broken = _failed(pipe.observers)
                 if disk_full is not None or broken is not None:  # stop while the files can still be completed
                     pipe.stop()
@@ -362,7 +344,7 @@ def _open(ss: Session, out, outputs: list, speed):
     # committed or discarded with the run from the moment it exists
     if ss.record is not None:
         props = ss.record_properties if ss.record_properties is not None else ss.properties
-        ss.recorder = open_recorder(ss.record, ss.source.sensor, props, keep_partial=ss.keep_partial)
+        ss.recorder = RecordingFile(ss.record, ss.source.sensor, props, keep_partial=ss.keep_partial)
         outputs.append(ss.recorder)
     save = StreamedOutput(v.save, keep_partial=ss.keep_partial, flag="--save") if v.save else None
     viewer = open_viewer(v, ss.blueprint, ss.title, output=save)
@@ -404,81 +386,3 @@ def progress_line(command: str, pipe: Pipeline, expected: float | None, wall: fl
         f"  {command}: {t:6.2f}{of} s sensor time · {pipe.events / 1e6:7.2f} M events · {pipe.frames} frames"
         f" · {wall:5.1f} s"
     )
-
-
-def print_summary(out, stats: dict) -> None:
-    if out is None:
-        return
-    print(
-        f"  {plural(stats['events'], 'event')}, {plural(stats['frames'], 'frame')} over {stats['duration_s']:.2f} s "
-        f"({stats['event_rate_mev_s']:.2f} Mev/s) in {stats['wall_s']:.1f} s wall",
-        file=out,
-    )
-    w = max([8, *(len(n) for n in stats["lanes"])])  # nec-frames, user-registered names: every row aligned
-    for name, s in stats["lanes"].items():
-        print(
-            f"  {name:{w}s} {plural(s['frames'], 'frame'):>11s}, {s['saturated_frames_50']:3d} saturated, "
-            f"{plural(s['commands'], 'command'):>14s}, processing p50 {_us(s['latency_p50_us'])} "
-            f"p99 {_us(s['latency_p99_us'])}"
-            + (f", P-TEDI c_on {s['ptedi']['c_on']:.4g} c_off {s['ptedi']['c_off']:.4g}" if "ptedi" in s else ""),
-            file=out,
-        )
-        line = reaction_line(s.get("reaction"))
-        if line:
-            print(f"  {'':8s} {line}", file=out)
-    src = stats.get("source")
-    if src:
-        lost = src.get("dropped_events", 0)
-        print(
-            f"  camera: {plural(lost, 'event')} dropped by the device"
-            + (" (its FIFO overflowed while the host was not reading, or its bus was saturated)" if lost else "")
-            + f"; {plural(src.get('skipped_words', 0), 'stream word')} skipped; "
-            f"{plural(src.get('reconnects', 0), 'reconnect')}",
-            file=out,
-        )
-        if "lag_peak_us" in src:
-            held = src.get("backpressure_events", 0)
-            print(
-                f"  reader: backlog peak {src['lag_peak_us'] / 1000:.1f} ms of sensor time; "
-                + (
-                    f"held back {held} times for {src.get('backpressure_s', 0.0):.2f} s (the host fell behind: "
-                    "the device dropped meanwhile)"
-                    if held
-                    else "never held back"
-                ),
-                file=out,
-            )
-    fr = stats.get("flight_recorder")
-    if fr:
-        dropped = (
-            f"; the {fr['buffer_bytes'] / 2**20:.0f} MB budget dropped {fr['dropped_events']:,} events "
-            "(clips hold less than --clip-before)"
-            if fr["dropped_events"]
-            else ""
-        )
-        lost = f", {fr['clips_dropped']} dropped (writer behind)" if fr["clips_dropped"] else ""
-        errors = f", {fr['write_errors']} failed to write" if fr["write_errors"] else ""
-        print(
-            f"  clips: {fr['clips_written']} written ({plural(fr['failures'], 'saturated frame')}, "
-            f"{plural(fr['marks'], 'mark')}){lost}{errors}; peak held {fr['peak_bytes'] / 2**20:.1f} MB{dropped}",
-            file=out,
-        )
-    vd = stats.get("video")
-    if vd:
-        print(
-            f"  video: {vd['path']} ({plural(vd['frames'], 'frame')}, {vd['duration_s']:.2f} s at x{vd['speed']:g}, "
-            f"{vd['width']}x{vd['height']})",
-            file=out,
-        )
-    sk = stats.get("sink")
-    if sk:
-        print(
-            f"  viewer: {plural(sk['frames_logged'], 'frame')}, {plural(sk['event_images'], 'event image')}; dropped "
-            f"{plural(sk['frames_dropped'], 'frame')} and {plural(sk['event_batches_dropped'], 'event batch', 'event batches')}; "
-            f"{sk['events_decimated']:,} of {plural(sk['events_seen'], 'event')} not drawn (decimation)",
-            file=out,
-        )
-
-
-def _us(v: float) -> str:
-    return "—" if v != v else f"{v:.0f} µs"
