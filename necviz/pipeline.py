@@ -168,11 +168,13 @@ class Pipeline:
     history : frames of per-frame telemetry kept per lane by the default telemetry (``None``: all).
     observers : :class:`Observer` s (the Rerun sink, a recorder).
     speed : ``None`` as fast as possible; ``1.0`` real time; ``N`` N times real time.
-    sample_period_us : predictions go to observers at most this often (sensor time).
     stop_after_s : end the run after this much sensor time (``None``: when the source ends).
     warm_up : compile or load every kernel before the first packet (:mod:`necviz.warmup`), so
         start-up never counts as command latency.
     """
+
+    #: predictions go to observers at most this often (sensor time, µs)
+    SAMPLE_PERIOD_US = 2_000
 
     def __init__(
         self,
@@ -183,7 +185,6 @@ class Pipeline:
         history: int | None = None,
         observers=(),
         speed: float | None = None,
-        sample_period_us: int = 2_000,
         stop_after_s: float | None = None,
         warm_up: bool = True,
     ):
@@ -223,7 +224,7 @@ class Pipeline:
         self.reactions = {name: ReactionMeter(limits) for name in names}
         self.observers = list(observers)
         self.speed = speed
-        self.sample_period_us = int(sample_period_us)
+        self.sample_period_us = self.SAMPLE_PERIOD_US
         self.stop_after_us = None if stop_after_s is None else int(stop_after_s * 1e6)
         self.warm_up = bool(warm_up)
         self.error: BaseException | None = None

@@ -40,8 +40,21 @@ class Parser(argparse.ArgumentParser):
         self.exit(EXIT_USER, f"necviz: error: {message}{hint}\n")
 
 
-#: every command, in the order ``necviz --help`` lists them: ``necviz.commands.NAME.COMMAND``
-COMMANDS = ("info", "compare", "demo", "replay", "live", "devices", "bench", "calibrate", "export", "repair", "sweep")
+#: every command's module, in the order ``necviz --help`` lists them: ``necviz.commands.MODULE.COMMAND`` (the module is
+#: named after its command, except ``benchmarks`` for ``bench``: ``necviz.bench`` is the benchmarks themselves)
+COMMANDS = (
+    "info",
+    "compare",
+    "demo",
+    "replay",
+    "live",
+    "devices",
+    "benchmarks",
+    "calibrate",
+    "export",
+    "repair",
+    "sweep",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
