@@ -1134,7 +1134,7 @@ def render_headline(results: dict[str, dict]) -> str:
     paper = base.get("nec-paper", {}).get("all", [math.nan])[0]
     lines = [
         "On the validation scenes (no default was tuned on them, but they were seen while the method was designed; the "
-        "sealed test set is prepared and not yet run, docs/evaluation.md), before the flicker rule, "
+        "sealed test set, docs/evaluation.md, is judged apart), before the flicker rule, "
         f"NEC saturated (more than half of a frame clipped) "
         f"{a:.2f} frames per run; the same controller with its events withheld (`nec-frames`) {b:.2f}: the events "
         f"account for {_diff_words(m, ci, n, 'saturated frames per run', ev['events'].get('scene_counts'))}.",
