@@ -684,10 +684,11 @@ class LiveOptions:
     emulate_unplug_s : float, optional
         Unplug the emulated device after this many seconds.
     usb : str
-        How necviz's driver reads the bulk endpoint: ``auto`` (``libusb1`` if installed), ``libusb1`` or ``pyusb``
+        How necviz's driver reads the bulk endpoint: ``single`` (default: one 256 KiB read in flight), ``auto``
+        (``libusb1`` if installed, else ``pyusb``), ``libusb1`` or ``pyusb``
         (:mod:`necviz.drivers.davis.transfers`).
     usb_transfers : (int, int), optional
-        Transfers in flight and bytes each (default libcaer's 8 x 8192).
+        Transfers in flight and bytes each for the rings (default 32 x 8192).
     record : path, optional
         Keep the session in a native ``.necrec`` recording.
     force : bool
@@ -718,7 +719,7 @@ class LiveOptions:
     duration_s: float | None = None
     scene: SceneOptions = field(default_factory=SceneOptions)  # the emulated device's scene
     emulate_unplug_s: float | None = None
-    usb: str = "auto"
+    usb: str = "single"
     usb_transfers: tuple[int, int] | None = None
     record: str | os.PathLike | None = None
     force: bool = False
@@ -747,7 +748,7 @@ class LiveOptions:
             raise OptionError("LiveOptions.history", str(e)) from None
         from necviz.drivers.davis.transfers import check_transfers, resolve_usb
 
-        if self.device == "dv" and (self.usb != "auto" or self.usb_transfers is not None):
+        if self.device == "dv" and (self.usb != "single" or self.usb_transfers is not None):
             raise OptionError(
                 "LiveOptions.usb",
                 "LiveOptions.usb and LiveOptions.usb_transfers set necviz's driver (LiveOptions.device usb or "

@@ -59,9 +59,7 @@ def test_a_long_stall_makes_the_device_drop_and_the_driver_reports_exactly_that(
     # the host may fall 10 ms behind (at the peak rate); the consumer stops for 60 ms
     delivered, st, be = _run(stall_ms=60, buffer_s=0.01)
     assert st["backpressure_s"] > 0  # the reader stopped reading instead of discarding transfers
-    # at least ~10 ms of events were dropped by the device (the 60 ms stall less the 10 ms queue, the 32 x 8 KiB in
-    # flight and the 128 KiB FIFO, ~5 ms each at the peak rate; measured 19-25 ms on a loaded machine) ...
-    assert be.dvs_dropped > 0.01 * RATE
+    assert be.dvs_dropped > 0.02 * RATE  # at least ~20 ms of events were dropped by the device ...
     assert st["dropped_events"] == be.dvs_dropped == st["dvs_dropped_on_stall"]  # ... and reported exactly
     assert delivered + be.dvs_dropped == be.events_generated  # nothing else was lost
     assert st["skipped_words"] == 0 and st["time_regressions"] == 0  # the stream stayed intact

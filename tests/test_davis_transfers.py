@@ -72,11 +72,11 @@ def test_parse_transfers_accepts_n_bytes_and_refuses_nonsense_in_one_line():
         assert "\n" not in str(e.value)
 
 
-def test_camera_options_default_to_libcaers_transfer_size_with_more_in_flight_and_validate():
-    o = CameraOptions()
+def test_camera_options_default_to_the_single_read_and_the_rings_to_libcaers_size_with_more_in_flight():
+    assert CameraOptions().usb == "single" and CameraOptions().transfer_size == 256 * 1024
+    o = CameraOptions(usb="auto")
     assert (o.usb, o.transfers, o.transfer_size) == ("auto", 32, 8192)
-    assert o.transfers * o.transfer_size == 256 * 1024  # what the old single read buffered
-    assert CameraOptions(usb="single").transfer_size == 256 * 1024
+    assert o.transfers * o.transfer_size == 256 * 1024  # what the single read buffers
     for bad in ({"usb": "winusb"}, {"transfers": 0}, {"transfer_size": 1000}, {"transfers": 8.5}):
         with pytest.raises(ParameterError):
             CameraOptions(**bad)
@@ -89,7 +89,7 @@ def test_auto_falls_back_to_pyusb_without_libusb1(monkeypatch):
     with pytest.raises(ParameterError, match=r"needs the libusb1 package: pip install 'necviz\[usb\]'$"):
         T.resolve_usb("libusb1")
     assert "libusb1 not installed" in T.usb_library_line()
-    cam = open_camera("emulated", backend=backend(duration_s=0.05))
+    cam = open_camera("emulated", backend=backend(duration_s=0.05), options=CameraOptions(usb="auto"))
     assert cam.usb_transfers == {"library": "pyusb", "transfers": 32, "transfer_bytes": 8192}
     assert sum(isinstance(p, EventBatch) for p in cam) > 0 and cam.state == "finished"
 
@@ -99,7 +99,9 @@ def test_statuses_are_libusbs():
     for name in ("COMPLETED", "ERROR", "TIMED_OUT", "CANCELLED", "STALL", "NO_DEVICE", "OVERFLOW"):
         assert getattr(T, f"TRANSFER_{name}") == getattr(usb1, f"TRANSFER_{name}")
     assert T.resolve_usb("auto") == "libusb1"
-    assert T.usb_library_line().startswith(f"USB library: libusb1 {T.libusb1_version()}")
+    line = T.usb_library_line()
+    assert line.startswith("USB library: pyusb, one 256 KiB read in flight (the default)")
+    assert f"libusb1 {T.libusb1_version()} installed: --usb libusb1 keeps 32 x 8 KiB" in line
 
 
 # -- the same bytes, in order --------------------------------------------------------------------------------------

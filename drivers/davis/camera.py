@@ -94,10 +94,12 @@ class CameraOptions:
     batch_us : int
         Event batches are cut at multiples of this many µs (so a controller can act between frames).
     usb : str
-        How the bulk endpoint is read (:mod:`.transfers`): ``"auto"`` (default: ``libusb1`` if the package is
-        installed, else ``pyusb``), ``"libusb1"`` (asynchronous transfers in flight, as libcaer), ``"pyusb"``
-        (synchronous reads on a thread of their own, a ring of buffers to the decoder) or ``"single"`` (the old
-        one read of 256 KiB at a time; for comparison).
+        How the bulk endpoint is read (:mod:`.transfers`): ``"single"`` (default: one read of 256 KiB in flight
+        on the reader's thread), ``"auto"`` (``libusb1`` if the package is installed, else ``pyusb``),
+        ``"libusb1"`` (asynchronous transfers in flight, as libcaer) or ``"pyusb"`` (synchronous reads on a thread
+        of their own, a ring of buffers to the decoder). The rings are not the default yet: on the emulated
+        camera at real-time pace they delay NEC's exposure changes (static_lab, 1.5 s: frames late p99 2-6
+        against 1 with the single read; see :mod:`.transfers`).
     transfers : int
         Transfers kept in flight (libusb1) or buffered between reading and decoding (pyusb), 1..64 (default 32
         of libcaer's 8 KiB: a Python host pauses longer than libcaer's C thread; see :data:`.transfers.DEFAULT_TRANSFERS`).
@@ -121,7 +123,7 @@ class CameraOptions:
     batch_us: int = 1000
     transfer_size: int | None = None
     buffer_s: float = 0.1
-    usb: str = "auto"
+    usb: str = "single"
     transfers: int = DEFAULT_TRANSFERS
 
     def __post_init__(self) -> None:

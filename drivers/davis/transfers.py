@@ -135,12 +135,14 @@ def parse_transfers(text: str) -> tuple[int, int]:
 
 
 def usb_library_line() -> str:
-    """One line for ``necviz devices``: the USB library the driver reads the data endpoint with."""
+    """One line for ``necviz devices``: how the driver reads the data endpoint (by default one 256 KiB pyusb read
+    in flight; the rings on request)."""
     v = libusb1_version()
     ring = f"{DEFAULT_TRANSFERS} x {DEFAULT_TRANSFER_BYTES // 1024} KiB"
+    single = f"USB library: pyusb, one {SINGLE_TRANSFER_BYTES // 1024} KiB read in flight (the default)"
     if v is not None:
-        return f"USB library: libusb1 {v} (asynchronous transfers, {ring} in flight; --usb pyusb for pyusb reads)"
-    return f"USB library: pyusb (reads of {ring} from one thread; libusb1 not installed: {INSTALL_HINT})"
+        return f"{single}; libusb1 {v} installed: --usb libusb1 keeps {ring} asynchronous transfers in flight"
+    return f"{single}; libusb1 not installed ({INSTALL_HINT}): --usb pyusb reads {ring} on a thread of its own"
 
 
 class _Ring(BulkReader):

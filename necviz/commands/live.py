@@ -301,18 +301,19 @@ def add_arguments(p) -> None:
     p.add_argument("--reconnect", action="store_true", help="if the camera is unplugged, wait for it to return")
     p.add_argument(
         "--usb",
-        choices=("auto", "libusb1", "pyusb"),
-        default="auto",
-        help="how necviz's driver reads the camera: libusb1 (asynchronous transfers in flight, as libcaer: pip "
-        "install 'necviz[usb]'), pyusb (reads on a thread of their own) or auto (default: libusb1 if installed)",
+        choices=("single", "auto", "libusb1", "pyusb"),
+        default="single",
+        help="how necviz's driver reads the camera: single (default: one 256 KiB read in flight), libusb1 "
+        "(asynchronous transfers in flight, as libcaer: pip install 'necviz[usb]'), pyusb (reads of 8 KiB on a "
+        "thread of their own) or auto (libusb1 if installed, else pyusb)",
     )
     p.add_argument(
         "--usb-transfers",
         type=_usb_transfers,
         default=None,
         metavar="N,BYTES",
-        help="transfers in flight and bytes each, whole 1024-byte packets (default 32,8192: libcaer's 8 KiB "
-        "transfers, more of them in flight; e.g. 8,8k as libcaer)",
+        help="with --usb libusb1, pyusb or auto: transfers in flight and bytes each, whole 1024-byte packets "
+        "(default 32,8192: libcaer's 8 KiB transfers, more of them in flight; e.g. 8,8k as libcaer)",
     )
     p.add_argument(
         "--controller",
