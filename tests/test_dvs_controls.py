@@ -119,6 +119,26 @@ def sim_pipeline(duration_us=300_000, **scene):
     return rig, Pipeline(rig, [lane], warm_up=False)
 
 
+def record_a_bias_change(path):
+    """A simulated run recorded to ``path`` (.necrec) with one live change, c_on -> 0.13 at the 20th batch."""
+    from necviz.drivers.recordings import Recorder
+    from necviz.pipeline import Observer, RecorderObserver
+
+    rig, pipe = sim_pipeline(**SLOW)
+    recorder = Recorder(path, sensor=SMALL, properties={})
+    n = [0]
+
+    class Change(Observer):
+        def events(self, batch):
+            n[0] += 1
+            if n[0] == 20:
+                pipe.tune_dvs("c_on", 0.13)
+
+    pipe.observers += [RecorderObserver(recorder, "camera"), Change()]
+    pipe.run().finish()
+    return rig, pipe
+
+
 def test_tuning_lines_for_the_dvs():
     from necviz.dashboard.tuning import parse
 
@@ -382,22 +402,11 @@ def test_scene_cache_and_a_mid_run_change(tmp_path):
 def test_a_replay_follows_the_recorded_bias_changes(tmp_path):
     """Record a run whose ON threshold changes mid-run; replaying the .necrec, P-TEDI takes the same change at the
     time it took effect in the recorded stream (scaled from the replay's own thresholds)."""
-    from necviz.drivers.recordings import Recorder, open_recording
-    from necviz.pipeline import Lane, Observer, Pipeline, RecorderObserver, _estimator
+    from necviz.drivers.recordings import open_recording
+    from necviz.pipeline import Lane, Observer, Pipeline, _estimator
     from necviz.runs import make_controller
 
-    rig, pipe = sim_pipeline(**SLOW)
-    recorder = Recorder(tmp_path / "t.necrec", sensor=SMALL, properties={})
-    n = [0]
-
-    class Change(Observer):
-        def events(self, batch):
-            n[0] += 1
-            if n[0] == 20:
-                pipe.tune_dvs("c_on", 0.13)
-
-    pipe.observers += [RecorderObserver(recorder, "camera"), Change()]
-    pipe.run().finish()
+    rig, pipe = record_a_bias_change(tmp_path / "t.necrec")
     t_live = pipe.dvs.followed_from_us
     assert t_live is not None
 
@@ -429,21 +438,8 @@ def test_replay_says_how_many_recorded_bias_changes_it_follows(tmp_path, capsys)
     """``necviz replay`` of a recording with one bias change: the session counts it through
     ``DvsControls.scheduled`` (the public view) and says so."""
     from necviz.commands.cli import main
-    from necviz.drivers.recordings import Recorder
-    from necviz.pipeline import Observer, RecorderObserver
 
-    rig, pipe = sim_pipeline(**SLOW)
-    recorder = Recorder(tmp_path / "t.necrec", sensor=SMALL, properties={})
-    n = [0]
-
-    class Change(Observer):
-        def events(self, batch):
-            n[0] += 1
-            if n[0] == 20:
-                pipe.tune_dvs("c_on", 0.13)
-
-    pipe.observers += [RecorderObserver(recorder, "camera"), Change()]
-    pipe.run().finish()
+    record_a_bias_change(tmp_path / "t.necrec")
     assert main(["replay", str(tmp_path / "t.necrec"), "--save", str(tmp_path / "r.rrd")]) == 0
     assert "P-TEDI follows the 1 DVS bias change(s) recorded in the file" in capsys.readouterr().out
 
