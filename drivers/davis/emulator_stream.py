@@ -314,7 +314,9 @@ class DataPathMixin:
 
         The emulator may itself fall behind the wall clock (a loaded machine); it then slips its clock
         (:meth:`_slip`), and what it produces late (at most :data:`SLIP_ALLOWANCE_US`) for a time when the
-        host was reading is not limited by the FIFO: only the time between two transfers is."""
+        host was reading is not limited by the FIFO: only the time between two transfers is. That holds only
+        when the FIFO was empty (the host waiting for data): behind a backlog they would have queued in the FIFO,
+        so they are bounded by it."""
         try:
             return self._transfer(ep, buff, timeout_s)
         finally:
@@ -358,7 +360,10 @@ class DataPathMixin:
                     target = self._wall_us()
                     if first:  # the gap since the last transfer: everything goes through the FIFO
                         late = self._read_end_us
-                        if late is not None and self._sensor_us() < late:
+                        # only into an empty FIFO: the host was waiting, so those data would have flowed straight
+                        # into its transfer; behind a backlog (the last transfer ended full, as back-to-back ring
+                        # transfers do) they queue in the FIFO like any other, within its size
+                        if late is not None and self._sensor_us() < late and self._fill() == 0:
                             self._unbounded = True  # late production for the previous transfer's time
                             try:
                                 self._produce(int(late))
