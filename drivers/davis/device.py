@@ -760,9 +760,10 @@ class BulkReader:
                 return ("disconnected", e2) if _is_disconnect(e2) else ("error", e2)
         return ("error", e)
 
-    def _deliver(self, data, n: int) -> bool:
-        """Hand one transfer's first ``n`` bytes on (decoded if asked), waiting for room; False if stopped."""
-        self.stats["transfers"] += 1
+    def _deliver(self, data, n: int, transfers: int = 1) -> bool:
+        """Hand one transfer's first ``n`` bytes on (decoded if asked), waiting for room; False if stopped.
+        ``transfers``: how many transfers (completed back to back, joined by a ring) the bytes are."""
+        self.stats["transfers"] += transfers
         self.stats["bytes"] += n
         if self.decode is None:
             raw = bytes(data[:n])
