@@ -286,6 +286,19 @@ class DataPathMixin:
             self._late = max(0, self._late - n)
         return got + n
 
+    def take_full(self, buff) -> int:
+        """Fill the host buffer ``buff`` from the FIFO at once if the FIFO holds enough to fill it (a transfer
+        waiting behind one that just ended full is filled at bus speed, without the sensor advancing); returns the
+        bytes moved, 0 if the FIFO holds less (the transfer then waits for data as a read does) or the endpoint
+        cannot deliver (halted, unplugged: the next read says why)."""
+        view = memoryview(buff).cast("B")
+        with self._data_lock:
+            if not self.plugged or self._halted or len(self._pending) < len(view):
+                return 0
+            n = self._take(view, 0)
+            self.bulk_reads += 1
+            return n
+
     def bulk_read(self, dev_handle, ep, intf, buff, timeout):
         timeout_s = (timeout or 1000) / 1000.0
         if self.realtime:
