@@ -77,7 +77,7 @@ def main(argv=None) -> int:
         command += f" --usb {','.join(str(u) for u in readers)}"
     if args.duration != "6":
         command += f" --duration {args.duration}"
-    result = {
+    result: dict = {
         "command": command,
         "scenario": "static_lab",
         "duration_s": float(args.duration),
