@@ -144,6 +144,19 @@ def test_transfers_the_fifo_fills_at_once_complete_together_and_are_decoded_toge
     assert len(done) > reader.stats["transfers"] - 1 and all(status == T.TRANSFER_COMPLETED for _, status in done[:-9])
 
 
+@pytest.mark.parametrize("kind", ["single", "libusb1", "pyusb"])
+def test_a_reader_thread_that_fails_ends_the_stream_in_one_line_instead_of_hanging(kind):
+    """An exception that is not the device's (here the decoding) used to end the reader's thread silently: the
+    consumer then waited forever (a live run stuck at 0 s of sensor time)."""
+
+    def broken(data):
+        raise ValueError("decoder bug")
+
+    data, end, reader, _ = raw_stream(kind, limit_s=10.0, decode=broken)
+    assert end is not None and end[0] == "error"
+    assert str(end[1]) == "the reader thread failed: ValueError: decoder bug"
+
+
 def test_stop_cancels_every_transfer_in_flight():
     be = backend(duration_s=None)  # an endless scene
     dev = open_device(be, emulated=True)

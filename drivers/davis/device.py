@@ -619,6 +619,11 @@ def describe(backend, emulated: bool = False) -> list[DeviceInfo]:
 PEAK_BYTES_PER_S = 70_000_000
 
 
+def thread_failed(e: BaseException) -> DeviceError:
+    """What a reader thread that failed on something other than the device says (one line)."""
+    return DeviceError(f"the reader thread failed: {type(e).__name__}: {e}")
+
+
 class BulkReader:
     """Reads endpoint 0x82 on a daemon thread into a queue of ``(kind, payload)`` items.
 
@@ -688,7 +693,7 @@ class BulkReader:
             "queue_peak_bytes": 0,
             "lag_peak_us": 0,
         }
-        self.thread = threading.Thread(target=self._run, name=f"necviz-davis-{device.serial}", daemon=True)
+        self.thread = threading.Thread(target=self._run_guarded, name=f"necviz-davis-{device.serial}", daemon=True)
 
     def start(self) -> None:
         self.thread.start()
@@ -778,6 +783,12 @@ class BulkReader:
             return False
         self.queue.put(("packets", packets, t_last, n, extra))
         return True
+
+    def _run_guarded(self) -> None:
+        try:
+            self._run()
+        except Exception as e:  # not the device's: a bug (in decoding, say) ends the stream in one line
+            self.queue.put(("error", thread_failed(e)))  # instead of leaving the consumer waiting forever
 
     def _run(self) -> None:
         buf = array.array("B", bytes(self.transfer_size))

@@ -36,7 +36,7 @@ import usb.core
 
 from necviz.core.errors import ParameterError
 from necviz.drivers.davis import protocol as P
-from necviz.drivers.davis.device import BulkReader, DavisDevice, _is_disconnect
+from necviz.drivers.davis.device import BulkReader, DavisDevice, _is_disconnect, thread_failed
 from necviz.drivers.davis.device_errors import DeviceDisconnectedError, DeviceError
 
 #: the USB library choices of ``necviz live --usb``
@@ -210,6 +210,8 @@ class _Ring(BulkReader):
             self._end_with(("disconnected" if isinstance(e, DeviceDisconnectedError) else "error", e))
         except usb.core.USBError as e:
             self._end_with(("disconnected" if _is_disconnect(e) else "error", e))
+        except Exception as e:  # not the device's: a bug ends the stream in one line, the consumer does not hang
+            self._end_with(("error", thread_failed(e)))
 
     def _end_with(self, item) -> None:
         self._push(item)
