@@ -329,7 +329,16 @@ class DataPathMixin:
         (:meth:`_slip`), and what it produces late (at most :data:`SLIP_ALLOWANCE_US`) for a time when the
         host was reading is not limited by the FIFO: only the time between two transfers is. That holds only
         when the FIFO was empty (the host waiting for data): behind a backlog they would have queued in the FIFO,
-        so they are bounded by it."""
+        so they are bounded by it.
+
+        A read the FIFO can fill whole is served from it at once, without simulating the sensor first (a camera
+        serves it at bus speed; simulating on the host's thread would make the host pay the sensor's cost for
+        every small read of a backlog); the time it took still counts as the host's absence (bounded by the FIFO)
+        at the next read that simulates."""
+        if ep == P.DATA_ENDPOINT and self._running():
+            n = self.take_full(buff)
+            if n:
+                return n
         try:
             return self._transfer(ep, buff, timeout_s)
         finally:
