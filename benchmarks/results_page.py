@@ -246,8 +246,9 @@ def r_transfers(d: dict) -> str:
         "data can be up to a step ahead of the device clock."
         + " The rings keep 32 × 8 KiB (libcaer's transfer size, four times its count: on the loaded emulator a "
         "50 ms stall at 12 Mev/s dropped events in 3 of 6 runs with 8 transfers and in 0 of 9 with 32). The default "
-        "reader is still the single 256 KiB read: at real-time pace on the emulated camera the rings delay NEC's "
-        "exposure changes (frames late p99 2-6 against 1; docs/cameras.md, USB transfers)."
+        "reader is still the single 256 KiB read: on the emulated camera the rings keep NEC's exposure changes "
+        "within a frame at --speed 1 and max (frames late p99 <= 1) but not in 7 of 24 runs at --speed 4 "
+        "(docs/cameras.md, USB transfers)."
     )
 
 

@@ -131,6 +131,32 @@ def test_out_of_order_completions_are_put_back_in_submission_order(reference):
     assert data == reference
 
 
+def test_transfers_the_fifo_fills_at_once_complete_together_and_are_decoded_together(reference):
+    """A frame's readout (here 64 x 48 x 2 samples) fills the transfers waiting behind the one that ended full in
+    one round of event handling, in order; the ring decodes what completed together in one call (45 decode calls
+    per DAVIS346 frame at 8 KiB let a loaded host fall behind and the device's backlog delay every command)."""
+    be = backend()
+    data, end, reader, _ = raw_stream("libusb1", be, transfers=8, transfer_size=1024)
+    assert end == ("finished", None) and data == reference
+    assert reader.stats["out_of_order"] == 0
+    assert reader.stats["joined"] > 0.3 * reader.stats["transfers"]
+    done = be.libusb1_handle.completions
+    assert len(done) > reader.stats["transfers"] - 1 and all(status == T.TRANSFER_COMPLETED for _, status in done[:-9])
+
+
+@pytest.mark.parametrize("kind", ["single", "libusb1", "pyusb"])
+def test_a_reader_thread_that_fails_ends_the_stream_in_one_line_instead_of_hanging(kind):
+    """An exception that is not the device's (here the decoding) used to end the reader's thread silently: the
+    consumer then waited forever (a live run stuck at 0 s of sensor time)."""
+
+    def broken(data):
+        raise ValueError("decoder bug")
+
+    data, end, reader, _ = raw_stream(kind, limit_s=10.0, decode=broken)
+    assert end is not None and end[0] == "error"
+    assert str(end[1]) == "the reader thread failed: ValueError: decoder bug"
+
+
 def test_stop_cancels_every_transfer_in_flight():
     be = backend(duration_s=None)  # an endless scene
     dev = open_device(be, emulated=True)

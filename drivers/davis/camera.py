@@ -97,9 +97,10 @@ class CameraOptions:
         How the bulk endpoint is read (:mod:`.transfers`): ``"single"`` (default: one read of 256 KiB in flight
         on the reader's thread), ``"auto"`` (``libusb1`` if the package is installed, else ``pyusb``),
         ``"libusb1"`` (asynchronous transfers in flight, as libcaer) or ``"pyusb"`` (synchronous reads on a thread
-        of their own, a ring of buffers to the decoder). The rings are not the default yet: on the emulated
-        camera at real-time pace they delay NEC's exposure changes (static_lab, 1.5 s: frames late p99 2-6
-        against 1 with the single read; see :mod:`.transfers`).
+        of their own, a ring of buffers to the decoder). The rings are not the default: on the emulated camera
+        they keep NEC's exposure changes within a frame (frames late p99 <= 1, static_lab 1.5 s) at ``--speed 1``
+        and ``max``, but at ``--speed 4`` not in 7 of 24 runs, the single read in all (docs/cameras.md, USB
+        transfers).
     transfers : int
         Transfers kept in flight (libusb1) or buffered between reading and decoding (pyusb), 1..64 (default 32
         of libcaer's 8 KiB: a Python host pauses longer than libcaer's C thread; see :data:`.transfers.DEFAULT_TRANSFERS`).

@@ -619,6 +619,11 @@ def describe(backend, emulated: bool = False) -> list[DeviceInfo]:
 PEAK_BYTES_PER_S = 70_000_000
 
 
+def thread_failed(e: BaseException) -> DeviceError:
+    """What a reader thread that failed on something other than the device says (one line)."""
+    return DeviceError(f"the reader thread failed: {type(e).__name__}: {e}")
+
+
 class BulkReader:
     """Reads endpoint 0x82 on a daemon thread into a queue of ``(kind, payload)`` items.
 
@@ -688,7 +693,7 @@ class BulkReader:
             "queue_peak_bytes": 0,
             "lag_peak_us": 0,
         }
-        self.thread = threading.Thread(target=self._run, name=f"necviz-davis-{device.serial}", daemon=True)
+        self.thread = threading.Thread(target=self._run_guarded, name=f"necviz-davis-{device.serial}", daemon=True)
 
     def start(self) -> None:
         self.thread.start()
@@ -760,9 +765,10 @@ class BulkReader:
                 return ("disconnected", e2) if _is_disconnect(e2) else ("error", e2)
         return ("error", e)
 
-    def _deliver(self, data, n: int) -> bool:
-        """Hand one transfer's first ``n`` bytes on (decoded if asked), waiting for room; False if stopped."""
-        self.stats["transfers"] += 1
+    def _deliver(self, data, n: int, transfers: int = 1) -> bool:
+        """Hand one transfer's first ``n`` bytes on (decoded if asked), waiting for room; False if stopped.
+        ``transfers``: how many transfers (completed back to back, joined by a ring) the bytes are."""
+        self.stats["transfers"] += transfers
         self.stats["bytes"] += n
         if self.decode is None:
             raw = bytes(data[:n])
@@ -777,6 +783,12 @@ class BulkReader:
             return False
         self.queue.put(("packets", packets, t_last, n, extra))
         return True
+
+    def _run_guarded(self) -> None:
+        try:
+            self._run()
+        except Exception as e:  # not the device's: a bug (in decoding, say) ends the stream in one line
+            self.queue.put(("error", thread_failed(e)))  # instead of leaving the consumer waiting forever
 
     def _run(self) -> None:
         buf = array.array("B", bytes(self.transfer_size))

@@ -167,6 +167,7 @@ class EmulatedHandle:
         if not self._queue and not self._done:
             time.sleep(tv)
             return
+        burst: list[EmulatedTransfer] = []
         if self._queue:
             t = self._queue.pop(0)
             self._fill(t)
@@ -174,9 +175,34 @@ class EmulatedHandle:
             ending = t._status != TRANSFER_COMPLETED
             if len(self._done) < self.reorder and self._queue and not ending:
                 return
+            if not ending and self.reorder == 1:
+                burst = self._fill_waiting(t)
         done, self._done = self._done, []
         for t in reversed(done):
             self._fire(t)
+        for t in burst:
+            self._fire(t)
+
+    def _fill_waiting(self, t: EmulatedTransfer) -> list[EmulatedTransfer]:
+        """After ``t`` ended full, the transfers waiting behind it that the device's FIFO can fill whole, filled
+        at once (in submission order), as a camera fills them at bus speed and libusb reports every completion
+        in one round of event handling: the emulator does not make the host pay one event round (a device read,
+        the sensor's simulation) per transfer for data already waiting."""
+        burst: list[EmulatedTransfer] = []
+        while (
+            t._status == TRANSFER_COMPLETED
+            and t._length == len(t._buffer)
+            and self._queue
+            and self._queue[0]._seq not in self.inject
+        ):
+            t = self._queue[0]
+            n = self.device.take_full(t._buffer)
+            if not n:
+                break
+            self._queue.pop(0)
+            t._status, t._length = TRANSFER_COMPLETED, n
+            burst.append(t)
+        return burst
 
 
 class EmulatedContext:

@@ -286,6 +286,19 @@ class DataPathMixin:
             self._late = max(0, self._late - n)
         return got + n
 
+    def take_full(self, buff) -> int:
+        """Fill the host buffer ``buff`` from the FIFO at once if the FIFO holds enough to fill it (a transfer
+        waiting behind one that just ended full is filled at bus speed, without the sensor advancing); returns the
+        bytes moved, 0 if the FIFO holds less (the transfer then waits for data as a read does) or the endpoint
+        cannot deliver (halted, unplugged: the next read says why)."""
+        view = memoryview(buff).cast("B")
+        with self._data_lock:
+            if not self.plugged or self._halted or len(self._pending) < len(view):
+                return 0
+            n = self._take(view, 0)
+            self.bulk_reads += 1
+            return n
+
     def bulk_read(self, dev_handle, ep, intf, buff, timeout):
         timeout_s = (timeout or 1000) / 1000.0
         if self.realtime:
@@ -314,7 +327,18 @@ class DataPathMixin:
 
         The emulator may itself fall behind the wall clock (a loaded machine); it then slips its clock
         (:meth:`_slip`), and what it produces late (at most :data:`SLIP_ALLOWANCE_US`) for a time when the
-        host was reading is not limited by the FIFO: only the time between two transfers is."""
+        host was reading is not limited by the FIFO: only the time between two transfers is. That holds only
+        when the FIFO was empty (the host waiting for data): behind a backlog they would have queued in the FIFO,
+        so they are bounded by it.
+
+        A read the FIFO can fill whole is served from it at once, without simulating the sensor first (a camera
+        serves it at bus speed; simulating on the host's thread would make the host pay the sensor's cost for
+        every small read of a backlog); the time it took still counts as the host's absence (bounded by the FIFO)
+        at the next read that simulates."""
+        if ep == P.DATA_ENDPOINT and self._running():
+            n = self.take_full(buff)
+            if n:
+                return n
         try:
             return self._transfer(ep, buff, timeout_s)
         finally:
@@ -358,7 +382,10 @@ class DataPathMixin:
                     target = self._wall_us()
                     if first:  # the gap since the last transfer: everything goes through the FIFO
                         late = self._read_end_us
-                        if late is not None and self._sensor_us() < late:
+                        # only into an empty FIFO: the host was waiting, so those data would have flowed straight
+                        # into its transfer; behind a backlog (the last transfer ended full, as back-to-back ring
+                        # transfers do) they queue in the FIFO like any other, within its size
+                        if late is not None and self._sensor_us() < late and self._fill() == 0:
                             self._unbounded = True  # late production for the previous transfer's time
                             try:
                                 self._produce(int(late))
