@@ -31,11 +31,12 @@ log times).
 Events are shared by every lane of a source, so they are logged once (``events``, ``event_rate``)
 as event images (:mod:`necviz.core.event_image`) over windows of ``event_window_us`` sensor time.
 At most ``max_events_per_window`` are drawn per window: above that every k-th event is drawn; and
-when the worker is behind (more than ``max_backlog`` batches waiting, or the last image was drawn
-less than ``1 / max_rate_hz`` ago in wall time) a window's image is skipped. Both are counted
-(``events_decimated``, ``event_images_skipped``); the event rate is logged for every window
-regardless. Frames follow the same wall-clock rate cap. With ``lossless=True`` nothing is dropped
-or skipped (simulations and replays written to a file).
+when the worker is behind (more than ``max_backlog`` batches waiting) or draws faster than
+``max_rate_hz`` in wall time (in bursts of at most :data:`EVENT_IMAGE_BURST`), a window's image is
+skipped. Both are counted (``events_decimated``, ``event_images_skipped``); the event rate is logged
+for every window regardless. Frames follow the same wall-clock rate cap, in bursts of up to 30 (cameras
+deliver frames in bursts). With ``lossless=True`` nothing is dropped or skipped (simulations and
+replays written to a file).
 
 Above each lane's frame a header (``NAME/frame/header``: its exposure and gain, in the lane's colour)
 and, while the frame is saturated, a red outline around it (``NAME/frame/saturated_outline``), as the
@@ -232,6 +233,15 @@ class RateLimit:
         return False
 
 
+#: Event images a live sink may draw at once above ``max_rate_hz`` (its token bucket's burst). At real
+#: time the windows (33 ms) that close while the worker is not behind (at most ``max_backlog`` 1 ms
+#: batches waiting: 64 ms, so at most 3 windows) are all drawn, as with any larger burst. The frames'
+#: burst of 30 is for cameras that deliver frames in bursts; event images are the sink's own, and a
+#: burst that large only draws images in the first instant of a replay faster than real time, which
+#: no viewer shows (at 20x, ~27 of the ~60 images of a 0.5 s ``necviz bench pipeline`` run).
+EVENT_IMAGE_BURST = 3
+
+
 def _whole(name: str, value, lo: int, hi: int | None = None, optional: bool = False):
     """``value`` as an ``int`` in ``[lo, hi]`` (``None`` passes when ``optional``), else a one-line error."""
     if optional and value is None:
@@ -382,7 +392,7 @@ class RerunSink(Observer):
         self.burst_s = options.burst_s
         max_rate_hz = options.max_rate_hz
         self._frame_rate: dict[str, RateLimit] = defaultdict(lambda: RateLimit(max_rate_hz))
-        self._image_rate = RateLimit(max_rate_hz)
+        self._image_rate = RateLimit(max_rate_hz, EVENT_IMAGE_BURST)
         self._frame_queue_size = options.frame_queue_size
         self.image_period_us = options.image_period_us
         self._last_frame_us: dict[str, int] = {}  # per lane: the last logged frame's exposure start
