@@ -31,11 +31,12 @@ log times).
 Events are shared by every lane of a source, so they are logged once (``events``, ``event_rate``)
 as event images (:mod:`necviz.core.event_image`) over windows of ``event_window_us`` sensor time.
 At most ``max_events_per_window`` are drawn per window: above that every k-th event is drawn; and
-when the worker is behind (more than ``max_backlog`` batches waiting, or the last image was drawn
-less than ``1 / max_rate_hz`` ago in wall time) a window's image is skipped. Both are counted
-(``events_decimated``, ``event_images_skipped``); the event rate is logged for every window
-regardless. Frames follow the same wall-clock rate cap. With ``lossless=True`` nothing is dropped
-or skipped (simulations and replays written to a file).
+when the worker is behind (more than ``max_backlog`` batches waiting) or draws faster than
+``max_rate_hz`` in wall time (in bursts of at most :data:`EVENT_IMAGE_BURST`), a window's image is
+skipped. Both are counted (``events_decimated``, ``event_images_skipped``); the event rate is logged
+for every window regardless. Frames follow the same wall-clock rate cap, in bursts of up to 30 (cameras
+deliver frames in bursts). With ``lossless=True`` nothing is dropped or skipped (simulations and
+replays written to a file).
 
 Above each lane's frame a header (``NAME/frame/header``: its exposure and gain, in the lane's colour)
 and, while the frame is saturated, a red outline around it (``NAME/frame/saturated_outline``), as the
@@ -132,11 +133,15 @@ def _palette_bits(n: int) -> int:
 
 
 def _deflate(data: bytes, level: int) -> bytes:
-    """zlib stream of ``data``: run-length strategy (``Z_RLE``) from level 6 up. Event images are long runs of
-    the background index between sparse events; matching runs only, instead of searching back for repeated
-    strings, gives ~10 % fewer bytes than the default strategy at level 9 (and ~15 % less than level 6)
-    on the 2 s demo's event images, and is faster. Any PNG decoder reads either."""
-    if level < 6:
+    """zlib stream of ``data``: run-length strategy (``Z_RLE``) at every level from 1 (0: stored). Event
+    images are long runs of the background index between sparse events; matching runs only, instead of
+    searching back for repeated strings, gives ~10 % fewer bytes than the default strategy at level 9
+    (and ~15 % less than level 6) on the 2 s demo's event images, and is faster: on a DAVIS346 window
+    it is both faster and smaller than the default strategy at level 1 too, at every density measured
+    (500 to 200k events: 38-420 µs against 46-1020 µs, 1.4-26 KB against 2.5-29 KB), so a live sink
+    uses it as well. zlib's run matcher does not depend on the level: levels 1 to 9 give the same
+    bytes. Any PNG decoder reads either strategy."""
+    if level < 1:
         return zlib.compress(data, level)
     c = zlib.compressobj(level, zlib.DEFLATED, 15, 9, zlib.Z_RLE)
     return c.compress(data) + c.flush()
@@ -174,7 +179,7 @@ class EventPalette:
 
     def png(self, image: EventImage, level: int = 6) -> bytes:
         """``encode_indexed_png(self.indices(image), self.palette, level)`` in one pass over the
-        counts (:func:`~necviz.core.event_image.palette_rows`, without the GIL)."""
+        counts (:func:`~necviz.core.event_image.palette_rows`)."""
         h, w = image.counts_on.shape
         bits = _palette_bits(len(self.palette))
         if self._raw is None or self._raw.shape != (h, 1 + (w * bits + 7) // 8):
@@ -228,6 +233,15 @@ class RateLimit:
         return False
 
 
+#: Event images a live sink may draw at once above ``max_rate_hz`` (its token bucket's burst). At real
+#: time the windows (33 ms) that close while the worker is not behind (at most ``max_backlog`` 1 ms
+#: batches waiting: 64 ms, so at most 3 windows) are all drawn, as with any larger burst. The frames'
+#: burst of 30 is for cameras that deliver frames in bursts; event images are the sink's own, and a
+#: burst that large only draws images in the first instant of a replay faster than real time, which
+#: no viewer shows (at 20x, ~27 of the ~60 images of a 0.5 s ``necviz bench pipeline`` run).
+EVENT_IMAGE_BURST = 3
+
+
 def _whole(name: str, value, lo: int, hi: int | None = None, optional: bool = False):
     """``value`` as an ``int`` in ``[lo, hi]`` (``None`` passes when ``optional``), else a one-line error."""
     if optional and value is None:
@@ -272,7 +286,8 @@ class SinkOptions:
     jpeg_quality : int, optional
         ``None``: frames use :data:`FRAME_QTABLE`; else the JPEG standard's table at this quality (1..95).
     png_level : int, optional
-        zlib level of the event images (0..9; ``None``: 6 lossless, 1 live: ~4x faster, ~11 % larger).
+        zlib level of the event images (0..9; ``None``: 6 lossless, 1 live). From level 1 up the
+        run-length strategy gives the same bytes at every level (see :func:`_deflate`); 0 stores them.
     image_period_us : int
         At least this much sensor time between two logged frames of a lane, and between two event
         images (0: every one); the others are counted (``frames_thinned``, ``event_images_thinned``).
@@ -377,7 +392,7 @@ class RerunSink(Observer):
         self.burst_s = options.burst_s
         max_rate_hz = options.max_rate_hz
         self._frame_rate: dict[str, RateLimit] = defaultdict(lambda: RateLimit(max_rate_hz))
-        self._image_rate = RateLimit(max_rate_hz)
+        self._image_rate = RateLimit(max_rate_hz, EVENT_IMAGE_BURST)
         self._frame_queue_size = options.frame_queue_size
         self.image_period_us = options.image_period_us
         self._last_frame_us: dict[str, int] = {}  # per lane: the last logged frame's exposure start
@@ -390,6 +405,7 @@ class RerunSink(Observer):
         self._now_us = -(1 << 62)  # the latest sensor time of any scalar
         self._outlined: set[str] = set()  # lanes whose last logged frame was outlined as saturated
         self._headers: dict[str, list] = defaultdict(list)  # lane -> frame headers not yet sent (lossless)
+        self._header_size: dict[str, tuple[int, int]] = {}  # lane -> frame size its header line was logged for
         self._first_lane = self.lanes[0] if self.lanes else None
         # owned by the worker
         self._series: dict[str, list] = defaultdict(list)  # path -> [(t_us, seq, value)]
@@ -417,10 +433,11 @@ class RerunSink(Observer):
         }
         self.dropped = {"frames": 0, "event_batches": 0, "events": 0}  # written by the streaming thread only
         self._stop = False
+        self._wake = threading.Event()  # set by close(): the worker's last drain starts at once
         self._error: BaseException | None = None
         self.files: list = []  # files the stream writes: its flush is bounded (see viewer.flush_stream)
         self.on_close = None  # called once the recording is flushed (a file sink completes its file)
-        self.rotate = None  # called by the worker between sends (a --save file's next segment)
+        self.rotate = None  # called by the worker between sends (a --save file's next segment; True if started)
         self._thread = threading.Thread(target=self._run, name="necviz-rerun-sink", daemon=True)
         self._thread.start()
 
@@ -440,9 +457,7 @@ class RerunSink(Observer):
         img = EventImage(h, w, self._image.saturate_at)
         ev = np.zeros(4, EVENT_DTYPE)
         ev["x"], ev["y"], ev["p"] = [0, 1, 2, 3], [0, 0, 1, 1], [1, -1, 1, -1]
-        img.add(ev, 1)
-        img.add(ev[::2], 2)
-        img.add(ev[:1], 1)  # one event: contiguous field views, another signature
+        img.add_parts([ev, ev[::2]], 2)  # the window kernel: contiguous and strided event arrays
         pal = EventPalette(img)  # its rows kernel (what EventPalette.png runs), nothing logged or encoded
         bits = _palette_bits(len(pal.palette))
         palette_rows(img.counts_on, img.counts_off, pal.k, bits, np.empty((h, 1 + (w * bits + 7) // 8), np.uint8))
@@ -553,8 +568,8 @@ class RerunSink(Observer):
 
     # -- worker ---------------------------------------------------------------------------------
     def _run(self) -> None:
-        """Work in bursts: drain what is queued, then sleep ``burst_s``. A worker that polled
-        continuously would fight the streaming thread for the GIL on every packet."""
+        """Work in bursts: drain what is queued, then sleep ``burst_s`` (or until :meth:`close`). A worker
+        that polled continuously would fight the streaming thread for the GIL on every packet."""
         next_flush = time.perf_counter() + self.flush_period_s
         by_size = self.lossless and not math.isfinite(self.flush_period_s)
         try:
@@ -574,11 +589,11 @@ class RerunSink(Observer):
                 elif time.perf_counter() >= next_flush:
                     self._flush_series()
                     next_flush = time.perf_counter() + self.flush_period_s
-                if self.rotate is not None:
-                    self.rotate()
+                if self.rotate is not None and self.rotate():
+                    self._header_size.clear()  # a new segment holds its header lines whole
                 if stopping:
                     break
-                time.sleep(self.burst_s)
+                self._wake.wait(self.burst_s)
             self._close_window(final=True)
             self._flush_series()
             for entity in list(self._images):
@@ -658,7 +673,7 @@ class RerunSink(Observer):
         elif seen or not final:
             self._last_image_us = end
             stride = max(1, math.ceil(seen / self.max_events_per_window)) if self.max_events_per_window > 0 else 1
-            drawn = sum(self._image.add(p, stride) for p in self._parts)  # no copy: the kernel strides
+            drawn = self._image.add_parts(self._parts, stride)  # no copy: the kernel strides, holding the GIL
             self.stats["events_drawn"] += drawn
             self.stats["events_decimated"] += seen - drawn
             png = self._palette.png(self._image, self.png_level)
@@ -717,10 +732,12 @@ class RerunSink(Observer):
                 self._send_headers(lane)
             return
         self._set_time(t, seq)
-        self.rec.log(
-            S.path(lane, FRAME_HEADER),
-            rr.Boxes2D(centers=[_header_center(w)], half_sizes=[[w / 2, 0.5]], labels=[header], radii=[1.0]),
-        )
+        if self._header_size.get(lane) != (w, h):
+            self._header_size[lane] = (w, h)
+            box = rr.Boxes2D(centers=[_header_center(w)], half_sizes=[[w / 2, 0.5]], labels=[header], radii=[1.0])
+        else:  # the line stays where it is: only its label is logged (read latest-at, the same header)
+            box = rr.Boxes2D.from_fields(labels=[header])
+        self.rec.log(S.path(lane, FRAME_HEADER), box)
         if outline is not None:
             boxes = [[w / 2 - 1, h / 2 - 1]] if outline else []
             centers = [[w / 2, h / 2]] if outline else []
@@ -818,6 +835,7 @@ class RerunSink(Observer):
                 if self._now_us > t:
                     self._scalar(lane, leaf, self._now_us, value)
             self._stop = True
+            self._wake.set()
             self._thread.join()
             if self._error is None:
                 from necviz.dashboard.viewer import flush_stream

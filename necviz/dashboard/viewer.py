@@ -126,11 +126,14 @@ class Viewer:
         """The file being written now (a live list: a new segment replaces it)."""
         return self.segments.files if self.segments is not None else []
 
-    def rotate(self) -> None:
+    def rotate(self) -> bool:
         """Start the ``--save`` file's next segment when the current one is due (called by the thread
-        that logs, between its sends): the footer index Rerun keeps in memory covers one segment."""
+        that logs, between its sends): the footer index Rerun keeps in memory covers one segment.
+        True when a new segment was started."""
         if self.segments is not None and self.segments.due():
             self.rec.set_sinks(*self.other_sinks, self.segments.next())
+            return True
+        return False
 
     def close(self) -> None:
         """Flush what was logged (bounded: :func:`flush_stream`) and complete the ``--save`` file (its
