@@ -41,8 +41,8 @@ bus to its ceiling for 0.5 ms once a period, three times, and NEC clipped 3.3 fr
 where ``nec-frames`` clipped none; a lamp whose rising edge missed the ceiling on some periods sent the
 exposure from 0.5 to 1.5 ms with no change of the light at all). What sets such windows apart from a
 one-way loss is their length: a lamp's edge keeps the bus at its ceiling for a fraction of a period
-(a 100 Hz PWM edge lasts 0.5 ms, a sine's steep part about 3 ms), a change that outruns the bus keeps it
-there for as long as it lasts. So the windows are grouped into *bursts* (windows of one direction at
+(a PWM lamp's edge, 5 % of a period, gave bursts of one or two 1 ms windows on every training scene),
+a change that outruns the bus keeps it there for as long as it lasts (a light switched in 2 ms: 2-3 ms). So the windows are grouped into *bursts* (windows of one direction at
 most :data:`BURST_GAP_US` apart), and a window is also a flicker's swing when its burst has lasted at most
 ``max_edge_us`` and the burst before it, of either direction, was as short and ended at most
 ``memory_us`` before this one began (two frame intervals: a lamp that reached the ceiling a moment ago
@@ -68,7 +68,7 @@ MAX_RUN_US = 10_000
 #: ceiling windows of one direction at most this far apart (µs) are one burst (``edges``)
 BURST_GAP_US = 2_000
 #: a burst at the ceiling that lasts at most this long (µs) may be a lamp's edge (``edges``)
-MAX_EDGE_US = 3_000
+MAX_EDGE_US = 1_500
 #: ... and is one when the burst before it was as short and ended at most this long before it (µs)
 MEMORY_US = 40_000
 

@@ -294,7 +294,7 @@ class NECOptions(ControllerOptions):
         reverses within a frame interval, :class:`~necviz.core.control.flicker_watch.FlickerWatch`) is not
         a one-sided loss: it does not start the escape rule's case (a).
     flicker_edges : bool
-        With ``flicker_rule``: a short burst of ceiling windows (at most 3 ms) that follows another short
+        With ``flicker_rule``: a short burst of ceiling windows (at most 1.5 ms) that follows another short
         burst within two frame intervals is a lamp's edge, a flicker's swing, even when the windows do not
         alternate (a lamp that reaches the ceiling on one swing only, or on some periods only, or a switched
         light's ramp riding on a lamp's edges); :mod:`~necviz.core.control.flicker_watch`, "Edges".
