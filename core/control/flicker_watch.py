@@ -35,22 +35,22 @@ and OFF thresholds differ), a shallow lamp reaches the ceiling only on the swing
 ramp adds to, and a lamp near the ceiling's threshold reaches it on some periods only. Then the ceiling
 windows do not alternate within a frame interval, and each was read as a one-way loss: the escape rule
 aimed the exposure at the near edge of the valid range (2.6 times the goal's exposure for a loss
-downwards) and the next frame clipped 15-35 % of its pixels (training scenes
-``benchmarks/training/pwm_bright_*.toml``: a 7 dB switch ramping over 49 ms under a 120 Hz lamp drove the
-bus to its ceiling for 0.5 ms once a period, three times, and NEC clipped 3.3 frames over 10 % per run
-where ``nec-frames`` clipped none; a lamp whose rising edge missed the ceiling on some periods sent the
-exposure from 0.5 to 1.5 ms with no change of the light at all). What sets such windows apart from a
-one-way loss is their length: a lamp's edge keeps the bus at its ceiling for a fraction of a period
-(a PWM lamp's edge, 5 % of a period, gave bursts of one or two 1 ms windows on every training scene),
-a change that outruns the bus keeps it there for as long as it lasts (a light switched in 2 ms: 2-3 ms). So the windows are grouped into *bursts* (windows of one direction at
-most :data:`BURST_GAP_US` apart), and a window is also a flicker's swing when its burst has lasted at most
+downwards) and the next frame clipped 15-35 % of its pixels (``benchmarks/training/pwm_bright_06.toml``:
+a 7 dB switch ramping over 49 ms under a 120 Hz lamp drove the bus to its ceiling for one 1 ms window
+once a period, and NEC clipped 3.2 frames over 10 % per run where ``nec-frames`` clipped none). What sets
+such windows apart from a one-way loss is their length: a lamp's edge keeps the bus at its ceiling for a
+fraction of a period (a PWM edge, 5 % of a period, gave bursts of one or two 1 ms windows on every
+training scene), a change that outruns the bus keeps it there for as long as it lasts (a light switched
+in 2 ms: 2-3 ms). So the windows are grouped into *bursts* (windows of one direction at most
+:data:`BURST_GAP_US` apart), and a window is also a flicker's swing when its burst has lasted at most
 ``max_edge_us`` and the burst before it, of either direction, was as short and ended at most
 ``memory_us`` before this one began (two frame intervals: a lamp that reached the ceiling a moment ago
 still flickers). A single short burst (a light switched in a millisecond) stays a loss, as does every
-window of a burst that outlasts ``max_edge_us``, and the burst right after a long one. What such an edge
-costs when it is really a short loss: NEC meters the last frame's level, as ``nec-frames`` does, until
-the next frame. Designed on the training scenes only (``benchmarks/training/*.toml``;
-docs/evaluation.md). O(1) amortised per window.
+window of a burst that outlasts ``max_edge_us``, and the burst right after a longer one. Like the
+reversals, an edge withdraws the case (a) that its sequence's first windows started. What an edge costs
+when it was really a short loss: NEC meters the last frame's level, as ``nec-frames`` does, until the
+next frame or a saturated frame's case (b). Designed on the training scenes only
+(``benchmarks/training/*.toml``; docs/evaluation.md, "Edges"). O(1) amortised per window.
 """
 
 from __future__ import annotations
