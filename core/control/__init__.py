@@ -113,6 +113,7 @@ PAPER_OPTIONS = {
     "compensation": True,
     "bound_lag": False,
     "flicker_rule": False,
+    "flicker_edges": False,
 }
 
 

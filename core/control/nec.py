@@ -59,8 +59,9 @@ records it for every ``e`` in ``[0, W - m]``, ``W = g(valid_max) - g(valid_min)`
 one-sided interval a single exposure can cover. ``m`` is ``edge_margin`` (ln). The rule ends
 at the first frame that determines the statistic with no ceiling-saturated batch since its
 exposure started. A ceiling window that is a flickering light's swing (``flicker_rule``: the windows'
-direction reverses within a frame interval, :mod:`necviz.core.control.flicker_watch`) is not a loss and
-does not start case (a). Case (a) needs the ceiling: ``bus_event_rate``, by default the source's own
+direction reverses within a frame interval, :mod:`necviz.core.control.flicker_watch`; with ``flicker_edges``
+also a short burst at the ceiling that follows another, a lamp's edges) is not a loss and does not start
+case (a). Case (a) needs the ceiling: ``bus_event_rate``, by default the source's own
 (:class:`~necviz.drivers.source.CameraInfo` ``event_rate_max``: the simulator's configured
 ``dvs.max_event_rate``, 12 Mev/s for a DAVIS346 device or a recording from one), never a literal;
 a source without a ceiling makes case (a) impossible.
@@ -68,11 +69,11 @@ a source without a ceiling makes case (a) impossible.
 The paper's controller and necviz's additions (each one switch, so the ladder from the paper to
 the default can be measured; ``docs/method.md``): ``saturation_bound`` (P-TEDI re-anchors at the
 bound a saturated frame proves, :mod:`necviz.core.ptedi`; off: the paper's skip rule alone),
-``metering``, ``goal_mode``, ``escape``, ``bound_lag`` and ``flicker_rule``; ``compensation`` (the
+``metering``, ``goal_mode``, ``escape``, ``bound_lag`` and ``flicker_rule`` (with ``flicker_edges``); ``compensation`` (the
 profile's TEDI terms ``a±, b±``; off: zeroed, the thresholds kept) is the paper's own (Eq. 6) and on in
 ``nec-paper``. ``saturation_bound=False, metering="paper", goal_mode="paper", escape=False,
-bound_lag=False, flicker_rule=False`` is the paper's controller wherever the paper is specific
-(registered as ``nec-paper``). Where it is silent necviz chooses, in ``nec-paper`` as in every
+bound_lag=False, flicker_rule=False, flicker_edges=False`` is the paper's controller wherever the paper is
+specific (registered as ``nec-paper``). Where it is silent necviz chooses, in ``nec-paper`` as in every
 rung of the ladder: ``f_w``'s smoothstep and its dead band (:func:`error_weight`; the paper's
 Fig. 8e gives no form), ``min_command_change`` (a command must differ from the last by 1 %), the
 stale-command re-send inside the dead band (:meth:`NECController.command_for`), the skip rule's
@@ -292,12 +293,17 @@ class NECOptions(ControllerOptions):
         A window at the bus ceiling that is a flickering light's swing (the ceiling windows' direction
         reverses within a frame interval, :class:`~necviz.core.control.flicker_watch.FlickerWatch`) is not
         a one-sided loss: it does not start the escape rule's case (a).
+    flicker_edges : bool
+        With ``flicker_rule``: a short burst of ceiling windows (at most 1.5 ms) that follows another short
+        burst within two frame intervals is a lamp's edge, a flicker's swing, even when the windows do not
+        alternate (a lamp that reaches the ceiling on one swing only, or on some periods only, or a switched
+        light's ramp riding on a lamp's edges); :mod:`~necviz.core.control.flicker_watch`, "Edges".
     zone_grid : tuple of int, optional
         ``(columns, rows)`` of the P-TEDI zones :func:`~necviz.core.control.make_controller` builds
         (default: :data:`ZONE_GRID` for ``metering="zones"``, else the whole sensor).
 
     ``saturation_bound=False, metering="paper", goal_mode="paper", escape=False, bound_lag=False,
-    flicker_rule=False`` (compensation on: the paper's Eq. 6) is the paper's controller wherever the
+    flicker_rule=False, flicker_edges=False`` (compensation on: the paper's Eq. 6) is the paper's controller wherever the
     paper is specific (``nec-paper``; the necviz choices it keeps are named in the module docstring).
     """
 
@@ -360,6 +366,7 @@ class NECOptions(ControllerOptions):
     ceiling_rate: bool = False
     bound_lag: bool = True
     flicker_rule: bool = True
+    flicker_edges: bool = True
 
     def check(self) -> None:
         if self.full_band <= self.dead_band:
@@ -368,7 +375,15 @@ class NECOptions(ControllerOptions):
             raise ParameterError(f"metering must be one of {', '.join(METERING)}, got {self.metering!r}")
         if self.goal_mode not in GOAL_MODES:
             raise ParameterError(f"goal_mode must be one of {', '.join(GOAL_MODES)}, got {self.goal_mode!r}")
-        for name in ("escape", "saturation_bound", "compensation", "ceiling_rate", "bound_lag", "flicker_rule"):
+        for name in (
+            "escape",
+            "saturation_bound",
+            "compensation",
+            "ceiling_rate",
+            "bound_lag",
+            "flicker_rule",
+            "flicker_edges",
+        ):
             if not isinstance(getattr(self, name), bool):
                 raise ParameterError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if self.bus_event_rate is not None:
@@ -437,6 +452,7 @@ class NECController(Controller):
             event_rate_max = check_number("event_rate_max", event_rate_max, 0.0, lo_open=True)
         self.estimator = estimator
         self.event_rate_max = event_rate_max
+        self.flicker = FlickerWatch()  # which ceiling windows are a flicker's swings (flicker_rule, flicker_edges)
         super().__init__(limits, exposure_us, gain, options)
         self.last_log_irradiance = math.nan  # P-TEDI's ln P at the last command decision
         self.last_metered = math.nan  # the metered statistic M at the last command decision
@@ -450,7 +466,6 @@ class NECController(Controller):
         self._frame_dir = 0  # the last frame: +1 more than half over-exposed, -1 under, 0 neither
         self._determined_s = np.iinfo(np.int64).min  # exposure start of the last frame that determined M
         self.bus = BusWatch()  # windows of events at the bus ceiling (case (a); nec_bus)
-        self.flicker = FlickerWatch()  # which of them are a flicker's swings (flicker_rule)
         # rate at the ceiling: counted change of each ceiling-saturated window since the anchor, the gain a
         # saturated frame calibrated, and the change credited beyond the count (ln; added to M)
         self._sat_log: list[tuple[int, float]] = []
@@ -517,6 +532,7 @@ class NECController(Controller):
         self._aim_up = min(self.goal_log_exposure, float(crf.g[crf.valid_min]) + options.edge_margin)
         self._aim_down = max(self.goal_log_exposure, float(crf.g[crf.valid_max]) - options.edge_margin)
         est.saturation_bound = options.saturation_bound
+        self.flicker.edges = options.flicker_edges
         p = est.params
         if not options.compensation and (p.a_on or p.b_on or p.a_off or p.b_off):
             est.set_params(replace(p, a_on=0.0, b_on=0.0, a_off=0.0, b_off=0.0))
