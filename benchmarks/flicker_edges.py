@@ -20,11 +20,11 @@ import argparse
 import json
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+from flicker_rule import run_all  # noqa: E402  (the runs, as the flicker rule's ablation makes them)
 from tuning import CHANGE_JITTER_MS, PRESETS, t_ci  # noqa: E402
 
 TRAINING_FILES = sorted(str(p.relative_to(HERE.parent)) for p in (HERE / "training").glob("*.toml"))
@@ -32,19 +32,6 @@ HELDOUT_FILES = sorted(str(p.relative_to(HERE.parent)) for p in (HERE / "heldout
 LANES = ["nec", "nec@no_flicker_edges", "nec-frames"]
 PARAMS = {"nec@no_flicker_edges": {"flicker_edges": False}}
 METRICS = ("saturated_frames_50", "saturated_frames_10", "true_valid_fraction_mean")
-
-
-def _job(spec: dict) -> dict:
-    from necviz.runs import run_spec
-
-    t0 = time.perf_counter()
-    r = run_spec(spec)["results"]
-    return {
-        "scenario": spec["scenario"],
-        "seed": spec["seed"],
-        "results": {ln: {k: r[ln][k] for k in METRICS} for ln in LANES},
-        "seconds": time.perf_counter() - t0,
-    }
 
 
 def _family(scenario: str) -> str:
@@ -85,17 +72,8 @@ def main() -> int:
         for s in scenarios
         for k in range(first, first + args.seeds)
     ]
-    runs = []
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        for i, r in enumerate(pool.map(_job, specs)):
-            runs.append(r)
-            print(
-                f"  [{i + 1}/{len(specs)}] {Path(r['scenario']).stem} seed {r['seed']}: {r['seconds']:.0f} s "
-                f"(elapsed {time.perf_counter() - t0:.0f} s)",
-                file=sys.stderr,
-                flush=True,
-            )
+    runs = run_all(specs, args.jobs)
     table: dict[str, dict] = {}
     print(f"{'scene':24s} {'>50%: nec / no edges / frames':>32s} {'>10%: nec / no edges / frames':>32s}")
     for s in scenarios:

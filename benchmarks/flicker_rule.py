@@ -43,9 +43,25 @@ def _job(spec: dict) -> dict:
     return {
         "scenario": spec["scenario"],
         "seed": spec["seed"],
-        "results": {ln: {k: r[ln][k] for k in METRICS} for ln in LANES},
+        "results": {ln: {k: r[ln][k] for k in METRICS} for ln in spec["controllers"]},
         "seconds": time.perf_counter() - t0,
     }
+
+
+def run_all(specs: list[dict], jobs: int) -> list[dict]:
+    """Every closed-loop run of ``specs`` on ``jobs`` processes, a progress line per run (stderr)."""
+    runs = []
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        for i, r in enumerate(pool.map(_job, specs)):
+            runs.append(r)
+            print(
+                f"  [{i + 1}/{len(specs)}] {Path(r['scenario']).stem} seed {r['seed']}: {r['seconds']:.0f} s "
+                f"(elapsed {time.perf_counter() - t0:.0f} s)",
+                file=sys.stderr,
+                flush=True,
+            )
+    return runs
 
 
 def main() -> int:
@@ -69,17 +85,8 @@ def main() -> int:
         for s in scenarios
         for k in range(args.first_seed, args.first_seed + args.seeds)
     ]
-    runs = []
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        for i, r in enumerate(pool.map(_job, specs)):
-            runs.append(r)
-            print(
-                f"  [{i + 1}/{len(specs)}] {Path(r['scenario']).stem} seed {r['seed']}: {r['seconds']:.0f} s "
-                f"(elapsed {time.perf_counter() - t0:.0f} s)",
-                file=sys.stderr,
-                flush=True,
-            )
+    runs = run_all(specs, args.jobs)
     table = {}
     print(
         f"{'scene':24s} {'>50%: nec / no rule / frames':>30s} {'>10%: nec / no rule / frames':>30s}"
