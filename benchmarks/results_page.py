@@ -1106,6 +1106,9 @@ def render_sealed_headline(d: dict) -> str:
         f"{len(verdicts) - len(missed)} of the {len(verdicts)} criteria fixed before the run are met"
         + (f"; not met: {'; '.join(missed)}." if missed else ".")
         + " Where NEC loses and why, per family: [docs/results.md](docs/results.md#the-sealed-evaluation-25-new-scenes-seeds-300309)."
+        + " These runs measured the code of commit 4283cc8; NEC's rule for one-way lamp edges"
+        + " (`NECOptions.flicker_edges`), added since for the flicker loss, is measured on training and validation"
+        + " scenes only ([docs/evaluation.md](docs/evaluation.md#mains-flicker-the-training-scenes-and-the-flicker-rule), Edges) until a new sealed set is run."
     )
     return " ".join(lines) + "\n"
 
