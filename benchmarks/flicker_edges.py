@@ -24,14 +24,12 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from flicker_rule import run_all  # noqa: E402  (the runs, as the flicker rule's ablation makes them)
-from tuning import CHANGE_JITTER_MS, PRESETS, t_ci  # noqa: E402
+from tuning import CHANGE_JITTER_MS, METRICS, PRESETS, run_all, t_ci  # noqa: E402
 
 TRAINING_FILES = sorted(str(p.relative_to(HERE.parent)) for p in (HERE / "training").glob("*.toml"))
 HELDOUT_FILES = sorted(str(p.relative_to(HERE.parent)) for p in (HERE / "heldout").glob("*.toml"))
 LANES = ["nec", "nec@no_flicker_edges", "nec-frames"]
 PARAMS = {"nec@no_flicker_edges": {"flicker_edges": False}}
-METRICS = ("saturated_frames_50", "saturated_frames_10", "true_valid_fraction_mean")
 
 
 def _family(scenario: str) -> str:
@@ -74,6 +72,12 @@ def main() -> int:
     ]
     t0 = time.perf_counter()
     runs = run_all(specs, args.jobs)
+    failed = [r for r in runs if "error" in r]
+    if failed:
+        print(
+            f"{len(failed)} of {len(runs)} runs failed (first: {failed[0]['error']}); no table written", file=sys.stderr
+        )
+        return 1
     table: dict[str, dict] = {}
     print(f"{'scene':24s} {'>50%: nec / no edges / frames':>32s} {'>10%: nec / no edges / frames':>32s}")
     for s in scenarios:

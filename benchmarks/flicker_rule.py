@@ -22,46 +22,15 @@ import argparse
 import json
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from tuning import CHANGE_JITTER_MS, PRESETS, t_ci  # noqa: E402
+from tuning import CHANGE_JITTER_MS, METRICS, PRESETS, run_all, t_ci  # noqa: E402
 
 TRAINING_FILES = sorted(str(p.relative_to(HERE.parent)) for p in (HERE / "training").glob("*.toml"))
 LANES = ["nec", "nec@no_flicker_rule", "nec-frames"]
 PARAMS = {"nec@no_flicker_rule": {"flicker_rule": False}}
-METRICS = ("saturated_frames_50", "saturated_frames_10", "true_valid_fraction_mean")
-
-
-def _job(spec: dict) -> dict:
-    from necviz.runs import run_spec
-
-    t0 = time.perf_counter()
-    r = run_spec(spec)["results"]
-    return {
-        "scenario": spec["scenario"],
-        "seed": spec["seed"],
-        "results": {ln: {k: r[ln][k] for k in METRICS} for ln in spec["controllers"]},
-        "seconds": time.perf_counter() - t0,
-    }
-
-
-def run_all(specs: list[dict], jobs: int) -> list[dict]:
-    """Every closed-loop run of ``specs`` on ``jobs`` processes, a progress line per run (stderr)."""
-    runs = []
-    t0 = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
-        for i, r in enumerate(pool.map(_job, specs)):
-            runs.append(r)
-            print(
-                f"  [{i + 1}/{len(specs)}] {Path(r['scenario']).stem} seed {r['seed']}: {r['seconds']:.0f} s "
-                f"(elapsed {time.perf_counter() - t0:.0f} s)",
-                file=sys.stderr,
-                flush=True,
-            )
-    return runs
 
 
 def main() -> int:
@@ -87,6 +56,12 @@ def main() -> int:
     ]
     t0 = time.perf_counter()
     runs = run_all(specs, args.jobs)
+    failed = [r for r in runs if "error" in r]
+    if failed:
+        print(
+            f"{len(failed)} of {len(runs)} runs failed (first: {failed[0]['error']}); no table written", file=sys.stderr
+        )
+        return 1
     table = {}
     print(
         f"{'scene':24s} {'>50%: nec / no rule / frames':>30s} {'>10%: nec / no rule / frames':>30s}"
