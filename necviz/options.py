@@ -754,6 +754,12 @@ class LiveOptions:
                 "LiveOptions.usb and LiveOptions.usb_transfers set necviz's driver (LiveOptions.device usb or "
                 "emulated), not LiveOptions.device dv",
             )
+        if self.usb == "single" and self.usb_transfers is not None:  # would be half ignored: say so instead
+            raise OptionError(
+                "LiveOptions.usb_transfers",
+                "LiveOptions.usb_transfers sets the rings (LiveOptions.usb libusb1, pyusb or auto); the single read "
+                "keeps one 256 KiB transfer in flight",
+            )
         try:
             if self.device != "dv":
                 resolve_usb(self.usb)  # libusb1 asked for and not installed: refused here, in one line

@@ -279,6 +279,15 @@ def test_live_refuses_nonsense_transfers_in_one_line(capsys):
     assert rc != 0 and "--usb-transfers takes N,BYTES" in err and len(err.splitlines()) == 1
 
 
+def test_live_refuses_transfers_for_the_single_read_in_one_line(capsys):
+    from necviz.commands.cli import main
+
+    rc = main(["live", "--device", "emulated", "--no-prompt", "--usb-transfers", "8,8k"])  # --usb single: the default
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "--usb-transfers sets the rings (--usb libusb1, pyusb or auto)" in err
+    assert len(err.splitlines()) == 1
+
+
 def test_live_refuses_libusb1_without_the_package_and_usb_options_with_dv(monkeypatch, capsys):
     from necviz.commands.cli import main
     from necviz.options import LiveOptions
