@@ -658,13 +658,34 @@ def r_dvs_biases(d: dict) -> str:
     )
 
 
-def sealed_expected() -> int:
-    """How many runs the sealed sweep file asks for (scenes x seeds x controllers)."""
+#: the sealed test sets (benchmarks/sealed_set.py): the results page's title of each, newest first; the newest
+#: complete one makes the README's headline
+SEALED_TITLES = {
+    "sealed2": "The sealed evaluation of the code that ships (25 new scenes, seeds 400..409)",
+    "sealed": "The first sealed evaluation, spent (25 scenes, seeds 300..309, commit 4283cc8)",
+}
+#: the commit each set's run measured (its RUN.md and manifest.json), once it has run
+SEALED_COMMITS = {"sealed": "4283cc8"}
+
+
+def github_anchor(title: str) -> str:
+    """The anchor GitHub gives a heading: lower case, punctuation but ``-`` and ``_`` dropped, spaces to ``-``."""
+    kept = "".join(ch for ch in title.lower() if ch.isalnum() or ch in " -_")
+    return kept.replace(" ", "-")
+
+
+def sealed_expected(name: str = "sealed") -> int:
+    """How many runs a sealed set's sweep file asks for (scenes x seeds x controllers)."""
     import tomllib
 
-    sweep = tomllib.loads((HERE / "sweeps" / "sealed.toml").read_text(encoding="utf-8"))
+    sweep = tomllib.loads((HERE / "sweeps" / f"{name}.toml").read_text(encoding="utf-8"))
     lo, hi = (int(x) for x in str(sweep["seeds"]).split(".."))
     return len(sweep["scenarios"]) * (hi - lo + 1) * len(sweep["controllers"])
+
+
+def sealed_complete(results: dict[str, dict], name: str) -> bool:
+    d = results.get(name, {})
+    return bool(d) and d.get("runs", {}).get("total") == sealed_expected(name)
 
 
 def sealed_verdicts(d: dict) -> list[tuple[str, str, bool]]:
@@ -711,26 +732,29 @@ def sealed_verdicts(d: dict) -> list[tuple[str, str, bool]]:
     return out
 
 
-def r_sealed(d: dict) -> str:
-    """The sealed evaluation: the criteria first, then the reading (``benchmarks/notes/sealed.md``),
-    then every table events_table.py printed. Shown only for a complete run."""
+def r_sealed(d: dict, name: str = "sealed") -> str:
+    """A sealed evaluation: the criteria first, then the reading (``benchmarks/notes/NAME.md``), then every
+    table events_table.py printed. Shown only for a complete run."""
+    import tomllib
+
     runs = d.get("runs", {}).get("total", 0)
-    want = sealed_expected()
+    want = sealed_expected(name)
     if runs != want:
         return (
             f"The sealed run holds {runs} of its {want} runs: the criteria are judged on the complete set only, "
             "so no figure is shown until it is complete."
         )
+    seeds = tomllib.loads((HERE / "sweeps" / f"{name}.toml").read_text(encoding="utf-8"))["seeds"]
     rows = [[c, m, "met" if ok else "**not met**"] for c, m, ok in sealed_verdicts(d)]
     out = [
-        f"All {want} runs of `benchmarks/sweeps/sealed.toml` (25 scenes no choice saw, seeds 300..309), on the code "
-        "sealed before the run (`benchmarks/sealed/RUN.md`). The criteria, as docs/evaluation.md fixed them before "
+        f"All {want} runs of `benchmarks/sweeps/{name}.toml` (25 scenes no choice saw, seeds {seeds}), on the code "
+        f"sealed before the run (`benchmarks/{name}/RUN.md`). The criteria, as docs/evaluation.md fixed them before "
         "the run:",
         "",
         table(["criterion", "measured (95 % CI clustered by scene)", ""], rows),
         "",
     ]
-    notes = HERE / "notes" / "sealed.md"
+    notes = HERE / "notes" / f"{name}.md"
     if notes.exists():
         out += [notes.read_text(encoding="utf-8").strip(), ""]
     out.append(demote_headings(d.get("markdown", "")))
@@ -824,7 +848,8 @@ def r_dvs_sweep(d: dict) -> str:
 
 
 RENDERERS: dict[str, tuple[str, Callable[[dict], str]]] = {
-    "sealed": ("The sealed evaluation (25 new scenes, seeds 300..309)", r_sealed),
+    "sealed2": (SEALED_TITLES["sealed2"], lambda d: r_sealed(d, "sealed2")),
+    "sealed": (SEALED_TITLES["sealed"], lambda d: r_sealed(d, "sealed")),
     "dvs_biases": ("DVS biases on the emulated DAVIS346: events at lower thresholds", r_dvs_biases),
     "dvs_sweep": ("NEC over DVS thresholds and refractory periods (training scenes)", r_dvs_sweep),
     "events": ("What events add (validation scenes, seeds 100..104)", r_events_heldout),
@@ -1034,7 +1059,7 @@ def render_page(results: dict[str, dict]) -> str:
     ]
     first = [
         k
-        for k in ("sealed", "events", "tuning", "flicker_rule", "flicker_rule_validation", "events_training")
+        for k in (*SEALED_TITLES, "events", "tuning", "flicker_rule", "flicker_rule_validation", "events_training")
         if k in results
     ]  # the evaluation leads
     summary = speed_summary(results)
@@ -1080,13 +1105,18 @@ def _diff_words(m: float, ci: float, n: int, unit: str, counts: dict | None = No
     return f"{abs(m):.2f} ± {ci:.2f} {'fewer' if m < 0 else 'more'} {unit} ({where})"
 
 
-def render_sealed_headline(d: dict) -> str:
+def render_sealed_headline(d: dict, name: str = "sealed") -> str:
     """The README's block from the sealed rows: NEC against itself without events, against the best tuned
     baseline, and whether each criterion fixed before the run was met."""
     ev = d["saturated_frames_50"]["events"]
     a, b, m, ci, n = ev["all"]
     lines = [
-        "On the sealed test set (25 scenes and 10 seeds no choice saw, run once on the code sealed before it), NEC "
+        (
+            "On the sealed test set"
+            if name == "sealed"
+            else "On the second sealed test set, drawn after the first was spent"
+        )
+        + " (25 scenes and 10 seeds no choice saw, run once on the code sealed before it), NEC "
         f"saturated (more than half of a frame clipped) {a:.2f} frames per run and the same controller with its events "
         f"withheld (`nec-frames`) {b:.2f}: the events account for "
         f"{_diff_words(m, ci, n, 'saturated frames per run', ev.get('scene_counts'))}."
@@ -1105,10 +1135,16 @@ def render_sealed_headline(d: dict) -> str:
     lines.append(
         f"{len(verdicts) - len(missed)} of the {len(verdicts)} criteria fixed before the run are met"
         + (f"; not met: {'; '.join(missed)}." if missed else ".")
-        + " Where NEC loses and why, per family: [docs/results.md](docs/results.md#the-sealed-evaluation-25-new-scenes-seeds-300309)."
-        + " These runs measured the code of commit 4283cc8; NEC's rule for one-way lamp edges"
-        + " (`NECOptions.flicker_edges`), added since for the flicker loss, is measured on training and validation"
-        + " scenes only ([docs/evaluation.md](docs/evaluation.md#mains-flicker-the-training-scenes-and-the-flicker-rule), Edges) until a new sealed set is run."
+        + " Where NEC loses and why, per family: "
+        + f"[docs/results.md](docs/results.md#{github_anchor(SEALED_TITLES[name])})."
+        + (
+            " These runs measured the code of commit 4283cc8; NEC's rule for one-way lamp edges"
+            " (`NECOptions.flicker_edges`), added since for the flicker loss, is measured on training and validation"
+            " scenes only ([docs/evaluation.md](docs/evaluation.md#mains-flicker-the-training-scenes-and-the-flicker-rule),"
+            " Edges) until a new sealed set is run."
+            if name == "sealed"
+            else f" These runs measured the code of commit {SEALED_COMMITS.get(name, '(see its RUN.md)')}."
+        )
     )
     return " ".join(lines) + "\n"
 
@@ -1116,9 +1152,9 @@ def render_sealed_headline(d: dict) -> str:
 def render_headline(results: dict[str, dict]) -> str:
     """The README's block: what the evaluation says, with the ablation beside it (from ``events.json``,
     the held-out evaluation; without it, a pointer to the results page)."""
-    sealed = results.get("sealed", {})
-    if sealed and sealed.get("runs", {}).get("total") == sealed_expected():
-        return render_sealed_headline(sealed)
+    for name in SEALED_TITLES:  # the newest complete set speaks
+        if sealed_complete(results, name):
+            return render_sealed_headline(results[name], name)
     ev = results.get("events", {}).get("saturated_frames_50", {})
     if not ev.get("events") or not ev.get("baselines"):
         return (

@@ -241,9 +241,9 @@ def test_the_sealed_criteria_are_judged_only_on_a_complete_run_and_say_which_fai
     page = _load("results_page")
     d = json.loads(out.read_text())
     assert d["runs"]["total"] == 32
-    monkeypatch.setattr(page, "sealed_expected", lambda: 33)
+    monkeypatch.setattr(page, "sealed_expected", lambda name="sealed": 33)
     assert "32 of its 33 runs" in page.r_sealed(d) and "±" not in page.r_sealed(d)
-    monkeypatch.setattr(page, "sealed_expected", lambda: 32)
+    monkeypatch.setattr(page, "sealed_expected", lambda name="sealed": 32)
     verdicts = {c.split(" (")[0]: ok for c, _, ok in page.sealed_verdicts(d)}
     assert len(verdicts) == 4
     assert verdicts["NEC − `nec-frames` < 0 at > 50 % clipped, the scene-clustered 95 % CI excluding 0"]
@@ -254,3 +254,12 @@ def test_the_sealed_criteria_are_judged_only_on_a_complete_run_and_say_which_fai
     assert "**not met**" in text and "`navid-tuned`" in text
     head = page.render_sealed_headline(d)
     assert "3 of the 4 criteria" in head and "not met: at > 10 % clipped" in head
+    # the newest complete sealed set makes the README's headline, linking its own section; an incomplete one is silent
+    head2 = page.render_headline({"sealed": d, "sealed2": d})
+    assert head2.startswith("On the second sealed test set")
+    assert f"docs/results.md#{page.github_anchor(page.SEALED_TITLES['sealed2'])})" in head2
+    assert page.github_anchor("The first sealed evaluation, spent (25 scenes, seeds 300..309)") == (
+        "the-first-sealed-evaluation-spent-25-scenes-seeds-300309"
+    )
+    monkeypatch.setattr(page, "sealed_expected", lambda name="sealed": 32 if name == "sealed" else 1250)
+    assert page.render_headline({"sealed": d, "sealed2": d}).startswith("On the sealed test set (")
