@@ -146,29 +146,17 @@ def test_bad_bias_arguments_give_one_line_errors(tmp_path, monkeypatch, capsys, 
 def test_a_recorded_change_gives_the_timeline_the_replay_follows(tmp_path):
     """A simulated run whose thresholds change mid-run, recorded: the calibration's timeline puts the change where
     P-TEDI followed it in the live run, and ``--bias-setting 5`` is refused naming the settings the file holds."""
+    from dvs_recording import nec_pipeline, record_with_dvs_changes
+
     from necviz.calibration import calibrate_from_recordings
-    from necviz.drivers.recordings import Recorder, open_recording
+    from necviz.drivers.recordings import open_recording
     from necviz.drivers.sim.rig import RigOptions, SimRig
     from necviz.drivers.sim.scenes import make_scenario
-    from necviz.pipeline import Lane, Observer, Pipeline, RecorderObserver
-    from necviz.runs import make_controller
 
     sc = make_scenario("static_lab", sensor=SMALL, duration_us=300_000, seed=0, ramp_ms=100.0, change_jitter_ms=0.0)
     rig = SimRig(sc, ["camera"], seed=0, options=RigOptions(threads=False))
-    pipe = Pipeline(
-        rig, [Lane("camera", make_controller("nec", sensor=SMALL, limits=rig.camera_info.limits))], warm_up=False
-    )
-    recorder = Recorder(tmp_path / "t.necrec", sensor=SMALL, properties={})
-    n = [0]
-
-    class Change(Observer):
-        def events(self, batch):
-            n[0] += 1
-            if n[0] == 20:
-                pipe.tune_dvs("c_on", 0.13)
-
-    pipe.observers += [RecorderObserver(recorder, "camera"), Change()]
-    pipe.run().finish()
+    pipe = nec_pipeline(rig, SMALL)
+    record_with_dvs_changes(pipe, tmp_path / "t.necrec", SMALL, [("c_on", 0.13)], lambda n, batch: n == 20)
     tl = BiasTimeline.from_annotations(open_recording(tmp_path / "t.necrec").annotations)
     assert tl.changes == [(pipe.dvs.followed_from_us, 1)]
     assert tl.settings[1]["c_on"] == pytest.approx(0.13, rel=0.01)
@@ -214,30 +202,18 @@ def test_a_recording_across_a_bias_change_gives_each_setting_its_own_thresholds(
     from 0.26 / 0.24 to 0.15 / 0.35 (``c_on`` then ``c_off``, one setting). ``calibrate --bias-setting all`` on the
     ``.necrec``: two profiles, each setting's 95 % intervals holding its own simulated thresholds and not the
     other's; without ``--bias-setting`` the command says the file holds a change."""
+    from dvs_recording import nec_pipeline, record_with_dvs_changes
+
     from necviz.commands.cli import main
-    from necviz.drivers.recordings import Recorder
     from necviz.drivers.sim.calibration_scene import CalibrationScene
     from necviz.drivers.sim.dvs import DvsParams
     from necviz.drivers.sim.rig import RigOptions, SimRig
-    from necviz.pipeline import Lane, Observer, Pipeline, RecorderObserver
-    from necviz.runs import make_controller
 
     scene = CalibrationScene(sensor=SMALL, duration_us=12_000_000, seed=0)
     rig = SimRig(scene, ["camera"], seed=0, dvs=DvsParams(sigma_threshold=0.01), options=RigOptions(threads=False))
-    lane = Lane("camera", make_controller("nec", sensor=SMALL, limits=rig.camera_info.limits))
-    pipe = Pipeline(rig, [lane], warm_up=False)
-    done = []
-
-    class Change(Observer):
-        def events(self, batch):
-            if not done and int(batch["t"][-1]) > 6_000_000:
-                done.append(True)
-                pipe.tune_dvs("c_on", 0.15)
-                pipe.tune_dvs("c_off", 0.35)
-
     rec = tmp_path / "t.necrec"
-    pipe.observers += [RecorderObserver(Recorder(rec, sensor=SMALL, properties={}), "camera"), Change()]
-    pipe.run().finish()
+    changes = [("c_on", 0.15), ("c_off", 0.35)]  # one setting: both at the same batch
+    record_with_dvs_changes(nec_pipeline(rig, SMALL), rec, SMALL, changes, lambda n, b: int(b["t"][-1]) > 6_000_000)
     truth = [(0.26, 0.24), (rig.dvs_params.c_on, rig.dvs_params.c_off)]  # the simulated pixel's, before and after
     assert truth[1] == pytest.approx((0.15, 0.35), rel=0.01)
 

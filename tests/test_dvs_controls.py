@@ -121,21 +121,10 @@ def sim_pipeline(duration_us=300_000, **scene):
 
 def record_a_bias_change(path):
     """A simulated run recorded to ``path`` (.necrec) with one live change, c_on -> 0.13 at the 20th batch."""
-    from necviz.drivers.recordings import Recorder
-    from necviz.pipeline import Observer, RecorderObserver
+    from dvs_recording import record_with_dvs_changes
 
     rig, pipe = sim_pipeline(**SLOW)
-    recorder = Recorder(path, sensor=SMALL, properties={})
-    n = [0]
-
-    class Change(Observer):
-        def events(self, batch):
-            n[0] += 1
-            if n[0] == 20:
-                pipe.tune_dvs("c_on", 0.13)
-
-    pipe.observers += [RecorderObserver(recorder, "camera"), Change()]
-    pipe.run().finish()
+    record_with_dvs_changes(pipe, path, SMALL, [("c_on", 0.13)], lambda n, batch: n == 20)
     return rig, pipe
 
 
