@@ -665,7 +665,7 @@ SEALED_TITLES = {
     "sealed": "The first sealed evaluation, spent (25 scenes, seeds 300..309, commit 4283cc8)",
 }
 #: the commit each set's run measured (its RUN.md and manifest.json), once it has run
-SEALED_COMMITS = {"sealed": "4283cc8"}
+SEALED_COMMITS = {"sealed": "4283cc8", "sealed2": "419e31d"}
 
 
 def github_anchor(title: str) -> str:
