@@ -257,6 +257,7 @@ def test_the_sealed_criteria_are_judged_only_on_a_complete_run_and_say_which_fai
     # the newest complete sealed set makes the README's headline, linking its own section; an incomplete one is silent
     head2 = page.render_headline({"sealed": d, "sealed2": d})
     assert head2.startswith("On the second sealed test set")
+    assert "The first sealed set (seeds 300..309" in head2 and "met 3 of the 4 (not met: at > 10 % clipped" in head2
     assert f"docs/results.md#{page.github_anchor(page.SEALED_TITLES['sealed2'])})" in head2
     assert page.github_anchor("The first sealed evaluation, spent (25 scenes, seeds 300..309)") == (
         "the-first-sealed-evaluation-spent-25-scenes-seeds-300309"
