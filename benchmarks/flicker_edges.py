@@ -24,7 +24,8 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from tuning import CHANGE_JITTER_MS, METRICS, PRESETS, run_all, t_ci  # noqa: E402
+from flicker_rule import any_failed, paired_row  # noqa: E402
+from tuning import CHANGE_JITTER_MS, PRESETS, run_all, t_ci  # noqa: E402
 
 TRAINING_FILES = sorted(str(p.relative_to(HERE.parent)) for p in (HERE / "training").glob("*.toml"))
 HELDOUT_FILES = sorted(str(p.relative_to(HERE.parent)) for p in (HERE / "heldout").glob("*.toml"))
@@ -72,24 +73,13 @@ def main() -> int:
     ]
     t0 = time.perf_counter()
     runs = run_all(specs, args.jobs)
-    failed = [r for r in runs if "error" in r]
-    if failed:
-        print(
-            f"{len(failed)} of {len(runs)} runs failed (first: {failed[0]['error']}); no table written", file=sys.stderr
-        )
+    if any_failed(runs):
         return 1
     table: dict[str, dict] = {}
     print(f"{'scene':24s} {'>50%: nec / no edges / frames':>32s} {'>10%: nec / no edges / frames':>32s}")
     for s in scenarios:
         rs = [r for r in runs if r["scenario"] == s]
-        row: dict = {"family": _family(s)}
-        for m in METRICS:
-            row[m] = {ln: t_ci([r["results"][ln][m] for r in rs]) for ln in LANES}
-            row[m]["nec - nec-frames"] = t_ci([r["results"]["nec"][m] - r["results"]["nec-frames"][m] for r in rs])
-            row[m]["nec - no edges"] = t_ci(
-                [r["results"]["nec"][m] - r["results"]["nec@no_flicker_edges"][m] for r in rs]
-            )
-        row["per_seed"] = {r["seed"]: r["results"] for r in rs}
+        row = {"family": _family(s), **paired_row(rs, LANES, "nec@no_flicker_edges", "nec - no edges")}
         table[Path(s).stem] = row
         f = lambda m, row=row: " / ".join(f"{row[m][ln][0]:.1f}" for ln in LANES)  # noqa: E731
         print(f"{Path(s).stem:24s} {f('saturated_frames_50'):>32s} {f('saturated_frames_10'):>32s}")

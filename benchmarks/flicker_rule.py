@@ -33,6 +33,28 @@ LANES = ["nec", "nec@no_flicker_rule", "nec-frames"]
 PARAMS = {"nec@no_flicker_rule": {"flicker_rule": False}}
 
 
+def any_failed(runs: list[dict]) -> bool:
+    """Say in one line (stderr) that runs failed, if any did: a table over the rest would be silently partial."""
+    failed = [r for r in runs if "error" in r]
+    if failed:
+        print(
+            f"{len(failed)} of {len(runs)} runs failed (first: {failed[0]['error']}); no table written", file=sys.stderr
+        )
+    return bool(failed)
+
+
+def paired_row(rs: list[dict], lanes: list[str], ablated: str, key: str) -> dict:
+    """One scene's row over its runs ``rs``: each metric's mean ± 95 % CI per lane, and NEC's paired differences
+    with ``nec-frames`` and with the ablated lane (under ``key``), then the per-seed results."""
+    row: dict = {}
+    for m in METRICS:
+        row[m] = {ln: t_ci([r["results"][ln][m] for r in rs]) for ln in lanes}
+        row[m]["nec - nec-frames"] = t_ci([r["results"]["nec"][m] - r["results"]["nec-frames"][m] for r in rs])
+        row[m][key] = t_ci([r["results"]["nec"][m] - r["results"][ablated][m] for r in rs])
+    row["per_seed"] = {r["seed"]: r["results"] for r in rs}
+    return row
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=3)
@@ -56,11 +78,7 @@ def main() -> int:
     ]
     t0 = time.perf_counter()
     runs = run_all(specs, args.jobs)
-    failed = [r for r in runs if "error" in r]
-    if failed:
-        print(
-            f"{len(failed)} of {len(runs)} runs failed (first: {failed[0]['error']}); no table written", file=sys.stderr
-        )
+    if any_failed(runs):
         return 1
     table = {}
     print(
@@ -69,14 +87,7 @@ def main() -> int:
     )
     for s in scenarios:
         rs = [r for r in runs if r["scenario"] == s]
-        row = {}
-        for m in METRICS:
-            row[m] = {ln: t_ci([r["results"][ln][m] for r in rs]) for ln in LANES}
-            row[m]["nec - nec-frames"] = t_ci([r["results"]["nec"][m] - r["results"]["nec-frames"][m] for r in rs])
-            row[m]["nec - no rule"] = t_ci(
-                [r["results"]["nec"][m] - r["results"]["nec@no_flicker_rule"][m] for r in rs]
-            )
-        row["per_seed"] = {r["seed"]: r["results"] for r in rs}
+        row = paired_row(rs, LANES, "nec@no_flicker_rule", "nec - no rule")
         table[Path(s).stem] = row
         f = lambda m, row=row: " / ".join(f"{row[m][ln][0]:.1f}" for ln in LANES)  # noqa: E731
         d = lambda key, row=row: f"{row['saturated_frames_10'][key][0]:+.1f} ± {row['saturated_frames_10'][key][1]:.1f}"  # noqa: E731

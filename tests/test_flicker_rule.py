@@ -179,14 +179,11 @@ def test_a_switch_under_a_pwm_lamp_clips_no_more_than_without_events():
     ramp to the bus ceiling once a period; without edges the escape rule takes them for a loss and the next
     frame is exposed 2-4 times too long (3-4 frames over 10 % per run where nec-frames clips none); with edges
     NEC clips no more than nec-frames."""
-    spec = {
-        "scenario": PWM_RAMP,
-        "seed": 0,
-        "scenario_params": {"change_jitter_ms": 10.0},
-        "controllers": ["nec", "nec@noedges", "nec-frames"],
-        "controller_params": {"nec@noedges": {"flicker_edges": False}},
-    }
-    r = run_spec(spec)["results"]
+    r = _run(
+        PWM_RAMP,
+        controllers=["nec", "nec@noedges", "nec-frames"],
+        controller_params={"nec@noedges": {"flicker_edges": False}},
+    )
     nec, noedges, frames = (r[k]["saturated_frames_10"] for k in ("nec", "nec@noedges", "nec-frames"))
     assert noedges >= frames + 2  # the failure edges remove is there
     assert nec <= frames
