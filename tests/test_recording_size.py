@@ -7,6 +7,7 @@ from __future__ import annotations
 import io
 import os
 import time
+from collections import defaultdict
 
 import cv2
 import numpy as np
@@ -27,6 +28,7 @@ from necviz.core.events import EVENT_DTYPE
 from necviz.core.frames import Frame
 from necviz.dashboard.sink import EventPalette, RerunSink, SinkOptions, encode_indexed_png
 from necviz.image_quality import ssim
+from necviz.layouts.views import FRAME_HEADER
 from necviz.telemetry import FrameRecord
 
 pytestmark = pytest.mark.slow  # closed loops, subprocesses or Dask: `pytest -m 'not slow'` leaves them out
@@ -247,11 +249,18 @@ def test_live_sink_sends_series_while_running_lossless_sink_sends_by_size():
     while not any(e == "camera/exposure/applied" for _, e, _ in live.sent) and time.perf_counter() < deadline:
         time.sleep(0.05)
     assert any(e == "camera/exposure/applied" for _, e, _ in live.sent)  # before close: the viewer stays live
-    assert any(e == "camera/frame" for _, e in live.logged)  # live images are logged one by one
+    while not any(e == "camera/frame" for _, e, _ in live.sent) and time.perf_counter() < deadline:
+        time.sleep(0.05)
+    assert any(e == "camera/frame" for _, e, _ in live.sent)  # the images too, as chunks beside the series
+    assert live.logged == []  # never one rr.log per image or header: each costs the streaming thread the GIL
     time.sleep(0.3)
     assert file_.sent == [] and file_.logged == []  # nothing is full yet: the file sink waits
     a.close()
     b.close()
+    live_rows = defaultdict(int)
+    for _, e, n in live.sent:
+        live_rows[e] += n
+    assert live_rows["camera/frame"] == 5 and live_rows[S.path("camera", FRAME_HEADER)] == 5
     rows = {e: n for _, e, n in file_.sent}
     assert len(file_.sent) == len(rows)  # one chunk per entity
     assert rows["camera/frame"] == 5 and rows["camera/exposure/applied"] == 5

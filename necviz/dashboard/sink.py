@@ -16,11 +16,14 @@ than half the time). Event images hold at most ``2K + 1`` colours (5 by default)
 as paletted PNG built straight from the per-pixel net counts (:class:`EventPalette`): lossless,
 about a third of the bytes of the JPEG they replaced.
 
-Chunking. A live sink logs every image as it comes and sends the series every
-``flush_period_s`` (0.1 s), so the viewer stays current; a live session that only writes a file
-sends them every 2 s (:data:`necviz.dashboard.viewer.FILE_FLUSH_S`): Rerun's file sink keeps an index entry in
-memory for every chunk until the file is closed, and ~130 series chunks a second grew a
-one-hour session by ~400 MB. A ``lossless`` sink (a file nobody
+Chunking. A live sink sends what it has encoded (images, frame headers, series) every
+``flush_period_s`` (0.1 s), one chunk per entity, so the viewer stays current; a live session that
+only writes a file sends them every 2 s (:data:`necviz.dashboard.viewer.FILE_FLUSH_S`): Rerun's file sink
+keeps an index entry in memory for every chunk until the file is closed, and ~130 series chunks a
+second grew a one-hour session by ~400 MB. Images go in the same sends as the series rather than one
+``rr.log`` each: every Rerun call from the worker builds Arrow arrays holding the GIL, which the
+streaming thread then waits for (``necviz bench pipeline``: 12.5x real time against 11.0x with one
+call per image, same run). A ``lossless`` sink (a file nobody
 watches live) writes fewer, larger chunks, since every chunk carries its own Arrow schema
 (~1 KB): a series is sent when it holds ``chunk_rows`` values, an entity's encoded images when
 they reach ``image_chunk_bytes``, and everything left at :meth:`close` (memory stays bounded by
@@ -403,14 +406,13 @@ class RerunSink(Observer):
         self._seq = {lane: 0 for lane in self.lanes}  # newest frame per lane (the `frame` timeline)
         self._commanded: dict[tuple, tuple[int, float]] = {}  # (lane, leaf) -> the command in force (t_us, value)
         self._now_us = -(1 << 62)  # the latest sensor time of any scalar
-        self._outlined: set[str] = set()  # lanes whose last logged frame was outlined as saturated
-        self._headers: dict[str, list] = defaultdict(list)  # lane -> frame headers not yet sent (lossless)
-        self._header_size: dict[str, tuple[int, int]] = {}  # lane -> frame size its header line was logged for
         self._first_lane = self.lanes[0] if self.lanes else None
         # owned by the worker
+        self._outlined: set[str] = set()  # lanes whose last logged frame was outlined as saturated
+        self._headers: dict[str, list] = defaultdict(list)  # lane -> frame headers not yet sent
         self._series: dict[str, list] = defaultdict(list)  # path -> [(t_us, seq, value)]
         self._texts: dict[str, list] = defaultdict(list)  # path -> [(t_us, seq, text, level)]
-        self._images: dict[str, list] = defaultdict(list)  # path -> [(t_us, seq, blob)] (lossless: batched)
+        self._images: dict[str, list] = defaultdict(list)  # path -> [(t_us, seq, blob)] not yet sent
         self._image_bytes: dict[str, int] = defaultdict(int)
         self._media: dict[str, str] = {}
         self._image = EventImage(height, width)
@@ -588,18 +590,16 @@ class RerunSink(Observer):
                     self._flush_series(min_rows=self.chunk_rows)
                 elif time.perf_counter() >= next_flush:
                     self._flush_series()
+                    self._flush_images()
                     next_flush = time.perf_counter() + self.flush_period_s
-                if self.rotate is not None and self.rotate():
-                    self._header_size.clear()  # a new segment holds its header lines whole
+                if self.rotate is not None:
+                    self.rotate()
                 if stopping:
                     break
                 self._wake.wait(self.burst_s)
             self._close_window(final=True)
             self._flush_series()
-            for entity in list(self._images):
-                self._send_images(entity)
-            for lane in list(self._headers):
-                self._send_headers(lane)
+            self._flush_images()
         except BaseException as e:  # report in close(); the control path must go on
             self._error = e
 
@@ -712,8 +712,8 @@ class RerunSink(Observer):
         gain; colours are static, see :func:`necviz.layouts.style_series`) and, while the frame is
         saturated, a red outline (and the header says what clipped), as the ``--video``'s bars show.
 
-        A live sink logs them with the frame; a lossless one keeps them and sends each lane's as one
-        chunk per entity once ``chunk_rows`` have gathered, and at the end (like its series). The
+        Both are kept and sent as one chunk per entity with the images: a live sink's at each flush,
+        a lossless one's once ``chunk_rows`` have gathered, and at the end (like its series). The
         outline is logged only when it changes: drawn on a saturated frame, removed (no box) on the
         next frame that is not."""
         h, w = frame.image.shape[:2]
@@ -725,27 +725,13 @@ class RerunSink(Observer):
         elif lane in self._outlined:
             outline = False
             self._outlined.discard(lane)
-        if self.lossless:
-            rows = self._headers[lane]
-            rows.append((t, seq, w, h, header, outline))
-            if len(rows) >= self.chunk_rows:
-                self._send_headers(lane)
-            return
-        self._set_time(t, seq)
-        if self._header_size.get(lane) != (w, h):
-            self._header_size[lane] = (w, h)
-            box = rr.Boxes2D(centers=[_header_center(w)], half_sizes=[[w / 2, 0.5]], labels=[header], radii=[1.0])
-        else:  # the line stays where it is: only its label is logged (read latest-at, the same header)
-            box = rr.Boxes2D.from_fields(labels=[header])
-        self.rec.log(S.path(lane, FRAME_HEADER), box)
-        if outline is not None:
-            boxes = [[w / 2 - 1, h / 2 - 1]] if outline else []
-            centers = [[w / 2, h / 2]] if outline else []
-            self.rec.log(S.path(lane, FRAME_SATURATED), rr.Boxes2D(centers=centers, half_sizes=boxes, radii=[2.0]))
-        self.rec.reset_time()
+        rows = self._headers[lane]
+        rows.append((t, seq, w, h, header, outline))
+        if self.lossless and len(rows) >= self.chunk_rows:
+            self._send_headers(lane)
 
     def _send_headers(self, lane: str) -> None:
-        """Send a lossless sink's gathered headers and outline changes of ``lane`` (one chunk per entity)."""
+        """Send the gathered headers and outline changes of ``lane`` (one chunk per entity)."""
         rows = self._headers.pop(lane, None)
         if not rows:
             return
@@ -774,17 +760,20 @@ class RerunSink(Observer):
             )
 
     def _log_image(self, entity: str, t_us: int, seq: int, blob: bytes, media_type: str) -> None:
-        """Log an encoded image now (live), or batch it with the entity's others (lossless)."""
-        if not self.lossless:
-            self._set_time(t_us, seq)
-            self.rec.log(entity, rr.EncodedImage(contents=blob, media_type=media_type))
-            self.rec.reset_time()
-            return
+        """Keep an encoded image with the entity's others until the next send: a live sink's next flush,
+        a lossless one's ``image_chunk_bytes`` (or the end)."""
         self._images[entity].append((t_us, seq, blob))
         self._media[entity] = media_type
         self._image_bytes[entity] += len(blob)
-        if self._image_bytes[entity] >= self.image_chunk_bytes:
+        if self.lossless and self._image_bytes[entity] >= self.image_chunk_bytes:
             self._send_images(entity)
+
+    def _flush_images(self) -> None:
+        """Send every entity's gathered images and every lane's headers (one chunk per entity)."""
+        for entity in list(self._images):
+            self._send_images(entity)
+        for lane in list(self._headers):
+            self._send_headers(lane)
 
     def _index(self, t_us, seq) -> list:
         t = np.asarray(t_us, dtype=np.int64)
