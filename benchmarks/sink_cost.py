@@ -1,0 +1,162 @@
+"""Where the logging time of ``necviz bench pipeline`` goes: the sink taken apart, in one run.
+
+The bench's loop (12 Mev/s, 1 ms batches, 50 fps, NEC closed loop) runs with four observers, in
+alternation, ``--rounds`` times each, in one process (ratios of the same run; the machine's speed
+drifts between runs):
+
+* ``control only``: no observer;
+* ``observer calls only``: the Rerun sink's observer methods on the streaming thread, with a worker
+  that throws away what they queue (what the streaming thread pays to hand the sink its data);
+* ``whole sink but event images`` / ``but frames`` / ``but series``: the whole sink with one part left
+  out (no event window drawn, only counted / no frame encoded or logged, nor its header / scalars
+  and texts dropped at each flush);
+* ``whole sink``: the live sink as ``necviz live`` runs it (``SinkOptions()``), writing a file.
+
+The difference from the whole sink is the wall time that part costs the control loop: the
+sink's worker shares the GIL with the streaming thread, so its Python and its Numba kernels that hold
+the GIL come straight out of the loop's time.
+
+    python benchmarks/sink_cost.py --json benchmarks/results/sink_cost.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import rerun as rr  # noqa: E402
+
+from necviz.bench.timing import machine, write_result  # noqa: E402
+from necviz.core.control import CameraLimits, make_controller  # noqa: E402
+from necviz.core.sensor import DAVIS346, DAVIS_EVENT_RATE_MAX  # noqa: E402
+from necviz.dashboard import pipeline_speed as bench  # noqa: E402
+from necviz.dashboard.sink import RerunSink  # noqa: E402
+from necviz.layouts import make_blueprint, style_series  # noqa: E402
+from necviz.pipeline import Lane, Pipeline  # noqa: E402
+
+
+class ObserverCallsOnly(RerunSink):
+    """The sink's observer methods as they are; its worker drops what they queue."""
+
+    def _run(self) -> None:
+        while not self._stop:
+            self._events.clear()
+            self._frames.clear()
+            self._scalar_q.clear()
+            self._text_q.clear()
+            self._wake.wait(self.burst_s)
+
+
+class NoEventImages(RerunSink):
+    """The whole sink, but every event window is only counted, never drawn."""
+
+    def _decide_drawing(self) -> bool:
+        return False
+
+
+class NoFrames(RerunSink):
+    """The whole sink, but no frame encoded or logged (nor its header)."""
+
+    def _log_frame(self, lane, frame, header="", saturated="") -> None:
+        pass
+
+
+class NoSeries(RerunSink):
+    """The whole sink, but every scalar and text dropped at each flush instead of sent."""
+
+    def _flush_series(self, min_rows: int = 1) -> None:
+        self._scalar_q.clear()
+        self._text_q.clear()
+
+
+VARIANTS = {
+    "control only": None,
+    "observer calls only": ObserverCallsOnly,
+    "whole sink but event images": NoEventImages,
+    "whole sink but frames": NoFrames,
+    "whole sink but series": NoSeries,
+    "whole sink": RerunSink,
+}
+
+
+def run_once(events, duration_s: float, sink_cls, folder: Path) -> tuple[float, dict]:
+    """One closed-loop run of the bench's stream with ``sink_cls`` (None: no observer): wall s, sink stats."""
+    src = bench.SyntheticStream(events, duration_s)
+    limits = CameraLimits(10.0, src.period_us - 1_000, 8.0)
+    ctrl = make_controller(
+        "nec", sensor=DAVIS346, limits=limits, exposure_us=src.exposure_us, event_rate_max=DAVIS_EVENT_RATE_MAX
+    )
+    observers = []
+    if sink_cls is not None:
+        rec = rr.RecordingStream("necviz-sink-cost", recording_id=f"sink-cost-{time.perf_counter_ns()}")
+        rec.set_sinks(
+            rr.FileSink(str(folder / f"{time.perf_counter_ns()}.rrd")),
+            default_blueprint=make_blueprint("live", ["camera"], DAVIS346.width, DAVIS346.height),
+        )
+        style_series(rec, ["camera"])
+        sink = sink_cls(rec, ["camera"], DAVIS346.height, DAVIS346.width)
+        sink.on_close = lambda: rr.disconnect(rec)
+        observers.append(sink)
+    pipe = Pipeline(src, [Lane("camera", ctrl)], observers=observers)
+    t0 = time.perf_counter()
+    pipe.run()
+    stats = pipe.finish()
+    return time.perf_counter() - t0, stats.get("sink", {})
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--rounds", type=int, default=7, help="runs of each variant, alternated (default 7)")
+    ap.add_argument("--duration", type=float, default=10.0, help="seconds of stream per run (default 10)")
+    ap.add_argument("--json", help="write the result here")
+    args = ap.parse_args(argv)
+    if not 1 <= args.rounds <= 50 or not 0 < args.duration <= 60:
+        raise SystemExit("sink_cost: --rounds must lie in 1..50 and --duration in (0, 60]")
+    print(f"  generating {args.duration:g} s at 12 Mev/s…", flush=True)
+    events = bench.make_events(args.duration, 12.0)
+    walls: dict[str, list[float]] = {name: [] for name in VARIANTS}
+    logged: dict[str, list[dict]] = {name: [] for name in VARIANTS}
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="necviz-sink-cost-") as tmp:
+        run_once(events[: len(events) // 50], args.duration / 50, RerunSink, Path(tmp))  # kernels compiled / loaded
+        for k in range(args.rounds):
+            for name, cls in VARIANTS.items():
+                print(
+                    f"\r  round {k + 1}/{args.rounds}: {name}… ({time.perf_counter() - t0:.0f} s)", end="", flush=True
+                )
+                wall, stats = run_once(events, args.duration, cls, Path(tmp))
+                walls[name].append(wall)
+                logged[name].append({k: stats.get(k) for k in ("frames_logged", "event_images")})
+    print()
+    med = {name: statistics.median(w) for name, w in walls.items()}
+    base = med["control only"]
+    print(f"\n  {'variant':28s} {'RT factor':>9s} {'wall s':>7s} {'over control s':>15s}")
+    for name, w in med.items():
+        print(f"  {name:28s} {args.duration / w:9.1f} {w:7.3f} {w - base:15.3f}")
+    result = {
+        "command": "python benchmarks/sink_cost.py"
+        + (f" --rounds {args.rounds}" if args.rounds != 7 else "")
+        + (f" --duration {args.duration:g}" if args.duration != 10.0 else "")
+        + (f" --json {args.json}" if args.json else ""),
+        "duration_s": args.duration,
+        "rate_mev_s": 12.0,
+        "rounds": args.rounds,
+        "wall_s": walls,
+        "median_wall_s": med,
+        "realtime_factor": {name: args.duration / w for name, w in med.items()},
+        "logged": logged,
+        "machine": machine(),
+    }
+    write_result(result, args.json, sys.stdout)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
