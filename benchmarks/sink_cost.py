@@ -31,15 +31,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-import rerun as rr  # noqa: E402
-
 from necviz.bench.timing import machine, write_result  # noqa: E402
-from necviz.core.control import CameraLimits, make_controller  # noqa: E402
-from necviz.core.sensor import DAVIS346, DAVIS_EVENT_RATE_MAX  # noqa: E402
 from necviz.dashboard import pipeline_speed as bench  # noqa: E402
 from necviz.dashboard.sink import RerunSink  # noqa: E402
-from necviz.layouts import make_blueprint, style_series  # noqa: E402
-from necviz.pipeline import Lane, Pipeline  # noqa: E402
 
 
 class ObserverCallsOnly(RerunSink):
@@ -88,27 +82,8 @@ VARIANTS = {
 
 def run_once(events, duration_s: float, sink_cls, folder: Path) -> tuple[float, dict]:
     """One closed-loop run of the bench's stream with ``sink_cls`` (None: no observer): wall s, sink stats."""
-    src = bench.SyntheticStream(events, duration_s)
-    limits = CameraLimits(10.0, src.period_us - 1_000, 8.0)
-    ctrl = make_controller(
-        "nec", sensor=DAVIS346, limits=limits, exposure_us=src.exposure_us, event_rate_max=DAVIS_EVENT_RATE_MAX
-    )
-    observers = []
-    if sink_cls is not None:
-        rec = rr.RecordingStream("necviz-sink-cost", recording_id=f"sink-cost-{time.perf_counter_ns()}")
-        rec.set_sinks(
-            rr.FileSink(str(folder / f"{time.perf_counter_ns()}.rrd")),
-            default_blueprint=make_blueprint("live", ["camera"], DAVIS346.width, DAVIS346.height),
-        )
-        style_series(rec, ["camera"])
-        sink = sink_cls(rec, ["camera"], DAVIS346.height, DAVIS346.width)
-        sink.on_close = lambda: rr.disconnect(rec)
-        observers.append(sink)
-    pipe = Pipeline(src, [Lane("camera", ctrl)], observers=observers)
-    t0 = time.perf_counter()
-    pipe.run()
-    stats = pipe.finish()
-    return time.perf_counter() - t0, stats.get("sink", {})
+    r = bench.run_once(events, duration_s, 50.0, 1_000, folder if sink_cls else None, 0, sink_cls=sink_cls)
+    return r["wall_s"], r.get("sink", {})
 
 
 def main(argv=None) -> int:

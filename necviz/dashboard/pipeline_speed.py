@@ -159,7 +159,10 @@ class SyntheticStream(Source):
         del i
 
 
-def _run_once(events, duration_s, fps, batch_us, sink_dir: Path | None, seed: int) -> dict:
+def run_once(events, duration_s, fps, batch_us, sink_dir: Path | None, seed: int, sink_cls=None) -> dict:
+    """One closed-loop run over ``events``: with the Rerun sink writing a file in ``sink_dir`` (its live
+    defaults), or control only (``sink_dir`` None). ``sink_cls``: a :class:`~necviz.dashboard.sink.RerunSink`
+    subclass in its place (``benchmarks/sink_cost.py`` takes the sink apart with them)."""
     from necviz.pipeline import Lane, Pipeline
 
     src = SyntheticStream(events, duration_s, fps, batch_us)
@@ -181,7 +184,7 @@ def _run_once(events, duration_s, fps, batch_us, sink_dir: Path | None, seed: in
             rr.FileSink(str(rrd)), default_blueprint=make_blueprint("live", ["camera"], DAVIS346.width, DAVIS346.height)
         )
         style_series(rec, ["camera"])
-        sink = RerunSink(rec, ["camera"], DAVIS346.height, DAVIS346.width)  # the live defaults: decimated
+        sink = (sink_cls or RerunSink)(rec, ["camera"], DAVIS346.height, DAVIS346.width)  # live defaults: decimated
         sink.on_close = lambda: rr.disconnect(rec)
         observers.append(sink)
     pipe = Pipeline(src, [Lane("camera", ctrl)], observers=observers)
@@ -236,14 +239,14 @@ def run(
     events = make_events(duration_s, rate_mev_s, seed)
     # warm-up (Numba compilation / cache load) on a short slice
     warm = events[: int(0.2 * rate_mev_s * 1e6)]
-    _run_once(warm, 0.2, fps, batch_us, None, seed)
+    run_once(warm, 0.2, fps, batch_us, None, seed)
     rows = {}
     with tempfile.TemporaryDirectory(prefix="necviz-bench-") as tmp:
         for name, sink_dir in (("control_only", None), ("with_logging", Path(tmp))):
             runs = []
             for r in range(repeats):
                 print(f"\r  {name.replace('_', ' ')}: run {r + 1}/{repeats}…", end="", file=out, flush=True)
-                runs.append(_run_once(events, duration_s, fps, batch_us, sink_dir, seed))
+                runs.append(run_once(events, duration_s, fps, batch_us, sink_dir, seed))
             runs.sort(key=lambda x: x["wall_s"])
             rows[name] = {**runs[len(runs) // 2], "wall_s_all": [x["wall_s"] for x in runs]}  # the median run
         print(file=out)
