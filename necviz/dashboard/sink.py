@@ -22,8 +22,8 @@ only writes a file sends them every 2 s (:data:`necviz.dashboard.viewer.FILE_FLU
 keeps an index entry in memory for every chunk until the file is closed, and ~130 series chunks a
 second grew a one-hour session by ~400 MB. Images go in the same sends as the series rather than one
 ``rr.log`` each: every Rerun call from the worker builds Arrow arrays holding the GIL, which the
-streaming thread then waits for (``necviz bench pipeline``: 12.5x real time against 11.0x with one
-call per image, same run). A ``lossless`` sink (a file nobody
+streaming thread then waits for (``benchmarks/sink_cost.py`` measures what each part of the sink
+costs the control loop). A ``lossless`` sink (a file nobody
 watches live) writes fewer, larger chunks, since every chunk carries its own Arrow schema
 (~1 KB): a series is sent when it holds ``chunk_rows`` values, an entity's encoded images when
 they reach ``image_chunk_bytes``, and everything left at :meth:`close` (memory stays bounded by
