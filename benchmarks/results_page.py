@@ -152,7 +152,7 @@ def r_pipeline_then_now(d: dict) -> str:
     return table(head, rows) + (
         f"\n\nEach side's `necviz bench pipeline` (median of {d.get('repeats')} runs) in its own process, the two "
         f"alternated {d.get('rounds')} times in one run; bold: the median over rounds. The earlier commit measured "
-        "19.7x with logging on 2026-11-22 on this machine; run beside today's code, it shows how much of today's "
+        "19.7x with logging on 2026-11-22 on the project's 2-core machine; run beside today's code, it shows how much of today's "
         "gap to that figure is the machine's speed that day and how much the code."
     )
 
