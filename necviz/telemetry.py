@@ -237,6 +237,8 @@ def _anchor_level(estimator: PeripheralEstimator) -> float:
 
 def _anchor_time(estimator: PeripheralEstimator) -> int | None:
     """The oldest anchor time over the anchored zones (µs), ``None`` if never anchored."""
+    if estimator.num_zones == 1:  # every exposure start: no array round trip for the whole sensor
+        return int(estimator.anchor_t.item(0)) if math.isfinite(estimator.anchor_log.item(0)) else None
     ok = np.isfinite(estimator.anchor_log)
     return int(np.min(estimator.anchor_t[ok])) if ok.any() else None
 
@@ -344,11 +346,15 @@ class LaneTelemetry:
             del self._predicted_at_start[k]
         if estimate is not None:
             lm = estimate.log_mean_irradiance
-            measured = float(lm[0]) if lm.size == 1 else float(np.nanmean(lm))
-            if math.isfinite(measured) and bool(np.all(estimate.valid_fraction >= min_valid_fraction)):
+            one = lm.size == 1  # the whole sensor: floats, not one-element arrays
+            measured = lm.item(0) if one else float(np.nanmean(lm))
+            vf = estimate.valid_fraction
+            valid = vf.item(0) >= min_valid_fraction if one else bool(np.all(vf >= min_valid_fraction))
+            if math.isfinite(measured) and valid:
                 rec.measured_log_irradiance = measured
                 if math.isfinite(pred_s):
-                    rec.predicted_log_irradiance = pred_s + float(np.mean(estimate.log_e))  # ln P̄ = ln P(s) + ln E_p(s)
+                    log_e = estimate.log_e.item(0) if one else float(np.mean(estimate.log_e))
+                    rec.predicted_log_irradiance = pred_s + log_e  # ln P̄ = ln P(s) + ln E_p(s)
                     rec.prediction_error = rec.predicted_log_irradiance - measured
         rec.persistence_error, rec.trend_error, rec.prediction_skill = self.skill.update(
             rec.measured_log_irradiance, rec.prediction_error, (s + rec.exposure_end_us) / 2

@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from necviz.core.control import CameraLimits, NECController, NECOptions, make_controller
-from necviz.core.control.nec import METERING, censored_quantiles, weighted_median
+from necviz.core.control.nec import METERING, censored_quantiles, update_offset, update_offsets, weighted_median
 from necviz.core.errors import ParameterError
 from necviz.core.event_model import TediParams
 from necviz.core.events import EventBatch, make_events
@@ -270,3 +270,43 @@ def test_the_default_beats_paper_metering_on_a_two_level_scene(crf):
     assert frames["paper"] >= 12 and frames["default"] == frames["paper"]
     assert saturated["paper"] >= 0.8 * frames["paper"]  # the shadows under-exposed, frame after frame
     assert saturated["default"] == 0
+
+
+_OFFSET_VALUES = st.one_of(
+    st.floats(-20, 20, allow_nan=False), st.sampled_from([math.nan, math.inf, -math.inf, 0.0, -0.5, 0.5])
+)
+
+
+@settings(max_examples=400, deadline=None)
+@given(old=_OFFSET_VALUES, cand=_OFFSET_VALUES, side=st.sampled_from([-1, 0, 1, 2]))
+def test_the_single_zone_offset_update_is_the_array_rule_bit_for_bit(old, cand, side):
+    """Whole-sensor metering updates its offset on floats (every frame, no array round trips); it must
+    give exactly what the per-zone rule gives for one zone, NaN and infinities included."""
+    want = update_offsets(np.array([old]), np.array([cand]), np.array([side], np.int8))[0]
+    got = update_offset(old, cand, side)
+    assert (math.isnan(got) and math.isnan(want)) or got == want
+    if not math.isfinite(cand):
+        assert got == old or (math.isnan(got) and math.isnan(old))  # a non-finite candidate never moves it
+    elif side == 1 and math.isfinite(old):
+        assert got >= old  # a lower bound only raises it
+    elif side == -1 and math.isfinite(old):
+        assert got <= old  # an upper bound only lowers it
+
+
+def test_whole_sensor_metering_keeps_its_offset_array_and_scalar_in_step():
+    """The offset the hot path reads (a float) and the per-zone array the flicker path reads agree after
+    every frame of a closed loop."""
+    from necviz.core.sensor import DAVIS346
+    from necviz.dashboard import pipeline_speed as bench
+
+    events = bench.make_events(0.3, 2.0)
+    src = bench.SyntheticStream(events, 0.3)
+    ctrl = make_controller("nec", sensor=DAVIS346, limits=CameraLimits(10.0, 19_000, 8.0), exposure_us=2_000.0)
+    checked = 0
+    for packet in src:
+        ctrl.feed(packet)
+        if isinstance(packet, Frame):
+            assert ctrl._offset.shape == (1,)
+            assert ctrl._offset[0] == ctrl._offset0 or (math.isnan(ctrl._offset[0]) and math.isnan(ctrl._offset0))
+            checked += math.isfinite(ctrl._offset0)
+    assert checked >= 10  # the offset was measured on most of the 15 frames

@@ -220,6 +220,34 @@ def _quantile_positions(h, q, valid_min, valid_max, pos, side):
             pos[i] = (b - 0.5) + (r - prev) / h[i, b]
 
 
+def update_offsets(old: np.ndarray, cand: np.ndarray, side: np.ndarray) -> np.ndarray:
+    """The metering offsets ``δ`` per zone after a frame (module docstring): where the frame's statistic
+    is determined (``side`` 0) or ``δ`` was never measured, the candidate ``cand``; where the statistic
+    is censored, ``δ`` only rises (+1, a lower bound) or falls (-1, an upper bound) to it; where nothing
+    is known (2), or the candidate is not finite, ``δ`` is kept. O(zones)."""
+    with np.errstate(invalid="ignore"):
+        new = np.where(
+            ~np.isfinite(old) | (side == 0),
+            cand,
+            np.where(side == 1, np.fmax(old, cand), np.where(side == -1, np.fmin(old, cand), old)),
+        )
+    return np.where(np.isfinite(cand), new, old)
+
+
+def update_offset(old: float, cand: float, side: int) -> float:
+    """:func:`update_offsets` for one zone, on Python floats (bit for bit the same value; the
+    whole-sensor metering runs it every frame without ten one-element array round trips)."""
+    if not math.isfinite(cand):
+        return old
+    if not math.isfinite(old) or side == 0:
+        return cand
+    if side == 1:
+        return max(old, cand)
+    if side == -1:
+        return min(old, cand)
+    return old
+
+
 def weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
     """The weighted median of the finite ``values`` (lower median at an exact half); NaN if none."""
     ok = np.isfinite(values)
@@ -657,15 +685,14 @@ class NECController(Controller):
         stat, side = self.frame_statistic(frame)
         log_tk = math.log(frame.exposure_us / US_PER_S) + math.log(frame.gain)
         start = fe.log_start if fe.log_start is not None else fe.log_anchor
-        cand = stat - log_tk - fe.log_e - start
-        old = self._offset
-        with np.errstate(invalid="ignore"):
-            new = np.where(
-                ~np.isfinite(old) | (side == 0),
-                cand,
-                np.where(side == 1, np.fmax(old, cand), np.where(side == -1, np.fmin(old, cand), old)),
+        if self._weights is None and stat.size == 1:  # one zone (every mode but zones): the rule on floats
+            side0 = side.item(0)
+            self._offset0 = update_offset(
+                self._offset0, stat.item(0) - log_tk - fe.log_e.item(0) - start.item(0), side0
             )
-        new = np.where(np.isfinite(cand), new, old)
+            self._offset = np.array([self._offset0])
+            return side0 == 0
+        new = update_offsets(self._offset, stat - log_tk - fe.log_e - start, side)
         self._offset = new
         self._offset0 = float(new[0])
         if self._weights is None:
