@@ -61,8 +61,10 @@ def stage(commit: str, folder: Path) -> Path:
         raise SystemExit(f"pipeline_then_now: cannot read commit {commit!r}: {e.stderr.decode().strip()}") from None
     src, pkg = folder / "src", folder / "pkg" / "necviz"
     src.mkdir(parents=True)
-    with tarfile.open(fileobj=io.BytesIO(data)) as tar:
-        tar.extractall(src, filter="data")
+    with tarfile.open(fileobj=io.BytesIO(data)) as tar:  # git's own archive; the "data" filter where it exists
+        tar.extractall(src, **({"filter": "data"} if hasattr(tarfile, "data_filter") else {}))
+    if not (src / "necviz").is_dir():
+        raise SystemExit(f"pipeline_then_now: commit {commit!r} has no necviz/ package to run")
     pkg.mkdir(parents=True)
     for entry in (src / "necviz").iterdir():
         (pkg / entry.name).symlink_to(entry)
