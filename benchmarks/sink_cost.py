@@ -10,7 +10,9 @@ drifts between runs):
 * ``whole sink but event images`` / ``but frames`` / ``but series``: the whole sink with one part left
   out (no event window drawn, only counted / no frame encoded or logged, nor its header / scalars
   and texts dropped at each flush);
-* ``whole sink``: the live sink as ``necviz live`` runs it (``SinkOptions()``), writing a file.
+* ``whole sink``: the live sink as ``necviz live`` runs it (``SinkOptions()``), writing a file;
+* ``whole sink, one rr.log per image``: the same, with each image and frame header logged by its own
+  Rerun call as before 8bf0c40 (the ablation of sending them in the flushes' chunks).
 
 The difference from the whole sink is the wall time that part costs the control loop: the
 sink's worker shares the GIL with the streaming thread, so its Python and its Numba kernels that hold
@@ -31,9 +33,13 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+import rerun as rr  # noqa: E402
+
+from necviz import schema as S  # noqa: E402
 from necviz.bench.timing import machine, write_result  # noqa: E402
 from necviz.dashboard import pipeline_speed as bench  # noqa: E402
-from necviz.dashboard.sink import RerunSink  # noqa: E402
+from necviz.dashboard.sink import RerunSink, _header_center  # noqa: E402
+from necviz.layouts.views import FRAME_HEADER, FRAME_SATURATED  # noqa: E402
 
 
 class ObserverCallsOnly(RerunSink):
@@ -70,6 +76,32 @@ class NoSeries(RerunSink):
         self._text_q.clear()
 
 
+class OneCallPerImage(RerunSink):
+    """The whole sink as it was before 8bf0c40: a live sink logged each image and frame header with
+    its own ``rr.log`` call as it was encoded (the ablation of batching them into the flushes)."""
+
+    def _log_image(self, entity, t_us, seq, blob, media_type) -> None:
+        self._set_time(t_us, seq)
+        self.rec.log(entity, rr.EncodedImage(contents=blob, media_type=media_type))
+        self.rec.reset_time()
+
+    def _log_header(self, lane, frame, header, saturated) -> None:
+        h, w = frame.image.shape[:2]
+        self._set_time(int(frame.exposure_start_us), int(frame.sequence))
+        self.rec.log(
+            S.path(lane, FRAME_HEADER),
+            rr.Boxes2D(centers=[_header_center(w)], half_sizes=[[w / 2, 0.5]], labels=[header], radii=[1.0]),
+        )
+        if saturated or lane in self._outlined:  # the outline drawn, or removed on the next frame
+            if saturated:
+                self._outlined.add(lane)
+            else:
+                self._outlined.discard(lane)
+            box = {"centers": [[w / 2, h / 2]], "half_sizes": [[w / 2 - 1, h / 2 - 1]]} if saturated else {}
+            self.rec.log(S.path(lane, FRAME_SATURATED), rr.Boxes2D(radii=[2.0], **box))
+        self.rec.reset_time()
+
+
 VARIANTS = {
     "control only": None,
     "observer calls only": ObserverCallsOnly,
@@ -77,6 +109,7 @@ VARIANTS = {
     "whole sink but frames": NoFrames,
     "whole sink but series": NoSeries,
     "whole sink": RerunSink,
+    "whole sink, one rr.log per image": OneCallPerImage,
 }
 
 
@@ -112,9 +145,9 @@ def main(argv=None) -> int:
     print()
     med = {name: statistics.median(w) for name, w in walls.items()}
     base = med["control only"]
-    print(f"\n  {'variant':28s} {'RT factor':>9s} {'wall s':>7s} {'over control s':>15s}")
+    print(f"\n  {'variant':33s} {'RT factor':>9s} {'wall s':>7s} {'over control s':>15s}")
     for name, w in med.items():
-        print(f"  {name:28s} {args.duration / w:9.1f} {w:7.3f} {w - base:15.3f}")
+        print(f"  {name:33s} {args.duration / w:9.1f} {w:7.3f} {w - base:15.3f}")
     result = {
         "command": "python benchmarks/sink_cost.py"
         + (f" --rounds {args.rounds}" if args.rounds != 7 else "")
