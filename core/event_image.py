@@ -61,6 +61,14 @@ def accumulate_records(events, counts_on, counts_off, stride):
     return added
 
 
+@nb.njit(cache=True)
+def zero_counts(counts_on, counts_off):
+    """Set both count planes to 0, *holding* the GIL (``ndarray.fill`` releases it on planes this size, and
+    a dashboard worker then waits to take it back; see :func:`accumulate_records`). O(H W)."""
+    counts_on[:] = 0
+    counts_off[:] = 0
+
+
 def colour_table(on_rgb, off_rgb, background_rgb, saturate_at: float) -> tuple[np.ndarray, int]:
     """Colours for net counts ``d = on - off`` in ``[-K, K]`` (``K = ceil(saturate_at)``): the
     background blended towards the ON (d > 0) or OFF (d < 0) colour by ``min(|d| / saturate_at, 1)``.
@@ -157,6 +165,5 @@ class EventImage:
         return render_event_image(self.counts_on, self.counts_off, table, self._k, out)
 
     def clear(self) -> None:
-        self.counts_on.fill(0)
-        self.counts_off.fill(0)
+        zero_counts(self.counts_on, self.counts_off)
         self.added = 0

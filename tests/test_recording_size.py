@@ -339,3 +339,46 @@ def test_live_frames_skip_huffman_optimisation_but_decode_to_the_same_pixels():
     fast, small = sink_mod.encode_frame(img, optimize=False), sink_mod.encode_frame(img)
     assert len(fast) > len(small)
     assert np.array_equal(np.asarray(Image.open(io.BytesIO(fast))), np.asarray(Image.open(io.BytesIO(small))))
+
+
+class ColumnSpy(Spy):
+    """A Spy that keeps the times (µs) and values of each chunk sent to ``entities``."""
+
+    def __init__(self, entities):
+        super().__init__()
+        self.entities = set(entities)
+        self.values: dict[str, list[tuple[list[int], list[float]]]] = defaultdict(list)
+
+    def send_columns(self, entity, indexes, columns):
+        super().send_columns(entity, indexes, columns)
+        if entity in self.entities:
+            t = list(indexes)[0].as_arrow_array().to_numpy().astype("timedelta64[us]").astype(np.int64)
+            v = next(iter(columns)).as_arrow_array().flatten().to_numpy()
+            self.values[entity].append((t.tolist(), v.tolist()))
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    series=st.lists(st.sampled_from([S.EXPOSURE_APPLIED, S.GAIN_APPLIED, S.IRRADIANCE_PREDICTED]), max_size=60),
+    chunk_rows=st.integers(1, 8),
+)
+def test_queued_scalars_reach_their_series_in_order_and_in_full_chunks(series, chunk_rows):
+    """The worker groups each drain of the scalar queue by series (one sort, not value by value): every
+    value reaches its own series, in the order it was queued, in chunks of at least ``chunk_rows`` but
+    for the last one sent at close, whenever the worker's drains fall."""
+    leaves = (S.EXPOSURE_APPLIED, S.GAIN_APPLIED, S.IRRADIANCE_PREDICTED)
+    spy = ColumnSpy([S.path("camera", leaf) for leaf in leaves])
+    sink = RerunSink(spy, ["camera"], 4, 4, SinkOptions(lossless=True, chunk_rows=chunk_rows, burst_s=0.001))
+    expected = defaultdict(list)
+    for k, leaf in enumerate(series):
+        sink._scalar("camera", leaf, 10 * k, float(k))
+        expected[S.path("camera", leaf)].append((10 * k, float(k)))
+        if k % 20 == 19:
+            time.sleep(0.005)  # let the worker drain part of the queue (any timing must give the same values)
+    stats = sink.close()
+    for path, want in expected.items():
+        chunks = spy.values[path]
+        got = [(t, v) for ts, vs in chunks for t, v in zip(ts, vs, strict=True)]
+        assert got == want
+        assert all(len(ts) >= chunk_rows for ts, _ in chunks[:-1])
+    assert stats["scalars"] == len(series)

@@ -31,6 +31,12 @@ those sizes per entity; the chunking depends only on the data, not on wall time,
 the same simulation give the same chunks: their files differ by a few hundred bytes of ids and
 log times).
 
+The GIL. While packets flow the streaming thread always holds it, so every call by which the worker
+releases it (NumPy's ``searchsorted`` or ``fill`` on arrays of some size, zlib, Rerun's sends) sends the
+worker back to wait for it, and the streaming thread pays for each such switch besides the work itself.
+The worker therefore keeps its bookkeeping and drawing to calls that hold the GIL (``bisect``, the
+Numba kernels of :mod:`necviz.core.event_image`) and releases it only where it must (deflate, the sends).
+
 Events are shared by every lane of a source, so they are logged once (``events``, ``event_rate``)
 as event images (:mod:`necviz.core.event_image`) over windows of ``event_window_us`` sensor time.
 At most ``max_events_per_window`` are drawn per window: above that every k-th event is drawn; and
@@ -236,6 +242,16 @@ class RateLimit:
         return False
 
 
+#: A queued scalar: its series (an index into the sink's entity paths), sensor time (µs), frame sequence
+#: and value, packed. The streaming thread queues each as the 28 bytes of :data:`_pack_scalar`, not as a
+#: tuple: bytes are not tracked by Python's cyclic garbage collector, and ~20k tuples a run living until
+#: the next flush made the collector sweep every object of the process now and then (~70 ms on the
+#: streaming thread). The worker reads a whole drain as one array of these and groups it by series with
+#: one stable sort.
+SCALAR_DTYPE = np.dtype([("key", "<i4"), ("t", "<i8"), ("seq", "<i8"), ("value", "<f8")])
+_pack_scalar = struct.Struct("<iqqd").pack  # the layout of SCALAR_DTYPE (no padding)
+
+
 #: Event images a live sink may draw at once above ``max_rate_hz`` (its token bucket's burst). At real
 #: time the windows (33 ms) that close while the worker is not behind (at most ``max_backlog`` 1 ms
 #: batches waiting: 64 ms, so at most 3 windows) are all drawn, as with any larger burst. The frames'
@@ -401,7 +417,11 @@ class RerunSink(Observer):
         self._last_frame_us: dict[str, int] = {}  # per lane: the last logged frame's exposure start
         self._last_image_us: int | None = None  # the last event image's window end
         # written by the streaming thread: deques (append / popleft are atomic), drained by the worker
-        self._scalar_q: deque = deque()
+        self._scalar_q: deque = deque()  # packed SCALAR_DTYPE records; keys index self._paths
+        self._paths: list[str] = []  # entity path of each series key
+        self._path_keys: dict[str, int] = {}
+        self._key_lock = threading.Lock()  # a new series may be named on either thread
+        self._key(S.EVENT_RATE)  # the worker's own series, named first (keys, and so chunk order, never race)
         self._text_q: deque = deque()
         self._seq = {lane: 0 for lane in self.lanes}  # newest frame per lane (the `frame` timeline)
         self._commanded: dict[tuple, tuple[int, float]] = {}  # (lane, leaf) -> the command in force (t_us, value)
@@ -410,7 +430,8 @@ class RerunSink(Observer):
         # owned by the worker
         self._outlined: set[str] = set()  # lanes whose last logged frame was outlined as saturated
         self._headers: dict[str, list] = defaultdict(list)  # lane -> frame headers not yet sent
-        self._series: dict[str, list] = defaultdict(list)  # path -> [(t_us, seq, value)]
+        self._pending: dict[int, list] = defaultdict(list)  # series key -> drained rows not yet sent
+        self._pending_rows: dict[int, int] = defaultdict(int)
         self._texts: dict[str, list] = defaultdict(list)  # path -> [(t_us, seq, text, level)]
         self._images: dict[str, list] = defaultdict(list)  # path -> [(t_us, seq, blob)] not yet sent
         self._image_bytes: dict[str, int] = defaultdict(int)
@@ -448,8 +469,22 @@ class RerunSink(Observer):
         while len(q) >= size and self._thread.is_alive():
             time.sleep(0.001)
 
+    def _key(self, path: str) -> int:
+        """The series key of entity ``path`` (named on first use, from either thread)."""
+        k = self._path_keys.get(path)
+        if k is None:
+            with self._key_lock:
+                k = self._path_keys.get(path)
+                if k is None:
+                    k = len(self._paths)
+                    self._paths.append(path)  # before the key is published: the worker may read it at once
+                    self._path_keys[path] = k
+        return k
+
     def _scalar(self, lane: str, leaf: str, t_us: int, value: float) -> None:
-        self._scalar_q.append((S.path(lane, leaf), t_us, self._seq.get(lane, 0), value))
+        path = f"{lane}/{leaf}"  # S.path, inline: this runs for every value on the streaming thread
+        k = self._path_keys.get(path)
+        self._scalar_q.append(_pack_scalar(self._key(path) if k is None else k, t_us, self._seq.get(lane, 0), value))
         if t_us > self._now_us:
             self._now_us = t_us
 
@@ -463,6 +498,7 @@ class RerunSink(Observer):
         pal = EventPalette(img)  # its rows kernel (what EventPalette.png runs), nothing logged or encoded
         bits = _palette_bits(len(pal.palette))
         palette_rows(img.counts_on, img.counts_off, pal.k, bits, np.empty((h, 1 + (w * bits + 7) // 8), np.uint8))
+        img.clear()  # its zeroing kernel
 
     def _held(self, lane: str, leaf: str, t_us: int, value: float) -> None:
         """A commanded setting, as the step it is: a command holds until the next, so at a change the
@@ -561,7 +597,7 @@ class RerunSink(Observer):
             if isinstance(dvs, dict):
                 for k in S.DVS_SERIES:
                     if isinstance(dvs.get(k), (int, float)):
-                        self._scalar_q.append((f"{S.DVS}/{k}", t_us, seq, float(dvs[k])))
+                        self._scalar_q.append(_pack_scalar(self._key(f"{S.DVS}/{k}"), t_us, seq, float(dvs[k])))
             ptedi = data.get("ptedi")
             if isinstance(ptedi, dict):
                 for lane_name, th in ptedi.items():
@@ -634,7 +670,7 @@ class RerunSink(Observer):
                 return
             b = batches[j]
             self._window_seq = seqs[j]
-            cut = int(np.searchsorted(b["t"], end, side="left"))
+            cut = bisect.bisect_left(b["t"], end)  # not np.searchsorted: it releases the GIL (module docstring)
             if cut:
                 self._window_seen += cut
                 if self._drawing:
@@ -660,7 +696,7 @@ class RerunSink(Observer):
         seen = self._window_seen
         rate = seen / (self.event_window_us / 1e6)
         self.stats["events_seen"] += seen
-        self._series[S.EVENT_RATE].append((end, self._window_seq, rate))
+        self._scalar_q.append(_pack_scalar(self._key(S.EVENT_RATE), end, self._window_seq, rate))
         if not self._drawing:  # behind the stream or faster than a viewer refreshes: count only
             self.stats["event_images_skipped"] += 1
             self.stats["events_decimated"] += seen
@@ -797,19 +833,27 @@ class RerunSink(Observer):
     def _flush_series(self, min_rows: int = 1) -> None:
         """Send every series (and text log) holding at least ``min_rows`` values as one chunk each."""
         q = self._scalar_q
-        for _ in range(len(q)):  # what is queued now; later values wait for the next flush
-            path, t, seq, value = q.popleft()
-            self._series[path].append((t, seq, value))
+        n = len(q)  # what is queued now; later values wait for the next flush
+        rows = np.frombuffer(b"".join([q.popleft() for _ in range(n)]), SCALAR_DTYPE)
         for _ in range(len(self._text_q)):
             entity, t_us, seq, msg, level = self._text_q.popleft()
             self._texts[entity].append((t_us, seq, msg, level))
-        for p in [p for p, pts in self._series.items() if len(pts) >= min_rows]:
-            pts = self._series.pop(p)
-            t = np.fromiter((r[0] for r in pts), np.int64, len(pts))  # exact µs (no float64 round trip)
-            seq = np.fromiter((r[1] for r in pts), np.int64, len(pts))
-            values = np.fromiter((r[2] for r in pts), np.float64, len(pts))
-            self.rec.send_columns(p, indexes=self._index(t, seq), columns=rr.Scalars.columns(scalars=values))
-            self.stats["scalars"] += len(pts)
+        if n:
+            rows = rows[np.argsort(rows["key"], kind="stable")]  # grouped by series, each in queue order
+            keys, starts, counts = np.unique(rows["key"], return_index=True, return_counts=True)
+            for k, i, c in zip(keys.tolist(), starts.tolist(), counts.tolist(), strict=True):
+                self._pending[k].append(rows[i : i + c])
+                self._pending_rows[k] += c
+        for k in [k for k, c in self._pending_rows.items() if c >= min_rows]:
+            parts = self._pending.pop(k)
+            part = parts[0] if len(parts) == 1 else np.concatenate(parts)
+            del self._pending_rows[k]
+            self.rec.send_columns(
+                self._paths[k],
+                indexes=self._index(part["t"], part["seq"]),
+                columns=rr.Scalars.columns(scalars=np.ascontiguousarray(part["value"])),
+            )
+            self.stats["scalars"] += len(part)
         for entity in [e for e, rows in self._texts.items() if len(rows) >= min_rows]:
             t, seq, msgs, levels = zip(*self._texts.pop(entity), strict=True)
             self.rec.send_columns(
