@@ -469,7 +469,7 @@ class Pipeline:
                     for ln in lanes:  # control first: a lossless observer may make the thread wait
                         if ln.passive is not None:
                             ln.passive.update(batch)
-                        cmd = ln.controller.feed(packet)
+                        cmd = ln.controller.feed_events(batch)
                         if cmd is not None:
                             self._command(ln, cmd, t_in, t)
                     for o in observers:
