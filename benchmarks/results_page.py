@@ -174,9 +174,32 @@ def r_sink_cost(d: dict) -> str:
     return table(["variant", "real-time factor, median (range)", "wall s", "over control only, s"], rows) + (
         f"\n\n{d.get('duration_s')} s of the bench's {d.get('rate_mev_s')} Mev/s stream per run, every variant "
         f"{d.get('rounds')} times, alternated in one process. The sink's worker shares the GIL with the streaming "
-        "thread: what it does holding the GIL comes out of the loop's time. The parts left out one at a time each "
+        "thread: what it does holding the GIL comes out of the loop's time, and each time it releases the GIL and takes "
+        "it back the loop hands it over (the next section measures that alone). The parts left out one at a time each "
         "cost less than the run-to-run spread: no single part dominates. The last row is the ablation of sending "
         "images in the flushes' chunks: each image and frame header logged by its own Rerun call, as before."
+    )
+
+
+def r_cpu_contention(d: dict) -> str:
+    """``benchmarks/cpu_contention.py``: the bench's loop with the other CPU idle or busy, alternated in one run."""
+    walls, meds, dur = d.get("wall_s", {}), d.get("median_wall_s", {}), d.get("duration_s") or 0
+    slow = d.get("slowdown", {})
+    rows = [
+        [
+            name,
+            f"**{num(dur / meds[name], 1)}** ({num(dur / max(w), 1)}–{num(dur / min(w), 1)})",
+            num(meds[name], 3),
+            num(slow.get(name)),
+        ]
+        for name, w in walls.items()
+    ]
+    return table(["the other CPU", "real-time factor, median (range)", "wall s", "× idle"], rows) + (
+        f"\n\nThe bench's control loop ({d.get('duration_s')} s of its stream, no observer) pinned to one CPU, every "
+        f"condition {d.get('rounds')} times, alternated in one run. *python spin* and *numpy sum*: a separate process "
+        "on the other CPU, sharing nothing with the loop; *GIL switches*: a thread of the loop's process on the other "
+        f"CPU that wakes every 20 ms and releases the GIL {d.get('switches_per_wake')} times, doing nothing else. "
+        "The ranges say how much the machine's speed moves between runs of the same thing: compare medians of one run."
     )
 
 
@@ -905,6 +928,7 @@ RENDERERS: dict[str, tuple[str, Callable[[dict], str]]] = {
     "pipeline": ("The whole loop at the sensor's full rate", r_pipeline),
     "pipeline_then_now": ("The whole loop: an earlier commit and today's, in the same run", r_pipeline_then_now),
     "sink_cost": ("The whole loop: what each part of the Rerun sink costs it", r_sink_cost),
+    "cpu_contention": ("The whole loop: what work on the other CPU costs it", r_cpu_contention),
     "decode": ("DAVIS stream decoder", r_decode),
     "live_reaction": ("The live loop's reaction in sensor time, at every speed", r_live_reaction),
     "transfers": ("USB transfers: delivery delay per transfer size and rate", r_transfers),
