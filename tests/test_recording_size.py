@@ -382,3 +382,24 @@ def test_queued_scalars_reach_their_series_in_order_and_in_full_chunks(series, c
         assert got == want
         assert all(len(ts) >= chunk_rows for ts, _ in chunks[:-1])
     assert stats["scalars"] == len(series)
+
+
+def test_a_live_sink_logs_every_frame_at_real_time_and_a_bounded_burst(monkeypatch):
+    """The frames' token bucket: a 50 fps camera at real time (under the 60 Hz cap) loses no frame; a
+    hiccup that delivers 20 at once keeps FRAME_BURST of them; the bucket then refills at the cap's
+    surplus over the camera (10 a second), so 0.6 s of 50 fps later the next burst keeps 6 again."""
+    clock = [0.0]
+    monkeypatch.setattr(sink_mod.time, "perf_counter", lambda: clock[0])
+    bucket = sink_mod.RateLimit(60.0, sink_mod.FRAME_BURST)
+    taken = 0
+    for k in range(500):  # 10 s at 50 fps
+        clock[0] = 0.02 * k
+        taken += bucket.take()
+    assert taken == 500
+    clock[0] += 0.02  # a frame period later, 20 frames at once
+    assert sum(bucket.take() for _ in range(20)) == sink_mod.FRAME_BURST == 6
+    for _ in range(30):  # 0.6 s more at 50 fps: every frame taken, the surplus refills the bucket
+        clock[0] += 0.02
+        assert bucket.take()
+    clock[0] += 0.02
+    assert sum(bucket.take() for _ in range(20)) == 6

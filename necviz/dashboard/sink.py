@@ -43,8 +43,8 @@ At most ``max_events_per_window`` are drawn per window: above that every k-th ev
 when the worker is behind (more than ``max_backlog`` batches waiting) or draws faster than
 ``max_rate_hz`` in wall time (in bursts of at most :data:`EVENT_IMAGE_BURST`), a window's image is
 skipped. Both are counted (``events_decimated``, ``event_images_skipped``); the event rate is logged
-for every window regardless. Frames follow the same wall-clock rate cap, in bursts of up to 30 (cameras
-deliver frames in bursts). With ``lossless=True`` nothing is dropped or skipped (simulations and
+for every window regardless. Frames follow the same wall-clock rate cap per lane, in bursts of at most
+:data:`FRAME_BURST`. With ``lossless=True`` nothing is dropped or skipped (simulations and
 replays written to a file).
 
 Above each lane's frame a header (``NAME/frame/header``: its exposure and gain, in the lane's colour)
@@ -224,9 +224,9 @@ def saturated_label(record: FrameRecord) -> str:
 
 class RateLimit:
     """A token bucket: on average ``rate_hz`` takes per wall-clock second, in bursts of up to
-    ``burst`` (sources deliver frames in bursts; a strict interval would drop them at real time)."""
+    ``burst`` (a strict interval would drop frames that arrive a little early at real time)."""
 
-    def __init__(self, rate_hz: float, burst: int = 30):
+    def __init__(self, rate_hz: float, burst: int):
         self.rate = float(rate_hz)
         self.burst = float(burst)
         self.tokens = float(burst)
@@ -254,11 +254,19 @@ _pack_scalar = struct.Struct("<iqqd").pack  # the layout of SCALAR_DTYPE (no pad
 
 #: Event images a live sink may draw at once above ``max_rate_hz`` (its token bucket's burst). At real
 #: time the windows (33 ms) that close while the worker is not behind (at most ``max_backlog`` 1 ms
-#: batches waiting: 64 ms, so at most 3 windows) are all drawn, as with any larger burst. The frames'
-#: burst of 30 is for cameras that deliver frames in bursts; event images are the sink's own, and a
-#: burst that large only draws images in the first instant of a replay faster than real time, which
-#: no viewer shows (at 20x, ~27 of the ~60 images of a 0.5 s ``necviz bench pipeline`` run).
+#: batches waiting: 64 ms, so at most 3 windows) are all drawn, as with any larger burst; a larger
+#: burst only draws images in the first instant of a replay faster than real time, which no viewer
+#: shows (at 20x, ~27 of the ~60 images of a 0.5 s ``necviz bench pipeline`` run with a burst of 30).
 EVENT_IMAGE_BURST = 3
+
+#: Frames of a lane a live sink may log at once above ``max_rate_hz``: a tenth of a second at the
+#: viewer's 60 Hz. At real time a camera's frames (at most ~50 fps) come one by one, so the bucket
+#: stays full; the burst only decides what happens after a hiccup (a stalled reader, a paused
+#: streaming thread) delivers several at once: up to 6 are kept, the rest counted in ``frames_dropped``.
+#: It was 30 until 2026-12-03: a burst that large only logged frames in the first instant of a replay
+#: faster than real time (at 20x, 30 of the ~60 frames of a 0.5 s ``necviz bench pipeline`` run, 1 ms
+#: of JPEG each on the worker).
+FRAME_BURST = 6
 
 
 def _whole(name: str, value, lo: int, hi: int | None = None, optional: bool = False):
@@ -410,7 +418,7 @@ class RerunSink(Observer):
         self.origin_us = options.origin_us
         self.burst_s = options.burst_s
         max_rate_hz = options.max_rate_hz
-        self._frame_rate: dict[str, RateLimit] = defaultdict(lambda: RateLimit(max_rate_hz))
+        self._frame_rate: dict[str, RateLimit] = defaultdict(lambda: RateLimit(max_rate_hz, FRAME_BURST))
         self._image_rate = RateLimit(max_rate_hz, EVENT_IMAGE_BURST)
         self._frame_queue_size = options.frame_queue_size
         self.image_period_us = options.image_period_us
