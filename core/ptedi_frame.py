@@ -107,6 +107,12 @@ class FrameSideMixin:
             self._hist_memo = memo
         return memo[1]
 
+    def counted_digit_histogram(self, frame: Frame) -> np.ndarray | None:
+        """:meth:`digit_histogram_of` ``frame`` if it was already computed (the whole-sensor anchor does), else
+        None: for readers that only want it when it costs nothing (telemetry's over/under-exposed rates)."""
+        memo = getattr(self, "_hist_memo", None)
+        return memo[1] if memo is not None and memo[0] is frame.image else None
+
     def _valid_exposures(self, crf) -> np.ndarray:
         """``exp(g(Z))`` for valid digits, 0 for clipped ones (256 values; kept per response curve)."""
         cached = getattr(self, "_e_valid", None)

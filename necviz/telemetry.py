@@ -39,7 +39,13 @@ from necviz.core.diagnosis import CAUSES, Command, Evidence, diagnose
 from necviz.core.errors import NecvizError
 from necviz.core.frames import Frame
 from necviz.core.ground_truth import WELL_EXPOSED, GroundTruth, true_valid_fraction
-from necviz.core.metrics import over_exposed_rate, rank_correlation, region_valid_fraction, under_exposed_rate
+from necviz.core.metrics import (
+    exposure_rates_from_histogram,
+    over_exposed_rate,
+    rank_correlation,
+    region_valid_fraction,
+    under_exposed_rate,
+)
 from necviz.core.prediction_skill import SkillTracker
 from necviz.image_quality import SiftMatcher
 from necviz.marker_detection import MarkerDetector
@@ -328,7 +334,12 @@ class LaneTelemetry:
     def frame(self, frame: Frame, estimate, min_valid_fraction: float) -> FrameRecord:
         """The record of a frame, given what the lane's P-TEDI made of it (``estimate``, may be None)."""
         image = frame.image
-        over, under = over_exposed_rate(image), under_exposed_rate(image)
+        est = self._lane.estimator if self._lane is not None else None
+        hist = est.counted_digit_histogram(frame) if est is not None else None
+        if hist is not None:  # P-TEDI counted this frame's digits: the same rates without two passes
+            over, under = exposure_rates_from_histogram(hist, image.size)
+        else:
+            over, under = over_exposed_rate(image), under_exposed_rate(image)
         rec = FrameRecord(
             int(frame.sequence),
             int(frame.exposure_start_us),

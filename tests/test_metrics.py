@@ -3,9 +3,20 @@
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 
 from necviz.core.errors import ParameterError
-from necviz.core.metrics import over_exposed_rate, recovery_times_ms, saturated_frames, summarise, under_exposed_rate
+from necviz.core.metrics import (
+    exposure_rates_from_histogram,
+    over_exposed_rate,
+    recovery_times_ms,
+    saturated_frames,
+    summarise,
+    under_exposed_rate,
+)
+from necviz.core.ptedi_kernels import digit_histogram
 from necviz.image_quality import SiftMatcher
 
 
@@ -78,3 +89,21 @@ def test_ssim_is_one_for_identical_images_and_falls_with_noise():
     assert 1.0 > scores[0] > scores[1] > scores[2]
     with pytest.raises(ParameterError):
         ssim(img, img[:-1])
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    image=hnp.arrays(
+        np.uint8,
+        st.one_of(
+            hnp.array_shapes(min_dims=2, max_dims=2, max_side=40),
+            st.tuples(st.integers(1, 20), st.integers(1, 20), st.just(3)),
+        ),
+        elements=st.one_of(st.integers(0, 255), st.sampled_from([0, 9, 10, 249, 250, 255])),
+    )
+)
+def test_exposure_rates_from_the_digit_histogram_are_the_image_rates(image):
+    """Telemetry reads a frame's over/under-exposed rates from the digit histogram P-TEDI already counted:
+    they must be the very numbers the image functions give (grey or colour, thresholds included)."""
+    hist = digit_histogram(np.ascontiguousarray(image).ravel())
+    assert exposure_rates_from_histogram(hist, image.size) == (over_exposed_rate(image), under_exposed_rate(image))
