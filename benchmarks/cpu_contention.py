@@ -32,7 +32,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from necviz.bench.timing import machine, write_result  # noqa: E402
+from necviz.bench.timing import command_line, machine, write_result  # noqa: E402
 from necviz.dashboard import pipeline_speed as bench  # noqa: E402
 
 SPIN = "import os, sys\nos.sched_setaffinity(0, {int(sys.argv[1])})\nx = 0\nwhile True:\n    x += 1\n"
@@ -106,11 +106,7 @@ def main(argv=None) -> int:
     for c, w in med.items():
         print(f"  {c:14s} {args.duration / w:9.1f} {w:7.3f} {w / base:7.2f}")
     result = {
-        "command": "python benchmarks/cpu_contention.py"
-        + (f" --rounds {args.rounds}" if args.rounds != 9 else "")
-        + (f" --duration {args.duration:g}" if args.duration != 10.0 else "")
-        + (f" --switches {args.switches}" if args.switches != 10 else "")
-        + (f" --json {args.json}" if args.json else ""),
+        "command": command_line("benchmarks/cpu_contention.py", ap, args),
         "duration_s": args.duration,
         "rounds": args.rounds,
         "switches_per_wake": args.switches,

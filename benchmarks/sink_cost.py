@@ -36,7 +36,7 @@ sys.path.insert(0, str(ROOT))
 import rerun as rr  # noqa: E402
 
 from necviz import schema as S  # noqa: E402
-from necviz.bench.timing import machine, write_result  # noqa: E402
+from necviz.bench.timing import command_line, machine, write_result  # noqa: E402
 from necviz.dashboard import pipeline_speed as bench  # noqa: E402
 from necviz.dashboard.sink import RerunSink, _header_center  # noqa: E402
 from necviz.layouts.views import FRAME_HEADER, FRAME_SATURATED  # noqa: E402
@@ -149,10 +149,7 @@ def main(argv=None) -> int:
     for name, w in med.items():
         print(f"  {name:33s} {args.duration / w:9.1f} {w:7.3f} {w - base:15.3f}")
     result = {
-        "command": "python benchmarks/sink_cost.py"
-        + (f" --rounds {args.rounds}" if args.rounds != 7 else "")
-        + (f" --duration {args.duration:g}" if args.duration != 10.0 else "")
-        + (f" --json {args.json}" if args.json else ""),
+        "command": command_line("benchmarks/sink_cost.py", ap, args),
         "duration_s": args.duration,
         "rate_mev_s": 12.0,
         "rounds": args.rounds,

@@ -275,3 +275,19 @@ def test_the_public_api_has_numpydoc_sections():
         doc = inspect.getdoc(obj) or ""
         missing += [f"{obj.__qualname__}: {sections[k].splitlines()[0]}" for k in need if sections[k] not in doc]
     assert missing == []
+
+
+def test_a_results_file_records_the_command_that_reproduces_it():
+    """``necviz.bench.timing.command_line``: the options set away from their defaults, in the parser's
+    order, so the results page shows a command that makes the same file (floats as %g)."""
+    import argparse
+
+    from necviz.bench.timing import command_line
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--rounds", type=int, default=9)
+    ap.add_argument("--duration", type=float, default=10.0)
+    ap.add_argument("--json")
+    assert command_line("benchmarks/x.py", ap, ap.parse_args([])) == "python benchmarks/x.py"
+    args = ap.parse_args(["--json", "out.json", "--duration", "2.50", "--rounds", "9"])
+    assert command_line("benchmarks/x.py", ap, args) == "python benchmarks/x.py --duration 2.5 --json out.json"

@@ -30,6 +30,23 @@ def spread(values) -> dict:
     return {"median": float(np.median(v)), "min": float(v.min()), "max": float(v.max()), "runs": int(v.size)}
 
 
+def command_line(script: str, parser, args) -> str:
+    """``python SCRIPT`` with every option of ``parser`` that ``args`` sets away from its default, in the
+    parser's order (what a results file records as the command that made it; ``%g`` for floats)."""
+    words = [f"python {script}"]
+    for action in parser._actions:  # argparse's public API has no other way to list the options
+        if not action.option_strings or action.dest == "help":
+            continue
+        value = getattr(args, action.dest, action.default)
+        if value != action.default:
+            words.append(
+                f"{action.option_strings[-1]} {value:g}"
+                if isinstance(value, float)
+                else f"{action.option_strings[-1]} {value}"
+            )
+    return " ".join(words)
+
+
 def write_result(result: dict, json_path, out) -> None:
     """Write ``result`` as JSON to ``json_path`` (folders created) and say so; nothing if no path."""
     if not json_path:
