@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import subprocess
 import sys
 import threading
@@ -32,7 +31,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from necviz.bench.timing import command_line, machine, write_result  # noqa: E402
+from necviz.bench.timing import command_line, machine, median_table, write_result  # noqa: E402
 from necviz.dashboard import pipeline_speed as bench  # noqa: E402
 
 SPIN = "import os, sys\nos.sched_setaffinity(0, {int(sys.argv[1])})\nx = 0\nwhile True:\n    x += 1\n"
@@ -100,11 +99,8 @@ def main(argv=None) -> int:
                 if switcher is not None:
                     switcher.close()
     print()
-    med = {c: statistics.median(w) for c, w in walls.items()}
+    med = median_table(walls, args.duration, "other CPU", "idle", ("x idle", lambda w, base: w / base))
     base = med["idle"]
-    print(f"\n  {'other CPU':14s} {'RT factor':>9s} {'wall s':>7s} {'x idle':>7s}")
-    for c, w in med.items():
-        print(f"  {c:14s} {args.duration / w:9.1f} {w:7.3f} {w / base:7.2f}")
     result = {
         "command": command_line("benchmarks/cpu_contention.py", ap, args),
         "duration_s": args.duration,

@@ -24,7 +24,6 @@ the GIL come straight out of the loop's time.
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
 import tempfile
 import time
@@ -36,7 +35,7 @@ sys.path.insert(0, str(ROOT))
 import rerun as rr  # noqa: E402
 
 from necviz import schema as S  # noqa: E402
-from necviz.bench.timing import command_line, machine, write_result  # noqa: E402
+from necviz.bench.timing import command_line, machine, median_table, write_result  # noqa: E402
 from necviz.dashboard import pipeline_speed as bench  # noqa: E402
 from necviz.dashboard.sink import RerunSink, _header_center  # noqa: E402
 from necviz.layouts.views import FRAME_HEADER, FRAME_SATURATED  # noqa: E402
@@ -143,11 +142,7 @@ def main(argv=None) -> int:
                 walls[name].append(wall)
                 logged[name].append({k: stats.get(k) for k in ("frames_logged", "event_images")})
     print()
-    med = {name: statistics.median(w) for name, w in walls.items()}
-    base = med["control only"]
-    print(f"\n  {'variant':33s} {'RT factor':>9s} {'wall s':>7s} {'over control s':>15s}")
-    for name, w in med.items():
-        print(f"  {name:33s} {args.duration / w:9.1f} {w:7.3f} {w - base:15.3f}")
+    med = median_table(walls, args.duration, "variant", "control only", ("over control s", lambda w, base: w - base))
     result = {
         "command": command_line("benchmarks/sink_cost.py", ap, args),
         "duration_s": args.duration,

@@ -291,3 +291,18 @@ def test_a_results_file_records_the_command_that_reproduces_it():
     assert command_line("benchmarks/x.py", ap, ap.parse_args([])) == "python benchmarks/x.py"
     args = ap.parse_args(["--json", "out.json", "--duration", "2.50", "--rounds", "9"])
     assert command_line("benchmarks/x.py", ap, args) == "python benchmarks/x.py --duration 2.5 --json out.json"
+
+
+def test_an_alternated_benchmark_prints_each_condition_s_median_against_the_base():
+    """``necviz.bench.timing.median_table``: the median run of each condition, its real-time factor and the
+    last column against the base condition's median."""
+    import io
+
+    from necviz.bench.timing import median_table
+
+    out = io.StringIO()
+    walls = {"idle": [0.5, 0.4, 0.6], "busy": [1.0, 0.8, 2.0]}
+    med = median_table(walls, 10.0, "other CPU", "idle", ("x idle", lambda w, base: w / base), out=out)
+    assert med == {"idle": 0.5, "busy": 1.0}
+    rows = [line.split() for line in out.getvalue().splitlines()[2:]]
+    assert rows == [["idle", "20.0", "0.500", "1.000"], ["busy", "10.0", "1.000", "2.000"]]

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import os
 import platform
+import statistics
+import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numba as nb
@@ -45,6 +48,28 @@ def command_line(script: str, parser, args) -> str:
                 else f"{action.option_strings[-1]} {value}"
             )
     return " ".join(words)
+
+
+def median_table(
+    walls: dict[str, list[float]],
+    duration_s: float,
+    label: str,
+    base: str,
+    last: tuple[str, Callable[[float, float], float]],
+    out=sys.stdout,
+) -> dict[str, float]:
+    """Print the median wall time of each condition of an alternated run (``walls``: condition -> wall s of
+    each run over ``duration_s`` of stream), as a real-time factor, and a last column ``last = (header,
+    f(median, base's median))`` against condition ``base``; returns the medians."""
+    med = {name: statistics.median(w) for name, w in walls.items()}
+    width = max(len(label), *map(len, med))
+    head, column = last
+    print(f"\n  {label:{width}s} {'RT factor':>9s} {'wall s':>7s} {head:>{max(7, len(head))}s}", file=out)
+    for name, w in med.items():
+        print(
+            f"  {name:{width}s} {duration_s / w:9.1f} {w:7.3f} {column(w, med[base]):{max(7, len(head))}.3f}", file=out
+        )
+    return med
 
 
 def write_result(result: dict, json_path, out) -> None:
