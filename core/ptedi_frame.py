@@ -101,11 +101,11 @@ class FrameSideMixin:
         """The frame's whole-image digit histogram (1 x 256 int64,
         :func:`~necviz.core.ptedi_kernels.digit_histogram`), computed once per frame: the anchor, the
         saturation bounds and a controller's metering all read it."""
-        memo = getattr(self, "_hist_memo", None)
-        if memo is None or memo[0] is not frame.image:
-            memo = (frame.image, digit_histogram(frame.image.ravel()))
-            self._hist_memo = memo
-        return memo[1]
+        hist = self.counted_digit_histogram(frame)
+        if hist is None:
+            hist = digit_histogram(frame.image.ravel())
+            self._hist_memo = (frame.image, hist)
+        return hist
 
     def counted_digit_histogram(self, frame: Frame) -> np.ndarray | None:
         """:meth:`digit_histogram_of` ``frame`` if it was already computed (the whole-sensor anchor does), else
