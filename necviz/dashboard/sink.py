@@ -60,6 +60,7 @@ Entity paths follow :mod:`necviz.schema`.
 from __future__ import annotations
 
 import bisect
+import functools
 import io
 import math
 import struct
@@ -70,6 +71,7 @@ from collections import defaultdict, deque
 from dataclasses import dataclass, replace
 
 import numpy as np
+import pyarrow as pa
 import rerun as rr
 
 from necviz import schema as S
@@ -250,6 +252,37 @@ class RateLimit:
 #: one stable sort.
 SCALAR_DTYPE = np.dtype([("key", "<i4"), ("t", "<i8"), ("seq", "<i8"), ("value", "<f8")])
 _pack_scalar = struct.Struct("<iqqd").pack  # the layout of SCALAR_DTYPE (no padding)
+
+
+class _ArrowIndex:
+    """A time column already built as an Arrow array (``rr.send_columns`` takes any ``TimeColumnLike``)."""
+
+    __slots__ = ("name", "array")
+
+    def __init__(self, name: str, array: pa.Array):
+        self.name, self.array = name, array
+
+    def timeline_name(self) -> str:
+        return self.name
+
+    def as_arrow_array(self) -> pa.Array:
+        return self.array
+
+
+class _ArrowColumn(rr.ComponentColumn):
+    """A component column already built as an Arrow list array (one row per value)."""
+
+    def __init__(self, descriptor, array: pa.Array):  # no super().__init__: nothing to partition
+        self.descriptor, self._array = descriptor, array
+
+    def as_arrow_array(self) -> pa.Array:
+        return self._array
+
+
+@functools.cache
+def _scalar_descriptor():
+    """The component descriptor of ``rr.Scalars``' scalars (what ``rr.Scalars.columns`` sends them under)."""
+    return next(iter(rr.Scalars.columns(scalars=[0.0]))).component_descriptor()
 
 
 #: Event images a live sink may draw at once above ``max_rate_hz`` (its token bucket's burst). At real
@@ -852,21 +885,40 @@ class RerunSink(Observer):
             for k, i, c in zip(keys.tolist(), starts.tolist(), counts.tolist(), strict=True):
                 self._pending[k].append(rows[i : i + c])
                 self._pending_rows[k] += c
-        for k in [k for k, c in self._pending_rows.items() if c >= min_rows]:
-            parts = self._pending.pop(k)
-            part = parts[0] if len(parts) == 1 else np.concatenate(parts)
-            del self._pending_rows[k]
-            self.rec.send_columns(
-                self._paths[k],
-                indexes=self._index(part["t"], part["seq"]),
-                columns=rr.Scalars.columns(scalars=np.ascontiguousarray(part["value"])),
-            )
+        ready = [k for k, c in self._pending_rows.items() if c >= min_rows]
+        if ready:
+            counts = [self._pending_rows.pop(k) for k in ready]
+            part = np.concatenate([p for k in ready for p in self._pending.pop(k)])  # series after series
+            times, seqs, values = self._series_arrays(part)
+            start = 0
+            for k, c in zip(ready, counts, strict=True):
+                self.rec.send_columns(
+                    self._paths[k],
+                    indexes=[_ArrowIndex(S.TIME, times.slice(start, c)), _ArrowIndex(S.FRAME, seqs.slice(start, c))],
+                    columns=[_ArrowColumn(_scalar_descriptor(), values.slice(start, c))],
+                )
+                start += c
             self.stats["scalars"] += len(part)
         for entity in [e for e, rows in self._texts.items() if len(rows) >= min_rows]:
             t, seq, msgs, levels = zip(*self._texts.pop(entity), strict=True)
             self.rec.send_columns(
                 entity, indexes=self._index(t, seq), columns=rr.TextLog.columns(text=list(msgs), level=list(levels))
             )
+
+    def _series_arrays(self, rows: np.ndarray) -> tuple[pa.Array, pa.Array, pa.Array]:
+        """The Arrow columns of a flush's series, all series in one array each (sliced per series when
+        sent): sensor time since ``origin_us`` (duration, ns), frame sequence, and the scalars (one
+        value per row), the arrays ``rr.TimeColumn`` and ``rr.Scalars.columns`` build. Built once per flush
+        rather than once per series (each through Rerun's archetype and pyarrow conversions), a live
+        flush of 14 series costs the worker ~0.7 ms of CPU instead of ~2.3 ms, all of it holding the GIL
+        the streaming thread needs."""
+        n = len(rows)
+        ns = (rows["t"] - self.origin_us) * 1_000
+        times = pa.array(ns.astype("timedelta64[ns]"), pa.duration("ns"))
+        seqs = pa.array(np.ascontiguousarray(rows["seq"]), pa.int64())
+        scalars = pa.array(np.ascontiguousarray(rows["value"]), pa.float64())
+        values = pa.ListArray.from_arrays(np.arange(n + 1, dtype=np.int32), scalars)
+        return times, seqs, values
 
     # -- shutdown -------------------------------------------------------------------------------
     def close(self) -> dict:
