@@ -42,11 +42,13 @@ from necviz.layouts.views import FRAME_HEADER, FRAME_SATURATED  # noqa: E402
 
 
 class ObserverCallsOnly(RerunSink):
-    """The sink's observer methods as they are; its worker drops what they queue."""
+    """The sink's observer methods as they are (the event windows counted on the streaming thread too);
+    its worker drops what they queue."""
 
     def _run(self) -> None:
         while not self._stop:
-            self._events.clear()
+            while self._windows:  # taken, not drawn (the streaming thread counted them into windows)
+                self._batches_taken += len(self._windows.popleft()[3])
             self._frames.clear()
             self._scalar_q.clear()
             self._text_q.clear()

@@ -173,24 +173,54 @@ def test_imu_packets_pass_through_to_the_recorder(tmp_path):
     assert sum(len(p) for p in got) == 3
 
 
-def test_a_slow_viewer_never_slows_the_control_path(tmp_path, monkeypatch):
-    """The sink's worker is stuck; the stream still runs through, and the drops are counted."""
+def _stuck_sink(tmp_path, monkeypatch, **options):
+    """A sink whose worker hangs in its first event window (a viewer that stopped reading)."""
     rec = open_rec(tmp_path / "slow.rrd")
-    options = SinkOptions(frame_queue_size=2, queue_size=16, max_rate_hz=1e6)
-    sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, options)
+    sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, SinkOptions(**options))
     release = threading.Event()
-    monkeypatch.setattr(sink, "_collect", lambda batches: release.wait(30))  # the viewer hangs
+    monkeypatch.setattr(sink, "_draw_window", lambda *window: release.wait(30))
+    return rec, sink, release
+
+
+def test_a_slow_viewer_never_slows_the_control_path(tmp_path, monkeypatch):
+    """The sink's worker is stuck; the stream still runs through, what the viewer misses is counted, and
+    the sink holds at most the window the worker is stuck in and one more (33 ms windows of 1 ms batches
+    of 200 events: 33 batches a window, over ``queue_size``, so a new window replaces one still waiting,
+    and over ``max_backlog`` 64 once two wait, so later windows are skipped: which of the two happens
+    depends on when the worker took the first)."""
+    rec, sink, release = _stuck_sink(tmp_path, monkeypatch, frame_queue_size=2, queue_size=16, max_rate_hz=1e6)
     src = ListSource(stream(n_frames=20))
     t0 = time.perf_counter()
     Pipeline(src, [nec_lane()], observers=[sink]).run()
     elapsed = time.perf_counter() - t0
     summary = sink.summary()
+    waiting = sink._waiting_batches()
     release.set()
     sink.close()
     rr.disconnect(rec)
     assert elapsed < 5.0  # a control path waiting for the stuck viewer would take 30 s
     assert summary["frames_dropped"] >= 20 - 2 - 1
-    assert summary["event_batches_dropped"] >= 200 - 2 * 16
+    assert waiting <= 2 * 34
+    assert summary["event_images_skipped"] + summary["event_batches_dropped"] >= 3  # 6 windows closed, 2 kept
+    assert summary["events_decimated"] >= summary["events_seen"] - 2 * 34 * 200
+
+
+def test_a_slow_viewer_costs_the_oldest_windows_when_nothing_is_skipped(tmp_path, monkeypatch):
+    """With no backlog limit the waiting windows are bounded by ``queue_size`` batches: the oldest are
+    dropped and counted (batches and events), the newest kept."""
+    rec, sink, release = _stuck_sink(
+        tmp_path, monkeypatch, queue_size=40, max_backlog=100_000, max_rate_hz=1e6, frame_queue_size=2
+    )
+    Pipeline(ListSource(stream(n_frames=20)), [nec_lane()], observers=[sink]).run()
+    summary = sink.summary()
+    waiting = sink._waiting_batches()
+    release.set()
+    sink.close()
+    rr.disconnect(rec)
+    # 6 windows closed: the first stuck in the worker, the newest waiting, the 4 between dropped on arrival
+    assert 33 <= waiting <= 34 + 34
+    assert summary["event_batches_dropped"] >= 3 * 33
+    assert summary["events_seen"] >= summary["event_batches_dropped"] * 200
 
 
 def test_sink_decimates_by_stride_and_counts(tmp_path):

@@ -4,7 +4,10 @@
 for visualisation: the streaming thread hands the sink what it saw through calls that only
 append to memory:
 
-* event batches and frames go into bounded queues; when the worker falls behind, the oldest
+* event batches are counted into their event window on the streaming thread itself (one comparison
+  a batch: it knows their times already); a window to be drawn goes to the worker with its batches,
+  any other is only counted (so a stalled viewer holds about two windows of events, not seconds);
+* windows to draw and frames go into bounded queues; when the worker falls behind, the oldest
   entries are dropped and counted (``frames_dropped``, ``event_batches_dropped`` in :meth:`summary`);
 * scalars (exposure, gain, irradiance, rates, latency) go into a queue that the worker sends as
   columns every ``flush_period_s`` (a handful of ``send_columns`` calls instead of one
@@ -34,13 +37,14 @@ log times).
 The GIL. While packets flow the streaming thread always holds it, so every call by which the worker
 releases it (NumPy's ``searchsorted`` or ``fill`` on arrays of some size, zlib, Rerun's sends) sends the
 worker back to wait for it, and the streaming thread pays for each such switch besides the work itself.
-The worker therefore keeps its bookkeeping and drawing to calls that hold the GIL (``bisect``, the
-Numba kernels of :mod:`necviz.core.event_image`) and releases it only where it must (deflate, the sends).
+The worker therefore keeps its drawing to calls that hold the GIL (the Numba kernels of
+:mod:`necviz.core.event_image`) and releases it only where it must (deflate, the sends); the window
+bookkeeping uses ``bisect`` on either thread for the same reason.
 
 Events are shared by every lane of a source, so they are logged once (``events``, ``event_rate``)
 as event images (:mod:`necviz.core.event_image`) over windows of ``event_window_us`` sensor time.
 At most ``max_events_per_window`` are drawn per window: above that every k-th event is drawn; and
-when the worker is behind (more than ``max_backlog`` batches waiting) or draws faster than
+when the worker is behind (windows of more than ``max_backlog`` batches waiting) or draws faster than
 ``max_rate_hz`` in wall time (in bursts of at most :data:`EVENT_IMAGE_BURST`), a window's image is
 skipped. Both are counted (``events_decimated``, ``event_images_skipped``); the event rate is logged
 for every window regardless. Frames follow the same wall-clock rate cap per lane, in bursts of at most
@@ -286,8 +290,8 @@ def _scalar_descriptor():
 
 
 #: Event images a live sink may draw at once above ``max_rate_hz`` (its token bucket's burst). At real
-#: time the windows (33 ms) that close while the worker is not behind (at most ``max_backlog`` 1 ms
-#: batches waiting: 64 ms, so at most 3 windows) are all drawn, as with any larger burst; a larger
+#: time the windows (33 ms) that close while the worker is not behind (windows of at most ``max_backlog``
+#: 1 ms batches waiting) are all drawn, as with any larger burst; a larger
 #: burst only draws images in the first instant of a replay faster than real time, which no viewer
 #: shows (at 20x, ~27 of the ~60 images of a 0.5 s ``necviz bench pipeline`` run with a burst of 30).
 EVENT_IMAGE_BURST = 3
@@ -320,12 +324,13 @@ class SinkOptions:
     max_events_per_window : int
         Decimation cap for drawing events (60k: ~0.7 per pixel, already dense; 0: no cap).
     max_backlog : int
-        When more event batches than this wait for the worker, a finished window's image is
-        skipped (counted in ``event_images_skipped``) so the worker catches up.
+        When the windows waiting for the worker hold more event batches than this, the next window's
+        image is skipped (counted in ``event_images_skipped``) so the worker catches up.
     raw_points : int
         If > 0, also log up to this many raw events per window as points.
     queue_size, frame_queue_size : int
-        Event batches / frames waiting for the worker before the oldest are dropped (counted; >= 1).
+        Event batches (of the windows waiting to be drawn) / frames waiting for the worker before the
+        oldest windows / frames are dropped (counted; >= 1).
     lossless : bool
         Never drop or skip anything; the streaming thread waits when a queue is full. For runs
         written to a file where no camera waits for a command (simulations, replays).
@@ -445,7 +450,7 @@ class RerunSink(Observer):
         self.image_chunk_bytes = options.image_chunk_bytes
         self.jpeg_quality = options.jpeg_quality
         self.png_level = options.png_level if options.png_level is not None else (6 if self.lossless else 1)
-        self._events: deque = deque()
+        self._windows: deque = deque()  # event windows to draw: (end, seq, seen, parts), oldest first
         self._frames: deque = deque()
         self._event_queue_size = options.queue_size
         self.origin_us = options.origin_us
@@ -462,7 +467,7 @@ class RerunSink(Observer):
         self._paths: list[str] = []  # entity path of each series key
         self._path_keys: dict[str, int] = {}
         self._key_lock = threading.Lock()  # a new series may be named on either thread
-        self._key(S.EVENT_RATE)  # the worker's own series, named first (keys, and so chunk order, never race)
+        self._key(S.EVENT_RATE)  # named first: keys, and so the chunk order of lossless files, are fixed
         self._text_q: deque = deque()
         self._seq = {lane: 0 for lane in self.lanes}  # newest frame per lane (the `frame` timeline)
         self._commanded: dict[tuple, tuple[int, float]] = {}  # (lane, leaf) -> the command in force (t_us, value)
@@ -479,11 +484,17 @@ class RerunSink(Observer):
         self._media: dict[str, str] = {}
         self._image = EventImage(height, width)
         self._palette = EventPalette(self._image)
+        # the event windows: assigned on the streaming thread (it knows every batch's times already)
         self._window_end: int | None = None
         self._window_seen = 0
         self._window_seq = 0
         self._parts: list[np.ndarray] = []
         self._drawing = True
+        self._rate_key = self._key(S.EVENT_RATE)
+        self._batches_queued = 0  # batches in windows handed to the worker (streaming thread)
+        self._batches_taken = 0  # ... of which the worker has taken (worker); dropped ones: self.dropped
+        self._window_stats = {"events_seen": 0, "events_decimated": 0, "event_images_skipped": 0}
+        self._window_stats["event_images_thinned"] = 0  # (written by the streaming thread only)
         self.stats = {
             "frames_logged": 0,
             "events_seen": 0,
@@ -558,16 +569,48 @@ class RerunSink(Observer):
             self._held(lane, S.GAIN_COMMANDED, t_us, cmd.gain)
 
     def events(self, batch: np.ndarray) -> None:
-        if len(batch):
-            q = self._events
-            if len(q) >= self._event_queue_size:
-                if self.lossless:
-                    self._wait_for_room(q, self._event_queue_size)
-                else:
-                    old = q.popleft()[0]
-                    self.dropped["event_batches"] += 1
-                    self.dropped["events"] += len(old)
-            q.append((batch, self._seq.get(self._first_lane, 0)))
+        """Count the batch into its event window (:meth:`_split` when it reaches the window's end); keep it
+        for drawing only if the window will be drawn (decided as the window opens, :meth:`_decide_drawing`).
+        Done here rather than on the worker: the streaming thread can do it with one comparison a batch,
+        where handing every batch over made the worker sort them out again holding the GIL (~10k a second
+        at the sensor's full rate)."""
+        n = len(batch)
+        if not n:
+            return
+        end = self._window_end
+        if end is not None and batch["t"][-1] < end:  # the common case: the batch lies inside the window
+            self._window_seen += n
+            self._window_seq = self._seq.get(self._first_lane, 0)
+            if self._drawing:
+                self._parts.append(batch)
+            return
+        self._split(batch)
+
+    def _split(self, batch: np.ndarray) -> None:
+        """A batch that opens the first window, reaches the open window's end, or follows a gap: its events
+        go to the windows they fall in, and each window it completes is closed (:meth:`_close_window`)."""
+        width = self.event_window_us
+        seq = self._seq.get(self._first_lane, 0)
+        while True:
+            t0 = int(batch["t"][0])
+            if self._window_end is None:
+                self._window_end = (t0 // width + 1) * width
+                self._drawing = self._decide_drawing()
+            if t0 >= self._window_end + width:  # a gap in the stream: close the open window once,
+                self._close_window()  # then jump to the window of the next event
+                if t0 >= self._window_end:
+                    self._window_end = (t0 // width + 1) * width
+                continue
+            cut = bisect.bisect_left(batch["t"], self._window_end)  # not np.searchsorted: module docstring
+            if cut:
+                self._window_seen += cut
+                self._window_seq = seq
+                if self._drawing:
+                    self._parts.append(batch[:cut] if cut < len(batch) else batch)
+            if cut == len(batch):
+                return
+            self._close_window()
+            batch = batch[cut:]
 
     def prediction(self, lane: str, t_us: int, log_irradiance: float) -> None:
         self._scalar(lane, S.IRRADIANCE_PREDICTED, t_us, log_irradiance)
@@ -654,13 +697,10 @@ class RerunSink(Observer):
         try:
             while True:
                 stopping = self._stop
-                ev, fr = self._events, self._frames
-                while ev or fr:
-                    if ev:
-                        batches = []
-                        while ev:
-                            batches.append(ev.popleft())
-                        self._collect(batches)
+                win, fr = self._windows, self._frames
+                while win or fr:
+                    if win:
+                        self._take_window(win)
                     if fr:
                         self._log_frame(*fr.popleft())
                 if by_size:
@@ -674,105 +714,106 @@ class RerunSink(Observer):
                 if stopping:
                     break
                 self._wake.wait(self.burst_s)
-            self._close_window(final=True)
             self._flush_series()
             self._flush_images()
         except BaseException as e:  # report in close(); the control path must go on
             self._error = e
 
-    def _collect(self, items: list) -> None:
-        """Assign queued batches (in time order) to event windows, closing windows as they end.
-
-        Work is per window, not per batch: the batch that crosses a window end is found by
-        bisection on the batches' last times, and a window that will not be drawn only counts.
-        """
-        batches = [b for b, _ in items]
-        seqs = [q for _, q in items]
-        k, n = 0, len(batches)
-        last_time = lambda b: int(b["t"][-1])  # noqa: E731
-        while k < n:
-            if self._window_end is None:
-                self._window_end = (int(batches[k]["t"][0]) // self.event_window_us + 1) * self.event_window_us
-                self._drawing = self._decide_drawing()
-            if int(batches[k]["t"][0]) >= self._window_end + self.event_window_us:  # a gap in the stream:
-                self._close_window()  # close the open window once, then jump to the next event's window
-                t0 = int(batches[k]["t"][0])
-                if t0 >= self._window_end:
-                    self._window_end = (t0 // self.event_window_us + 1) * self.event_window_us
-                continue
-            end = self._window_end
-            j = bisect.bisect_left(batches, end, lo=k, hi=n, key=last_time)  # first batch reaching the end
-            if j > k:
-                self._window_seen += sum(map(len, batches[k:j]))
-                self._window_seq = seqs[j - 1]
-                if self._drawing:
-                    self._parts.extend(batches[k:j])
-            if j == n:
-                return
-            b = batches[j]
-            self._window_seq = seqs[j]
-            cut = bisect.bisect_left(b["t"], end)  # not np.searchsorted: it releases the GIL (module docstring)
-            if cut:
-                self._window_seen += cut
-                if self._drawing:
-                    self._parts.append(b[:cut])
-            self._close_window()
-            if cut < len(b):
-                batches[j] = b[cut:]
-                k = j
-            else:
-                k = j + 1
-
     def _decide_drawing(self) -> bool:
-        """Draw the next window's image unless the worker is behind or a viewer could not show it."""
+        """Draw the next window's image unless the worker is behind (more than ``max_backlog`` batches of
+        windows waiting to be drawn) or a viewer could not show it (``max_rate_hz``)."""
         if self.lossless:
             return True
-        return len(self._events) <= self.max_backlog and self._image_rate.take()
+        return self._waiting_batches() <= self.max_backlog and self._image_rate.take()
 
     def _close_window(self, final: bool = False) -> None:
-        """Draw the window's events (every k-th above the cap), log the image and the event rate."""
-        if self._window_end is None:
-            return
+        """On the streaming thread: log the window's event rate; hand a window to be drawn to the worker
+        (:meth:`_draw_window`), or count it as skipped or thinned; open the next window."""
         end = self._window_end
+        if end is None:
+            return
         seen = self._window_seen
-        rate = seen / (self.event_window_us / 1e6)
-        self.stats["events_seen"] += seen
-        self._scalar_q.append(_pack_scalar(self._key(S.EVENT_RATE), end, self._window_seq, rate))
+        stats = self._window_stats
+        stats["events_seen"] += seen
+        self._scalar_q.append(_pack_scalar(self._rate_key, end, self._window_seq, seen / (self.event_window_us / 1e6)))
         if not self._drawing:  # behind the stream or faster than a viewer refreshes: count only
-            self.stats["event_images_skipped"] += 1
-            self.stats["events_decimated"] += seen
+            stats["event_images_skipped"] += 1
+            stats["events_decimated"] += seen
         elif (
             self.image_period_us
             and self._last_image_us is not None
             and end - self._last_image_us < self.image_period_us
         ):
-            self.stats["event_images_thinned"] += 1
+            stats["event_images_thinned"] += 1
+            stats["events_decimated"] += seen
         elif seen or not final:
             self._last_image_us = end
-            stride = max(1, math.ceil(seen / self.max_events_per_window)) if self.max_events_per_window > 0 else 1
-            drawn = self._image.add_parts(self._parts, stride)  # no copy: the kernel strides, holding the GIL
-            self.stats["events_drawn"] += drawn
-            self.stats["events_decimated"] += seen - drawn
-            png = self._palette.png(self._image, self.png_level)
-            self._log_image(S.EVENTS, end, self._window_seq, png, "image/png")
-            if self.raw_points and self._parts:
-                pts = np.concatenate([p[::stride] for p in self._parts])[: self.raw_points]
-                if len(pts):
-                    colors = np.where(pts["p"][:, None] > 0, [[80, 170, 255]], [[255, 70, 60]]).astype(np.uint8)
-                    self._set_time(end, self._window_seq)
-                    self.rec.log(
-                        S.EVENT_POINTS,
-                        rr.Points2D(
-                            np.stack([pts["x"], pts["y"]], axis=1).astype(np.float32) + 0.5, colors=colors, radii=0.5
-                        ),
-                    )
-                    self.rec.reset_time()
-            self.stats["event_images"] += 1
-            self._image.clear()
+            self._queue_window((end, self._window_seq, seen, self._parts))
         self._parts = []
         self._window_seen = 0
         self._window_end = end + self.event_window_us
         self._drawing = self._decide_drawing()
+
+    def _waiting_batches(self) -> int:
+        """Event batches in windows handed to the worker and not yet drawn or dropped (each counter has
+        one writer)."""
+        return self._batches_queued - self._batches_taken - self.dropped["event_batches"]
+
+    def _queue_window(self, window: tuple) -> None:
+        """Hand a window to the worker. At most ``queue_size`` batches wait: a lossless sink waits for
+        room; a live one drops the oldest waiting windows (counted in ``event_batches_dropped``)."""
+        n = len(window[3])
+        q, size = self._windows, self._event_queue_size
+        if self.lossless:
+            while q and self._waiting_batches() + n > size and self._thread.is_alive():
+                time.sleep(0.001)
+        else:
+            while q and self._waiting_batches() + n > size:
+                try:
+                    self._drop_window(q.popleft())
+                except IndexError:  # the worker took it meanwhile
+                    break
+        self._batches_queued += n
+        q.append(window)
+
+    def _drop_window(self, window: tuple) -> None:
+        """A waiting window dropped by the streaming thread to make room (the worker is behind)."""
+        end, seq, seen, parts = window
+        self.dropped["event_batches"] += len(parts)
+        self.dropped["events"] += seen
+        self._window_stats["events_seen"] -= seen  # counted again with the dropped events in summary()
+
+    def _take_window(self, q: deque) -> None:
+        """On the worker: draw the oldest waiting window (unless the streaming thread dropped it first)."""
+        try:
+            window = q.popleft()
+        except IndexError:
+            return
+        self._draw_window(*window)
+        self._batches_taken += len(window[3])
+
+    def _draw_window(self, end: int, seq: int, seen: int, parts: list) -> None:
+        """Draw a window's events (every k-th above the cap) and keep its image for the next send."""
+        stride = max(1, math.ceil(seen / self.max_events_per_window)) if self.max_events_per_window > 0 else 1
+        drawn = self._image.add_parts(parts, stride)  # no copy: the kernel strides, holding the GIL
+        self.stats["events_drawn"] += drawn
+        self.stats["events_decimated"] += seen - drawn
+        png = self._palette.png(self._image, self.png_level)
+        self._log_image(S.EVENTS, end, seq, png, "image/png")
+        if self.raw_points and parts:
+            pts = np.concatenate([p[::stride] for p in parts])[: self.raw_points]
+            if len(pts):
+                colors = np.where(pts["p"][:, None] > 0, [[80, 170, 255]], [[255, 70, 60]]).astype(np.uint8)
+                self._set_time(end, seq)
+                self.rec.log(
+                    S.EVENT_POINTS,
+                    rr.Points2D(
+                        np.stack([pts["x"], pts["y"]], axis=1).astype(np.float32) + 0.5, colors=colors, radii=0.5
+                    ),
+                )
+                self.rec.reset_time()
+        self.stats["event_images"] += 1
+        self._image.clear()
 
     def _set_time(self, t_us: int, seq: int) -> None:
         self.rec.set_time(S.TIME, duration=np.timedelta64(int(t_us) - self.origin_us, "us"))
@@ -924,6 +965,7 @@ class RerunSink(Observer):
     def close(self) -> dict:
         """Drain the queue, send the last series, flush the recording; returns the stats."""
         if not self._stop:
+            self._close_window(final=True)  # the last window: its rate, and its image if it has events
             for (lane, leaf), (t, value) in self._commanded.items():  # each command holds to the end of the run
                 if self._now_us > t:
                     self._scalar(lane, leaf, self._now_us, value)
@@ -944,6 +986,8 @@ class RerunSink(Observer):
     def summary(self) -> dict:
         """Counters: what was logged, and what was dropped or decimated to keep up."""
         s = dict(self.stats)
+        for k, v in self._window_stats.items():  # counted on the streaming thread
+            s[k] += v
         s["frames_dropped"] = self.dropped["frames"]
         s["event_batches_dropped"] = self.dropped["event_batches"]
         s["events_seen"] += self.dropped["events"]
