@@ -467,7 +467,7 @@ class RerunSink(Observer):
         self._paths: list[str] = []  # entity path of each series key
         self._path_keys: dict[str, int] = {}
         self._key_lock = threading.Lock()  # a new series may be named on either thread
-        self._key(S.EVENT_RATE)  # named first: keys, and so the chunk order of lossless files, are fixed
+        self._rate_key = self._key(S.EVENT_RATE)  # named first: keys, so lossless files' chunk order, are fixed
         self._text_q: deque = deque()
         self._seq = {lane: 0 for lane in self.lanes}  # newest frame per lane (the `frame` timeline)
         self._commanded: dict[tuple, tuple[int, float]] = {}  # (lane, leaf) -> the command in force (t_us, value)
@@ -490,11 +490,11 @@ class RerunSink(Observer):
         self._window_seq = 0
         self._parts: list[np.ndarray] = []
         self._drawing = True
-        self._rate_key = self._key(S.EVENT_RATE)
         self._batches_queued = 0  # batches in windows handed to the worker (streaming thread)
         self._batches_taken = 0  # ... of which the worker has taken (worker); dropped ones: self.dropped
-        self._window_stats = {"events_seen": 0, "events_decimated": 0, "event_images_skipped": 0}
-        self._window_stats["event_images_thinned"] = 0  # (written by the streaming thread only)
+        self._window_stats = dict.fromkeys(  # counted by the streaming thread only; summary() adds them up
+            ("events_seen", "events_decimated", "event_images_skipped", "event_images_thinned"), 0
+        )
         self.stats = {
             "frames_logged": 0,
             "events_seen": 0,
@@ -760,8 +760,9 @@ class RerunSink(Observer):
         return self._batches_queued - self._batches_taken - self.dropped["event_batches"]
 
     def _queue_window(self, window: tuple) -> None:
-        """Hand a window to the worker. At most ``queue_size`` batches wait: a lossless sink waits for
-        room; a live one drops the oldest waiting windows (counted in ``event_batches_dropped``)."""
+        """Hand a window to the worker. At most ``queue_size`` batches wait (or the one window, if it alone
+        holds more): a lossless sink waits for room; a live one drops the oldest waiting windows (counted
+        in ``event_batches_dropped``)."""
         n = len(window[3])
         q, size = self._windows, self._event_queue_size
         if self.lossless:
