@@ -240,6 +240,19 @@ def test_sink_decimates_by_stride_and_counts(tmp_path):
     assert np.allclose(rate[1:-1], 200 * 1e6 / 1_000)  # 200 events per ms (the first window starts 1 ms late)
 
 
+def test_thinned_event_images_count_their_events_as_not_drawn(tmp_path):
+    """``image_period_us`` thins the event images by sensor time; the events of a thinned window are not
+    drawn and are counted so: drawn + decimated = seen, as for skipped and strided windows."""
+    rec = open_rec(tmp_path / "thin.rrd")
+    options = SinkOptions(event_window_us=10_000, image_period_us=30_000, lossless=True)
+    sink = RerunSink(rec, ["camera"], SENSOR.height, SENSOR.width, options)
+    Pipeline(ListSource(stream(n_frames=10)), [nec_lane()], observers=[sink]).run()
+    s = sink.close()
+    rr.disconnect(rec)
+    assert s["event_images_thinned"] >= 5  # 10 windows of 10 ms, an image at most every 30 ms
+    assert s["events_drawn"] + s["events_decimated"] == s["events_seen"] == 10 * 10 * 200
+
+
 def test_event_image_counts_and_colours():
     ev = np.zeros(5, EVENT_DTYPE)
     ev["x"], ev["y"], ev["p"] = [1, 1, 1, 2, 3], [0, 0, 0, 1, 2], [1, 1, -1, -1, 1]
